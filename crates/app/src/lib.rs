@@ -1,0 +1,1 @@
+//! kilotouch application library: the command-line interface and (later) the GUI.

@@ -1,0 +1,1 @@
+//! kilotouch-rig: see README.md. Implemented in a later issue.

@@ -1,0 +1,1 @@
+//! kilotouch-study: see README.md. Implemented in a later issue.
