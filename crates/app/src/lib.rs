@@ -1,1 +1,9 @@
-//! kilotouch application library: the command-line interface and (later) the GUI.
+//! kilotouch application library: the headless command-line interface (and,
+//! in a later milestone, the egui/wgpu GUI).
+//!
+//! The binary `kilotouch` is a thin wrapper around [`cli::main_entry`].
+
+pub mod cli;
+pub mod commands;
+pub mod csvio;
+pub mod output;

@@ -1,0 +1,77 @@
+//! Command-line interface: argument parsing and dispatch.
+//!
+//! Every headless command prints JSON on stdout with `--json` (one object),
+//! a human-readable table otherwise; errors go to stderr with a non-zero exit
+//! status (2 for usage errors, 1 for everything else).
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use crate::commands;
+
+/// kilotouch — dual-stage haptic psychophysics workbench.
+#[derive(Debug, Parser)]
+#[command(name = "kilotouch", version, about, long_about = None)]
+pub struct Cli {
+    /// Headless command; without one, kilotouch prints this help.
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+/// The headless commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Response of the digital Linkwitz–Riley crossover at given frequencies.
+    Crossover(commands::crossover::Args),
+    /// Welch power spectral density of one CSV column (scipy.signal.welch conventions).
+    Psd(commands::psd::Args),
+    /// H1 frequency-response estimate with coherence between two CSV columns.
+    Frf(commands::frf::Args),
+    /// Fit a continuous-time transfer function to frequency-response data (columns f,re,im[,weight]).
+    Tfest(commands::tfest::Args),
+    /// Measure the speed of the signal chain and of Welch's estimator.
+    Bench(commands::bench::Args),
+}
+
+/// Parse arguments, run, and map errors to exit codes.
+pub fn main_entry() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            // clap prints help/version to stdout with exit 0, usage errors to stderr with 2.
+            let _ = e.print();
+            return if e.use_stderr() { ExitCode::from(2) } else { ExitCode::SUCCESS };
+        }
+    };
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("kilotouch: error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Run a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        None => {
+            use clap::CommandFactory;
+            Cli::command().print_help()?;
+            println!();
+            Ok(())
+        }
+        Some(Command::Crossover(a)) => commands::crossover::run(&a),
+        Some(Command::Psd(a)) => commands::psd::run(&a),
+        Some(Command::Frf(a)) => commands::frf::run(&a),
+        Some(Command::Tfest(a)) => commands::tfest::run(&a),
+        Some(Command::Bench(a)) => commands::bench::run(&a),
+    }
+}
+
+/// Path argument helper for commands that read files.
+pub type FileArg = PathBuf;

@@ -1,0 +1,7 @@
+//! One module per headless command.
+
+pub mod bench;
+pub mod crossover;
+pub mod frf;
+pub mod psd;
+pub mod tfest;

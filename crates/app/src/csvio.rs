@@ -1,0 +1,227 @@
+//! CSV input for the headless commands, with errors that name the file, the
+//! line and the column.
+//!
+//! Files must have a header row. Cells are parsed as `f64`; surrounding
+//! whitespace is ignored. A missing column, a non-numeric or non-finite cell,
+//! a ragged row or an empty file is an error, never a panic.
+
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Errors reading numeric CSV data.
+#[derive(Debug, Error)]
+pub enum CsvError {
+    /// The file could not be opened or read.
+    #[error("{path}: cannot read: {source}")]
+    Io {
+        /// File path.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// The CSV layer failed (bad quoting, invalid UTF-8, …).
+    #[error("{path}:{line}: malformed CSV: {msg}")]
+    Malformed {
+        /// File path.
+        path: PathBuf,
+        /// 1-based line number.
+        line: u64,
+        /// Description from the CSV reader.
+        msg: String,
+    },
+    /// The file has no header row.
+    #[error("{path}: empty file (a header row naming the columns is required)")]
+    Empty {
+        /// File path.
+        path: PathBuf,
+    },
+    /// The header has no column with the requested name.
+    #[error("{path}: no column named `{name}` (columns are: {available})")]
+    MissingColumn {
+        /// File path.
+        path: PathBuf,
+        /// Requested column.
+        name: String,
+        /// The header's column names, comma separated.
+        available: String,
+    },
+    /// A row has a different number of fields than the header.
+    #[error("{path}:{line}: ragged row: {found} field(s), the header has {expected}")]
+    Ragged {
+        /// File path.
+        path: PathBuf,
+        /// 1-based line number.
+        line: u64,
+        /// Fields in the header.
+        expected: usize,
+        /// Fields in this row.
+        found: usize,
+    },
+    /// A cell is not a finite number.
+    #[error("{path}:{line}: column `{column}`: `{cell}` is not a finite number")]
+    NotNumeric {
+        /// File path.
+        path: PathBuf,
+        /// 1-based line number.
+        line: u64,
+        /// Column name.
+        column: String,
+        /// The cell text.
+        cell: String,
+    },
+    /// The file has a header but no data rows.
+    #[error("{path}: no data rows after the header")]
+    NoRows {
+        /// File path.
+        path: PathBuf,
+    },
+}
+
+/// Numeric columns read from a CSV file, in the order requested.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Columns {
+    /// Names as requested.
+    pub names: Vec<String>,
+    /// One vector per requested column, all the same length.
+    pub data: Vec<Vec<f64>>,
+}
+
+impl Columns {
+    /// The column with this name (one that was requested).
+    pub fn get(&self, name: &str) -> Option<&[f64]> {
+        self.names
+            .iter()
+            .position(|n| n == name)
+            .map(|i| self.data[i].as_slice())
+    }
+}
+
+/// Read the named columns (required) and the optional ones that exist.
+///
+/// Every row is checked for the header's field count; only requested columns
+/// are parsed. Optional columns absent from the header are skipped silently.
+pub fn read_columns(path: &Path, required: &[&str], optional: &[&str]) -> Result<Columns, CsvError> {
+    let file = std::fs::File::open(path).map_err(|source| CsvError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    read_columns_from(file, path, required, optional)
+}
+
+/// As [`read_columns`], from any reader; `path` is used in messages only.
+pub fn read_columns_from<R: std::io::Read>(
+    reader: R,
+    path: &Path,
+    required: &[&str],
+    optional: &[&str],
+) -> Result<Columns, CsvError> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(reader);
+    let malformed = |e: csv::Error| CsvError::Malformed {
+        path: path.to_owned(),
+        line: e.position().map(|p| p.line()).unwrap_or(0),
+        msg: e.to_string(),
+    };
+    let headers = rdr.headers().map_err(malformed)?.clone();
+    if headers.is_empty() || (headers.len() == 1 && headers[0].is_empty()) {
+        return Err(CsvError::Empty {
+            path: path.to_owned(),
+        });
+    }
+    let available = headers.iter().collect::<Vec<_>>().join(", ");
+    let mut idx = Vec::new();
+    let mut names = Vec::new();
+    for &name in required {
+        let i = headers
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| CsvError::MissingColumn {
+                path: path.to_owned(),
+                name: name.to_owned(),
+                available: available.clone(),
+            })?;
+        idx.push(i);
+        names.push(name.to_owned());
+    }
+    for &name in optional {
+        if let Some(i) = headers.iter().position(|h| h == name) {
+            idx.push(i);
+            names.push(name.to_owned());
+        }
+    }
+    let mut data = vec![Vec::new(); idx.len()];
+    let mut record = csv::StringRecord::new();
+    loop {
+        match rdr.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(malformed(e)),
+        }
+        let line = record.position().map(|p| p.line()).unwrap_or(0);
+        if record.len() != headers.len() {
+            return Err(CsvError::Ragged {
+                path: path.to_owned(),
+                line,
+                expected: headers.len(),
+                found: record.len(),
+            });
+        }
+        for (k, &i) in idx.iter().enumerate() {
+            let cell = &record[i];
+            match cell.parse::<f64>() {
+                Ok(v) if v.is_finite() => data[k].push(v),
+                _ => {
+                    return Err(CsvError::NotNumeric {
+                        path: path.to_owned(),
+                        line,
+                        column: names[k].clone(),
+                        cell: cell.to_owned(),
+                    });
+                }
+            }
+        }
+    }
+    if data.first().is_none_or(|c| c.is_empty()) {
+        return Err(CsvError::NoRows {
+            path: path.to_owned(),
+        });
+    }
+    Ok(Columns { names, data })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &str, req: &[&str], opt: &[&str]) -> Result<Columns, CsvError> {
+        read_columns_from(text.as_bytes(), Path::new("t.csv"), req, opt)
+    }
+
+    #[test]
+    fn reads_named_columns_in_request_order() {
+        let c = read("a,b,c\n1,2,3\n4,5,6\n", &["c", "a"], &["w"]).unwrap();
+        assert_eq!(c.get("c").unwrap(), &[3.0, 6.0]);
+        assert_eq!(c.get("a").unwrap(), &[1.0, 4.0]);
+        assert!(c.get("w").is_none());
+    }
+
+    #[test]
+    fn errors_name_file_line_and_column() {
+        let e = read("a,b\n1,2\n3,x\n", &["b"], &[]).unwrap_err().to_string();
+        assert!(e.contains("t.csv:3") && e.contains("`b`") && e.contains("`x`"), "{e}");
+        let e = read("a,b\n1,2\n3\n", &["a"], &[]).unwrap_err().to_string();
+        assert!(e.contains("t.csv:3") && e.contains("ragged"), "{e}");
+        let e = read("a,b\n1,2\n", &["z"], &[]).unwrap_err().to_string();
+        assert!(e.contains("no column named `z`") && e.contains("a, b"), "{e}");
+        let e = read("", &["a"], &[]).unwrap_err().to_string();
+        assert!(e.contains("empty file"), "{e}");
+        let e = read("a\n", &["a"], &[]).unwrap_err().to_string();
+        assert!(e.contains("no data rows"), "{e}");
+        let e = read("a\nNaN\n", &["a"], &[]).unwrap_err().to_string();
+        assert!(e.contains("not a finite number"), "{e}");
+    }
+}
