@@ -133,8 +133,10 @@ pub struct FitResult {
     /// Number of Sanathanan–Koerner iterations performed after the Levy
     /// initialisation.
     pub iterations: usize,
-    /// True when the relative coefficient change fell below `tol` (always
-    /// true for na = 0, where the problem is linear).
+    /// True when the relative coefficient change fell below `tol` within
+    /// `max_iter` iterations (always true for na = 0, where the problem is
+    /// linear; false for a plain Levy fit, `max_iter = 0`). When false, the
+    /// last iterate is returned.
     pub converged: bool,
     /// Number of right-half-plane poles reflected when `enforce_stability` is set.
     pub reflected_poles: usize,
@@ -146,9 +148,10 @@ pub struct FitResult {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum CoherenceWeighting {
     /// w = γ²/(1 − γ²): inverse of the relative variance of the H1 estimate,
-    /// var(Ĥ)/|H|² ≈ (1 − γ²)/(2 n_d γ²) (Bendat & Piersol; Pintelon &
-    /// Schoukens 2012, ch. 2). Statistically efficient. Coherences within
-    /// 1e-12 of 1 are clamped (w ≤ ≈1e12).
+    /// var(|Ĥ|)/|H|² ≈ (1 − γ²)/(2 n_d γ²) for n_d averages (Bendat &
+    /// Piersol, *Random Data*, 4th ed. 2010, random errors of frequency
+    /// response estimates). Coherences within 1e-12 of 1 are clamped
+    /// (w ≤ ≈1e12).
     SignalToNoise,
     /// w = γ²: a bounded, more conservative weighting.
     Coherence,
@@ -226,26 +229,25 @@ pub fn fit_tf(
     let points = prepare(f_hz, h, weights, nb, na, opts)?;
     let (omega0, points) = scale_frequencies(points, opts.frequency_scaling);
 
-    let n_unknowns = nb + 1 + na;
     let ones = vec![1.0; points.len()];
 
     // Levy (1959): unweighted by A.
     let mut sol = solve_linearised(&points, &ones, nb, na, opts.column_scaling)?;
-    let mut theta = sol.x.clone();
     let mut iterations = 0;
     let mut converged = na == 0;
 
     // Sanathanan–Koerner (1963): divide by |A_(k−1)(σ_i)|.
     if na > 0 {
         for _ in 0..opts.max_iter {
-            let a_prev = monic_den(&theta[nb + 1..]);
+            let a_prev = monic_den(&sol.x[nb + 1..]);
             let inv_a: Vec<f64> = points
                 .iter()
                 .map(|p| 1.0 / poly::polyval(&a_prev, p.sigma).norm())
                 .collect();
             if inv_a.iter().any(|v| !v.is_finite()) {
                 return Err(DspError::Numerical(
-                    "Sanathanan–Koerner weight is infinite: the denominator estimate vanishes at a data frequency (pole on the jω axis)"
+                    "Sanathanan–Koerner weight is infinite: the denominator estimate vanishes \
+                     at a data frequency (pole on the jω axis)"
                         .into(),
                 ));
             }
@@ -254,12 +256,11 @@ pub fn fit_tf(
             let diff = next
                 .x
                 .iter()
-                .zip(&theta)
+                .zip(&sol.x)
                 .map(|(a, b)| (a - b).powi(2))
                 .sum::<f64>()
                 .sqrt();
             let norm = next.x.iter().map(|a| a * a).sum::<f64>().sqrt();
-            theta = next.x.clone();
             sol = next;
             if diff <= opts.tol * norm {
                 converged = true;
@@ -267,7 +268,7 @@ pub fn fit_tf(
             }
         }
     }
-    debug_assert_eq!(theta.len(), n_unknowns);
+    let theta = &sol.x;
 
     // Scaled coefficients, descending powers of σ.
     let beta: Vec<f64> = theta[..=nb].iter().rev().copied().collect();

@@ -2,7 +2,7 @@
 //! flatness report.
 //!
 //! Band x (an integer, x = 0 is the 1 kHz band) has the exact mid-band
-//! frequency and edges (IEC 61260-1:2014 §5.2–5.4, ANSI S1.11)
+//! frequency and edges (IEC 61260-1:2014, base-10 system; ANSI S1.11)
 //!
 //! ```text
 //! G = 10^(3/10)                      (octave frequency ratio, base 10)
@@ -26,7 +26,7 @@ pub const OCTAVE_RATIO: f64 = 1.995_262_314_968_879_5;
 pub const REFERENCE_HZ: f64 = 1000.0;
 
 /// R10 preferred-number mantissas ×100 for x mod 10 = 0 … 9
-/// (IEC 61260-1 Annex E / ISO 266 nominal frequencies).
+/// (the nominal mid-band frequencies of IEC 61260-1 / ISO 266).
 const R10_MANTISSA: [u32; 10] = [100, 125, 160, 200, 250, 315, 400, 500, 630, 800];
 
 /// A one-third-octave band.
