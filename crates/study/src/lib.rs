@@ -8,4 +8,5 @@
 //! Equations, references and the protocol format are documented in
 //! `docs/theory/study.md`.
 
+pub mod counterbalance;
 pub mod stats;
