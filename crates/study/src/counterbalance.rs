@@ -119,6 +119,21 @@ pub fn williams(n: usize) -> Result<LatinSquare> {
     Ok(LatinSquare { n, rows })
 }
 
+/// A one-row "square" `0, 1, …, n−1`: no counterbalancing, every
+/// participant runs the conditions in the listed order.
+///
+/// # Errors
+/// [`CounterbalanceError::NoConditions`] for n = 0.
+pub fn fixed(n: usize) -> Result<LatinSquare> {
+    if n == 0 {
+        return Err(CounterbalanceError::NoConditions);
+    }
+    Ok(LatinSquare {
+        n,
+        rows: vec![(0..n).collect()],
+    })
+}
+
 /// Uniform integer in `0..bound` (bound ≥ 1) by rejection: unbiased.
 fn below(rng: &mut ChaCha20Rng, bound: u64) -> u64 {
     let zone = u64::MAX - (u64::MAX % bound + 1) % bound;

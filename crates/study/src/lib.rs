@@ -9,4 +9,5 @@
 //! `docs/theory/study.md`.
 
 pub mod counterbalance;
+pub mod protocol;
 pub mod stats;
