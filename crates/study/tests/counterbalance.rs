@@ -110,9 +110,14 @@ fn eight_participants_three_conditions_report_the_repeats() {
         assert_eq!(a.row, a.participant % 6);
         assert_eq!(a.order, plan.square.rows()[a.row]);
     }
-    // Positions are then unbalanced: the two extra rows put conditions
-    // 0 1 2 and 1 2 0 in the positions, e.g. condition 0 is first 3 times.
-    assert!(rep.position_spread > 0);
+    // Positions are then unbalanced: each condition is first twice in the
+    // six rows, and the extra rows 0 1 2 and 1 2 0 put 0 and 1 first once
+    // more.
+    assert_eq!(plan.square.rows()[0], vec![0, 1, 2]);
+    assert_eq!(plan.square.rows()[1], vec![1, 2, 0]);
+    let first: Vec<usize> = rep.position_counts.iter().map(|r| r[0]).collect();
+    assert_eq!(first, vec![3, 3, 2]);
+    assert_eq!(rep.position_spread, 1);
     let counted: usize = rep.position_counts.iter().map(|r| r[0]).sum();
     assert_eq!(counted, 8);
     let text = rep.describe(&["V", "P", "D"]);

@@ -502,6 +502,48 @@ fn wilcoxon_large_sample_without_ties_switches_to_normal() {
 }
 
 #[test]
+fn wilcoxon_exact_request_is_capped_for_huge_samples() {
+    let m = stats::EXACT_MAX_N + 1;
+    let d: Vec<f64> = (1..=m)
+        .map(|i| {
+            if i % 2 == 0 {
+                i as f64
+            } else {
+                -(i as f64) * 0.999
+            }
+        })
+        .collect();
+    let opts = WilcoxonOptions {
+        method: WilcoxonMethod::Exact,
+        continuity: false,
+    };
+    let r = stats::wilcoxon_signed_rank_diffs(&d, opts).unwrap();
+    assert_eq!(r.method, WilcoxonMethodUsed::Normal);
+    let r = stats::wilcoxon_signed_rank_diffs(&d[..stats::EXACT_MAX_N], opts).unwrap();
+    assert_eq!(r.method, WilcoxonMethodUsed::Exact);
+    assert!(r.p > 0.0 && r.p <= 1.0);
+}
+
+/// Hard case: a huge common offset (1e8, e.g. positions in nm from a far
+/// origin) with effects of order 1e-2 must not change F, ε or Friedman.
+#[test]
+fn large_offsets_do_not_destroy_precision() {
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let m = random_matrix(&mut rng, 12, 3);
+    let small: Vec<f64> = m.values().iter().map(|v| 0.01 * v).collect();
+    let offset: Vec<f64> = small.iter().map(|v| 1e8 + v).collect();
+    let a = CellMatrix::new(m.subjects().to_vec(), m.conditions().to_vec(), small).unwrap();
+    let b = CellMatrix::new(m.subjects().to_vec(), m.conditions().to_vec(), offset).unwrap();
+    let (ra, rb) = (stats::rm_anova(&a).unwrap(), stats::rm_anova(&b).unwrap());
+    close(rb.f, ra.f, 1e-5 * ra.f, "F with offset");
+    close(rb.eps_gg, ra.eps_gg, 1e-5, "GG with offset");
+    close(rb.p, ra.p, 1e-5, "p with offset");
+    let oa = stats::one_way_anova(&[a.column(0), a.column(1), a.column(2)]).unwrap();
+    let ob = stats::one_way_anova(&[b.column(0), b.column(1), b.column(2)]).unwrap();
+    close(ob.f, oa.f, 1e-5 * oa.f, "oneway F with offset");
+}
+
+#[test]
 fn pairwise_wilcoxon_matches_single_tests() {
     let m = rm_example();
     let rows = stats::pairwise_wilcoxon(&m, WilcoxonOptions::default()).unwrap();

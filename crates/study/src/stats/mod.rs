@@ -36,9 +36,9 @@ pub use design::{CellMatrix, Design};
 pub use error::{MissingCell, Result, StatsError};
 pub use friedman::{Friedman, friedman};
 pub use pairwise::{
-    PairwiseComparison, TTest, WilcoxonMethod, WilcoxonMethodUsed, WilcoxonOptions, WilcoxonTest,
-    holm, one_sample_t, paired_t, pairwise_t, pairwise_wilcoxon, wilcoxon_signed_rank,
-    wilcoxon_signed_rank_diffs,
+    EXACT_MAX_N, PairwiseComparison, TTest, WilcoxonMethod, WilcoxonMethodUsed, WilcoxonOptions,
+    WilcoxonTest, holm, one_sample_t, paired_t, pairwise_t, pairwise_wilcoxon,
+    wilcoxon_signed_rank, wilcoxon_signed_rank_diffs,
 };
 
 /// The omnibus tests the CLI offers (`--test oneway|rm|friedman`).

@@ -123,11 +123,18 @@ pub enum WilcoxonMethod {
     Auto,
     /// Exact null distribution of R⁺ given the observed (mid-)ranks, by
     /// enumerating all 2^m sign patterns through a convolution (equals the
-    /// classical Wilcoxon distribution without ties). Cost O(m³).
+    /// classical Wilcoxon distribution without ties). Cost O(m³) time and
+    /// O(m²) memory, so above [`EXACT_MAX_N`] non-zero differences the
+    /// normal approximation is used instead (reported in
+    /// [`WilcoxonTest::method`]).
     Exact,
     /// Normal approximation with tie-corrected variance.
     Asymptotic,
 }
+
+/// Largest number of non-zero differences for which
+/// [`WilcoxonMethod::Exact`] computes the exact distribution.
+pub const EXACT_MAX_N: usize = 1000;
 
 /// Options of [`wilcoxon_signed_rank`] (defaults = scipy's defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -243,6 +250,7 @@ pub fn wilcoxon_signed_rank_diffs(d: &[f64], opts: WilcoxonOptions) -> Result<Wi
     let has_ties = !ties.is_empty();
 
     let method = match opts.method {
+        WilcoxonMethod::Exact if m > EXACT_MAX_N => WilcoxonMethodUsed::Normal,
         WilcoxonMethod::Exact if has_ties || n_zero > 0 => WilcoxonMethodUsed::ExactConditional,
         WilcoxonMethod::Exact => WilcoxonMethodUsed::Exact,
         WilcoxonMethod::Asymptotic => WilcoxonMethodUsed::Normal,
