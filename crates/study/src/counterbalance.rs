@@ -201,8 +201,9 @@ pub struct BalanceReport {
     pub complete_blocks: usize,
     /// Participants of the incomplete last pass, participants mod rows.
     pub remainder: usize,
-    /// True when participants is a non-zero multiple of rows: positions and
-    /// first-order carry-over are then exactly balanced.
+    /// True when every row is used equally often and positions and
+    /// first-order carry-over are exactly balanced (for a Williams square:
+    /// participants is a non-zero multiple of rows).
     pub balanced: bool,
     /// Times each row is used.
     pub row_usage: Vec<usize>,
@@ -347,7 +348,10 @@ pub fn balance_report(square: &LatinSquare, assignments: &[Assignment]) -> Balan
         participants,
         complete_blocks: participants / rows,
         remainder: participants % rows,
-        balanced: participants > 0 && participants.is_multiple_of(rows),
+        balanced: participants > 0
+            && participants.is_multiple_of(rows)
+            && position_spread == 0
+            && carryover_spread == 0,
         row_usage,
         repeated,
         overrepresented,

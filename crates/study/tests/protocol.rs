@@ -123,6 +123,21 @@ fn blind_protocol() {
 }
 
 #[test]
+fn fixed_scheme_gives_everyone_the_listed_order() {
+    let src = PAPER_TOML.replacen("scheme = \"williams\"", "scheme = \"fixed\"", 1);
+    let p = Protocol::from_toml_str(&src, "fixed.toml").unwrap();
+    assert_eq!(p.counterbalance.scheme, Scheme::Fixed);
+    let t = p.assignment().unwrap();
+    assert_eq!(t.orders, vec![p.conditions.clone()]);
+    assert!(t.participants.iter().all(|r| r.sessions == p.conditions));
+    assert_eq!(t.seed, None);
+    // Same order for all 8: positions are maximally unbalanced.
+    assert!(!t.report.balanced);
+    assert_eq!(t.report.position_spread, 8);
+    assert_eq!(t.report.repeated[0].count, 8);
+}
+
+#[test]
 fn defaults_fill_missing_keys() {
     let p = Protocol::from_toml_str(
         "name = \"min\"\nparticipants = 2\n[task.circling]\n",
