@@ -1,0 +1,847 @@
+//! Study protocol files (TOML).
+//!
+//! A protocol fixes everything a session runner needs: the conditions, the
+//! number of participants, trials per session, the training block, the task
+//! and its parameters, tolerances, counterbalancing and the study seed. Files
+//! are parsed with serde (`deny_unknown_fields` everywhere) and validated on
+//! load; every error names the file, the line and column (from toml's spans)
+//! and the field. The format, with every key, unit and default, is documented
+//! in `docs/theory/study.md`.
+//!
+//! Built-in protocols are embedded with `include_str!` so the binary needs no
+//! files: [`PAPER_TOML`] (the paper's validation experiment, §4.3) and
+//! [`BLIND_TOML`] (blind navigation, §4.2).
+
+use std::fmt;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+use toml::Spanned;
+use toml::de::{DeTable, DeValue};
+
+use crate::counterbalance::{self, BalanceReport, CounterbalanceError};
+
+/// The paper's circling experiment: 8 participants × 3 sessions (V, P, D) ×
+/// 10 trials.
+pub const PAPER_TOML: &str = include_str!("../../../assets/protocols/paper.toml");
+
+/// Blind navigation (§4.2): 5 participants, dual-stage condition only.
+pub const BLIND_TOML: &str = include_str!("../../../assets/protocols/blind.toml");
+
+/// Names of the built-in protocols accepted by [`Protocol::builtin`].
+pub const BUILTIN_NAMES: [&str; 2] = ["paper", "blind"];
+
+// ------------------------------------------------------------------ errors
+
+/// Where in a protocol file something went wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Location {
+    /// File name (or `<builtin:paper>` etc.).
+    pub file: String,
+    /// 1-based line, when known.
+    pub line: Option<usize>,
+    /// 1-based column (characters), when known.
+    pub column: Option<usize>,
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+            if let Some(col) = self.column {
+                write!(f, ":{col}")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A semantic problem found by [`Protocol::validate`].
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error("field `{field}`: {message}")]
+pub struct Invalid {
+    /// Dotted path of the field, e.g. `task.circling.timeout_s` or
+    /// `conditions[2]`.
+    pub field: String,
+    /// What is wrong and what is expected.
+    pub message: String,
+}
+
+/// Errors of loading a protocol.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum ProtocolError {
+    /// The file cannot be read.
+    #[error("{file}: cannot read protocol: {source}")]
+    Io {
+        /// File name.
+        file: String,
+        /// Underlying I/O error.
+        source: std::io::Error,
+    },
+    /// TOML syntax error or a type / unknown-key error from deserialisation.
+    #[error("{location}: {}{message}", field.as_ref().map(|f| format!("field `{f}`: ")).unwrap_or_default())]
+    Parse {
+        /// Where.
+        location: Location,
+        /// Field path at the error position, when it can be determined.
+        field: Option<String>,
+        /// toml's message (e.g. "unknown field `foo`, expected one of …").
+        message: String,
+    },
+    /// The file parses but a value is out of range or inconsistent.
+    #[error("{location}: {invalid}")]
+    Invalid {
+        /// Where (the offending value, or its table when the key is
+        /// missing).
+        location: Location,
+        /// Field and message.
+        invalid: Invalid,
+    },
+    /// Unknown built-in protocol name.
+    #[error("unknown built-in protocol `{0}` (expected one of: paper, blind)")]
+    UnknownBuiltin(String),
+    /// Counterbalancing failed (cannot happen for a validated protocol).
+    #[error("counterbalancing: {0}")]
+    Counterbalance(#[from] CounterbalanceError),
+}
+
+// ------------------------------------------------------------------ types
+
+/// An experimental condition (paper §4.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Condition {
+    /// Vision only: camera display of the scene, no haptic force.
+    V,
+    /// Vision + Pantograph channel only (conventional haptic interface, low
+    /// band DC–200 Hz, no Haptuator).
+    P,
+    /// Vision + dual-stage interface (Pantograph + Haptuator through the
+    /// Linkwitz–Riley crossover, flat to 1 kHz).
+    D,
+}
+
+impl Condition {
+    /// All conditions in the paper's order.
+    pub const ALL: [Condition; 3] = [Condition::V, Condition::P, Condition::D];
+
+    /// One-letter code used in files and tables.
+    pub fn code(self) -> &'static str {
+        match self {
+            Condition::V => "V",
+            Condition::P => "P",
+            Condition::D => "D",
+        }
+    }
+
+    /// Human description.
+    pub fn description(self) -> &'static str {
+        match self {
+            Condition::V => "vision only, no haptic force",
+            Condition::P => "vision + Pantograph channel only",
+            Condition::D => "vision + dual-stage interface (Pantograph + Haptuator)",
+        }
+    }
+
+    /// Whether the Pantograph renders force.
+    pub fn pantograph(self) -> bool {
+        matches!(self, Condition::P | Condition::D)
+    }
+
+    /// Whether the Haptuator (high band) is driven.
+    pub fn haptuator(self) -> bool {
+        matches!(self, Condition::D)
+    }
+
+    /// Whether any haptic feedback is given.
+    pub fn haptic(self) -> bool {
+        self.pantograph()
+    }
+}
+
+impl fmt::Display for Condition {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.code())
+    }
+}
+
+fn default_conditions() -> Vec<Condition> {
+    Condition::ALL.to_vec()
+}
+
+fn default_trials() -> u32 {
+    10
+}
+
+/// The training block run before the measured sessions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Training {
+    /// Practice trials per condition (0 = no training). Default 3.
+    pub practice_trials: u32,
+    /// Upper bound of the training block, minutes (the paper: 10–15 min).
+    /// Default 15.
+    pub max_duration_min: f64,
+}
+
+impl Default for Training {
+    fn default() -> Self {
+        Self {
+            practice_trials: 3,
+            max_duration_min: 15.0,
+        }
+    }
+}
+
+/// Circling task (§4.3): keep the manipulated bead in contact with a fixed
+/// spherical obstacle while going around it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CirclingTask {
+    /// Obstacle radius, µm. Default 5 (the paper's 10 µm glass beads).
+    pub obstacle_radius_um: f64,
+    /// Manipulated (trapped) bead radius, µm. Default 1.5 (3 µm bead).
+    pub bead_radius_um: f64,
+    /// Trial time-out, s. Default 120.
+    pub timeout_s: f64,
+    /// Minimum fraction of the trajectory in contact for a successful trial
+    /// (the paper rejects trials with contact ≤ 50 %). Default 0.5.
+    pub min_contact_fraction: f64,
+    /// Bead-to-trap-centre distance beyond which the bead has escaped the
+    /// trap (trial failed), µm. Default 1.5 (one bead radius).
+    pub escape_distance_um: f64,
+    /// Revolutions around the obstacle that complete a trial. Default 1.
+    pub revolutions: f64,
+}
+
+impl Default for CirclingTask {
+    fn default() -> Self {
+        Self {
+            obstacle_radius_um: 5.0,
+            bead_radius_um: 1.5,
+            timeout_s: 120.0,
+            min_contact_fraction: 0.5,
+            escape_distance_um: 1.5,
+            revolutions: 1.0,
+        }
+    }
+}
+
+/// Blind navigation task (§4.2): without vision, move the bead until it is
+/// felt to touch the obstacle, then retreat along the surface normal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BlindNavigationTask {
+    /// Obstacle radius, µm. Default 5.
+    pub obstacle_radius_um: f64,
+    /// Manipulated bead radius, µm. Default 1.5.
+    pub bead_radius_um: f64,
+    /// Surface-to-surface gap between bead and obstacle at the start, µm.
+    /// Default 10.
+    pub start_distance_um: f64,
+    /// Largest angle between the retreat direction and the surface normal
+    /// at contact that counts as success, degrees. Default 30.
+    pub success_angle_deg: f64,
+    /// Distance moved away from the contact point that ends the trial, µm.
+    /// Default 3.
+    pub retreat_distance_um: f64,
+    /// Trial time-out, s. Default 120.
+    pub timeout_s: f64,
+    /// Escape distance from the trap centre, µm. Default 1.5.
+    pub escape_distance_um: f64,
+}
+
+impl Default for BlindNavigationTask {
+    fn default() -> Self {
+        Self {
+            obstacle_radius_um: 5.0,
+            bead_radius_um: 1.5,
+            start_distance_um: 10.0,
+            success_angle_deg: 30.0,
+            retreat_distance_um: 3.0,
+            timeout_s: 120.0,
+            escape_distance_um: 1.5,
+        }
+    }
+}
+
+/// The task of a protocol; in TOML exactly one of the tables
+/// `[task.circling]` or `[task.blind_navigation]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Task {
+    /// See [`CirclingTask`].
+    Circling(CirclingTask),
+    /// See [`BlindNavigationTask`].
+    BlindNavigation(BlindNavigationTask),
+}
+
+impl Task {
+    /// `circling` or `blind_navigation`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Task::Circling(_) => "circling",
+            Task::BlindNavigation(_) => "blind_navigation",
+        }
+    }
+}
+
+/// Measurement tolerances.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Tolerances {
+    /// Bead and obstacle count as in contact when their surfaces are closer
+    /// than this, µm. Default 0.2.
+    pub contact_gap_um: f64,
+}
+
+impl Default for Tolerances {
+    fn default() -> Self {
+        Self {
+            contact_gap_um: 0.2,
+        }
+    }
+}
+
+/// Counterbalancing scheme.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Williams balanced Latin square (see [`crate::counterbalance`]).
+    #[default]
+    Williams,
+    /// Every participant runs the conditions in the listed order.
+    Fixed,
+}
+
+/// How session orders are assigned.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Counterbalancing {
+    /// Scheme. Default `williams`.
+    pub scheme: Scheme,
+    /// Permute the condition labels onto the square's symbols with the study
+    /// seed (Williams only). Default true.
+    pub permute_labels: bool,
+}
+
+impl Default for Counterbalancing {
+    fn default() -> Self {
+        Self {
+            scheme: Scheme::Williams,
+            permute_labels: true,
+        }
+    }
+}
+
+/// Seeds recorded with the study.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Seeds {
+    /// Study seed: drives the label permutation (and later the simulated
+    /// rig's noise). TOML integers are signed 64-bit, so 0 ≤ seed < 2⁶³ in
+    /// files. Default 0.
+    pub study: u64,
+}
+
+/// A complete study protocol.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Protocol {
+    /// Short name of the protocol.
+    pub name: String,
+    /// Free text.
+    #[serde(default)]
+    pub description: String,
+    /// Number of participants (≥ 1).
+    pub participants: u32,
+    /// Conditions, one session each. Default `["V", "P", "D"]`.
+    #[serde(default = "default_conditions")]
+    pub conditions: Vec<Condition>,
+    /// Measured trials per session (≥ 1). Default 10.
+    #[serde(default = "default_trials")]
+    pub trials_per_session: u32,
+    /// Training block.
+    #[serde(default)]
+    pub training: Training,
+    /// Task and its parameters.
+    pub task: Task,
+    /// Tolerances.
+    #[serde(default)]
+    pub tolerances: Tolerances,
+    /// Counterbalancing.
+    #[serde(default)]
+    pub counterbalance: Counterbalancing,
+    /// Seeds.
+    #[serde(default)]
+    pub seeds: Seeds,
+}
+
+// -------------------------------------------------------------- validation
+
+fn invalid(field: impl Into<String>, message: impl Into<String>) -> Invalid {
+    Invalid {
+        field: field.into(),
+        message: message.into(),
+    }
+}
+
+/// Finite and > 0.
+fn positive(field: &str, v: f64, unit: &str) -> Result<(), Invalid> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(
+            field,
+            format!("must be a positive, finite number of {unit}, got {v}"),
+        ))
+    }
+}
+
+fn check_bead_obstacle(prefix: &str, obstacle: f64, bead: f64, escape: f64) -> Result<(), Invalid> {
+    positive(&format!("{prefix}.obstacle_radius_um"), obstacle, "µm")?;
+    positive(&format!("{prefix}.bead_radius_um"), bead, "µm")?;
+    positive(&format!("{prefix}.escape_distance_um"), escape, "µm")?;
+    Ok(())
+}
+
+impl Protocol {
+    /// Checks ranges and consistency (first problem found).
+    ///
+    /// # Errors
+    /// [`Invalid`] naming the field: empty name, zero participants or
+    /// trials, no / duplicate conditions, V in a blind task, non-positive
+    /// radii, distances or time-outs, contact fraction outside (0, 1],
+    /// success angle outside (0, 90], negative tolerance.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        if self.name.trim().is_empty() {
+            return Err(invalid("name", "must not be empty"));
+        }
+        if self.participants == 0 {
+            return Err(invalid("participants", "must be at least 1"));
+        }
+        if self.trials_per_session == 0 {
+            return Err(invalid("trials_per_session", "must be at least 1"));
+        }
+        if self.conditions.is_empty() {
+            return Err(invalid(
+                "conditions",
+                "must list at least one condition (V, P, D)",
+            ));
+        }
+        for (i, c) in self.conditions.iter().enumerate() {
+            if self.conditions[..i].contains(c) {
+                return Err(invalid(
+                    format!("conditions[{i}]"),
+                    format!("duplicate condition `{c}`"),
+                ));
+            }
+        }
+        positive(
+            "training.max_duration_min",
+            self.training.max_duration_min,
+            "minutes",
+        )?;
+        match &self.task {
+            Task::Circling(t) => {
+                let p = "task.circling";
+                check_bead_obstacle(
+                    p,
+                    t.obstacle_radius_um,
+                    t.bead_radius_um,
+                    t.escape_distance_um,
+                )?;
+                positive(&format!("{p}.timeout_s"), t.timeout_s, "seconds")?;
+                positive(&format!("{p}.revolutions"), t.revolutions, "revolutions")?;
+                if !(t.min_contact_fraction > 0.0 && t.min_contact_fraction <= 1.0) {
+                    return Err(invalid(
+                        format!("{p}.min_contact_fraction"),
+                        format!("must be in (0, 1], got {}", t.min_contact_fraction),
+                    ));
+                }
+            }
+            Task::BlindNavigation(t) => {
+                let p = "task.blind_navigation";
+                check_bead_obstacle(
+                    p,
+                    t.obstacle_radius_um,
+                    t.bead_radius_um,
+                    t.escape_distance_um,
+                )?;
+                positive(&format!("{p}.start_distance_um"), t.start_distance_um, "µm")?;
+                positive(
+                    &format!("{p}.retreat_distance_um"),
+                    t.retreat_distance_um,
+                    "µm",
+                )?;
+                positive(&format!("{p}.timeout_s"), t.timeout_s, "seconds")?;
+                if !(t.success_angle_deg > 0.0 && t.success_angle_deg <= 90.0) {
+                    return Err(invalid(
+                        format!("{p}.success_angle_deg"),
+                        format!("must be in (0, 90] degrees, got {}", t.success_angle_deg),
+                    ));
+                }
+                if let Some(i) = self.conditions.iter().position(|&c| !c.haptic()) {
+                    return Err(invalid(
+                        format!("conditions[{i}]"),
+                        "condition `V` (vision only) gives no feedback at all in a blind \
+                         navigation task; use P and/or D",
+                    ));
+                }
+            }
+        }
+        let gap = self.tolerances.contact_gap_um;
+        if !(gap.is_finite() && gap >= 0.0) {
+            return Err(invalid(
+                "tolerances.contact_gap_um",
+                format!("must be a finite, non-negative distance in µm, got {gap}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Parses and validates a protocol from TOML text; `origin` (file name)
+    /// is used in error messages.
+    ///
+    /// # Errors
+    /// [`ProtocolError::Parse`] (syntax, unknown key, wrong type, unknown
+    /// condition code, negative integer, …) or [`ProtocolError::Invalid`],
+    /// both with file, line, column and field.
+    pub fn from_toml_str(src: &str, origin: &str) -> Result<Self, ProtocolError> {
+        let protocol: Protocol = match toml::from_str(src) {
+            Ok(p) => p,
+            Err(e) => {
+                let span = e.span();
+                let (line, column) = span
+                    .as_ref()
+                    .map_or((None, None), |s| line_col(src, s.start));
+                let field = span.and_then(|s| field_at(src, s.start));
+                return Err(ProtocolError::Parse {
+                    location: Location {
+                        file: origin.to_owned(),
+                        line,
+                        column,
+                    },
+                    field,
+                    message: e.message().trim().to_owned(),
+                });
+            }
+        };
+        if let Err(inv) = protocol.validate() {
+            let (line, column) =
+                locate(src, &inv.field).map_or((None, None), |offset| line_col(src, offset));
+            return Err(ProtocolError::Invalid {
+                location: Location {
+                    file: origin.to_owned(),
+                    line,
+                    column,
+                },
+                invalid: inv,
+            });
+        }
+        Ok(protocol)
+    }
+
+    /// Reads, parses and validates a protocol file.
+    ///
+    /// # Errors
+    /// I/O errors and those of [`Protocol::from_toml_str`].
+    pub fn load(path: &Path) -> Result<Self, ProtocolError> {
+        let file = path.display().to_string();
+        let src = std::fs::read_to_string(path).map_err(|source| ProtocolError::Io {
+            file: file.clone(),
+            source,
+        })?;
+        Self::from_toml_str(&src, &file)
+    }
+
+    /// A built-in protocol by name (`paper` or `blind`).
+    ///
+    /// # Errors
+    /// [`ProtocolError::UnknownBuiltin`]; parse errors cannot occur for the
+    /// shipped files (tested).
+    pub fn builtin(name: &str) -> Result<Self, ProtocolError> {
+        match name {
+            "paper" => Self::from_toml_str(PAPER_TOML, "<builtin:paper>"),
+            "blind" => Self::from_toml_str(BLIND_TOML, "<builtin:blind>"),
+            other => Err(ProtocolError::UnknownBuiltin(other.to_owned())),
+        }
+    }
+
+    /// The paper's protocol ([`PAPER_TOML`]).
+    ///
+    /// # Errors
+    /// None in practice (the embedded file is tested).
+    pub fn paper() -> Result<Self, ProtocolError> {
+        Self::builtin("paper")
+    }
+
+    /// The protocol as TOML (for recording with the session data). Loading
+    /// the output gives back an equal protocol.
+    ///
+    /// # Errors
+    /// Serialisation failure (e.g. a non-finite float).
+    pub fn to_toml_string(&self) -> Result<String, toml::ser::Error> {
+        toml::to_string(self)
+    }
+
+    /// Sessions per participant (one per condition).
+    pub fn sessions(&self) -> usize {
+        self.conditions.len()
+    }
+
+    /// Total measured trials: participants × sessions × trials per session.
+    pub fn total_trials(&self) -> u64 {
+        u64::from(self.participants) * self.sessions() as u64 * u64::from(self.trials_per_session)
+    }
+
+    /// Assignment table: participant → session order.
+    ///
+    /// Williams scheme: square over the listed conditions, labels permuted
+    /// with `seeds.study` when `permute_labels`, participant i → row i mod
+    /// rows. Fixed scheme: every participant gets the listed order.
+    ///
+    /// # Errors
+    /// Only for an invalid protocol (no condition or participant).
+    pub fn assignment(&self) -> Result<AssignmentTable, ProtocolError> {
+        let n = self.conditions.len();
+        let participants = self.participants as usize;
+        let (plan_seed, square, assignments, report) = match self.counterbalance.scheme {
+            Scheme::Williams => {
+                let seed = self
+                    .counterbalance
+                    .permute_labels
+                    .then_some(self.seeds.study);
+                let plan = counterbalance::plan(n, participants, seed)?;
+                (seed, plan.square, plan.assignments, plan.report)
+            }
+            Scheme::Fixed => {
+                let square = counterbalance::fixed(n)?;
+                if participants == 0 {
+                    return Err(CounterbalanceError::NoParticipants.into());
+                }
+                let assignments: Vec<_> = (0..participants)
+                    .map(|i| counterbalance::Assignment {
+                        participant: i,
+                        row: 0,
+                        order: (0..n).collect(),
+                    })
+                    .collect();
+                let report = counterbalance::balance_report(&square, &assignments);
+                (None, square, assignments, report)
+            }
+        };
+        let labels: Vec<&str> = self.conditions.iter().map(|c| c.code()).collect();
+        let width = participants.to_string().len().max(2);
+        let rows = assignments
+            .iter()
+            .map(|a| ParticipantSessions {
+                participant: a.participant,
+                id: format!("P{:0width$}", a.participant + 1),
+                row: a.row,
+                sessions: a.order.iter().map(|&c| self.conditions[c]).collect(),
+            })
+            .collect();
+        Ok(AssignmentTable {
+            protocol: self.name.clone(),
+            scheme: self.counterbalance.scheme,
+            seed: plan_seed,
+            conditions: self.conditions.clone(),
+            orders: square
+                .rows()
+                .iter()
+                .map(|r| r.iter().map(|&c| self.conditions[c]).collect())
+                .collect(),
+            summary: report.describe(&labels),
+            participants: rows,
+            report,
+        })
+    }
+}
+
+/// One participant's session order.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ParticipantSessions {
+    /// 0-based participant index.
+    pub participant: usize,
+    /// Display id, `P01`, `P02`, … (1-based).
+    pub id: String,
+    /// Row of the counterbalancing square.
+    pub row: usize,
+    /// Conditions in session order.
+    pub sessions: Vec<Condition>,
+}
+
+/// Participant → session order table of a protocol.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct AssignmentTable {
+    /// Protocol name.
+    pub protocol: String,
+    /// Scheme used.
+    pub scheme: Scheme,
+    /// Seed of the label permutation, if one was applied.
+    pub seed: Option<u64>,
+    /// Conditions as listed in the protocol.
+    pub conditions: Vec<Condition>,
+    /// All orders (rows) of the square, relabelled.
+    pub orders: Vec<Vec<Condition>>,
+    /// One row per participant.
+    pub participants: Vec<ParticipantSessions>,
+    /// Balance report (indices refer to `conditions`).
+    pub report: BalanceReport,
+    /// Human summary of the balance.
+    pub summary: String,
+}
+
+// ------------------------------------------------------- spans and paths
+
+/// 1-based line and column (in characters) of byte `offset` of `src`.
+fn line_col(src: &str, offset: usize) -> (Option<usize>, Option<usize>) {
+    let offset = offset.min(src.len());
+    let Some(before) = src.get(..offset) else {
+        return (None, None);
+    };
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (Some(line), Some(col))
+}
+
+enum Seg<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+/// `task.circling.timeout_s` → keys; `conditions[2]` → key + index.
+fn parse_path(path: &str) -> Vec<Seg<'_>> {
+    let mut out = Vec::new();
+    for part in path.split('.') {
+        match part.split_once('[') {
+            Some((key, rest)) => {
+                out.push(Seg::Key(key));
+                if let Ok(i) = rest.trim_end_matches(']').parse() {
+                    out.push(Seg::Index(i));
+                }
+            }
+            None => out.push(Seg::Key(part)),
+        }
+    }
+    out
+}
+
+/// Byte offset of the value at `path` in `src`, or of the deepest existing
+/// ancestor (e.g. the table of a missing key); `None` if nothing matches.
+fn locate(src: &str, path: &str) -> Option<usize> {
+    let doc = DeTable::parse(src).ok()?;
+    let mut best: Option<usize> = None;
+    let mut table: Option<&DeTable<'_>> = Some(doc.get_ref());
+    let mut value: Option<&Spanned<DeValue<'_>>> = None;
+    for seg in parse_path(path) {
+        let next = match (seg, table, value) {
+            (Seg::Key(k), Some(t), _) => t.get(k),
+            (Seg::Key(k), None, Some(v)) => v.get_ref().get(k),
+            (Seg::Index(i), _, Some(v)) => v.get_ref().get(i),
+            _ => None,
+        };
+        let Some(next) = next else { break };
+        let span = next.span();
+        // Implicit parent tables of `[a.b]` headers may carry an empty span.
+        if span.end > span.start {
+            best = Some(span.start);
+        }
+        table = None;
+        value = Some(next);
+    }
+    best
+}
+
+/// Dotted path of the key or value containing byte `offset`.
+fn field_at(src: &str, offset: usize) -> Option<String> {
+    let doc = DeTable::parse(src).ok()?;
+    let mut path = String::new();
+    descend_table(doc.get_ref(), offset, &mut path);
+    (!path.is_empty()).then_some(path)
+}
+
+fn descend_table(t: &DeTable<'_>, offset: usize, path: &mut String) {
+    for (k, v) in t.iter() {
+        let in_key = k.span().contains(&offset);
+        let in_value = v.span().contains(&offset);
+        if in_key || in_value {
+            if !path.is_empty() {
+                path.push('.');
+            }
+            path.push_str(k.get_ref());
+            if in_value {
+                descend_value(v, offset, path);
+            }
+            return;
+        }
+    }
+    // Headers (`[task.circling]`) give tables whose span may not cover the
+    // keys below them: search children by their own spans.
+    for (k, v) in t.iter() {
+        if let DeValue::Table(inner) = v.get_ref() {
+            let mut sub = String::new();
+            descend_table(inner, offset, &mut sub);
+            if !sub.is_empty() {
+                if !path.is_empty() {
+                    path.push('.');
+                }
+                path.push_str(k.get_ref());
+                path.push('.');
+                path.push_str(&sub);
+                return;
+            }
+        }
+    }
+}
+
+fn descend_value(v: &Spanned<DeValue<'_>>, offset: usize, path: &mut String) {
+    match v.get_ref() {
+        DeValue::Table(t) => descend_table(t, offset, path),
+        DeValue::Array(a) => {
+            if let Some((i, item)) = a
+                .iter()
+                .enumerate()
+                .find(|(_, item)| item.span().contains(&offset))
+            {
+                path.push_str(&format!("[{i}]"));
+                descend_value(item, offset, path);
+            }
+        }
+        _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_col_counts_characters() {
+        let src = "a = 1\nµµ = 2\n";
+        assert_eq!(line_col(src, 0), (Some(1), Some(1)));
+        let off = src.find("= 2").unwrap();
+        assert_eq!(line_col(src, off), (Some(2), Some(4)));
+    }
+
+    #[test]
+    fn locate_and_field_at_agree() {
+        let src = "name = \"x\"\nparticipants = 3\nconditions = [\"V\", \"D\"]\n\n[task.circling]\ntimeout_s = 5.0\n";
+        let off = locate(src, "task.circling.timeout_s").unwrap();
+        assert_eq!(line_col(src, off).0, Some(6));
+        assert_eq!(
+            field_at(src, off).as_deref(),
+            Some("task.circling.timeout_s")
+        );
+        let off = locate(src, "conditions[1]").unwrap();
+        assert_eq!(&src[off..off + 3], "\"D\"");
+        assert_eq!(field_at(src, off).as_deref(), Some("conditions[1]"));
+        // Missing key: falls back to its table.
+        let off = locate(src, "task.circling.revolutions").unwrap();
+        assert_eq!(line_col(src, off).0, Some(5));
+        assert_eq!(locate(src, "nope"), None);
+    }
+}

@@ -1,0 +1,115 @@
+//! Friedman's rank test with Kendall's W and the Iman–Davenport F form.
+//!
+//! Friedman (1937); tie correction as in `scipy.stats.friedmanchisquare`
+//! (Hollander & Wolfe); Kendall & Babington Smith (1939); Iman & Davenport
+//! (1980). Equations in `docs/theory/study.md`.
+
+use serde::Serialize;
+
+use super::design::CellMatrix;
+use super::dist::{chi2_sf, f_sf};
+use super::error::{Result, StatsError};
+use super::rank::{doubled_ranks, tie_term};
+
+/// Result of Friedman's test.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Friedman {
+    /// Tie-corrected Friedman statistic χ²_F.
+    pub chi2: f64,
+    /// Degrees of freedom k − 1.
+    pub df: f64,
+    /// P(χ²(k−1) > χ²_F).
+    pub p: f64,
+    /// Kendall's coefficient of concordance W = χ²_F / (n (k − 1)), in [0, 1]
+    /// (with ties this equals Kendall's tie-corrected W).
+    pub kendall_w: f64,
+    /// Iman–Davenport F = (n − 1) χ²_F / (n (k − 1) − χ²_F); `None` when
+    /// W = 1 (perfect concordance), where F is unbounded.
+    pub f_iman_davenport: Option<f64>,
+    /// Numerator df of the F form, k − 1.
+    pub df1_f: f64,
+    /// Denominator df of the F form, (n − 1)(k − 1).
+    pub df2_f: f64,
+    /// P(F(df1_f, df2_f) > F); 0 when W = 1.
+    pub p_f: f64,
+    /// Tie correction divisor C = 1 − Σ(t³ − t) / (n k (k² − 1)) (1 = no ties).
+    pub tie_correction: f64,
+    /// Mean rank of each condition (column order).
+    pub mean_ranks: Vec<f64>,
+    /// Number of subjects (blocks) n.
+    pub n_subjects: usize,
+    /// Number of conditions k.
+    pub n_conditions: usize,
+}
+
+/// Friedman's test on a complete subjects × conditions matrix: values are
+/// ranked within each subject (average ranks for ties).
+///
+/// # Errors
+/// Fewer than 2 subjects or 2 conditions; every subject's values tied
+/// across all conditions ([`StatsError::ZeroVariance`]).
+pub fn friedman(m: &CellMatrix) -> Result<Friedman> {
+    const TEST: &str = "Friedman test";
+    let (n, k) = (m.n_subjects(), m.n_conditions());
+    if k < 2 {
+        return Err(StatsError::TooFewConditions {
+            test: TEST,
+            needed: 2,
+            got: k,
+        });
+    }
+    if n < 2 {
+        return Err(StatsError::TooFewSubjects {
+            test: TEST,
+            needed: 2,
+            got: n,
+        });
+    }
+    // Doubled rank sums stay exact integers.
+    let mut doubled_sums = vec![0_u64; k];
+    let mut ties = 0.0;
+    for i in 0..n {
+        let (r, t) = doubled_ranks(m.row(i));
+        for (s, ri) in doubled_sums.iter_mut().zip(r) {
+            *s += ri;
+        }
+        ties += tie_term(&t);
+    }
+    let (nf, kf) = (n as f64, k as f64);
+    let c = 1.0 - ties / (nf * kf * (kf * kf - 1.0));
+    if c <= 0.0 {
+        return Err(StatsError::ZeroVariance {
+            test: TEST,
+            detail: "every subject has the same value in all conditions (all ranks tied)".into(),
+        });
+    }
+    let rank_sums: Vec<f64> = doubled_sums.iter().map(|&s| s as f64 / 2.0).collect();
+    let ssbn: f64 = rank_sums.iter().map(|r| r * r).sum();
+    let raw = 12.0 / (nf * kf * (kf + 1.0)) * ssbn - 3.0 * nf * (kf + 1.0);
+    let chi2 = (raw / c).max(0.0);
+    let df = kf - 1.0;
+    let kendall_w = (chi2 / (nf * df)).min(1.0);
+    let df1_f = df;
+    let df2_f = (nf - 1.0) * df;
+    let den = nf * df - chi2;
+    let (f_iman_davenport, p_f) = if den <= 1e-12 * nf * df {
+        (None, 0.0)
+    } else {
+        let f = (nf - 1.0) * chi2 / den;
+        (Some(f), f_sf(f, df1_f, df2_f)?)
+    };
+    Ok(Friedman {
+        chi2,
+        df,
+        p: chi2_sf(chi2, df)?,
+        kendall_w,
+        f_iman_davenport,
+        df1_f,
+        df2_f,
+        p_f,
+        tie_correction: c,
+        mean_ranks: rank_sums.iter().map(|r| r / nf).collect(),
+        n_subjects: n,
+        n_conditions: k,
+    })
+}
