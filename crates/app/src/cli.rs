@@ -30,6 +30,8 @@ pub enum Command {
     Frf(commands::frf::Args),
     /// Fit a continuous-time transfer function to frequency-response data (columns f,re,im[,weight]).
     Tfest(commands::tfest::Args),
+    /// Statistics on a long-format CSV: one-way ANOVA, repeated-measures ANOVA or Friedman.
+    Stats(commands::stats::Args),
     /// Measure the speed of the signal chain and of Welch's estimator.
     Bench(commands::bench::Args),
 }
@@ -69,6 +71,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Psd(a)) => commands::psd::run(&a),
         Some(Command::Frf(a)) => commands::frf::run(&a),
         Some(Command::Tfest(a)) => commands::tfest::run(&a),
+        Some(Command::Stats(a)) => commands::stats::run(&a),
         Some(Command::Bench(a)) => commands::bench::run(&a),
     }
 }

@@ -4,4 +4,5 @@ pub mod bench;
 pub mod crossover;
 pub mod frf;
 pub mod psd;
+pub mod stats;
 pub mod tfest;

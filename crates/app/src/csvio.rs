@@ -84,6 +84,10 @@ pub struct Columns {
     pub names: Vec<String>,
     /// One vector per requested column, all the same length.
     pub data: Vec<Vec<f64>>,
+    /// Text columns requested with [`read_table`], in the order requested.
+    pub text: Vec<Vec<String>>,
+    /// 1-based line number of each data row (for messages about rows).
+    pub lines: Vec<u64>,
 }
 
 impl Columns {
@@ -101,17 +105,39 @@ impl Columns {
 /// Every row is checked for the header's field count; only requested columns
 /// are parsed. Optional columns absent from the header are skipped silently.
 pub fn read_columns(path: &Path, required: &[&str], optional: &[&str]) -> Result<Columns, CsvError> {
+    read_table(path, &[], required, optional)
+}
+
+/// Read text columns (kept verbatim, e.g. subject and condition labels) and
+/// numeric columns (required and optional).
+pub fn read_table(
+    path: &Path,
+    text: &[&str],
+    required: &[&str],
+    optional: &[&str],
+) -> Result<Columns, CsvError> {
     let file = std::fs::File::open(path).map_err(|source| CsvError::Io {
         path: path.to_owned(),
         source,
     })?;
-    read_columns_from(file, path, required, optional)
+    read_table_from(file, path, text, required, optional)
 }
 
 /// As [`read_columns`], from any reader; `path` is used in messages only.
 pub fn read_columns_from<R: std::io::Read>(
     reader: R,
     path: &Path,
+    required: &[&str],
+    optional: &[&str],
+) -> Result<Columns, CsvError> {
+    read_table_from(reader, path, &[], required, optional)
+}
+
+/// As [`read_table`], from any reader; `path` is used in messages only.
+pub fn read_table_from<R: std::io::Read>(
+    reader: R,
+    path: &Path,
+    text: &[&str],
     required: &[&str],
     optional: &[&str],
 ) -> Result<Columns, CsvError> {
@@ -133,18 +159,21 @@ pub fn read_columns_from<R: std::io::Read>(
         });
     }
     let available = headers.iter().collect::<Vec<_>>().join(", ");
-    let mut idx = Vec::new();
-    let mut names = Vec::new();
-    for &name in required {
-        let i = headers
+    let find = |name: &str| {
+        headers
             .iter()
             .position(|h| h == name)
             .ok_or_else(|| CsvError::MissingColumn {
                 path: path.to_owned(),
                 name: name.to_owned(),
                 available: available.clone(),
-            })?;
-        idx.push(i);
+            })
+    };
+    let text_idx = text.iter().map(|n| find(n)).collect::<Result<Vec<_>, _>>()?;
+    let mut idx = Vec::new();
+    let mut names = Vec::new();
+    for &name in required {
+        idx.push(find(name)?);
         names.push(name.to_owned());
     }
     for &name in optional {
@@ -154,6 +183,8 @@ pub fn read_columns_from<R: std::io::Read>(
         }
     }
     let mut data = vec![Vec::new(); idx.len()];
+    let mut text_data = vec![Vec::new(); text_idx.len()];
+    let mut lines = Vec::new();
     let mut record = csv::StringRecord::new();
     loop {
         match rdr.read_record(&mut record) {
@@ -170,6 +201,10 @@ pub fn read_columns_from<R: std::io::Read>(
                 found: record.len(),
             });
         }
+        lines.push(line);
+        for (k, &i) in text_idx.iter().enumerate() {
+            text_data[k].push(record[i].to_owned());
+        }
         for (k, &i) in idx.iter().enumerate() {
             let cell = &record[i];
             match cell.parse::<f64>() {
@@ -185,12 +220,17 @@ pub fn read_columns_from<R: std::io::Read>(
             }
         }
     }
-    if data.first().is_none_or(|c| c.is_empty()) {
+    if lines.is_empty() {
         return Err(CsvError::NoRows {
             path: path.to_owned(),
         });
     }
-    Ok(Columns { names, data })
+    Ok(Columns {
+        names,
+        data,
+        text: text_data,
+        lines,
+    })
 }
 
 #[cfg(test)]
