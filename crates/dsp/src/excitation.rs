@@ -7,7 +7,7 @@
 //!   same all-ones seed). Lazy, allocation-free generator for real-time loops
 //!   plus [`mls_bits`] / [`mls_signal`] builders.
 //! * [`LogSweep`] — Farina's exponential (logarithmic) swept sine
-//!   (Farina 2000, AES 108th Convention, preprint 5093, eq. 2).
+//!   (Farina 2000, AES 108th Convention, preprint 5093).
 //! * [`SteppedSineConfig`] / [`stepped_sine`] — stepped sines with settle and
 //!   measurement windows of whole cycles, and the per-step schedule.
 //! * [`sine_fit`] — three-parameter least-squares sine fit (IEEE Std 1057
@@ -334,7 +334,7 @@ pub fn mls_signal(order: u32, amplitude: f64, hold: u32, periods: usize) -> Resu
 // Exponential sweep (Farina 2000)
 // ---------------------------------------------------------------------------
 
-/// Exponential ("logarithmic") swept sine, Farina (2000) eq. 2:
+/// Exponential ("logarithmic") swept sine, Farina (2000):
 ///
 /// x(t) = A sin( 2π f₁ T / ln(f₂/f₁) · (e^{t ln(f₂/f₁)/T} − 1) ),  0 ≤ t < T,
 ///
@@ -381,7 +381,7 @@ impl LogSweep {
         (self.f2 / self.f1).ln()
     }
 
-    /// Instantaneous phase φ(t) (rad) of Farina's eq. 2.
+    /// Instantaneous phase φ(t) (rad) of Farina's sweep.
     pub fn phase(&self, t: f64) -> f64 {
         let l = self.rate();
         2.0 * PI * self.f1 * self.duration / l * (t * l / self.duration).exp_m1()
@@ -658,7 +658,7 @@ fn angle(cycles_per_sample: f64, n: usize) -> f64 {
 }
 
 /// Three-parameter least-squares sine fit at a known frequency (IEEE Std
-/// 1057-2017 §4.1.3.1): minimise Σ (x[n] − a sin(ω n + φ) − c)² with
+/// 1057, known-frequency fit): minimise Σ (x[n] − a sin(ω n + φ) − c)² with
 /// ω = 2π f/fs, n = 0 … N−1 (n = 0 is `x[0]`).
 ///
 /// The model is linear in (s, k, c) = (a cos φ, a sin φ, c) with columns
@@ -809,7 +809,7 @@ mod tests {
     }
 
     /// c(x) primitive ⇔ x^(2ⁿ−1) = 1 and x^((2ⁿ−1)/q) ≠ 1 for every prime q | 2ⁿ−1
-    /// (Lidl & Niederreiter, Finite Fields, Thm 3.16 / order of x).
+    /// (Lidl & Niederreiter, *Finite Fields*, ch. 3: x has order 2ⁿ − 1).
     fn is_primitive(n: u32, p: u64) -> bool {
         let m = (1u64 << n) - 1;
         let x = 0b10;

@@ -70,7 +70,7 @@ pub fn window_sums(w: &[f64]) -> (f64, f64) {
     (w.iter().sum(), w.iter().map(|v| v * v).sum())
 }
 
-/// Equivalent noise bandwidth in bins, N·Σw²/(Σw)² (Harris 1978, eq. 11).
+/// Equivalent noise bandwidth in bins, N·Σw²/(Σw)² (Harris 1978).
 /// Multiply by fs/N for hertz.
 pub fn enbw_bins(w: &[f64]) -> f64 {
     let (s1, s2) = window_sums(w);
@@ -242,8 +242,11 @@ pub struct FrequencyResponse {
 ///
 /// H1 = Pxy/Pxx (unbiased by output noise), H2 = Pyy/Pyx = Pyy/conj(Pxy)
 /// (unbiased by input noise), γ² = |Pxy|²/(Pxx Pyy) = H1/H2.
-/// Bins where a denominator is zero (e.g. DC after mean removal of a
-/// constant) report h1 = h2 = 0 and γ² = 0 instead of NaN/∞.
+/// Bins where a denominator vanishes (no input power, e.g. DC after mean
+/// removal of a constant; or no output power) report 0 for the undefined
+/// quantities (H1 where Pxx = 0; H2 and γ² where Pxx, Pyy or |Pxy| = 0)
+/// instead of NaN/∞, so live displays never see non-finite values; γ² = 0
+/// flags such bins as unusable.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct FrfEstimate {
     /// Frequencies (Hz).
@@ -704,7 +707,7 @@ pub fn coherence(x: &[f64], y: &[f64], fs: f64, cfg: &WelchConfig) -> Result<Coh
 }
 
 /// H1 = Pxy/Pxx, the estimator that is unbiased when noise is on the output
-/// only (Bendat & Piersol §9.2.4).
+/// only (Bendat & Piersol, ch. 9).
 pub fn frf_h1(x: &[f64], y: &[f64], fs: f64, cfg: &WelchConfig) -> Result<FrequencyResponse> {
     let e = frf(x, y, fs, cfg)?;
     Ok(FrequencyResponse {
@@ -1358,12 +1361,12 @@ mod tests {
             // Without measurement noise, the only error is leakage through the
             // window edges (y inside a segment also depends on x before it),
             // which lowers γ² slightly; it acts like noise with the random
-            // error of |H1| (Bendat & Piersol eq. 9.73) ε = √((1 − γ²)/(2 γ² K)).
+            // error of |H1| (Bendat & Piersol, ch. 9) ε = √((1 − γ²)/(2 γ² K)).
             let g = e.coherence[k];
             let eps = ((1.0 - g) / (2.0 * g * e.n_segments as f64)).sqrt();
             let err = (e.h1[k] - hk).norm() / hk.norm();
             assert!(err < 6.0 * eps + 2e-4, "k={k}: {err} (ε={eps})");
-            // Time-delay bias (Bendat & Piersol §9.1.4): γ̂² ≳ (1 − τ/T)² γ²
+            // Time-delay bias (Bendat & Piersol, ch. 9): γ̂² ≳ (1 − τ/T)² γ²
             // with τ ≤ len(h) − 1 samples and T = nperseg.
             assert!(g > (1.0 - 3.0 / 1024.0f64).powi(2), "k={k}: γ²={g}");
         }
@@ -1406,7 +1409,7 @@ mod tests {
     #[test]
     fn output_noise_biases_h2_not_h1_and_sets_coherence() {
         // y = h*x + n: H1 → H, H2 → H(1 + 1/SNR), γ² → SNR/(1 + SNR),
-        // SNR(f) = |H|² Sxx/Snn (Bendat & Piersol §9.1.3).
+        // SNR(f) = |H|² Sxx/Snn (Bendat & Piersol, ch. 9).
         let fs = 1000.0;
         let len = 1 << 18;
         let x = noise(len, 21);
