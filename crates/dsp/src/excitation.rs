@@ -37,7 +37,7 @@ pub const MLS_MAX_ORDER: u32 = 32;
 /// Source: `scipy.signal.max_len_seq` (`scipy/signal/_max_len_seq.py`,
 /// `_mls_taps`, E. Larson 2014), which lists one primitive trinomial or
 /// pentanomial per order. For order n and taps {t}, the register obeys the
-/// recurrence a[i+n] = a[i] ⊕ ⨁ₜ a[i+t], whose characteristic polynomial
+/// recurrence a\[i+n\] = a\[i\] ⊕ ⨁ₜ a\[i+t\], whose characteristic polynomial
 /// c(x) = xⁿ + Σₜ xᵗ + 1 is primitive over GF(2), so the period is 2ⁿ − 1
 /// (Golomb, *Shift Register Sequences*, 1967; MacWilliams & Sloane, Proc.
 /// IEEE 64(12), 1976). The unit tests re-prove primitivity of every entry.
@@ -102,8 +102,8 @@ pub fn mls_period(order: u32) -> Result<u64> {
 
 /// Lazy maximum-length-sequence generator.
 ///
-/// Fibonacci LFSR of `order` bits; bit j of the register holds a[i+j]. One
-/// step outputs a[i] (bit 0) and shifts in a[i+n] = a[i] ⊕ ⨁ₜ a[i+t]. With the
+/// Fibonacci LFSR of `order` bits; bit j of the register holds a\[i+j\]. One
+/// step outputs a\[i\] (bit 0) and shifts in a\[i+n\] = a\[i\] ⊕ ⨁ₜ a\[i+t\]. With the
 /// default all-ones seed and the built-in taps the bit stream is identical to
 /// `scipy.signal.max_len_seq(order)[0]`.
 ///
@@ -131,7 +131,7 @@ impl Mls {
     }
 
     /// Generator with caller-supplied taps (scipy convention: each tap t in
-    /// 1..order adds a[i+t] to the feedback). The period is 2ⁿ − 1 only if
+    /// 1..order adds a\[i+t\] to the feedback). The period is 2ⁿ − 1 only if
     /// xⁿ + Σ xᵗ + 1 is primitive; this is not checked here.
     pub fn with_taps(order: u32, taps: &[u32], amplitude: f64, hold: u32) -> Result<Self> {
         check_order(order)?;
@@ -181,7 +181,7 @@ impl Mls {
     }
 
     /// Replace the seed (and restart). Bit j of `state` is the j-th register
-    /// cell, i.e. scipy's `state[j]`. Must be non-zero and fit in `order` bits.
+    /// cell, i.e. scipy's `state\[j\]`. Must be non-zero and fit in `order` bits.
     pub fn with_state(mut self, state: u64) -> Result<Self> {
         if state == 0 || state >> self.order != 0 {
             return Err(DspError::InvalidParameter {
@@ -446,8 +446,8 @@ impl LogSweep {
         Ok(n as usize)
     }
 
-    /// Sampled sweep x[n] = A·g[n]·sin φ(n/fs), n = 0 … round(T fs) − 1, with
-    /// fade gain g[n] = ½(1 − cos(π t/τ_in)) for t < τ_in and
+    /// Sampled sweep x\[n\] = A·g\[n\]·sin φ(n/fs), n = 0 … round(T fs) − 1, with
+    /// fade gain g\[n\] = ½(1 − cos(π t/τ_in)) for t < τ_in and
     /// ½(1 − cos(π t_rem/τ_out)) for t_rem = (N−1−n)/fs < τ_out (1 elsewhere).
     pub fn generate(&self, fs: f64) -> Result<Vec<f64>> {
         let n = self.num_samples(fs)?;
@@ -492,7 +492,7 @@ pub struct SteppedSineConfig {
 /// returned by [`stepped_sine`]).
 ///
 /// In the measurement window the excitation is exactly
-/// x[m] = A sin(2π `frequency` m/fs + `measure_phase`), m = n − `measure_start`,
+/// x\[m\] = A sin(2π `frequency` m/fs + `measure_phase`), m = n − `measure_start`,
 /// and the window spans exactly `cycles` periods: `frequency` = cycles·fs/M
 /// with M = `end` − `measure_start` (coherent sampling, no DFT leakage).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -613,7 +613,7 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
 }
 
 /// Stepped-sine signal and its schedule. Step i is
-/// x[n] = A sin(2π k (n − start)/M) for n in `start..end` (each step starts at
+/// x\[n\] = A sin(2π k (n − start)/M) for n in `start..end` (each step starts at
 /// phase 0, so the signal is continuous in value at step boundaries). The
 /// phase is reduced exactly in integers, so long steps carry no phase drift.
 pub fn stepped_sine(cfg: &SteppedSineConfig, fs: f64) -> Result<(Vec<f64>, Vec<SineStep>)> {
@@ -658,7 +658,7 @@ fn angle(cycles_per_sample: f64, n: usize) -> f64 {
 }
 
 /// Three-parameter least-squares sine fit at a known frequency (IEEE Std
-/// 1057, known-frequency fit): minimise Σ (x[n] − a sin(ω n + φ) − c)² with
+/// 1057, known-frequency fit): minimise Σ (x\[n\] − a sin(ω n + φ) − c)² with
 /// ω = 2π f/fs, n = 0 … N−1 (n = 0 is `x[0]`).
 ///
 /// The model is linear in (s, k, c) = (a cos φ, a sin φ, c) with columns
@@ -711,7 +711,7 @@ pub fn sine_fit(x: &[f64], f: f64, fs: f64) -> Result<(f64, f64, f64)> {
 }
 
 /// Single-bin DFT estimate of a sine at a known frequency:
-/// X = Σ x[n] e^{−jωn}, amplitude 2|X|/N, phase arg X + π/2 (sine convention,
+/// X = Σ x\[n\] e^{−jωn}, amplitude 2|X|/N, phase arg X + π/2 (sine convention,
 /// wrapped to (−π, π]). Exact (no leakage, offset rejected) when the window
 /// holds a whole number of cycles, as in [`stepped_sine`] windows; otherwise
 /// prefer [`sine_fit`]. Returns `(amplitude, phase)`.

@@ -39,12 +39,12 @@ use std::sync::Arc;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Window {
-    /// w[n] = ½ − ½ cos(2πn/N): Σw = N/2, Σw² = 3N/8, ENBW = 1.5 bins.
+    /// w\[n\] = ½ − ½ cos(2πn/N): Σw = N/2, Σw² = 3N/8, ENBW = 1.5 bins.
     #[default]
     Hann,
-    /// w[n] = 0.54 − 0.46 cos(2πn/N): ENBW ≈ 1.363 bins.
+    /// w\[n\] = 0.54 − 0.46 cos(2πn/N): ENBW ≈ 1.363 bins.
     Hamming,
-    /// w[n] = 1 (rectangular): ENBW = 1 bin.
+    /// w\[n\] = 1 (rectangular): ENBW = 1 bin.
     Boxcar,
 }
 
