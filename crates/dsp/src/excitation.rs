@@ -181,7 +181,7 @@ impl Mls {
     }
 
     /// Replace the seed (and restart). Bit j of `state` is the j-th register
-    /// cell, i.e. scipy's `state\[j\]`. Must be non-zero and fit in `order` bits.
+    /// cell, i.e. scipy's `state[j]`. Must be non-zero and fit in `order` bits.
     pub fn with_state(mut self, state: u64) -> Result<Self> {
         if state == 0 || state >> self.order != 0 {
             return Err(DspError::InvalidParameter {
