@@ -508,7 +508,11 @@ pub fn analog_zpk_to_sos(
         )));
     }
     let digital = bilinear(analog, fs, prewarp_hz)?;
-    if let Some(p) = digital.poles.iter().find(|p| p.norm().is_nan() || p.norm() >= 1.0) {
+    if let Some(p) = digital
+        .poles
+        .iter()
+        .find(|p| p.norm().is_nan() || p.norm() >= 1.0)
+    {
         return Err(DspError::Unstable(format!(
             "digital pole {p} (|p| = {}) is not inside the unit circle",
             p.norm()

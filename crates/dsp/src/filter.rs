@@ -52,7 +52,7 @@ pub const FLUSH_THRESHOLD: f64 = 1e-200;
 
 /// Number of samples between two state maintenance passes (denormal flush and
 /// non-finite check).
-pub const FLUSH_INTERVAL: u32 = 32;
+pub const FLUSH_INTERVAL: u32 = 64;
 
 /// Coefficients of one second-order section, a0 normalised to 1.
 ///
