@@ -14,20 +14,42 @@
 //! The low and high paths are independent, so they are packed as the two
 //! lanes of `[f64; 2]` and processed stage by stage (stage k = low section k
 //! and high section k; the shorter path is padded with identity sections,
-//! which pass the signal through exactly). Each lane performs exactly the
-//! transposed-direct-form-II operations of [`crate::filter`], in the same
-//! order, so each output equals the scalar [`Sos`](crate::filter::Sos) output
-//! of the same sections. With SSE2 (baseline x86-64) LLVM emits packed
-//! `mulpd`/`addpd`. The stage count is a const generic (1..=[`MAX_STAGES`]),
-//! so the stage loop is fully unrolled and, in the block API, the state lives
-//! in registers.
+//! which pass the signal through exactly). With SSE2 (baseline x86-64) LLVM
+//! emits packed `mulpd`/`addpd`. Per lane the recursion is the TDF-II of
+//! [`crate::filter`] on the section normalised to b0 = 1 (its gain applied
+//! once at the path output) with y = v + s1 substituted into the state
+//! update (see `Kernel`): 4 instead of 5 multiplies per section and a
+//! feedback loop of one multiply and one subtraction. It is the same
+//! recursion as the scalar [`Sos`](crate::filter::Sos) of the same sections,
+//! rounded differently; the outputs agree to ~1e-15 relative (tested to
+//! 1e-12). A first-order section (C_H of the paper has one) is placed last
+//! and skips its s2 update. The stage count and first-order tail are const
+//! generics, so the kernel is straight-line code.
+//!
+//! The recursive state must stay in registers to be fast: an f64 value
+//! stored and reloaded through memory on every sample adds the
+//! store-to-load forwarding latency (5–9 cycles on current x86 cores) to
+//! every section's feedback loop, as much as the whole per-sample budget.
+//! Hence three entry points:
+//! * [`Chain::process_block`]: whole blocks, state in registers between
+//!   maintenance points, checks done per chunk. Fastest.
+//! * [`Chain::stream`]: per-sample streaming — each input sample is pulled
+//!   from an iterator and each output pair handed to a closure at once;
+//!   kernel dispatched once, state in registers for the whole stream.
+//! * [`Chain::process`]: one call per sample. The state necessarily lives in
+//!   `self` between calls, so each call pays the memory round trip (about
+//!   1.5× the cost of `stream` when called through a `&mut` from a loop).
+//!
+//! All three give identical outputs sample for sample.
 //!
 //! # Coefficient swap without clicks
-//! [`Chain::set_coefficients`] copies new coefficients (same section counts)
-//! into a second, preallocated bank whose state is a copy of the running
-//! state, then cross-fades linearly from the old to the new bank's output
-//! over `fade_len` samples: out = y_old + α (y_new − y_old), α = (i+1)/fade_len.
-//! Consequences (tested):
+//! [`Chain::set_coefficients`] switches the running coefficients to the new
+//! design (same section counts) at once, converting the running state to the
+//! new design's scaling (TDF-II state is kept), and keeps the old design
+//! running as a "ghost" from a copy of the state; the output cross-fades
+//! linearly from the ghost to the new design over `fade_len` samples:
+//! out = y_old + α (y_new − y_old), α = i/fade_len, i = 1…fade_len. Nothing
+//! is copied when the fade ends. Consequences (tested):
 //! * swapping to identical coefficients is bit-identical to not swapping
 //!   (y_new − y_old = 0 exactly);
 //! * during the fade, the sample-to-sample change of the output is bounded by
@@ -36,11 +58,13 @@
 //!   signal itself does.
 //!
 //! # Real-time guarantees
-//! `process`, `process_block` and `set_coefficients` (success path) never
-//! allocate, lock or panic. Non-finite input → (0, 0) output, state reset,
-//! event counted; non-finite output (state overflow) → (0, 0), reset,
-//! counted; every [`FLUSH_INTERVAL`] samples tiny state is flushed to zero
-//! (denormal policy of [`crate::filter`]).
+//! `process`, `stream`, `process_block` and `set_coefficients` (success
+//! path) never allocate, lock or panic. Non-finite input → (0, 0) output,
+//! state reset, event counted; non-finite output (state overflow) → (0, 0),
+//! reset, counted; every [`FLUSH_INTERVAL`]-th sample tiny state is flushed
+//! to zero and the state checked for non-finite values (reset and counted,
+//! output (0, 0) for that sample) — the denormal policy of
+//! [`crate::filter`].
 
 use crate::compensator::{self, HighCompensatorConfig};
 use crate::crossover::LinkwitzRiley;
@@ -489,6 +513,12 @@ fn zero_state(s: &mut State, z: f64) {
 /// a state, outside any cross-fade: non-finite input or output → (0, 0),
 /// state zeroed, event counted; every [`FLUSH_INTERVAL`]-th sample the state
 /// is flushed and checked.
+///
+/// A non-finite input needs no test of its own: x enters every output lane
+/// (through b0·x, or x itself after normalisation), so the output of that
+/// sample is non-finite too (∞·0 and ∞ − ∞ are NaN), and the output test
+/// catches it before anything reaches the caller; the poisoned state is
+/// then zeroed.
 #[inline(always)]
 fn guarded<const N: usize, const T: bool>(
     c: &Coefs,
@@ -498,13 +528,6 @@ fn guarded<const N: usize, const T: bool>(
     zero: f64,
     x: f64,
 ) -> (f64, f64) {
-    if !x.is_finite() {
-        std::hint::cold_path();
-        *events += 1;
-        zero_state(s, zero);
-        *tick = 0;
-        return (0.0, 0.0);
-    }
     *tick += 1;
     let flush = *tick >= FLUSH_INTERVAL;
     if flush {
@@ -835,16 +858,17 @@ impl Chain {
     }
 
     /// Block loop of kernel (N, T), equivalent sample for sample to
-    /// [`Chain::process`]. Between two maintenance points (and before a
-    /// non-finite input) the samples run through [`run_norm`] with the state
-    /// copied into a local, which the compiler keeps in registers, and without
-    /// per-sample checks (they would compete with the filter arithmetic for
-    /// the vector pipes). The chunk's outputs are scanned afterwards: at the
-    /// first non-finite output (state overflow) that output is zeroed, the
-    /// state reset, the event counted and processing resumes from the next
-    /// sample, exactly as the per-sample path does. Maintenance samples,
-    /// non-finite inputs, the general kernel and cross-fades go through the
-    /// per-sample step.
+    /// [`Chain::process`]. The samples up to the next maintenance sample run
+    /// as one chunk through [`run_norm`] with the state in a local (kept in
+    /// registers) and without per-sample branches: the only per-sample check
+    /// is an accumulator `acc += y − y`, which stays 0 while every output is
+    /// finite and becomes NaN otherwise (a non-finite input always yields a
+    /// non-finite output at the same sample). If it is not finite after the
+    /// chunk, the first non-finite output j is located, output j zeroed, the
+    /// state reset, the event counted, and processing resumes at j + 1 —
+    /// exactly what the per-sample path does. The last sample of a chunk
+    /// flushes and checks the state in registers. The general kernel and
+    /// cross-fades go through the per-sample step.
     fn block<const N: usize, const T: bool>(
         &mut self,
         input: &[f64],
@@ -855,51 +879,57 @@ impl Chain {
         let (input, low, high) = (&input[..n], &mut low[..n], &mut high[..n]);
         let mut i = 0;
         while i < n {
-            // Samples that can run without maintenance: the one that makes
-            // `tick` reach FLUSH_INTERVAL goes through `step`.
-            let room = FLUSH_INTERVAL.saturating_sub(self.tick + 1) as usize;
-            if N == 0 || self.fading || room == 0 {
+            if N == 0 || self.fading {
                 (low[i], high[i]) = self.step::<N, T>(input[i]);
                 i += 1;
                 continue;
             }
+            // After `room` more samples `tick` reaches FLUSH_INTERVAL: that
+            // sample flushes and checks the state.
+            let room = FLUSH_INTERVAL.saturating_sub(self.tick).max(1) as usize;
             let end = n.min(i + room);
-            let stop = input[i..end]
+            let maintain = end - i == room;
+            let mut s = ZERO_STATE;
+            s[..N].copy_from_slice(&self.s[..N]);
+            let mut acc = [0.0f64; 2];
+            let mut state_ok = true;
+            let body_end = if maintain { end - 1 } else { end };
+            for ((&x, l), h) in input[i..body_end]
                 .iter()
-                .position(|x| !x.is_finite())
-                .map_or(end, |p| i + p);
-            let mut s = self.s;
-            for ((&x, l), h) in input[i..stop]
-                .iter()
-                .zip(&mut low[i..stop])
-                .zip(&mut high[i..stop])
+                .zip(&mut low[i..body_end])
+                .zip(&mut high[i..body_end])
             {
                 let (y, _) = run_norm::<N, T>(&self.c, &mut s, x, false);
+                acc = [acc[0] + (y[0] - y[0]), acc[1] + (y[1] - y[1])];
                 *l = y[0];
                 *h = y[1];
             }
-            let overflow = low[i..stop]
-                .iter()
-                .zip(&high[i..stop])
-                .position(|(l, h)| !(l.is_finite() && h.is_finite()));
-            match overflow {
-                Some(p) => {
-                    let j = i + p;
-                    self.on_nonfinite();
-                    low[j] = 0.0;
-                    high[j] = 0.0;
-                    i = j + 1;
-                }
-                None => {
-                    self.s = s;
-                    self.tick += (stop - i) as u32;
-                    i = stop;
-                    if i < end {
-                        // Non-finite input: handled by the per-sample step.
-                        (low[i], high[i]) = self.step::<N, T>(input[i]);
-                        i += 1;
-                    }
-                }
+            if maintain {
+                let (y, ok) = run_norm::<N, T>(&self.c, &mut s, input[end - 1], true);
+                acc = [acc[0] + (y[0] - y[0]), acc[1] + (y[1] - y[1])];
+                low[end - 1] = y[0];
+                high[end - 1] = y[1];
+                state_ok = ok;
+            }
+            if acc[0] == 0.0 && acc[1] == 0.0 && state_ok {
+                self.s[..N].copy_from_slice(&s[..N]);
+                self.tick = if maintain {
+                    0
+                } else {
+                    self.tick + (end - i) as u32
+                };
+                i = end;
+            } else {
+                std::hint::cold_path();
+                let j = low[i..end]
+                    .iter()
+                    .zip(&high[i..end])
+                    .position(|(l, h)| !(l.is_finite() && h.is_finite()))
+                    .map_or(end - 1, |p| i + p);
+                self.on_nonfinite();
+                low[j] = 0.0;
+                high[j] = 0.0;
+                i = j + 1;
             }
         }
     }
@@ -1109,9 +1139,57 @@ mod tests {
         assert_eq!(c.fs(), 10_000.0);
     }
 
+    /// Run `x` through `process`, `stream` and `process_block` (irregular
+    /// block sizes) of fresh chains; assert the three are identical and
+    /// return the outputs.
+    fn run_all_apis(coeffs: &ChainCoefficients, x: &[f64]) -> Vec<(f64, f64)> {
+        let mut a = Chain::new(coeffs);
+        let per: Vec<(f64, f64)> = x.iter().map(|&v| a.process(v)).collect();
+        let mut b = Chain::new(coeffs);
+        let mut st = Vec::with_capacity(x.len());
+        assert_eq!(b.stream(x.iter().copied(), |l, h| st.push((l, h))), x.len());
+        let mut c = Chain::new(coeffs);
+        let mut bl = vec![0.0; x.len()];
+        let mut bh = vec![0.0; x.len()];
+        let mut start = 0;
+        for size in [1, 7, 63, 64, 65, 1000, 5000].iter().cycle() {
+            if start >= x.len() {
+                break;
+            }
+            let end = (start + size).min(x.len());
+            assert_eq!(
+                c.process_block(&x[start..end], &mut bl[start..end], &mut bh[start..end]),
+                end - start
+            );
+            start = end;
+        }
+        for i in 0..x.len() {
+            assert_eq!(per[i], st[i], "stream differs at {i}");
+            assert_eq!(per[i], (bl[i], bh[i]), "block differs at {i}");
+        }
+        assert_eq!(a.nonfinite_events(), b.nonfinite_events());
+        assert_eq!(a.nonfinite_events(), c.nonfinite_events());
+        per
+    }
+
+    /// The two-lane chain equals two scalar TDF-II `Sos` cascades of the same
+    /// sections to 1e-12 of the output amplitude, for the paper's chain,
+    /// LR8, LR2 (inverted high path), a low crossover (fc/fs = 1e-3, large
+    /// internal gain after b0 normalisation) and hand-made sections with
+    /// b0 = 0 (general kernel).
     #[test]
     fn simd_lanes_equal_scalar_sos() {
-        for d in [
+        let delay = BiquadCoeffs::new([0.0, 0.5, 0.25], [1.0, -0.5, 0.1]).unwrap();
+        let hand = ChainCoefficients::new(
+            10_000.0,
+            vec![
+                delay,
+                BiquadCoeffs::new([0.2, 0.1, 0.0], [1.0, -0.3, 0.0]).unwrap(),
+            ],
+            vec![BiquadCoeffs::new([1.0, -1.0, 0.3], [1.0, -1.2, 0.5]).unwrap()],
+        )
+        .unwrap();
+        let designs = [
             ChainDesign::paper(),
             ChainDesign {
                 crossover_order: 8,
@@ -1124,41 +1202,69 @@ mod tests {
                 crossover_order: 2,
                 ..ChainDesign::paper()
             },
-        ] {
-            let coeffs = ChainCoefficients::design(&d).unwrap();
-            let mut chain = Chain::new(&coeffs);
-            let mut blk = Chain::new(&coeffs);
+            ChainDesign {
+                crossover_fc: 10.0,
+                ..ChainDesign::paper()
+            },
+        ];
+        let mut all: Vec<ChainCoefficients> = designs
+            .iter()
+            .map(|d| ChainCoefficients::design(d).unwrap())
+            .collect();
+        all.push(hand);
+        for (idx, coeffs) in all.iter().enumerate() {
+            assert_eq!(Chain::new(coeffs).uses_fast_kernel(), idx < 4);
+            let mut n = Noise(5 + idx as u64);
+            let x: Vec<f64> = (0..20_000).map(|_| n.next()).collect();
+            let out = run_all_apis(coeffs, &x);
             let mut lo = Sos::new(coeffs.low().to_vec()).unwrap();
             let mut hi = Sos::new(coeffs.high().to_vec()).unwrap();
-            let mut n = Noise(5);
-            let x: Vec<f64> = (0..20_000).map(|_| n.next()).collect();
-            let mut bl = vec![0.0; x.len()];
-            let mut bh = vec![0.0; x.len()];
-            // Blocks of irregular sizes.
-            let mut start = 0;
-            for size in [1, 7, 31, 32, 33, 1000, 5000].iter().cycle() {
-                if start >= x.len() {
-                    break;
-                }
-                let end = (start + size).min(x.len());
-                blk.process_block(&x[start..end], &mut bl[start..end], &mut bh[start..end]);
-                start = end;
-            }
             let (mut el, mut eh, mut rl, mut rh) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-            for (i, &v) in x.iter().enumerate() {
-                let (l, h) = chain.process(v);
+            for (&v, &(l, h)) in x.iter().zip(&out) {
                 let (sl, sh) = (lo.process(v), hi.process(v));
                 el = el.max((l - sl).abs());
                 eh = eh.max((h - sh).abs());
                 rl = rl.max(sl.abs());
                 rh = rh.max(sh.abs());
-                assert_eq!(
-                    (l, h),
-                    (bl[i], bh[i]),
-                    "block differs from per-sample at {i}"
-                );
             }
-            assert!(el <= 1e-12 * rl && eh <= 1e-12 * rh, "{el:e} {eh:e}");
+            assert!(rl > 0.0 && rh > 0.0);
+            assert!(
+                el <= 1e-12 * rl && eh <= 1e-12 * rh,
+                "design {idx}: {el:e} {eh:e}"
+            );
+        }
+    }
+
+    #[test]
+    fn paper_chain_puts_first_order_section_last() {
+        let c = ChainCoefficients::paper().unwrap();
+        let last = c.high().last().unwrap();
+        assert!(last.is_first_order());
+        assert!(c.high()[..3].iter().all(|s| !s.is_first_order()));
+        let chain = Chain::new(&c);
+        assert!(chain.uses_fast_kernel());
+        assert_eq!(chain.stages(), 4);
+        // The response of the sections equals the product of the pieces:
+        // LR4 (with C_L) · 1 for low; LR4 high · C_H(z) for high.
+        let xo = LinkwitzRiley::new(4, 200.0, 10_000.0).unwrap();
+        let ch = design::tf_to_sos(
+            &compensator::high(
+                1.0,
+                &compensator::paper_g_h(),
+                1000.0,
+                std::f64::consts::FRAC_1_SQRT_2,
+            )
+            .unwrap(),
+            10_000.0,
+            Some(200.0),
+        )
+        .unwrap();
+        for f in [10.0, 200.0, 500.0, 1000.0, 3000.0] {
+            let (l, h) = chain.response(f);
+            let (xl, xh) = xo.response(f);
+            let want_h = xh * sections_response(&ch, f, 10_000.0);
+            assert!((l - xl).norm() < 1e-12 * xl.norm());
+            assert!((h - want_h).norm() < 1e-9 * want_h.norm(), "f={f}");
         }
     }
 
@@ -1426,5 +1532,87 @@ mod tests {
         assert!(lo.iter().chain(&hi).all(|v| *v == 0.0 || v.is_normal()));
         assert_eq!((lo[19_999], hi[19_999]), (0.0, 0.0));
         assert!(c.s.iter().flatten().flatten().all(|v| *v == 0.0));
+    }
+    /// A swap at the same sample gives the same output through `process`,
+    /// `stream` and `process_block`, also while fading, and also between the
+    /// fast and the general kernel (state converted between scalings).
+    #[test]
+    fn swaps_are_identical_across_apis() {
+        let a = ChainCoefficients::paper().unwrap();
+        let b = ChainCoefficients::design(&ChainDesign {
+            crossover_fc: 230.0,
+            ..ChainDesign::paper()
+        })
+        .unwrap();
+        // Same shape as `a` (2 low, 4 high sections) but with a b0 = 0
+        // section: runs on the general kernel.
+        let g_low = a.low().to_vec();
+        let mut g_high = a.high().to_vec();
+        g_high[3] = BiquadCoeffs::new([0.0, 0.3, 0.0], [1.0, -0.7, 0.0]).unwrap();
+        let g = ChainCoefficients::new(10_000.0, g_low, g_high).unwrap();
+        assert!(!Chain::new(&g).uses_fast_kernel());
+        let x: Vec<f64> = (0..3000).map(|i| test_signal(i, 10_000.0)).collect();
+        let swaps = [(500usize, &b), (900, &g), (1500, &a), (1510, &b)];
+        // Per-sample reference.
+        let mut r = Chain::new(&a);
+        let mut want = Vec::new();
+        for (i, &v) in x.iter().enumerate() {
+            for (at, c) in swaps {
+                if at == i {
+                    let res = r.set_coefficients(c);
+                    assert_eq!(res.is_ok(), at != 1510, "swap at {at}");
+                }
+            }
+            want.push(r.process(v));
+        }
+        // Block and stream, cut at the swap points.
+        let mut blk = Chain::new(&a);
+        let mut stm = Chain::new(&a);
+        let mut got_b = vec![(0.0, 0.0); x.len()];
+        let mut got_s = Vec::new();
+        let mut start = 0;
+        for (at, c) in swaps.iter().map(|(at, c)| (*at, *c)).chain([(x.len(), &a)]) {
+            let mut lo = vec![0.0; at - start];
+            let mut hi = vec![0.0; at - start];
+            blk.process_block(&x[start..at], &mut lo, &mut hi);
+            for (k, (l, h)) in lo.iter().zip(&hi).enumerate() {
+                got_b[start + k] = (*l, *h);
+            }
+            stm.stream(x[start..at].iter().copied(), |l, h| got_s.push((l, h)));
+            if at < x.len() {
+                assert_eq!(blk.set_coefficients(c).is_ok(), at != 1510);
+                assert_eq!(stm.set_coefficients(c).is_ok(), at != 1510);
+            }
+            start = at;
+        }
+        for i in 0..x.len() {
+            assert_eq!(want[i], got_b[i], "block at {i}");
+            assert_eq!(want[i], got_s[i], "stream at {i}");
+        }
+        // After the last swap the chain runs `a`'s design again (up to the
+        // memory of the transient): compare with a chain that always ran `a`.
+        let mut plain = Chain::new(&a);
+        let ya: Vec<(f64, f64)> = x.iter().map(|&v| plain.process(v)).collect();
+        for i in 2900..3000 {
+            assert!((want[i].0 - ya[i].0).abs() < 1e-9 && (want[i].1 - ya[i].1).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn stream_handles_nonfinite_and_overflow() {
+        let coeffs = ChainCoefficients::paper().unwrap();
+        let mut x: Vec<f64> = (0..400).map(|i| (i as f64 * 0.05).sin()).collect();
+        x[10] = f64::NAN;
+        x[200] = f64::NEG_INFINITY;
+        for v in &mut x[300..310] {
+            *v = 1e308;
+        }
+        let out = run_all_apis(&coeffs, &x);
+        assert!(out.iter().all(|(l, h)| l.is_finite() && h.is_finite()));
+        assert_eq!(out[10], (0.0, 0.0));
+        assert_eq!(out[200], (0.0, 0.0));
+        let mut c = Chain::new(&coeffs);
+        c.stream(x.iter().copied(), |_, _| {});
+        assert!(c.nonfinite_events() >= 3);
     }
 }
