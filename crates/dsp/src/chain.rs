@@ -509,6 +509,15 @@ fn zero_state(s: &mut State, z: f64) {
     each_stage!(zs);
 }
 
+/// 0 for a finite `v`, NaN for ±∞ or NaN (v − v, exact in IEEE 754). Summed
+/// over a chunk it flags any non-finite output with two vector additions per
+/// sample and no branch.
+#[inline(always)]
+#[allow(clippy::eq_op)]
+fn nan_if_nonfinite(v: f64) -> f64 {
+    v - v
+}
+
 /// The guarded per-sample step of kernel (N, T) (N = 0: general kernel) on
 /// a state, outside any cross-fade: non-finite input or output → (0, 0),
 /// state zeroed, event counted; every [`FLUSH_INTERVAL`]-th sample the state
@@ -900,13 +909,19 @@ impl Chain {
                 .zip(&mut high[i..body_end])
             {
                 let (y, _) = run_norm::<N, T>(&self.c, &mut s, x, false);
-                acc = [acc[0] + (y[0] - y[0]), acc[1] + (y[1] - y[1])];
+                acc = [
+                    acc[0] + nan_if_nonfinite(y[0]),
+                    acc[1] + nan_if_nonfinite(y[1]),
+                ];
                 *l = y[0];
                 *h = y[1];
             }
             if maintain {
                 let (y, ok) = run_norm::<N, T>(&self.c, &mut s, input[end - 1], true);
-                acc = [acc[0] + (y[0] - y[0]), acc[1] + (y[1] - y[1])];
+                acc = [
+                    acc[0] + nan_if_nonfinite(y[0]),
+                    acc[1] + nan_if_nonfinite(y[1]),
+                ];
                 low[end - 1] = y[0];
                 high[end - 1] = y[1];
                 state_ok = ok;
