@@ -711,7 +711,12 @@ impl Chain {
 
     /// One input sample → (low output, high output). Never allocates or
     /// panics; see the module docs for non-finite handling.
-    #[inline(always)]
+    ///
+    /// Between calls the recursive state lives in `self`, so every call pays
+    /// a store-to-load round trip through memory in each section's feedback
+    /// loop; for long runs prefer [`Chain::stream`] (per-sample, state in
+    /// registers) or [`Chain::process_block`], which give identical output.
+    #[inline]
     pub fn process(&mut self, x: f64) -> (f64, f64) {
         match self.c.kernel {
             Kernel::Norm {
