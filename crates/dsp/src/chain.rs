@@ -509,6 +509,13 @@ fn zero_state(s: &mut State, z: f64) {
     each_stage!(zs);
 }
 
+/// Marks the branch it is called from as unlikely (the `#[cold]` polyfill of
+/// `std::hint::cold_path`, which is newer than the workspace's MSRV), for
+/// the event paths of the kernels.
+#[cold]
+#[inline(always)]
+fn cold() {}
+
 /// 0 for a finite `v`, NaN for ±∞ or NaN (v − v, exact in IEEE 754). Summed
 /// over a chunk it flags any non-finite output with two vector additions per
 /// sample and no branch.
@@ -548,7 +555,7 @@ fn guarded<const N: usize, const T: bool>(
         run_norm::<N, T>(c, s, x, flush)
     };
     if !(ok && y[0].is_finite() && y[1].is_finite()) {
-        std::hint::cold_path();
+        cold();
         *events += 1;
         zero_state(s, zero);
         *tick = 0;
@@ -940,7 +947,7 @@ impl Chain {
                 };
                 i = end;
             } else {
-                std::hint::cold_path();
+                cold();
                 let j = low[i..end]
                     .iter()
                     .zip(&high[i..end])
@@ -1077,7 +1084,7 @@ impl Chain {
     #[inline(always)]
     fn step<const N: usize, const T: bool>(&mut self, x: f64) -> (f64, f64) {
         if self.fading {
-            std::hint::cold_path();
+            cold();
             return self.fade_step::<N, T>(x);
         }
         guarded::<N, T>(
