@@ -9,7 +9,7 @@
 use kilotouch_dsp::C64;
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_dsp::design::{FilterKind, Prewarp, butter, butter_zpk, tf_to_sos};
-use kilotouch_dsp::spectral::{WelchConfig, csd, coherence, welch};
+use kilotouch_dsp::spectral::{WelchConfig, coherence, csd, welch};
 use serde_json::Value;
 
 const FS: f64 = 10_000.0;
@@ -20,11 +20,19 @@ fn reference() -> Value {
 }
 
 fn vecf(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
 }
 
 fn complex(v: &Value, re: &str, im: &str) -> Vec<C64> {
-    vecf(&v[re]).into_iter().zip(vecf(&v[im])).map(|(r, i)| C64::new(r, i)).collect()
+    vecf(&v[re])
+        .into_iter()
+        .zip(vecf(&v[im]))
+        .map(|(r, i)| C64::new(r, i))
+        .collect()
 }
 
 fn sos_response(sections: &[kilotouch_dsp::filter::BiquadCoeffs], f: f64) -> C64 {
@@ -35,7 +43,11 @@ fn sos_response(sections: &[kilotouch_dsp::filter::BiquadCoeffs], f: f64) -> C64
 fn assert_close(got: C64, want: C64, rel: f64, what: &str) {
     let err = (got - want).norm();
     let scale = want.norm().max(1e-12);
-    assert!(err <= rel * scale, "{what}: got {got}, scipy {want} (rel err {:.2e})", err / scale);
+    assert!(
+        err <= rel * scale,
+        "{what}: got {got}, scipy {want} (rel err {:.2e})",
+        err / scale
+    );
 }
 
 #[test]
@@ -84,7 +96,12 @@ fn compensator_bilinear_matches_scipy() {
     let f = vecf(&d["f"]);
     let h = complex(d, "re", "im");
     for (fi, hi) in f.iter().zip(&h) {
-        assert_close(sos_response(&sos, *fi), *hi, 1e-9, &format!("C_H at {fi} Hz"));
+        assert_close(
+            sos_response(&sos, *fi),
+            *hi,
+            1e-9,
+            &format!("C_H at {fi} Hz"),
+        );
     }
 }
 

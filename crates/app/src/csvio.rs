@@ -104,7 +104,11 @@ impl Columns {
 ///
 /// Every row is checked for the header's field count; only requested columns
 /// are parsed. Optional columns absent from the header are skipped silently.
-pub fn read_columns(path: &Path, required: &[&str], optional: &[&str]) -> Result<Columns, CsvError> {
+pub fn read_columns(
+    path: &Path,
+    required: &[&str],
+    optional: &[&str],
+) -> Result<Columns, CsvError> {
     read_table(path, &[], required, optional)
 }
 
@@ -169,7 +173,10 @@ pub fn read_table_from<R: std::io::Read>(
                 available: available.clone(),
             })
     };
-    let text_idx = text.iter().map(|n| find(n)).collect::<Result<Vec<_>, _>>()?;
+    let text_idx = text
+        .iter()
+        .map(|n| find(n))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut idx = Vec::new();
     let mut names = Vec::new();
     for &name in required {
@@ -251,12 +258,20 @@ mod tests {
 
     #[test]
     fn errors_name_file_line_and_column() {
-        let e = read("a,b\n1,2\n3,x\n", &["b"], &[]).unwrap_err().to_string();
-        assert!(e.contains("t.csv:3") && e.contains("`b`") && e.contains("`x`"), "{e}");
+        let e = read("a,b\n1,2\n3,x\n", &["b"], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.csv:3") && e.contains("`b`") && e.contains("`x`"),
+            "{e}"
+        );
         let e = read("a,b\n1,2\n3\n", &["a"], &[]).unwrap_err().to_string();
         assert!(e.contains("t.csv:3") && e.contains("ragged"), "{e}");
         let e = read("a,b\n1,2\n", &["z"], &[]).unwrap_err().to_string();
-        assert!(e.contains("no column named `z`") && e.contains("a, b"), "{e}");
+        assert!(
+            e.contains("no column named `z`") && e.contains("a, b"),
+            "{e}"
+        );
         let e = read("", &["a"], &[]).unwrap_err().to_string();
         assert!(e.contains("empty file"), "{e}");
         let e = read("a\n", &["a"], &[]).unwrap_err().to_string();

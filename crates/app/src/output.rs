@@ -5,7 +5,11 @@ use serde::Serialize;
 use std::io::Write;
 
 /// Write `value` as one line of JSON, or the human text, to stdout.
-pub fn emit<T: Serialize>(json: bool, value: &T, human: impl FnOnce() -> String) -> anyhow::Result<()> {
+pub fn emit<T: Serialize>(
+    json: bool,
+    value: &T,
+    human: impl FnOnce() -> String,
+) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
     if json {
         serde_json::to_writer(&mut out, value)?;
@@ -45,7 +49,10 @@ pub fn parse_freqs(s: &str) -> anyhow::Result<Vec<f64>> {
             .parse()
             .map_err(|_| anyhow::anyhow!("--freqs: item {} (`{t}`) is not a number", i + 1))?;
         if !(v.is_finite() && v > 0.0) {
-            anyhow::bail!("--freqs: item {} ({v}) must be a positive finite frequency in Hz", i + 1);
+            anyhow::bail!(
+                "--freqs: item {} ({v}) must be a positive finite frequency in Hz",
+                i + 1
+            );
         }
         out.push(v);
     }
@@ -67,8 +74,16 @@ mod tests {
 
     #[test]
     fn freqs_parse_and_reject() {
-        assert_eq!(parse_freqs("100, 200.5,1e3").unwrap(), vec![100.0, 200.5, 1000.0]);
-        assert!(parse_freqs("100,abc").unwrap_err().to_string().contains("item 2"));
+        assert_eq!(
+            parse_freqs("100, 200.5,1e3").unwrap(),
+            vec![100.0, 200.5, 1000.0]
+        );
+        assert!(
+            parse_freqs("100,abc")
+                .unwrap_err()
+                .to_string()
+                .contains("item 2")
+        );
         assert!(parse_freqs("0").is_err());
         assert!(parse_freqs("-5").is_err());
     }

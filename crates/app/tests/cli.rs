@@ -28,8 +28,14 @@ fn fails_with(args: &[&str], needle: &str) {
     let out = kilotouch(args);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "kilotouch {args:?} should fail");
-    assert!(err.contains(needle), "stderr of {args:?} lacks `{needle}`: {err}");
-    assert!(!err.contains("panicked"), "kilotouch {args:?} panicked: {err}");
+    assert!(
+        err.contains(needle),
+        "stderr of {args:?} lacks `{needle}`: {err}"
+    );
+    assert!(
+        !err.contains("panicked"),
+        "kilotouch {args:?} panicked: {err}"
+    );
 }
 
 fn write_csv(dir: &tempfile::TempDir, name: &str, text: &str) -> String {
@@ -61,7 +67,16 @@ fn no_arguments_prints_help() {
 fn crossover_lr4_matches_reference_values() {
     // REFERENCE-VALUES.md: |L(fc)| = |H(fc)| = −6.0206 dB, in phase at fc, |L+H| = 1.
     let v = json_ok(&[
-        "crossover", "--fs", "10000", "--fc", "200", "--order", "4", "--freqs", "20,200,2000", "--json",
+        "crossover",
+        "--fs",
+        "10000",
+        "--fc",
+        "200",
+        "--order",
+        "4",
+        "--freqs",
+        "20,200,2000",
+        "--json",
     ]);
     let pts = v["points"].as_array().expect("points");
     assert_eq!(pts.len(), 3);
@@ -72,9 +87,15 @@ fn crossover_lr4_matches_reference_values() {
         assert!((d + 6.0206).abs() < 1e-3, "{k} = {d}");
     }
     let dphi = at_fc["low_deg"].as_f64().unwrap() - at_fc["high_deg"].as_f64().unwrap();
-    assert!(dphi.abs() < 1e-6 || (dphi.abs() - 360.0).abs() < 1e-6, "L, H in phase: {dphi}");
+    assert!(
+        dphi.abs() < 1e-6 || (dphi.abs() - 360.0).abs() < 1e-6,
+        "L, H in phase: {dphi}"
+    );
     for p in pts {
-        assert!(p["sum_db"].as_f64().unwrap().abs() < 1e-9, "allpass sum: {p}");
+        assert!(
+            p["sum_db"].as_f64().unwrap().abs() < 1e-9,
+            "allpass sum: {p}"
+        );
         for k in ["low_deg", "high_deg", "sum_deg"] {
             let d = p[k].as_f64().unwrap();
             assert!(d > -180.0 && d <= 180.0, "{k} = {d} not wrapped");
@@ -83,14 +104,54 @@ fn crossover_lr4_matches_reference_values() {
     // A decade above fc the LR4 low-pass is ≈ −80 dB/decade below its pass band
     // (analytic |L| = 1/(1 + (f/fc)^4) for the prewarped design at the digital fc).
     let low_2k = pts[2]["low_db"].as_f64().unwrap();
-    assert!(low_2k < -75.0 && low_2k > -90.0, "LR4 low at 10 fc: {low_2k}");
+    assert!(
+        low_2k < -75.0 && low_2k > -90.0,
+        "LR4 low at 10 fc: {low_2k}"
+    );
 }
 
 #[test]
 fn crossover_rejects_bad_arguments() {
-    fails_with(&["crossover", "--fs", "10000", "--fc", "200", "--order", "3", "--freqs", "1"], "order");
-    fails_with(&["crossover", "--fs", "10000", "--fc", "6000", "--order", "4", "--freqs", "1"], "fc");
-    fails_with(&["crossover", "--fs", "10000", "--fc", "200", "--freqs", "1,x"], "--freqs");
+    fails_with(
+        &[
+            "crossover",
+            "--fs",
+            "10000",
+            "--fc",
+            "200",
+            "--order",
+            "3",
+            "--freqs",
+            "1",
+        ],
+        "order",
+    );
+    fails_with(
+        &[
+            "crossover",
+            "--fs",
+            "10000",
+            "--fc",
+            "6000",
+            "--order",
+            "4",
+            "--freqs",
+            "1",
+        ],
+        "fc",
+    );
+    fails_with(
+        &[
+            "crossover",
+            "--fs",
+            "10000",
+            "--fc",
+            "200",
+            "--freqs",
+            "1,x",
+        ],
+        "--freqs",
+    );
 }
 
 #[test]
@@ -102,7 +163,9 @@ fn psd_of_white_noise_is_two_over_fs() {
     let mut text = String::from("t,x\n");
     let n = 65536;
     let mut uniform = || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     };
     for i in 0..n {
@@ -113,14 +176,27 @@ fn psd_of_white_noise_is_two_over_fs() {
     }
     let path = write_csv(&dir, "noise.csv", &text);
     let fs = 1000.0;
-    let v = json_ok(&["psd", &path, "--fs", "1000", "--column", "x", "--nperseg", "256", "--json"]);
+    let v = json_ok(&[
+        "psd",
+        &path,
+        "--fs",
+        "1000",
+        "--column",
+        "x",
+        "--nperseg",
+        "256",
+        "--json",
+    ]);
     let f = arr(&v, "f");
     let p = arr(&v, "psd");
     assert_eq!(f.len(), 129);
     assert!((f[1] - fs / 256.0).abs() < 1e-12);
     let mean: f64 = p[1..128].iter().sum::<f64>() / 127.0;
     // 511 half-overlapping segments: the mean over 127 bins has a relative SD of about 0.5 %.
-    assert!((mean / (2.0 / fs) - 1.0).abs() < 0.03, "mean density {mean}");
+    assert!(
+        (mean / (2.0 / fs) - 1.0).abs() < 0.03,
+        "mean density {mean}"
+    );
 }
 
 #[test]
@@ -140,7 +216,17 @@ fn frf_recovers_a_known_gain_and_delay() {
     }
     let path = write_csv(&dir, "io.csv", &text);
     let v = json_ok(&[
-        "frf", &path, "--fs", "10000", "--input", "force", "--output", "acc", "--nperseg", "1024", "--json",
+        "frf",
+        &path,
+        "--fs",
+        "10000",
+        "--input",
+        "force",
+        "--output",
+        "acc",
+        "--nperseg",
+        "1024",
+        "--json",
     ]);
     let f = arr(&v, "f");
     let re = arr(&v, "re");
@@ -149,7 +235,11 @@ fn frf_recovers_a_known_gain_and_delay() {
     for k in (10..500).step_by(37) {
         let w = 2.0 * PI * f[k] / 10000.0;
         let (er, ei) = (0.5 * w.cos(), -0.5 * w.sin());
-        assert!((re[k] - er).abs() < 0.01 && (im[k] - ei).abs() < 0.01, "H1 at {} Hz", f[k]);
+        assert!(
+            (re[k] - er).abs() < 0.01 && (im[k] - ei).abs() < 0.01,
+            "H1 at {} Hz",
+            f[k]
+        );
         assert!(coh[k] > 0.99, "coherence at {} Hz = {}", f[k], coh[k]);
     }
 }
@@ -162,7 +252,10 @@ fn tfest_recovers_the_papers_haptuator_model() {
     for i in 0..120 {
         let f = 10.0 * (500.0f64).powf(i as f64 / 119.0);
         let s = num_s(f);
-        let h = div(add(mul(s, (250.0, 0.0)), (6.40e5, 0.0)), add(add(mul(s, s), mul(s, (2135.0, 0.0))), (4.56e6, 0.0)));
+        let h = div(
+            add(mul(s, (250.0, 0.0)), (6.40e5, 0.0)),
+            add(add(mul(s, s), mul(s, (2135.0, 0.0))), (4.56e6, 0.0)),
+        );
         text += &format!("{f},{},{},1\n", h.0, h.1);
     }
     let path = write_csv(&dir, "frf.csv", &text);
@@ -199,16 +292,72 @@ fn tfest_recovers_the_papers_haptuator_model() {
 fn malformed_csv_gets_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let ok = write_csv(&dir, "ok.csv", "x,y\n1,2\n3,4\n");
-    fails_with(&["psd", &ok, "--fs", "1", "--column", "nope", "--nperseg", "2"], "no column named `nope`");
+    fails_with(
+        &[
+            "psd",
+            &ok,
+            "--fs",
+            "1",
+            "--column",
+            "nope",
+            "--nperseg",
+            "2",
+        ],
+        "no column named `nope`",
+    );
     let bad = write_csv(&dir, "bad.csv", "x,y\n1,2\n3,oops\n");
-    fails_with(&["frf", &bad, "--fs", "1", "--input", "x", "--output", "y", "--nperseg", "2"], "bad.csv:3");
+    fails_with(
+        &[
+            "frf",
+            &bad,
+            "--fs",
+            "1",
+            "--input",
+            "x",
+            "--output",
+            "y",
+            "--nperseg",
+            "2",
+        ],
+        "bad.csv:3",
+    );
     let empty = write_csv(&dir, "empty.csv", "");
-    fails_with(&["psd", &empty, "--fs", "1", "--column", "x", "--nperseg", "2"], "empty file");
+    fails_with(
+        &[
+            "psd",
+            &empty,
+            "--fs",
+            "1",
+            "--column",
+            "x",
+            "--nperseg",
+            "2",
+        ],
+        "empty file",
+    );
     let ragged = write_csv(&dir, "ragged.csv", "f,re,im\n1,2,3\n4,5\n");
-    fails_with(&["tfest", &ragged, "--nb", "0", "--na", "1"], "ragged.csv:3");
-    fails_with(&["psd", "/nonexistent/file.csv", "--fs", "1", "--column", "x", "--nperseg", "2"], "cannot read");
+    fails_with(
+        &["tfest", &ragged, "--nb", "0", "--na", "1"],
+        "ragged.csv:3",
+    );
+    fails_with(
+        &[
+            "psd",
+            "/nonexistent/file.csv",
+            "--fs",
+            "1",
+            "--column",
+            "x",
+            "--nperseg",
+            "2",
+        ],
+        "cannot read",
+    );
     // Too long a segment is reported by name, not a panic.
-    fails_with(&["psd", &ok, "--fs", "1", "--column", "x", "--nperseg", "64"], "nperseg");
+    fails_with(
+        &["psd", &ok, "--fs", "1", "--column", "x", "--nperseg", "64"],
+        "nperseg",
+    );
 }
 
 #[test]

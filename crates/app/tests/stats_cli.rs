@@ -4,7 +4,10 @@ use serde_json::Value;
 use std::process::Command;
 
 fn run(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch")).args(args).output().expect("run kilotouch")
+    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
+        .args(args)
+        .output()
+        .expect("run kilotouch")
 }
 
 fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> String {
@@ -21,14 +24,30 @@ fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> St
 
 fn stats_json(path: &str, test: &str) -> Value {
     let out = run(&[
-        "stats", path, "--dv", "score", "--within", "condition", "--subject", "participant", "--test", test, "--json",
+        "stats",
+        path,
+        "--dv",
+        "score",
+        "--within",
+        "condition",
+        "--subject",
+        "participant",
+        "--test",
+        test,
+        "--json",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).expect("json")
 }
 
 fn near(v: &Value, k: &str, want: f64, tol: f64) {
-    let got = v[k].as_f64().unwrap_or_else(|| panic!("missing {k} in {v}"));
+    let got = v[k]
+        .as_f64()
+        .unwrap_or_else(|| panic!("missing {k} in {v}"));
     assert!((got - want).abs() <= tol, "{k}: {got} vs {want}");
 }
 
@@ -38,7 +57,11 @@ fn repeated_measures_reference_vector() {
     let p = long_csv(
         &dir,
         "rm.csv",
-        &[("A", &[2.2, 3.1, 4.3, 4.1, 7.2]), ("B", &[1.1, 2.5, 4.1, 5.2, 6.4]), ("C", &[8.2, 4.5, 3.4, 6.2, 7.2])],
+        &[
+            ("A", &[2.2, 3.1, 4.3, 4.1, 7.2]),
+            ("B", &[1.1, 2.5, 4.1, 5.2, 6.4]),
+            ("C", &[8.2, 4.5, 3.4, 6.2, 7.2]),
+        ],
     );
     let v = stats_json(&p, "rm");
     near(&v, "F", 2.153754, 1e-6);
@@ -62,8 +85,14 @@ fn friedman_reference_vector() {
         "fr.csv",
         &[
             ("before", &[72.0, 96.0, 88.0, 92.0, 74.0, 76.0, 82.0]),
-            ("immediately_after", &[120.0, 120.0, 132.0, 120.0, 101.0, 96.0, 112.0]),
-            ("five_min_after", &[76.0, 95.0, 104.0, 96.0, 84.0, 72.0, 76.0]),
+            (
+                "immediately_after",
+                &[120.0, 120.0, 132.0, 120.0, 101.0, 96.0, 112.0],
+            ),
+            (
+                "five_min_after",
+                &[76.0, 95.0, 104.0, 96.0, 84.0, 72.0, 76.0],
+            ),
         ],
     );
     let v = stats_json(&p, "friedman");
@@ -81,9 +110,18 @@ fn oneway_plantgrowth() {
         &dir,
         "pg.csv",
         &[
-            ("ctrl", &[4.17, 5.58, 5.18, 6.11, 4.50, 4.61, 5.17, 4.53, 5.33, 5.14]),
-            ("trt1", &[4.81, 4.17, 4.41, 3.59, 5.87, 3.83, 6.03, 4.89, 4.32, 4.69]),
-            ("trt2", &[6.31, 5.12, 5.54, 5.50, 5.37, 5.29, 4.92, 6.15, 5.80, 5.26]),
+            (
+                "ctrl",
+                &[4.17, 5.58, 5.18, 6.11, 4.50, 4.61, 5.17, 4.53, 5.33, 5.14],
+            ),
+            (
+                "trt1",
+                &[4.81, 4.17, 4.41, 3.59, 5.87, 3.83, 6.03, 4.89, 4.32, 4.69],
+            ),
+            (
+                "trt2",
+                &[6.31, 5.12, 5.54, 5.50, 5.37, 5.29, 4.92, 6.15, 5.80, 5.26],
+            ),
         ],
     );
     let v = stats_json(&p, "oneway");
@@ -102,10 +140,21 @@ fn malformed_inputs_name_the_problem() {
         p.to_string_lossy().into_owned()
     };
     let args = |p: &str| -> Vec<String> {
-        ["stats", p, "--dv", "score", "--within", "condition", "--subject", "participant", "--test", "rm"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect()
+        [
+            "stats",
+            p,
+            "--dv",
+            "score",
+            "--within",
+            "condition",
+            "--subject",
+            "participant",
+            "--test",
+            "rm",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
     };
     let check = |p: &str, needle: &str| {
         let a = args(p);
@@ -116,11 +165,26 @@ fn malformed_inputs_name_the_problem() {
         assert!(err.contains(needle), "`{needle}` not in: {err}");
         assert!(!err.contains("panicked"), "{err}");
     };
-    check(&write("nodv.csv", "participant,condition\ns1,A\n"), "no column named `score`");
-    check(&write("nonnum.csv", "participant,condition,score\ns1,A,1\ns1,B,zz\n"), "nonnum.csv:3");
-    check(&write("ragged.csv", "participant,condition,score\ns1,A,1\ns1,B\n"), "ragged.csv:3");
     check(
-        &write("incomplete.csv", "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,3\ns3,A,1\ns3,B,5\n"),
+        &write("nodv.csv", "participant,condition\ns1,A\n"),
+        "no column named `score`",
+    );
+    check(
+        &write(
+            "nonnum.csv",
+            "participant,condition,score\ns1,A,1\ns1,B,zz\n",
+        ),
+        "nonnum.csv:3",
+    );
+    check(
+        &write("ragged.csv", "participant,condition,score\ns1,A,1\ns1,B\n"),
+        "ragged.csv:3",
+    );
+    check(
+        &write(
+            "incomplete.csv",
+            "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,3\ns3,A,1\ns3,B,5\n",
+        ),
         "s2",
     );
 }

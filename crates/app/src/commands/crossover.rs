@@ -30,7 +30,9 @@ fn parse_order(s: &str) -> Result<u32, String> {
         "2" => Ok(2),
         "4" => Ok(4),
         "8" => Ok(8),
-        other => Err(format!("`{other}` is not a supported order (use 2, 4 or 8)")),
+        other => Err(format!(
+            "`{other}` is not a supported order (use 2, 4 or 8)"
+        )),
     }
 }
 
@@ -84,7 +86,16 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
     emit(a.json, &report, || {
         let mut t = format!(
             "LR{} crossover, fc = {} Hz, fs = {} Hz\n{:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}\n",
-            a.order, a.fc, a.fs, "f [Hz]", "low dB", "low °", "high dB", "high °", "sum dB", "sum °"
+            a.order,
+            a.fc,
+            a.fs,
+            "f [Hz]",
+            "low dB",
+            "low °",
+            "high dB",
+            "high °",
+            "sum dB",
+            "sum °"
         );
         for p in &report.points {
             t += &format!(

@@ -32,14 +32,19 @@ pub struct Args {
 /// Run the command.
 pub fn run(a: &Args) -> anyhow::Result<()> {
     let test: Test = a.test.parse()?;
-    let t = read_table(&a.file, &[a.subject.as_str(), a.within.as_str()], &[a.dv.as_str()], &[])?;
+    let t = read_table(
+        &a.file,
+        &[a.subject.as_str(), a.within.as_str()],
+        &[a.dv.as_str()],
+        &[],
+    )?;
     let rows = t.text[0]
         .iter()
         .zip(&t.text[1])
         .zip(&t.data[0])
         .map(|((s, c), &v)| (s.as_str(), c.as_str(), v));
-    let report = run_test_long(rows, test)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.file.display()))?;
+    let report =
+        run_test_long(rows, test).map_err(|e| anyhow::anyhow!("{}: {e}", a.file.display()))?;
     emit(a.json, &report, || human(&report, a))
 }
 

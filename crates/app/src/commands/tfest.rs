@@ -128,7 +128,11 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             report.max_rel_error,
             report.condition_number,
             report.iterations,
-            if report.converged { "" } else { " (NOT converged)" }
+            if report.converged {
+                ""
+            } else {
+                " (NOT converged)"
+            }
         );
         t
     })
