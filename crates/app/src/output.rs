@@ -21,6 +21,30 @@ pub fn emit<T: Serialize>(
     Ok(())
 }
 
+/// Segmenting options shared by the Welch-based commands (`psd`, `frf`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct WelchArgs {
+    /// Sample rate in Hz.
+    #[arg(long)]
+    pub fs: f64,
+    /// Segment length in samples.
+    #[arg(long)]
+    pub nperseg: usize,
+    /// Overlap in samples (default nperseg/2).
+    #[arg(long)]
+    pub noverlap: Option<usize>,
+}
+
+impl WelchArgs {
+    /// The dsp crate's configuration: scipy defaults (periodic Hann, constant
+    /// detrend, one-sided density) with these segment settings.
+    pub fn config(&self) -> kilotouch_dsp::spectral::WelchConfig {
+        let mut cfg = kilotouch_dsp::spectral::WelchConfig::new(self.nperseg);
+        cfg.noverlap = self.noverlap;
+        cfg
+    }
+}
+
 /// Wrap an angle in degrees to (−180, 180].
 pub fn wrap_deg(mut d: f64) -> f64 {
     if !d.is_finite() {

@@ -12,6 +12,7 @@
 //! (pairing = 'nearest'); Oppenheim & Schafer, *Discrete-Time Signal
 //! Processing*, 3rd ed., §7.2 (bilinear transformation and frequency warping).
 
+use crate::error::check_fs;
 use crate::filter::BiquadCoeffs;
 use crate::{C64, DspError, Result, Tf, Zpk};
 use std::f64::consts::PI;
@@ -40,30 +41,14 @@ pub enum Prewarp {
     AtHz(f64),
 }
 
-fn param(name: &'static str, value: f64, reason: &str) -> DspError {
-    DspError::InvalidParameter {
-        name,
-        value,
-        reason: reason.into(),
-    }
-}
-
-fn check_fs(fs: f64) -> Result<()> {
-    if fs.is_finite() && fs > 0.0 {
-        Ok(())
-    } else {
-        Err(param("fs", fs, "sample rate must be finite and > 0"))
-    }
-}
-
 fn check_order(order: usize) -> Result<()> {
     if (1..=MAX_BUTTER_ORDER).contains(&order) {
         Ok(())
     } else {
-        Err(param(
+        Err(DspError::param(
             "order",
             order as f64,
-            &format!("Butterworth order must be in 1..={MAX_BUTTER_ORDER}"),
+            format!("Butterworth order must be in 1..={MAX_BUTTER_ORDER}"),
         ))
     }
 }
@@ -97,7 +82,11 @@ fn check_wc(wc: f64) -> Result<()> {
     if wc.is_finite() && wc > 0.0 {
         Ok(())
     } else {
-        Err(param("wc", wc, "cut-off must be finite and > 0 rad/s"))
+        Err(DspError::param(
+            "wc",
+            wc,
+            "cut-off must be finite and > 0 rad/s",
+        ))
     }
 }
 
@@ -170,7 +159,7 @@ pub fn bilinear_constant(fs: f64, prewarp_hz: Option<f64>) -> Result<f64> {
         None => Ok(2.0 * fs),
         Some(fp) => {
             if !(fp.is_finite() && fp > 0.0 && fp < fs / 2.0) {
-                return Err(param(
+                return Err(DspError::param(
                     "prewarp",
                     fp,
                     "prewarp frequency must be in (0, fs/2) hertz",
@@ -246,7 +235,11 @@ pub fn butter_zpk(
 ) -> Result<Zpk> {
     check_fs(fs)?;
     if !(fc.is_finite() && fc > 0.0 && fc < fs / 2.0) {
-        return Err(param("fc", fc, "cut-off must be in (0, fs/2) hertz"));
+        return Err(DspError::param(
+            "fc",
+            fc,
+            "cut-off must be in (0, fs/2) hertz",
+        ));
     }
     let analog = butter_analog(order, 2.0 * PI * fc, kind)?;
     let pw = match prewarp {

@@ -59,3 +59,27 @@ pub enum DspError {
     #[error("unstable system: {0}")]
     Unstable(String),
 }
+
+impl DspError {
+    /// Shorthand for [`DspError::InvalidParameter`].
+    pub fn param(name: &'static str, value: f64, reason: impl Into<String>) -> Self {
+        Self::InvalidParameter {
+            name,
+            value,
+            reason: reason.into(),
+        }
+    }
+}
+
+/// A sample rate must be finite and positive (hertz).
+pub(crate) fn check_fs(fs: f64) -> crate::Result<()> {
+    if fs.is_finite() && fs > 0.0 {
+        Ok(())
+    } else {
+        Err(DspError::param(
+            "fs",
+            fs,
+            "sample rate must be finite and > 0",
+        ))
+    }
+}

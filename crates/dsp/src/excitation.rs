@@ -17,6 +17,7 @@
 //! Units: frequencies in Hz, times in s, sample rates `fs` in Hz, phases in
 //! rad, amplitudes in the caller's signal unit.
 
+use crate::error::check_fs;
 use crate::{DspError, Result};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -401,33 +402,45 @@ impl LogSweep {
     pub fn validate(&self, fs: f64) -> Result<()> {
         check_fs(fs)?;
         if !(self.f1.is_finite() && self.f1 > 0.0) {
-            return Err(invalid("f1", self.f1, "must be finite and > 0"));
+            return Err(DspError::param("f1", self.f1, "must be finite and > 0"));
         }
         if !(self.f2.is_finite() && self.f2 > self.f1 && self.f2 <= fs / 2.0) {
-            return Err(invalid("f2", self.f2, "must satisfy f1 < f2 ≤ fs/2"));
+            return Err(DspError::param(
+                "f2",
+                self.f2,
+                "must satisfy f1 < f2 ≤ fs/2",
+            ));
         }
         if !(self.duration.is_finite() && self.duration * fs >= 2.0) {
-            return Err(invalid(
+            return Err(DspError::param(
                 "duration",
                 self.duration,
                 "must be finite and last at least 2 samples",
             ));
         }
         if !(self.amplitude.is_finite() && self.amplitude > 0.0) {
-            return Err(invalid(
+            return Err(DspError::param(
                 "amplitude",
                 self.amplitude,
                 "must be finite and > 0",
             ));
         }
         if !(self.fade_in.is_finite() && self.fade_in >= 0.0) {
-            return Err(invalid("fade_in", self.fade_in, "must be finite and ≥ 0"));
+            return Err(DspError::param(
+                "fade_in",
+                self.fade_in,
+                "must be finite and ≥ 0",
+            ));
         }
         if !(self.fade_out.is_finite() && self.fade_out >= 0.0) {
-            return Err(invalid("fade_out", self.fade_out, "must be finite and ≥ 0"));
+            return Err(DspError::param(
+                "fade_out",
+                self.fade_out,
+                "must be finite and ≥ 0",
+            ));
         }
         if self.fade_in + self.fade_out > self.duration {
-            return Err(invalid(
+            return Err(DspError::param(
                 "fade_out",
                 self.fade_out,
                 "fade_in + fade_out must not exceed the duration",
@@ -441,7 +454,7 @@ impl LogSweep {
         self.validate(fs)?;
         let n = (self.duration * fs).round();
         if n > (isize::MAX as f64) / 8.0 {
-            return Err(invalid("duration", self.duration, "sweep too long"));
+            return Err(DspError::param("duration", self.duration, "sweep too long"));
         }
         Ok(n as usize)
     }
@@ -546,21 +559,21 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
         return Err(DspError::InvalidInput("no stepped-sine frequencies".into()));
     }
     if !(cfg.amplitude.is_finite() && cfg.amplitude > 0.0) {
-        return Err(invalid(
+        return Err(DspError::param(
             "amplitude",
             cfg.amplitude,
             "must be finite and > 0",
         ));
     }
     if !(cfg.settle_time.is_finite() && cfg.settle_time >= 0.0) {
-        return Err(invalid(
+        return Err(DspError::param(
             "settle_time",
             cfg.settle_time,
             "must be finite and ≥ 0",
         ));
     }
     if !(cfg.measure_time.is_finite() && cfg.measure_time > 0.0) {
-        return Err(invalid(
+        return Err(DspError::param(
             "measure_time",
             cfg.measure_time,
             "must be finite and > 0",
@@ -569,19 +582,27 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
     let limit = 1e15; // samples; keeps all integer arithmetic exact in f64
     let settle = (cfg.settle_time * fs).ceil();
     if settle > limit {
-        return Err(invalid("settle_time", cfg.settle_time, "too long"));
+        return Err(DspError::param("settle_time", cfg.settle_time, "too long"));
     }
     let settle = settle as u64;
     let mut steps = Vec::with_capacity(cfg.frequencies.len());
     let mut pos: u64 = 0;
     for &f in &cfg.frequencies {
         if !(f.is_finite() && f > 0.0 && f < fs / 2.0) {
-            return Err(invalid("frequencies", f, "each must be in (0, fs/2)"));
+            return Err(DspError::param(
+                "frequencies",
+                f,
+                "each must be in (0, fs/2)",
+            ));
         }
         let k = (f * cfg.measure_time).ceil().max(1.0);
         let m = (k * fs / f).round();
         if m > limit || k > limit {
-            return Err(invalid("measure_time", cfg.measure_time, "too long"));
+            return Err(DspError::param(
+                "measure_time",
+                cfg.measure_time,
+                "too long",
+            ));
         }
         let k = k as u64;
         let m = (m as u64).max(2 * k + 1);
@@ -589,7 +610,8 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
         let measure_start = start + settle;
         let end = measure_start + m;
         let to_usize = |v: u64| {
-            usize::try_from(v).map_err(|_| invalid("measure_time", cfg.measure_time, "too long"))
+            usize::try_from(v)
+                .map_err(|_| DspError::param("measure_time", cfg.measure_time, "too long"))
         };
         steps.push(SineStep {
             requested_frequency: f,
@@ -602,7 +624,7 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
         });
         pos = end;
         if pos as f64 > limit {
-            return Err(invalid(
+            return Err(DspError::param(
                 "measure_time",
                 cfg.measure_time,
                 "schedule too long",
@@ -637,7 +659,7 @@ pub fn stepped_sine(cfg: &SteppedSineConfig, fs: f64) -> Result<(Vec<f64>, Vec<S
 fn check_sine_args(x: &[f64], f: f64, fs: f64) -> Result<()> {
     check_fs(fs)?;
     if !(f.is_finite() && f > 0.0 && f < fs / 2.0) {
-        return Err(invalid("f", f, "must be in (0, fs/2)"));
+        return Err(DspError::param("f", f, "must be in (0, fs/2)"));
     }
     if x.len() < 3 {
         return Err(DspError::InvalidInput(format!(
@@ -736,22 +758,6 @@ pub fn sine_dft(x: &[f64], f: f64, fs: f64) -> Result<(f64, f64)> {
 // ---------------------------------------------------------------------------
 // helpers
 // ---------------------------------------------------------------------------
-
-fn invalid(name: &'static str, value: f64, reason: &str) -> DspError {
-    DspError::InvalidParameter {
-        name,
-        value,
-        reason: reason.into(),
-    }
-}
-
-fn check_fs(fs: f64) -> Result<()> {
-    if fs.is_finite() && fs > 0.0 {
-        Ok(())
-    } else {
-        Err(invalid("fs", fs, "sample rate must be finite and > 0"))
-    }
-}
 
 #[cfg(test)]
 mod tests {

@@ -284,29 +284,25 @@ struct Params {
     scale: f64,
 }
 
-fn invalid(name: &'static str, value: f64, reason: impl Into<String>) -> DspError {
-    DspError::InvalidParameter {
-        name,
-        value,
-        reason: reason.into(),
-    }
-}
-
 impl Params {
     fn new(cfg: &WelchConfig, fs: f64, len: Option<usize>) -> Result<(Self, Vec<f64>)> {
         if !(fs.is_finite() && fs > 0.0) {
-            return Err(invalid("fs", fs, "sample rate must be finite and > 0"));
+            return Err(DspError::param(
+                "fs",
+                fs,
+                "sample rate must be finite and > 0",
+            ));
         }
         let nperseg = cfg.nperseg;
         if nperseg == 0 {
-            return Err(invalid("nperseg", 0.0, "must be ≥ 1"));
+            return Err(DspError::param("nperseg", 0.0, "must be ≥ 1"));
         }
         if let Some(len) = len {
             if len == 0 {
                 return Err(DspError::InvalidInput("empty signal".into()));
             }
             if nperseg > len {
-                return Err(invalid(
+                return Err(DspError::param(
                     "nperseg",
                     nperseg as f64,
                     format!("exceeds the signal length {len}"),
@@ -315,7 +311,7 @@ impl Params {
         }
         let noverlap = cfg.overlap();
         if noverlap >= nperseg {
-            return Err(invalid(
+            return Err(DspError::param(
                 "noverlap",
                 noverlap as f64,
                 format!("must be < nperseg = {nperseg}"),
@@ -323,7 +319,7 @@ impl Params {
         }
         let nfft = cfg.fft_len();
         if nfft < nperseg {
-            return Err(invalid(
+            return Err(DspError::param(
                 "nfft",
                 nfft as f64,
                 format!("must be ≥ nperseg = {nperseg}"),
@@ -336,7 +332,11 @@ impl Params {
             Scaling::Spectrum => 1.0 / (s1 * s1),
         };
         if !(scale.is_finite() && scale > 0.0) {
-            return Err(invalid("window", nperseg as f64, "window sums vanish"));
+            return Err(DspError::param(
+                "window",
+                nperseg as f64,
+                "window sums vanish",
+            ));
         }
         Ok((
             Self {

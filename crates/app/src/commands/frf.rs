@@ -1,8 +1,8 @@
 //! `kilotouch frf`: H1 frequency-response estimate with coherence.
 
 use crate::csvio::read_columns;
-use crate::output::{db, emit};
-use kilotouch_dsp::spectral::{WelchConfig, frf};
+use crate::output::{WelchArgs, db, emit};
+use kilotouch_dsp::spectral::frf;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -11,21 +11,15 @@ use std::path::PathBuf;
 pub struct Args {
     /// CSV file with a header row.
     pub file: PathBuf,
-    /// Sample rate in Hz.
-    #[arg(long)]
-    pub fs: f64,
     /// Input (excitation) column.
     #[arg(long)]
     pub input: String,
     /// Output (response) column.
     #[arg(long)]
     pub output: String,
-    /// Segment length in samples.
-    #[arg(long)]
-    pub nperseg: usize,
-    /// Overlap in samples (default nperseg/2).
-    #[arg(long)]
-    pub noverlap: Option<usize>,
+    /// Sample rate and segmenting.
+    #[command(flatten)]
+    pub welch: WelchArgs,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -47,9 +41,8 @@ pub struct Report {
 /// Run the command.
 pub fn run(a: &Args) -> anyhow::Result<()> {
     let cols = read_columns(&a.file, &[a.input.as_str(), a.output.as_str()], &[])?;
-    let mut cfg = WelchConfig::new(a.nperseg);
-    cfg.noverlap = a.noverlap;
-    let e = frf(&cols.data[0], &cols.data[1], a.fs, &cfg)?;
+    let cfg = a.welch.config();
+    let e = frf(&cols.data[0], &cols.data[1], a.welch.fs, &cfg)?;
     let report = Report {
         re: e.h1.iter().map(|h| h.re).collect(),
         im: e.h1.iter().map(|h| h.im).collect(),

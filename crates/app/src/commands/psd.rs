@@ -1,8 +1,8 @@
 //! `kilotouch psd`: Welch power spectral density of one CSV column.
 
 use crate::csvio::read_columns;
-use crate::output::emit;
-use kilotouch_dsp::spectral::{WelchConfig, welch};
+use crate::output::{WelchArgs, emit};
+use kilotouch_dsp::spectral::welch;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -11,18 +11,12 @@ use std::path::PathBuf;
 pub struct Args {
     /// CSV file with a header row.
     pub file: PathBuf,
-    /// Sample rate in Hz.
-    #[arg(long)]
-    pub fs: f64,
     /// Column to analyse.
     #[arg(long)]
     pub column: String,
-    /// Segment length in samples.
-    #[arg(long)]
-    pub nperseg: usize,
-    /// Overlap in samples (default nperseg/2).
-    #[arg(long)]
-    pub noverlap: Option<usize>,
+    /// Sample rate and segmenting.
+    #[command(flatten)]
+    pub welch: WelchArgs,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -41,9 +35,8 @@ pub struct Report {
 pub fn run(a: &Args) -> anyhow::Result<()> {
     let cols = read_columns(&a.file, &[a.column.as_str()], &[])?;
     let x = &cols.data[0];
-    let mut cfg = WelchConfig::new(a.nperseg);
-    cfg.noverlap = a.noverlap;
-    let s = welch(x, a.fs, &cfg)?;
+    let cfg = a.welch.config();
+    let s = welch(x, a.welch.fs, &cfg)?;
     let report = Report { f: s.f, psd: s.p };
     emit(a.json, &report, || {
         let mut t = format!(
@@ -51,7 +44,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             a.column,
             x.len(),
             s.n_segments,
-            a.nperseg,
+            a.welch.nperseg,
             "f [Hz]",
             "PSD [u²/Hz]"
         );
