@@ -14,6 +14,9 @@
 //! `docs/STUDY.md`.
 
 pub mod counterbalance;
+pub mod export;
+pub mod journal;
 pub mod protocol;
+pub mod rawsig;
 pub mod seeds;
 pub mod stats;
