@@ -21,12 +21,14 @@
 //! # Reading after a crash
 //!
 //! A crash can only damage the record being appended. On reading, trailing
-//! lines that are incomplete (no final newline), not JSON, or fail their
-//! checksum form the *torn tail*: they are ignored and reported
-//! ([`JournalRead::torn`]); [`Journal::open`] saves a copy under
-//! `recovery/` and truncates them before appending. An invalid line
-//! followed by valid ones cannot come from a crash and is an error, as is a
-//! gap in `seq`.
+//! lines that are incomplete (no final newline) or fail their checksum form
+//! the *torn tail*: they are ignored and reported ([`JournalRead::torn`]);
+//! [`Journal::open`] saves a copy under `recovery/` and truncates them
+//! before appending. A damaged line followed by valid ones cannot come from
+//! a crash and is an error, as is a gap in `seq`, or a line whose checksum
+//! holds but whose record is not understood (a newer version's record type,
+//! or an edit with a recomputed checksum): such lines were written
+//! completely and are never cut.
 //!
 //! # Records
 //!

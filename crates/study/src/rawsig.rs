@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::export::error::{ExportError, Result, io_err};
-use crate::export::fsutil::{parent_of, sync_dir, write_atomic};
+use crate::export::fsutil::write_atomic;
 
 /// NPY magic string.
 pub const NPY_MAGIC: &[u8; 6] = b"\x93NUMPY";
@@ -386,8 +386,9 @@ impl NpyWriter {
         res.map_err(io_err(&self.path, "write"))
     }
 
-    /// Patches the header with the final sample count, fsyncs the file,
-    /// writes the sidecar atomically and fsyncs the directory.
+    /// Patches the header with the final sample count, fsyncs the file and
+    /// writes the sidecar atomically (temporary file, fsync, rename, fsync
+    /// of the directory — which also makes the new `.npy` entry durable).
     ///
     /// # Errors
     /// I/O errors.
@@ -422,8 +423,8 @@ impl NpyWriter {
             path: sidecar.clone(),
             source,
         })?;
+        // Also makes the new .npy entry durable: same directory.
         write_atomic(&sidecar, &json)?;
-        sync_dir(&parent_of(&path))?;
         Ok(RawWritten {
             npy: path,
             sidecar,

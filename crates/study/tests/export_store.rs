@@ -363,9 +363,14 @@ fn resume_after_a_crash_in_every_window_gives_the_uninterrupted_files() {
         Crash::TornRecord,
     ];
     for (n, crash) in crashes.into_iter().enumerate() {
-        // Crash at a different point of the plan each time (first trial,
-        // mid-participant, last trial).
-        for at in [0_usize, 7, 23] {
+        // Crash at the first trial, mid-participant and at the last trial:
+        // each window at one of them in turn, the crashes inside a trial at
+        // all three.
+        let positions: &[usize] = match crash {
+            Crash::During(_) => &[0, 7, 23],
+            _ => &[[0, 7, 23][n % 3]],
+        };
+        for &at in positions {
             let dir = tmp.path().join(format!("crash-{n}-{at}"));
             let mut store = open(&dir, 2, 3, 1);
             let keys: Vec<TrialKey> = store.plan().iter().map(|p| p.key).collect();
@@ -803,4 +808,22 @@ fn summaries_regenerate_from_trials_csv_alone_ignoring_a_torn_tail() {
     assert_eq!(fs::read(&again.cells_long).unwrap(), long);
     assert_eq!(fs::read(&again.cells_wide).unwrap(), wide);
     assert_eq!(fs::read(&path).unwrap(), b, "read-only on trials.csv");
+}
+
+#[test]
+fn open_existing_resumes_with_the_recorded_protocol() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let mut store = open(tmp.path(), 2, 3, 1);
+    let k = store.plan()[0].key;
+    run_trial(&mut store, k, Stop::Complete, 0);
+    drop(store);
+    let store = StudyStore::open_existing(tmp.path(), &common::meta()).unwrap();
+    assert_eq!(store.protocol(), &protocol(2, 3, 1, SEED));
+    assert_eq!(store.completed_count(), 1);
+    assert!(store.is_completed(&k));
+    let empty = tmp.path().join("empty");
+    assert!(matches!(
+        StudyStore::open_existing(&empty, &common::meta()),
+        Err(ExportError::NotAStudyFolder { .. })
+    ));
 }

@@ -712,6 +712,24 @@ impl StudyStore {
         Ok(store)
     }
 
+    /// Resumes an existing folder with the protocol recorded in its
+    /// `session.json` (see [`StudyStore::open`]).
+    ///
+    /// # Errors
+    /// [`ExportError::NotAStudyFolder`] without `session.json`; those of
+    /// [`read_session`] and [`StudyStore::open`].
+    pub fn open_existing(dir: &Path, meta: &StudyMeta) -> Result<Self> {
+        let path = dir.join(SESSION_FILE);
+        if !path.is_file() {
+            return Err(ExportError::NotAStudyFolder {
+                path: dir.to_path_buf(),
+                reason: format!("no `{SESSION_FILE}`"),
+            });
+        }
+        let info = read_session(&path)?;
+        Self::open(dir, &info.protocol, meta)
+    }
+
     fn write_session_info(&mut self) -> Result<()> {
         let jread = crate::journal::read_journal(self.journal.path())?;
         self.info.sittings = sittings(&jread.entries);
