@@ -319,12 +319,19 @@ pub fn parse_journal(path: &Path, bytes: &[u8]) -> Result<JournalRead> {
 /// # Errors
 /// I/O errors and those of [`parse_journal`].
 pub fn read_journal(path: &Path) -> Result<JournalRead> {
-    let bytes = match fs::read(path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
-        Err(e) => return Err(io_err(path, "read")(e)),
-    };
-    parse_journal(path, &bytes)
+    parse_journal(path, &read_bytes(path)?)
+}
+
+/// The bytes of a journal file (empty when it does not exist).
+///
+/// # Errors
+/// I/O failures other than a missing file.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    match fs::read(path) {
+        Ok(b) => Ok(b),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Err(e) => Err(io_err(path, "read")(e)),
+    }
 }
 
 /// Append handle on a journal.
@@ -344,25 +351,34 @@ impl Journal {
     /// # Errors
     /// Those of [`read_journal`] and I/O failures.
     pub fn open(path: &Path, recovery_dir: &Path) -> Result<(Self, JournalRead)> {
-        let bytes = match fs::read(path) {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
-            Err(e) => return Err(io_err(path, "read")(e)),
-        };
+        let bytes = read_bytes(path)?;
         let mut read = parse_journal(path, &bytes)?;
+        let journal = Self::resume(path, &mut read, &bytes, recovery_dir)?;
+        Ok((journal, read))
+    }
+
+    /// Second half of [`Journal::open`] for a caller that has already read
+    /// and checked the file (`bytes`, `read` from [`parse_journal`]): cuts
+    /// the torn tail (setting `read.torn.saved_to`) and opens for appending.
+    ///
+    /// # Errors
+    /// I/O failures.
+    pub fn resume(
+        path: &Path,
+        read: &mut JournalRead,
+        bytes: &[u8],
+        recovery_dir: &Path,
+    ) -> Result<Self> {
         if let Some(torn) = read.torn.as_mut() {
             let tail = &bytes[torn.offset as usize..];
             torn.saved_to = Some(cut_torn_tail(path, torn, tail, recovery_dir)?);
         }
         let file = open_append(path)?;
-        Ok((
-            Self {
-                path: path.to_path_buf(),
-                file,
-                next_seq: read.next_seq(),
-            },
-            read,
-        ))
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+            next_seq: read.next_seq(),
+        })
     }
 
     /// Appends `record` stamped with the current time and fsyncs; returns

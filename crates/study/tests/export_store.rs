@@ -493,6 +493,13 @@ fn a_journaled_row_missing_from_trials_csv_is_refused_untouched() {
     }
     drop(store);
     drop_last_line(&tmp.path().join(TRIALS_FILE));
+    // Also a torn journal tail and a torn row: even these are not cut when
+    // the folder is refused.
+    for f in [JOURNAL_FILE, TRIALS_FILE] {
+        let mut b = fs::read(tmp.path().join(f)).expect("read");
+        b.extend_from_slice(b"{\"seq\":99,\"ut");
+        fs::write(tmp.path().join(f), b).expect("write");
+    }
     let before =
         [TRIALS_FILE, JOURNAL_FILE, SESSION_FILE].map(|f| fs::read(tmp.path().join(f)).unwrap());
     let err = try_open(tmp.path()).unwrap_err();
@@ -505,6 +512,7 @@ fn a_journaled_row_missing_from_trials_csv_is_refused_untouched() {
     let after =
         [TRIALS_FILE, JOURNAL_FILE, SESSION_FILE].map(|f| fs::read(tmp.path().join(f)).unwrap());
     assert_eq!(before, after, "nothing modified");
+    assert!(!tmp.path().join("recovery").exists());
 }
 
 /// Replaces line `n` (1-based) of trials.csv by `f(line)`, optionally

@@ -482,10 +482,10 @@ impl StudyStore {
             write_session(&session_path, &info)?;
             info
         };
-        create_dir_durable(&dir.join(RAW_DIR))?;
-
-        // Journal: cut a torn tail, check the protocol of earlier sittings.
-        let (mut journal, jread) = Journal::open(&journal_path, &recovery_dir)?;
+        // Read and check everything before modifying anything: an error
+        // leaves the folder exactly as it was.
+        let journal_bytes = crate::journal::read_bytes(&journal_path)?;
+        let mut jread = crate::journal::parse_journal(&journal_path, &journal_bytes)?;
         for (e, line) in jread.entries.iter().zip(&jread.lines) {
             if let Record::SessionStarted(s) = &e.record
                 && s.protocol_sha256 != info.protocol_sha256
@@ -499,40 +499,29 @@ impl StudyStore {
                 });
             }
         }
-
-        // trials.csv: create, or read and cut a torn tail.
-        let mut trials_torn = None;
-        let read = if trials_path.exists() {
-            let mut bytes = fs::read(&trials_path).map_err(io_err(&trials_path, "read"))?;
-            let header = trials::header_line();
-            if bytes.len() < header.len() && header.as_bytes().starts_with(&bytes) {
-                // Crash while the file was being created: write the header
-                // again (there cannot be any row).
-                let mut f = fs::OpenOptions::new()
-                    .write(true)
-                    .open(&trials_path)
-                    .map_err(io_err(&trials_path, "open"))?;
-                f.set_len(0).map_err(io_err(&trials_path, "truncate"))?;
-                std::io::Write::write_all(&mut f, header.as_bytes())
-                    .map_err(io_err(&trials_path, "write"))?;
-                f.sync_all().map_err(io_err(&trials_path, "fsync"))?;
-                bytes = header.into_bytes();
-            }
-            let mut read = trials::parse_trials(&trials_path, &bytes, ReadOptions::default())?;
-            if let Some(torn) = read.torn.as_mut() {
-                let tail = &bytes[torn.offset as usize..];
-                torn.saved_to = Some(cut_torn_tail(&trials_path, torn, tail, &recovery_dir)?);
-                trials_torn = Some(torn.clone());
-            }
-            Some(read)
+        let header = trials::header_line();
+        let trials_bytes = if trials_path.exists() {
+            Some(fs::read(&trials_path).map_err(io_err(&trials_path, "read"))?)
         } else {
             None
         };
-        let trials_file = match read {
-            Some(_) => open_append(&trials_path)?,
-            None => create_trials_file(&trials_path)?,
+        // A file holding a strict prefix of the header: crash while it was
+        // being created (there cannot be any row); written again below.
+        let rewrite_header = trials_bytes
+            .as_ref()
+            .is_some_and(|b| b.len() < header.len() && header.as_bytes().starts_with(b));
+        let mut tread = match &trials_bytes {
+            Some(b) if !rewrite_header => Some(trials::parse_trials(
+                &trials_path,
+                b,
+                ReadOptions::default(),
+            )?),
+            _ => None,
         };
-        let rows = read.map(|r| (r.rows, r.crcs, r.lines)).unwrap_or_default();
+        let rows = tread
+            .as_ref()
+            .map(|r| (r.rows.clone(), r.crcs.clone(), r.lines.clone()))
+            .unwrap_or_default();
 
         // Reconcile.
         let by_id: HashMap<&str, &OrderRow> =
@@ -639,6 +628,36 @@ impl StudyStore {
             started.into_iter().map(|(k, l)| (l, k)).collect();
         interrupted.sort();
         let interrupted: Vec<TrialKey> = interrupted.into_iter().map(|(_, k)| k).collect();
+
+        // Checks passed: repair (cut torn tails, keeping copies) and open
+        // for appending.
+        create_dir_durable(&dir.join(RAW_DIR))?;
+        let mut trials_torn = None;
+        if let (Some(read), Some(bytes)) = (tread.as_mut(), &trials_bytes)
+            && let Some(torn) = read.torn.as_mut()
+        {
+            let tail = &bytes[torn.offset as usize..];
+            torn.saved_to = Some(cut_torn_tail(&trials_path, torn, tail, &recovery_dir)?);
+            trials_torn = Some(torn.clone());
+        }
+        let trials_file = if rewrite_header {
+            let mut f = fs::OpenOptions::new()
+                .write(true)
+                .open(&trials_path)
+                .map_err(io_err(&trials_path, "open"))?;
+            f.set_len(0).map_err(io_err(&trials_path, "truncate"))?;
+            std::io::Write::write_all(&mut f, header.as_bytes())
+                .map_err(io_err(&trials_path, "write"))?;
+            f.sync_all().map_err(io_err(&trials_path, "fsync"))?;
+            drop(f);
+            open_append(&trials_path)?
+        } else if tread.is_some() {
+            open_append(&trials_path)?
+        } else {
+            create_trials_file(&trials_path)?
+        };
+        let mut journal =
+            Journal::resume(&journal_path, &mut jread, &journal_bytes, &recovery_dir)?;
 
         let past = sittings(&jread.entries);
         let previous_sitting_unclosed = past.last().is_some_and(|s| s.done_utc.is_none());

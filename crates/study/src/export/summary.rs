@@ -117,11 +117,10 @@ pub fn summarize(rows: &[TrialRow]) -> Result<Summary> {
         .into_iter()
         .filter(|m| test.iter().any(|r| r.success && m.get(r).is_some()))
         .collect();
-    let mut conditions: Vec<Condition> = Condition::ALL
+    let conditions: Vec<Condition> = Condition::ALL
         .into_iter()
         .filter(|c| test.iter().any(|r| r.condition == *c))
         .collect();
-    conditions.sort();
     let mut participants: Vec<String> = test.iter().map(|r| r.participant.clone()).collect();
     participants.sort();
     participants.dedup();
