@@ -428,7 +428,9 @@ impl StudyStore {
                     reason: format!("format `{}` is not `{}`", info.format, session::FORMAT),
                 });
             }
-            if info.protocol_sha256 != protocol_sha256 {
+            // Equal hashes, or an equal protocol whose canonical TOML text
+            // changed with a newer `toml` crate.
+            if info.protocol_sha256 != protocol_sha256 && info.protocol != *protocol {
                 return Err(ExportError::ProtocolMismatch {
                     path: session_path,
                     expected_name: protocol.name.clone(),
