@@ -3,11 +3,20 @@
 //! Psychophysics study logic for the dual-stage haptic interface of Ji,
 //! Vézien, Hayward et al. (§4 of the paper): the statistics used to compare
 //! the V / P / D conditions ([`stats`]), counterbalancing of session orders
-//! ([`counterbalance`]) and study protocol files ([`protocol`]).
+//! ([`counterbalance`]), study protocol files ([`protocol`]) and the
+//! crash-safe storage of a study's results: the output folder with
+//! `trials.csv`, summaries and `session.json` ([`export`]), the session
+//! journal ([`journal`]), raw signals as NPY ([`rawsig`]) and the per-trial
+//! seed derivation ([`seeds`]).
 //!
 //! Equations, references and the protocol format are documented in
-//! `docs/theory/study.md`.
+//! `docs/theory/study.md`; the output folder and its formats in
+//! `docs/STUDY.md`.
 
 pub mod counterbalance;
+pub mod export;
+pub mod journal;
 pub mod protocol;
+pub mod rawsig;
+pub mod seeds;
 pub mod stats;

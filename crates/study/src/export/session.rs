@@ -1,0 +1,189 @@
+//! `session.json`: the study-level record of an output folder.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::checksum::sha256_hex;
+use super::error::{ExportError, Result, io_err};
+use super::utc::UtcTime;
+use crate::protocol::{AssignmentTable, Condition, Protocol};
+
+/// File name of the study record.
+pub const SESSION_FILE: &str = "session.json";
+
+/// Format tag written to `session.json`.
+pub const FORMAT: &str = "kilotouch-study-output/1";
+
+/// One participant's condition order.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OrderRow {
+    /// Display id (`P01`, …), the `participant` column.
+    pub participant: String,
+    /// 0-based participant index (used by the seed derivation).
+    pub index: u32,
+    /// Row of the counterbalancing square.
+    pub row: usize,
+    /// Conditions in session order (`session_index` 1, 2, …).
+    pub sessions: Vec<Condition>,
+}
+
+impl OrderRow {
+    /// The order as one string, e.g. `VDP` (the `session_order` column).
+    pub fn order_string(&self) -> String {
+        self.sessions.iter().map(|c| c.code()).collect()
+    }
+
+    /// 1-based session index of `condition`, if the participant runs it.
+    pub fn session_index(&self, condition: Condition) -> Option<u32> {
+        self.sessions
+            .iter()
+            .position(|&c| c == condition)
+            .and_then(|i| u32::try_from(i + 1).ok())
+    }
+}
+
+/// Order rows of an assignment table.
+pub fn order_rows(table: &AssignmentTable) -> Vec<OrderRow> {
+    table
+        .participants
+        .iter()
+        .map(|p| OrderRow {
+            participant: p.id.clone(),
+            index: u32::try_from(p.participant).unwrap_or(u32::MAX),
+            row: p.row,
+            sessions: p.sessions.clone(),
+        })
+        .collect()
+}
+
+/// A calibration file identified by its SHA-256.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CalibrationRef {
+    /// Path as given (informative).
+    pub path: String,
+    /// SHA-256 of the file's bytes, lowercase hex.
+    pub sha256: String,
+}
+
+impl CalibrationRef {
+    /// Hashes the file at `path`.
+    ///
+    /// # Errors
+    /// The file cannot be read.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(io_err(path, "read calibration file"))?;
+        Ok(Self {
+            path: path.display().to_string(),
+            sha256: sha256_hex(&bytes),
+        })
+    }
+}
+
+/// Software identity.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Software {
+    /// Program name.
+    pub name: String,
+    /// Version.
+    pub version: String,
+}
+
+/// One sitting (journal session), from the journal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sitting {
+    /// Journal sequence number of its `session_started` record.
+    pub journal_seq: u64,
+    /// Start time.
+    pub started_utc: UtcTime,
+    /// Time of its `session_done` record, if it closed normally.
+    pub done_utc: Option<UtcTime>,
+    /// Software version.
+    pub software_version: String,
+    /// Rig identity.
+    pub rig: String,
+    /// Calibration in use.
+    pub calibration: Option<CalibrationRef>,
+    /// Whether it resumed existing data.
+    pub resumed: bool,
+}
+
+/// Progress counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Trials of the plan (practice + test).
+    pub planned: u64,
+    /// Rows in `trials.csv`.
+    pub completed: u64,
+}
+
+/// Seeds and how trial seeds derive from them.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SeedInfo {
+    /// Study seed.
+    pub study: u64,
+    /// Name of the derivation (see `docs/STUDY.md`).
+    pub trial_derivation: String,
+}
+
+/// Content of `session.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SessionInfo {
+    /// [`FORMAT`].
+    pub format: String,
+    /// Writer software at creation.
+    pub software: Software,
+    /// The protocol.
+    pub protocol: Protocol,
+    /// Its canonical TOML (hashed).
+    pub protocol_toml: String,
+    /// SHA-256 of `protocol_toml`.
+    pub protocol_sha256: String,
+    /// Seeds.
+    pub seeds: SeedInfo,
+    /// Participant → order.
+    pub order_table: Vec<OrderRow>,
+    /// Balance of the order table (human summary).
+    pub order_balance: String,
+    /// Rig identity at creation.
+    pub rig: String,
+    /// Calibration at creation.
+    pub calibration: Option<CalibrationRef>,
+    /// Creation time of the folder.
+    pub created_utc: UtcTime,
+    /// Time of the last rewrite of this file.
+    pub updated_utc: UtcTime,
+    /// Sittings, from the journal.
+    pub sittings: Vec<Sitting>,
+    /// Progress at `updated_utc`.
+    pub progress: Progress,
+}
+
+/// Name of the trial-seed derivation recorded in `session.json`.
+pub const TRIAL_DERIVATION: &str = "kt-trial-v1: seed = SplitMix64 chain over (study, participant index, \
+     condition letter, phase 0/1, trial); rng = ChaCha20(key = study LE | \"kt-trial\" | participant u32 | \
+     condition | phase | 0 0 | trial u32 | 0 0 0 0, stream id)";
+
+/// Canonical TOML of a protocol and its SHA-256.
+///
+/// # Errors
+/// [`ExportError::ProtocolToml`] when the protocol cannot be serialised.
+pub fn protocol_identity(protocol: &Protocol) -> Result<(String, String)> {
+    let toml = protocol
+        .to_toml_string()
+        .map_err(|e| ExportError::ProtocolToml(e.to_string()))?;
+    let sha = sha256_hex(toml.as_bytes());
+    Ok((toml, sha))
+}
+
+/// Reads `session.json`.
+///
+/// # Errors
+/// I/O or JSON errors.
+pub fn read_session(path: &Path) -> Result<SessionInfo> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path, "read"))?;
+    serde_json::from_str(&text).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
+}
