@@ -13,10 +13,13 @@
 
 pub mod config;
 pub mod error;
+pub mod lorentzian;
 pub mod lti;
 pub mod plant;
+pub mod tweezer;
 
 pub use config::{RigConfig, default_config_text};
 pub use error::RigError;
 pub use lti::Integrator;
 pub use plant::{Axis, AxisModel, Channel, DualStagePlant};
+pub use tweezer::{SimTweezer, Tweezer, TweezerParams};
