@@ -11,6 +11,7 @@
 //! Units are SI unless a name says otherwise. Theory and references:
 //! `docs/theory/rig.md`; speed and accuracy tables: `docs/perf/rig.md`.
 
+pub mod accel;
 pub mod config;
 pub mod error;
 pub mod lorentzian;
