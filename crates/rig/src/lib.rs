@@ -17,10 +17,12 @@ pub mod error;
 pub mod lorentzian;
 pub mod lti;
 pub mod plant;
+pub mod rig;
 pub mod tweezer;
 
 pub use config::{RigConfig, default_config_text};
 pub use error::RigError;
 pub use lti::Integrator;
 pub use plant::{Axis, AxisModel, Channel, DualStagePlant};
+pub use rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
 pub use tweezer::{SimTweezer, Tweezer, TweezerParams};
