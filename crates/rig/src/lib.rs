@@ -13,6 +13,7 @@
 
 pub mod accel;
 pub mod config;
+pub mod coupling;
 pub mod error;
 pub mod lorentzian;
 pub mod lti;
