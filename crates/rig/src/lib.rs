@@ -19,6 +19,7 @@ pub mod lorentzian;
 pub mod lti;
 pub mod plant;
 pub mod rig;
+pub mod sim;
 pub mod tweezer;
 
 pub use config::{RigConfig, default_config_text};
@@ -26,4 +27,5 @@ pub use error::RigError;
 pub use lti::Integrator;
 pub use plant::{Axis, AxisModel, Channel, DualStagePlant};
 pub use rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+pub use sim::{FrfReport, simulate_frf};
 pub use tweezer::{SimTweezer, Tweezer, TweezerParams};

@@ -400,6 +400,8 @@ pub struct AxisSim<const N: usize> {
     c: [SMatrix<f64, NY, N>; 3],
     d: [SMatrix<f64, NY, NU>; 3],
     stroke: Option<(usize, usize, f64)>,
+    tip: usize,
+    motor: usize,
     stop_steps: u64,
     resets: u64,
 }
@@ -443,6 +445,8 @@ impl<const N: usize> AxisSim<N> {
             c,
             d,
             stroke,
+            tip: model.dofs.h,
+            motor: model.dofs.m1,
             stop_steps: 0,
             resets: 0,
         })
@@ -566,12 +570,19 @@ impl<const N: usize> AxisSim<N> {
             self.resets += 1;
         }
         let r1 = self.regime_of(&self.x);
-        let y = self.c[r1] * self.x + self.d[r1] * u;
+        // Only the acceleration needs a product; the other outputs are state
+        // picks (their C rows are unit vectors, D rows zero).
+        let accel = self.c[r1].row(OUT_ACCEL).dot(&self.x.transpose())
+            + self.d[r1].row(OUT_ACCEL).dot(&u.transpose());
+        let (tip, motor, stroke) = match self.stroke {
+            Some((v, h, _)) => (self.x[h], self.x[self.motor], self.x[v] - self.x[h]),
+            None => (self.x[self.tip], self.x[self.motor], 0.0),
+        };
         AxisOutput {
-            accel: y[OUT_ACCEL],
-            tip: y[OUT_TIP],
-            motor: y[OUT_MOTOR],
-            stroke: y[OUT_STROKE],
+            accel,
+            tip,
+            motor,
+            stroke,
         }
     }
 }
