@@ -3,10 +3,17 @@
 //! `cargo run --release -p kilotouch-rig --example rig_tables`
 //! (timings come from `cargo bench -p kilotouch-rig`).
 
+use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
 use kilotouch_rig::lti::{self, Integrator};
 use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL};
+use kilotouch_rig::plant::{AxisSim, DualStagePlant, NU, NX, PlantInput};
+use kilotouch_rig::rig::SimRig;
+use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer};
 use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams, TweezerSimArgs, simulate_tweezer};
+use nalgebra::SVector;
+use std::hint::black_box;
 
 fn grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (0..n)
@@ -14,7 +21,133 @@ fn grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// CPU time of this thread (ns) from /proc/thread-self/schedstat: immune
+/// to time spent descheduled on a loaded machine.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// Best of 5 runs of `n` calls: CPU ns per call.
+fn ns_per_call(n: usize, mut f: impl FnMut(usize) -> f64) -> f64 {
+    let mut best = f64::INFINITY;
+    let mut sink = 0.0;
+    for _ in 0..6 {
+        let t0 = thread_cpu_ns().unwrap_or(0);
+        for k in 0..n {
+            sink += f(k);
+        }
+        let t1 = thread_cpu_ns().unwrap_or(0);
+        best = best.min((t1 - t0) as f64 / n as f64);
+    }
+    black_box(sink);
+    best
+}
+
+fn drive(k: usize) -> f64 {
+    0.3 * ((k as f64) * 0.0731).sin()
+}
+
+fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
+    let n = 1_000_000;
+    println!("## Cost per step (thread CPU time, best of 6 × 1e6 calls)\n");
+    println!("| what | ns |");
+    println!("|---|---|");
+    let mut p = DualStagePlant::new(cfg, Integrator::Zoh)?;
+    let t = ns_per_call(n, |k| {
+        p.step(&PlantInput {
+            force_n: [drive(k), -drive(k)],
+            drive_v: drive(k + 3),
+            ..Default::default()
+        })
+        .accel_m_s2[0]
+    });
+    println!("| plant, both axes, ZOH (`plant_ns_per_step`) | {t:.1} |");
+    let m = AxisModel::new(cfg, Axis::X)?;
+    for integ in Integrator::ALL {
+        let mut s = AxisSim::<NX>::new(&m, integ, 1e-4)?;
+        let t = ns_per_call(n, |k| {
+            s.step(&SVector::<f64, NU>::from([
+                drive(k),
+                drive(k + 3),
+                0.0,
+                0.0,
+                1.0,
+            ]))
+            .accel
+        });
+        println!("| plant x axis only, {} | {t:.1} |", integ.name());
+    }
+    for (name, params) in [
+        (
+            "tweezer, free space, exact (`tweezer_ns_per_step`)",
+            TweezerParams::paper_default(),
+        ),
+        (
+            "tweezer, free space, Euler–Maruyama",
+            TweezerParams {
+                integrator: TweezerIntegrator::Euler,
+                ..TweezerParams::paper_default()
+            },
+        ),
+        (
+            "tweezer, default scene (2 obstacles, drag corrections)",
+            TweezerParams::from_config(&cfg.tweezer),
+        ),
+    ] {
+        let mut tw = SimTweezer::new(params, 1e4)?;
+        let t = ns_per_call(n, |k| tw.step([1e-9 * drive(k), 0.0]).force_n[0]);
+        println!("| {name} | {t:.1} |");
+    }
+    let pressed = TweezerParams {
+        obstacles: vec![Obstacle {
+            centre_m: [10e-6, 0.0],
+            radius_m: 5e-6,
+        }],
+        ..TweezerParams::paper_default()
+    };
+    let mut tw = SimTweezer::new(pressed, 1e4)?;
+    let trap = [4.0e-6, 0.0];
+    tw.reset(trap);
+    let t = ns_per_call(n / 10, |_| tw.step(trap).force_n[0]);
+    println!("| tweezer, pressed on an obstacle (sub-steps) | {t:.1} |");
+    let mut a = Accelerometer::new(&cfg.accelerometer, 1e4)?;
+    let t = ns_per_call(n, |k| a.sample([drive(k), 0.0, 0.0]).m_s2[0]);
+    println!("| accelerometer (3 axes) | {t:.1} |");
+    let coeffs = kilotouch_dsp::chain::ChainCoefficients::design(
+        &kilotouch_rig::coupling::model_chain_design(cfg)?,
+    )?;
+    let mut chain = kilotouch_dsp::chain::Chain::new(&coeffs);
+    let t = ns_per_call(n, |k| chain.process(drive(k)).1);
+    println!("| dsp chain `process` (one call per sample) | {t:.1} |");
+    for (name, mode) in [
+        (
+            "closed loop, D mode (`closed_loop_ns_per_sample`)",
+            CouplingMode::Dual,
+        ),
+        ("closed loop, P mode", CouplingMode::Pantograph),
+    ] {
+        let rig = SimRig::new(cfg)?;
+        let tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4)?;
+        let mut c = Coupling::from_config(cfg)?;
+        c.set_mode(mode);
+        let mut cl = ClosedLoop::new(rig, tw, c)?;
+        let t = ns_per_call(n, |_| cl.step().map(|(c, _)| c.force_n[0]).unwrap_or(0.0));
+        println!("| {name} | {t:.1} |");
+    }
+    println!();
+    Ok(())
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let cfg0 = RigConfig::default();
+    if std::env::args().any(|a| a == "--timings") {
+        return timings(&cfg0);
+    }
     let cfg = RigConfig::default();
     let m = AxisModel::new(&cfg, Axis::X)?;
     let ss = m.active_free();

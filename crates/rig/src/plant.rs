@@ -393,8 +393,9 @@ pub struct AxisSim<const N: usize> {
     dt: f64,
     n_pos: usize,
     x: SVector<f64, N>,
-    phi: [SMatrix<f64, N, N>; 3],
-    gamma: [SMatrix<f64, N, NU>; 3],
+    // Column-major copies of [Φ | Γ] for the hand-written ZOH update.
+    phi_cols: [[[f64; N]; N]; 3],
+    gamma_cols: [[[f64; N]; NU]; 3],
     a: [SMatrix<f64, N, N>; 3],
     b: [SMatrix<f64, N, NU>; 3],
     c: [SMatrix<f64, NY, N>; 3],
@@ -433,13 +434,27 @@ impl<const N: usize> AxisSim<N> {
             d[i] = to_s(&ss.d)?;
         }
         let stroke = model.dofs.v.map(|v| (v, model.dofs.h, model.stroke_m));
+        let mut phi_cols = [[[0.0; N]; N]; 3];
+        let mut gamma_cols = [[[0.0; N]; NU]; 3];
+        for r in 0..3 {
+            for j in 0..N {
+                for i in 0..N {
+                    phi_cols[r][j][i] = phi[r][(i, j)];
+                }
+            }
+            for j in 0..NU {
+                for i in 0..N {
+                    gamma_cols[r][j][i] = gamma[r][(i, j)];
+                }
+            }
+        }
         Ok(Self {
+            phi_cols,
+            gamma_cols,
             integrator,
             dt,
             n_pos,
             x: SVector::zeros(),
-            phi,
-            gamma,
             a,
             b,
             c,
@@ -534,7 +549,21 @@ impl<const N: usize> AxisSim<N> {
         }
         match self.integrator {
             Integrator::Zoh => {
-                self.x = self.phi[r0] * self.x + self.gamma[r0] * u;
+                // x ← Φ x + Γ u as column axpys over fixed-size arrays.
+                let mut y = [0.0; N];
+                let pc = &self.phi_cols[r0];
+                for (col, &xj) in pc.iter().zip(self.x.iter()) {
+                    for (yi, ci) in y.iter_mut().zip(col.iter()) {
+                        *yi += ci * xj;
+                    }
+                }
+                let gc = &self.gamma_cols[r0];
+                for (col, &uj) in gc.iter().zip(u.iter()) {
+                    for (yi, ci) in y.iter_mut().zip(col.iter()) {
+                        *yi += ci * uj;
+                    }
+                }
+                self.x = SVector::from(y);
             }
             Integrator::Rk4 => {
                 let h = self.dt;
