@@ -32,6 +32,12 @@ pub enum Command {
     Tfest(commands::tfest::Args),
     /// Statistics on a long-format CSV: one-way ANOVA, repeated-measures ANOVA or Friedman.
     Stats(commands::stats::Args),
+    /// Rig files and rig checks.
+    #[command(subcommand)]
+    Rig(commands::rig::RigCommand),
+    /// The simulated rig's models: analytic channel responses, tweezer statistics.
+    #[command(subcommand)]
+    Sim(commands::sim::SimCommand),
     /// Measure the speed of the signal chain and of Welch's estimator.
     Bench(commands::bench::Args),
 }
@@ -76,6 +82,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Frf(a)) => commands::frf::run(&a),
         Some(Command::Tfest(a)) => commands::tfest::run(&a),
         Some(Command::Stats(a)) => commands::stats::run(&a),
+        Some(Command::Rig(c)) => commands::rig::run(&c),
+        Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
     }
 }

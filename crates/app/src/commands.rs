@@ -4,5 +4,7 @@ pub mod bench;
 pub mod crossover;
 pub mod frf;
 pub mod psd;
+pub mod rig;
+pub mod sim;
 pub mod stats;
 pub mod tfest;

@@ -1,0 +1,165 @@
+//! `kilotouch sim …`: the simulated rig's models, headless.
+
+use crate::output::{db, emit, parse_freqs, wrap_deg};
+use clap::Subcommand;
+use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::plant::Channel;
+use kilotouch_rig::sim::simulate_frf;
+use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerSimArgs, simulate_tweezer};
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// `kilotouch sim` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum SimCommand {
+    /// The model's true (analytic) response from a channel's drive to the tip acceleration.
+    Frf(FrfArgs),
+    /// Simulate a trapped bead and fit the aliased Lorentzian to its PSD.
+    Tweezer(TweezerArgs),
+}
+
+/// Arguments of `kilotouch sim frf`.
+#[derive(Debug, clap::Args)]
+pub struct FrfArgs {
+    /// `low` (Pantograph force, N → m/s²) or `high` (Haptuator drive → m/s²).
+    #[arg(long, value_parser = ["low", "high"])]
+    pub channel: String,
+    /// Rig file (default: the built-in rig, `kilotouch rig default-config`).
+    #[arg(long)]
+    pub rig_config: Option<PathBuf>,
+    /// Comma-separated frequencies in Hz.
+    #[arg(long)]
+    pub freqs: String,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Arguments of `kilotouch sim tweezer`.
+#[derive(Debug, clap::Args)]
+pub struct TweezerArgs {
+    /// Simulated duration, s.
+    #[arg(long, default_value_t = 10.0)]
+    pub duration: f64,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 10_000.0)]
+    pub fs: f64,
+    /// Trap stiffness κ, pN/µm.
+    #[arg(long, default_value_t = 20.0)]
+    pub stiffness_pn_um: f64,
+    /// Bead radius, µm.
+    #[arg(long, default_value_t = 1.5)]
+    pub radius_um: f64,
+    /// Temperature, K.
+    #[arg(long, default_value_t = 293.15)]
+    pub temperature_k: f64,
+    /// Viscosity, Pa·s (water at 20 °C: 1.0016e-3).
+    #[arg(long, default_value_t = 1.0016e-3)]
+    pub viscosity_pa_s: f64,
+    /// Bead-centre to coverslip distance, µm (Faxén's correction); none = bulk.
+    #[arg(long)]
+    pub wall_distance_um: Option<f64>,
+    /// Integrator: exact Ornstein–Uhlenbeck or Euler–Maruyama.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "euler"])]
+    pub integrator: String,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One point of `sim frf`.
+#[derive(Debug, Serialize)]
+pub struct FrfPoint {
+    /// Frequency, Hz.
+    pub f: f64,
+    /// Magnitude, dB re 1 (m/s²) per unit drive.
+    pub db: f64,
+    /// Phase, degrees in (−180, 180].
+    pub deg: f64,
+}
+
+/// JSON document of `sim frf`.
+#[derive(Debug, Serialize)]
+pub struct FrfReport {
+    /// Points in the order given.
+    pub points: Vec<FrfPoint>,
+}
+
+/// Load the rig file named on the command line, or the built-in default.
+pub fn load_rig_config(path: Option<&PathBuf>) -> anyhow::Result<RigConfig> {
+    Ok(match path {
+        Some(p) => RigConfig::load(p)?,
+        None => RigConfig::default(),
+    })
+}
+
+/// Run a `sim` subcommand.
+pub fn run(cmd: &SimCommand) -> anyhow::Result<()> {
+    match cmd {
+        SimCommand::Frf(a) => {
+            let freqs = parse_freqs(&a.freqs)?;
+            let cfg = load_rig_config(a.rig_config.as_ref())?;
+            let channel: Channel = a.channel.parse()?;
+            let report = simulate_frf(&cfg, channel, &freqs)?;
+            let points = report
+                .points
+                .iter()
+                .map(|p| FrfPoint {
+                    f: p.f_hz,
+                    db: db((p.re * p.re + p.im * p.im).sqrt()),
+                    deg: wrap_deg(p.im.atan2(p.re).to_degrees()),
+                })
+                .collect();
+            let r = FrfReport { points };
+            emit(a.json, &r, || {
+                let mut t = format!(
+                    "{} channel → tip acceleration, rig `{}` ({})\n{:>10} {:>10} {:>9}\n",
+                    a.channel, report.rig_name, report.units, "f [Hz]", "dB", "deg"
+                );
+                for p in &r.points {
+                    t += &format!("{:>10.3} {:>10.3} {:>9.2}\n", p.f, p.db, p.deg);
+                }
+                t
+            })
+        }
+        SimCommand::Tweezer(a) => {
+            let args = TweezerSimArgs {
+                duration_s: a.duration,
+                fs_hz: a.fs,
+                stiffness_pn_um: a.stiffness_pn_um,
+                radius_um: a.radius_um,
+                temperature_k: a.temperature_k,
+                viscosity_pa_s: a.viscosity_pa_s,
+                wall_distance_um: a.wall_distance_um,
+                integrator: if a.integrator == "euler" {
+                    TweezerIntegrator::Euler
+                } else {
+                    TweezerIntegrator::Exact
+                },
+                seed: a.seed,
+            };
+            let r = simulate_tweezer(&args)?;
+            emit(a.json, &r, || {
+                format!(
+                    "variance x {:.4e} m², y {:.4e} m² (theory k_BT/κ = {:.4e} m²)\n\
+                     corner frequency: fit {:.2} Hz, theory {:.2} Hz\n\
+                     diffusion: fit {:.4e} m²/s, theory {:.4e} m²/s\n\
+                     dt/τ = {:.3}, {} samples per axis, seed {}\n",
+                    r.var_x_m2,
+                    r.var_y_m2,
+                    r.var_theory_m2,
+                    r.fc_fit_hz,
+                    r.fc_theory_hz,
+                    r.d_fit_m2_s,
+                    r.d_theory_m2_s,
+                    r.dt_over_tau,
+                    r.n_samples,
+                    r.seed
+                )
+            })
+        }
+    }
+}
