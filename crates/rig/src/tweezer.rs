@@ -375,6 +375,9 @@ struct Ou {
     v: f64,
 }
 
+/// Nearest obstacle: (index, unit normal from its centre to the bead, gap).
+type Near = Option<(usize, [f64; 2], f64)>;
+
 fn norm2(v: [f64; 2]) -> f64 {
     (v[0] * v[0] + v[1] * v[1]).sqrt()
 }
@@ -501,7 +504,9 @@ impl SimTweezer {
         }
     }
 
-    fn substep(&mut self, ta: [f64; 2], tb: [f64; 2], h: f64) {
+    /// One sub-step; `near` is the nearest obstacle at the start, the return
+    /// value the nearest obstacle at the end (after any reflection).
+    fn substep(&mut self, ta: [f64; 2], tb: [f64; 2], h: f64, near: Near) -> Near {
         let kappa = if self.trapped {
             self.p.stiffness_n_per_m
         } else {
@@ -509,7 +514,7 @@ impl SimTweezer {
         };
         let r = self.p.radius_m;
         let delta = self.p.contact_range_m;
-        match self.nearest(self.bead) {
+        match near {
             None => {
                 let g = self.gamma0 * self.fw;
                 for i in 0..2 {
@@ -590,31 +595,29 @@ impl SimTweezer {
                     o.centre_m[0] + sn1 * n[0] + st1 * t[0],
                     o.centre_m[1] + sn1 * n[1] + st1 * t[1],
                 ];
-                // Reflecting boundary: no overlap with any obstacle.
-                for k in 0..self.p.obstacles.len() {
-                    let ob = self.p.obstacles[k];
-                    let d = [self.bead[0] - ob.centre_m[0], self.bead[1] - ob.centre_m[1]];
-                    let dist = norm2(d);
-                    let contact = r + ob.radius_m;
-                    if dist < contact {
-                        let u = if dist > 0.0 {
-                            [d[0] / dist, d[1] / dist]
-                        } else {
-                            n
-                        };
-                        let target = contact + (contact - dist);
-                        self.bead = [
-                            ob.centre_m[0] + u[0] * target,
-                            ob.centre_m[1] + u[1] * target,
-                        ];
-                        self.reflections += 1;
-                    }
-                }
             }
         }
         if !(self.bead[0].is_finite() && self.bead[1].is_finite()) {
             self.bead = tb;
             self.nonfinite += 1;
+        }
+        // Reflecting boundary at g = 0: the nearest obstacle is the only one
+        // the bead can overlap; reflect until none does (obstacles may touch).
+        let mut end = self.nearest(self.bead);
+        for _ in 0..4 {
+            match end {
+                Some((oi, u, gap)) if gap < 0.0 => {
+                    let ob = self.p.obstacles[oi];
+                    let target = r + ob.radius_m - gap;
+                    self.bead = [
+                        ob.centre_m[0] + u[0] * target,
+                        ob.centre_m[1] + u[1] * target,
+                    ];
+                    self.reflections += 1;
+                    end = self.nearest(self.bead);
+                }
+                _ => break,
+            }
         }
         if self.trapped {
             let d = [self.bead[0] - tb[0], self.bead[1] - tb[1]];
@@ -622,6 +625,7 @@ impl SimTweezer {
                 self.trapped = false;
             }
         }
+        end
     }
 }
 
@@ -655,7 +659,7 @@ impl Tweezer for SimTweezer {
         };
         let was_trapped = self.trapped;
         let mut ev = TweezerEvents::default();
-        let near = self.nearest(self.bead);
+        let mut near = self.nearest(self.bead);
         let n_sub: u32 = match near {
             None => 1,
             Some((_, _, gap)) => {
@@ -694,7 +698,7 @@ impl Tweezer for SimTweezer {
                 let b = (k + 1) as f64 * inv;
                 let ta = [p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])];
                 let tb = [p0[0] + b * (p1[0] - p0[0]), p0[1] + b * (p1[1] - p0[1])];
-                self.substep(ta, tb, h);
+                near = self.substep(ta, tb, h, near);
             }
         }
         self.trap = p1;
@@ -708,7 +712,7 @@ impl Tweezer for SimTweezer {
                 ev.recaptured = true;
             }
         }
-        let gap = self.nearest(self.bead).map_or(f64::INFINITY, |n| n.2);
+        let gap = near.map_or(f64::INFINITY, |n| n.2);
         let delta = self.p.contact_range_m;
         if !self.in_contact && gap < delta {
             self.in_contact = true;
