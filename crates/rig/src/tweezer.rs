@@ -358,7 +358,10 @@ pub struct SimTweezer {
     free_c: f64,
     free_tau_1mc: f64,
     free_sigma: f64,
-    d_free: f64,
+    // 4·√(2 D dt): diffusion length scale of one sample, m.
+    diff_len: f64,
+    // Nearest obstacle after the last step (None inside: not yet known).
+    near_cache: Option<Near>,
     reflections: u64,
     nonfinite: u64,
 }
@@ -405,7 +408,8 @@ impl SimTweezer {
             free_c: c,
             free_tau_1mc: tau * (1.0 - c),
             free_sigma: (kt / params.stiffness_n_per_m * (1.0 - c * c)).sqrt(),
-            d_free: kt / gf,
+            diff_len: 4.0 * (2.0 * kt / gf * dt).sqrt(),
+            near_cache: None,
             p: params,
             fs: fs_hz,
             dt,
@@ -436,6 +440,7 @@ impl SimTweezer {
     pub fn set_bead(&mut self, bead: [f64; 2]) {
         if bead.iter().all(|v| v.is_finite()) {
             self.bead = bead;
+            self.near_cache = None;
         }
     }
 
@@ -646,6 +651,7 @@ impl Tweezer for SimTweezer {
         };
         self.trap = t;
         self.bead = t;
+        self.near_cache = None;
         self.trapped = true;
         self.in_contact = false;
     }
@@ -659,13 +665,15 @@ impl Tweezer for SimTweezer {
         };
         let was_trapped = self.trapped;
         let mut ev = TweezerEvents::default();
-        let mut near = self.nearest(self.bead);
+        let mut near = match self.near_cache.take() {
+            Some(n) => n,
+            None => self.nearest(self.bead),
+        };
         let n_sub: u32 = match near {
             None => 1,
             Some((_, _, gap)) => {
                 let travel = norm2([p1[0] - p0[0], p1[1] - p0[1]]);
-                let diff = 4.0 * (2.0 * self.d_free * self.dt).sqrt();
-                let l = travel + diff;
+                let l = travel + self.diff_len;
                 let delta = self.p.contact_range_m;
                 if gap < l + 2.0 * delta + self.p.escape_distance_m {
                     let ell = (0.25 * delta).max(0.1 * gap.max(0.0));
@@ -712,6 +720,9 @@ impl Tweezer for SimTweezer {
                 ev.recaptured = true;
             }
         }
+        // `near` now describes the bead's final position (the sub-steps
+        // return it; the fast path runs only without obstacles).
+        self.near_cache = Some(near);
         let gap = near.map_or(f64::INFINITY, |n| n.2);
         let delta = self.p.contact_range_m;
         if !self.in_contact && gap < delta {
