@@ -4,7 +4,7 @@
 //! bandwidth, dual-stage haptic device lets you touch Brownian motion"),
 //! simulated: the lumped plant of §2.2 (eq. 1, Table 2) with exact
 //! zero-order-hold discretisation, the fingertip accelerometer, the optical
-//! tweezer of §4.1 (eqs. 4–6), the [`Rig`](rig::Rig) interface that live
+//! tweezer of §4.1 (eqs. 4–6), the [`Rig`] interface that live
 //! rigs will also implement, and the bilateral coupling between handle and
 //! trap.
 //!
