@@ -10,7 +10,7 @@
 //! seed derivation ([`seeds`]).
 //!
 //! Equations, references and the protocol format are documented in
-//! `docs/theory/study.md`; the output folder and its formats in
+//! `docs/THEORY.md`; the output folder and its formats in
 //! `docs/STUDY.md`.
 
 pub mod counterbalance;

@@ -17,7 +17,7 @@
 //!
 //! Degenerate designs (one subject, one condition, zero variance, missing
 //! cells, non-finite values) give a [`StatsError`], never a silent NaN.
-//! Equations and references: `docs/theory/study.md`.
+//! Equations and references: `docs/THEORY.md`.
 
 mod anova;
 mod design;
