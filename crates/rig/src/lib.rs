@@ -1,1 +1,3 @@
 //! kilotouch-rig: see README.md. Implemented in a later issue.
+
+pub mod calibration;
