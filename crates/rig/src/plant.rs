@@ -1,0 +1,663 @@
+//! The dual-stage plant: lumped model of paper §2.2, eq. 1 (Table 2).
+//!
+//! Along x the bodies are the terminal assembly `h` (mass m_h), the
+//! Haptuator's moving magnet `v` (m_v), the motor windings `1` (m_1) and the
+//! links `2` (m_2): M Ẍ + C Ẋ + K X = F with X = [x_h, x_v, x_1, x_2],
+//! F = [f_v, −f_v, f, 0] and the chain 1 —(k_1,b_1)— 2 —(k_2,b_2)— h
+//! —(k_v,b_v)— v. The finger (k_f, b_f) ties h to the hand, whose position
+//! (and velocity) is an input: it adds k_f x_hand + b_f ẋ_hand to h's force.
+//! (The paper prints m_l twice on the mass diagonal; the fourth mass is m_2.)
+//!
+//! Two optional side branches extend eq. 1 (see `docs/theory/rig.md` for
+//! why the chain alone cannot show two antiresonances in the force channel):
+//! a mass `e` on node 1 (motor shaft torsion, the sharp pair near 800 Hz)
+//! and a mass `l` on node 2 (link bending, the damped antiresonance just
+//! above 200 Hz). An absent branch leaves a "phantom" degree of freedom
+//! with zero dynamics that is never excited (fixed-size matrices).
+//!
+//! The Haptuator drive u_v (V) reaches the Laplace force through a
+//! first-order drive stage, ḟ_v = ω_d (g_v u_v − f_v). The magnet's stroke
+//! r = x_v − x_h is limited by one-sided end stops: beyond ±s a spring–damper
+//! (k_s, b_s) acts on r. The y axis has the same structure without the
+//! Haptuator (bodies h, 1, 2 and the branches).
+//!
+//! State order: positions (one per DOF), velocities, then f_v (x axis only).
+//! Inputs: [f (N), u_v (V), x_hand (m), ẋ_hand (m/s), 1] — the constant
+//! input carries the end-stop offsets. Outputs: [ẍ_h (m/s²), x_h (m),
+//! x_1 (m), r (m)].
+//!
+//! Discretisation: exact ZOH per end-stop regime (free, +stop, −stop; each
+//! an affine LTI, switched on the state at the start of a step) is the
+//! default; RK4 and semi-implicit Euler evaluate the piecewise-linear
+//! vector field stage by stage. The per-step update uses fixed-size nalgebra
+//! matrices and allocates nothing.
+
+use crate::config::{HaptuatorConfig, PlantConfig, RigConfig};
+use crate::error::RigError;
+use crate::lti::{self, Integrator, StateSpace};
+use nalgebra::{DMatrix, SMatrix, SVector};
+use num_complex::Complex64 as C64;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Number of plant inputs.
+pub const NU: usize = 5;
+/// Number of plant outputs.
+pub const NY: usize = 4;
+/// Input index: Pantograph force, N.
+pub const IN_FORCE: usize = 0;
+/// Input index: Haptuator drive, V.
+pub const IN_DRIVE: usize = 1;
+/// Input index: hand position, m.
+pub const IN_HAND_POS: usize = 2;
+/// Input index: hand velocity, m/s.
+pub const IN_HAND_VEL: usize = 3;
+/// Input index: constant 1 (end-stop offsets).
+pub const IN_ONE: usize = 4;
+/// Output index: tip acceleration ẍ_h, m/s².
+pub const OUT_ACCEL: usize = 0;
+/// Output index: tip position x_h, m.
+pub const OUT_TIP: usize = 1;
+/// Output index: motor position x_1 (what the encoders see), m.
+pub const OUT_MOTOR: usize = 2;
+/// Output index: magnet stroke r = x_v − x_h, m.
+pub const OUT_STROKE: usize = 3;
+
+/// State dimension of the x axis: 6 DOF × 2 + drive state.
+pub const NX: usize = 13;
+/// State dimension of the y axis: 5 DOF × 2.
+pub const NYAX: usize = 10;
+
+/// Plant axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    /// x: with the Haptuator.
+    X,
+    /// y: Pantograph only.
+    Y,
+}
+
+/// Drive channel of the dual-stage device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Channel {
+    /// Pantograph force (N) → tip acceleration (m/s²).
+    Low,
+    /// Haptuator drive (V) → tip acceleration (m/s²).
+    High,
+}
+
+impl std::str::FromStr for Channel {
+    type Err = RigError;
+    fn from_str(s: &str) -> Result<Self, RigError> {
+        match s {
+            "low" => Ok(Channel::Low),
+            "high" => Ok(Channel::High),
+            _ => Err(RigError::InvalidInput(format!(
+                "unknown channel `{s}` (expected low|high)"
+            ))),
+        }
+    }
+}
+
+/// End-stop regime of the Haptuator magnet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Regime {
+    /// |r| ≤ stroke.
+    Free,
+    /// r > stroke.
+    Plus,
+    /// r < −stroke.
+    Minus,
+}
+
+/// Indices of one axis's degrees of freedom (`None` if absent).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DofMap {
+    /// Terminal assembly.
+    pub h: usize,
+    /// Haptuator magnet (x axis only).
+    pub v: Option<usize>,
+    /// Motor windings.
+    pub m1: usize,
+    /// Links.
+    pub m2: usize,
+    /// Motor-side branch (phantom if absent).
+    pub e: usize,
+    /// Link-side branch (phantom if absent).
+    pub l: usize,
+    /// Number of DOF.
+    pub n_dof: usize,
+    /// Index of the drive state f_v, if any.
+    pub drive: Option<usize>,
+}
+
+/// Continuous model of one axis: the three end-stop regimes plus metadata.
+#[derive(Debug, Clone)]
+pub struct AxisModel {
+    /// Which axis.
+    pub axis: Axis,
+    /// Free regime (linear; used for frequency responses).
+    pub free: StateSpace,
+    /// Magnet beyond +stroke.
+    pub plus: StateSpace,
+    /// Magnet beyond −stroke.
+    pub minus: StateSpace,
+    /// DOF layout.
+    pub dofs: DofMap,
+    /// States that belong to real (non-phantom) bodies.
+    pub active: Vec<usize>,
+    /// Stroke limit ±s, m (∞ on the y axis).
+    pub stroke_m: f64,
+}
+
+impl AxisModel {
+    /// Build the x or y axis from a rig configuration.
+    pub fn new(cfg: &RigConfig, axis: Axis) -> Result<Self, RigError> {
+        build_axis(&cfg.plant, &cfg.haptuator, axis)
+    }
+
+    /// State dimension.
+    pub fn n_states(&self) -> usize {
+        self.free.n_states()
+    }
+
+    /// Model of a regime.
+    pub fn regime(&self, r: Regime) -> &StateSpace {
+        match r {
+            Regime::Free => &self.free,
+            Regime::Plus => &self.plus,
+            Regime::Minus => &self.minus,
+        }
+    }
+
+    /// Free-regime model restricted to the active states (for eigen-analysis).
+    pub fn active_free(&self) -> StateSpace {
+        self.free.restrict(&self.active)
+    }
+
+    /// Analytic (continuous, linear, free-regime) response of a channel from
+    /// drive to tip acceleration at `f` Hz: m/s² per N (low) or per V (high).
+    pub fn channel_response(&self, channel: Channel, f_hz: f64) -> Result<C64, RigError> {
+        let input = match channel {
+            Channel::Low => IN_FORCE,
+            Channel::High => IN_DRIVE,
+        };
+        if self.axis == Axis::Y && channel == Channel::High {
+            return Err(RigError::InvalidInput("the y axis has no Haptuator".into()));
+        }
+        self.free.response(OUT_ACCEL, input, f_hz)
+    }
+
+    /// Analytic response from Haptuator drive to magnet stroke r, m/V.
+    pub fn stroke_response(&self, f_hz: f64) -> Result<C64, RigError> {
+        self.free.response(OUT_STROKE, IN_DRIVE, f_hz)
+    }
+
+    /// Poles of the free regime (active states), rad/s.
+    pub fn poles(&self) -> Vec<C64> {
+        self.active_free().poles()
+    }
+}
+
+fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisModel, RigError> {
+    // DOF layout.
+    let dofs = match axis {
+        Axis::X => DofMap {
+            h: 0,
+            v: Some(1),
+            m1: 2,
+            m2: 3,
+            e: 4,
+            l: 5,
+            n_dof: 6,
+            drive: Some(12),
+        },
+        Axis::Y => DofMap {
+            h: 0,
+            v: None,
+            m1: 1,
+            m2: 2,
+            e: 3,
+            l: 4,
+            n_dof: 5,
+            drive: None,
+        },
+    };
+    let nd = dofs.n_dof;
+    let n = 2 * nd + usize::from(dofs.drive.is_some());
+    let mut mass = vec![1.0; nd];
+    let mut k = DMatrix::<f64>::zeros(nd, nd);
+    let mut c = DMatrix::<f64>::zeros(nd, nd);
+    let mut active_dof = vec![dofs.h, dofs.m1, dofs.m2];
+    let link =
+        |k: &mut DMatrix<f64>, c: &mut DMatrix<f64>, i: usize, j: usize, kk: f64, cc: f64| {
+            k[(i, i)] += kk;
+            k[(j, j)] += kk;
+            k[(i, j)] -= kk;
+            k[(j, i)] -= kk;
+            c[(i, i)] += cc;
+            c[(j, j)] += cc;
+            c[(i, j)] -= cc;
+            c[(j, i)] -= cc;
+        };
+    mass[dofs.h] = p.m_h;
+    mass[dofs.m1] = p.m_1;
+    mass[dofs.m2] = p.m_2;
+    if let Some(v) = dofs.v {
+        mass[v] = p.m_v;
+        active_dof.push(v);
+        link(&mut k, &mut c, dofs.h, v, p.k_v, p.b_v);
+    }
+    link(&mut k, &mut c, dofs.m1, dofs.m2, p.k_1, p.b_1);
+    link(&mut k, &mut c, dofs.m2, dofs.h, p.k_2, p.b_2);
+    k[(dofs.h, dofs.h)] += p.k_f;
+    c[(dofs.h, dofs.h)] += p.b_f;
+    if let Some(br) = p.motor_branch {
+        mass[dofs.e] = br.mass;
+        link(&mut k, &mut c, dofs.m1, dofs.e, br.stiffness, br.damping);
+        active_dof.push(dofs.e);
+    }
+    if let Some(br) = p.link_branch {
+        mass[dofs.l] = br.mass;
+        link(&mut k, &mut c, dofs.m2, dofs.l, br.stiffness, br.damping);
+        active_dof.push(dofs.l);
+    }
+    if mass.iter().any(|m| !(m.is_finite() && *m > 0.0)) {
+        return Err(RigError::InvalidInput(
+            "plant masses must be finite and > 0".into(),
+        ));
+    }
+    let mut a = DMatrix::<f64>::zeros(n, n);
+    let mut b = DMatrix::<f64>::zeros(n, NU);
+    for i in 0..nd {
+        a[(i, nd + i)] = 1.0;
+        for j in 0..nd {
+            a[(nd + i, j)] = -k[(i, j)] / mass[i];
+            a[(nd + i, nd + j)] = -c[(i, j)] / mass[i];
+        }
+    }
+    let vh = nd + dofs.h;
+    b[(nd + dofs.m1, IN_FORCE)] = 1.0 / p.m_1;
+    b[(vh, IN_HAND_POS)] = p.k_f / p.m_h;
+    b[(vh, IN_HAND_VEL)] = p.b_f / p.m_h;
+    if let (Some(v), Some(di)) = (dofs.v, dofs.drive) {
+        let wd = 2.0 * PI * h.drive_corner_hz;
+        a[(di, di)] = -wd;
+        b[(di, IN_DRIVE)] = wd * h.drive_gain_n_per_v;
+        a[(vh, di)] = 1.0 / p.m_h;
+        a[(nd + v, di)] = -1.0 / p.m_v;
+    }
+    // Outputs.
+    let mut cm = DMatrix::<f64>::zeros(NY, n);
+    let dm = DMatrix::<f64>::zeros(NY, NU);
+    cm[(OUT_TIP, dofs.h)] = 1.0;
+    cm[(OUT_MOTOR, dofs.m1)] = 1.0;
+    if let Some(v) = dofs.v {
+        cm[(OUT_STROKE, v)] = 1.0;
+        cm[(OUT_STROKE, dofs.h)] = -1.0;
+    }
+    let with_accel = |a: &DMatrix<f64>, b: &DMatrix<f64>| -> StateSpace {
+        let mut cc = cm.clone();
+        let mut dd = dm.clone();
+        for j in 0..n {
+            cc[(OUT_ACCEL, j)] = a[(vh, j)];
+        }
+        for j in 0..NU {
+            dd[(OUT_ACCEL, j)] = b[(vh, j)];
+        }
+        StateSpace {
+            a: a.clone(),
+            b: b.clone(),
+            c: cc,
+            d: dd,
+        }
+    };
+    let free = with_accel(&a, &b);
+    // End-stop regimes: F_m = −k_s r − b_s ṙ ± k_s s on the magnet, −F_m on h.
+    let (plus, minus, stroke) = match dofs.v {
+        Some(v) => {
+            let (ks, bs, s) = (
+                h.stop_stiffness_n_per_m,
+                h.stop_damping_n_s_per_m,
+                h.stroke_m,
+            );
+            let mut ap = a.clone();
+            let mut bp = b.clone();
+            let mut bm = b.clone();
+            for (row, g) in [(nd + v, 1.0 / p.m_v), (vh, -1.0 / p.m_h)] {
+                ap[(row, v)] -= g * ks;
+                ap[(row, dofs.h)] += g * ks;
+                ap[(row, nd + v)] -= g * bs;
+                ap[(row, nd + dofs.h)] += g * bs;
+                bp[(row, IN_ONE)] += g * ks * s;
+                bm[(row, IN_ONE)] -= g * ks * s;
+            }
+            (with_accel(&ap, &bp), with_accel(&ap, &bm), s)
+        }
+        None => (free.clone(), free.clone(), f64::INFINITY),
+    };
+    let mut active: Vec<usize> = Vec::new();
+    active_dof.sort_unstable();
+    for &d in &active_dof {
+        active.push(d);
+    }
+    for &d in &active_dof {
+        active.push(nd + d);
+    }
+    if let Some(di) = dofs.drive {
+        active.push(di);
+    }
+    Ok(AxisModel {
+        axis,
+        free,
+        plus,
+        minus,
+        dofs,
+        active,
+        stroke_m: stroke,
+    })
+}
+
+/// Outputs of one axis after a step.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AxisOutput {
+    /// Tip acceleration, m/s².
+    pub accel: f64,
+    /// Tip position, m.
+    pub tip: f64,
+    /// Motor position, m.
+    pub motor: f64,
+    /// Magnet stroke, m (0 on y).
+    pub stroke: f64,
+}
+
+fn to_s<const R: usize, const C: usize>(m: &DMatrix<f64>) -> Result<SMatrix<f64, R, C>, RigError> {
+    if m.nrows() != R || m.ncols() != C {
+        return Err(RigError::Numerical(format!(
+            "matrix is {}×{}, expected {R}×{C}",
+            m.nrows(),
+            m.ncols()
+        )));
+    }
+    Ok(SMatrix::<f64, R, C>::from_fn(|i, j| m[(i, j)]))
+}
+
+/// Discrete-time simulator of one axis with `N` states (fixed size, no
+/// allocation per step).
+#[derive(Debug, Clone)]
+pub struct AxisSim<const N: usize> {
+    integrator: Integrator,
+    dt: f64,
+    n_pos: usize,
+    x: SVector<f64, N>,
+    phi: [SMatrix<f64, N, N>; 3],
+    gamma: [SMatrix<f64, N, NU>; 3],
+    a: [SMatrix<f64, N, N>; 3],
+    b: [SMatrix<f64, N, NU>; 3],
+    c: [SMatrix<f64, NY, N>; 3],
+    d: [SMatrix<f64, NY, NU>; 3],
+    stroke: Option<(usize, usize, f64)>,
+    stop_steps: u64,
+    resets: u64,
+}
+
+impl<const N: usize> AxisSim<N> {
+    /// Discretise `model` at step `dt` (s) with `integrator`.
+    pub fn new(model: &AxisModel, integrator: Integrator, dt: f64) -> Result<Self, RigError> {
+        if model.n_states() != N {
+            return Err(RigError::Numerical(format!(
+                "axis model has {} states, simulator expects {N}",
+                model.n_states()
+            )));
+        }
+        let regs = [&model.free, &model.plus, &model.minus];
+        let n_pos = model.dofs.n_dof;
+        let mut phi = [SMatrix::<f64, N, N>::zeros(); 3];
+        let mut gamma = [SMatrix::<f64, N, NU>::zeros(); 3];
+        let mut a = [SMatrix::<f64, N, N>::zeros(); 3];
+        let mut b = [SMatrix::<f64, N, NU>::zeros(); 3];
+        let mut c = [SMatrix::<f64, NY, N>::zeros(); 3];
+        let mut d = [SMatrix::<f64, NY, NU>::zeros(); 3];
+        for (i, ss) in regs.iter().enumerate() {
+            let (p, g) = lti::one_step_map(integrator, &ss.a, &ss.b, dt, n_pos)?;
+            phi[i] = to_s(&p)?;
+            gamma[i] = to_s(&g)?;
+            a[i] = to_s(&ss.a)?;
+            b[i] = to_s(&ss.b)?;
+            c[i] = to_s(&ss.c)?;
+            d[i] = to_s(&ss.d)?;
+        }
+        let stroke = model.dofs.v.map(|v| (v, model.dofs.h, model.stroke_m));
+        Ok(Self {
+            integrator,
+            dt,
+            n_pos,
+            x: SVector::zeros(),
+            phi,
+            gamma,
+            a,
+            b,
+            c,
+            d,
+            stroke,
+            stop_steps: 0,
+            resets: 0,
+        })
+    }
+
+    /// Integration scheme.
+    pub fn integrator(&self) -> Integrator {
+        self.integrator
+    }
+
+    /// Step, s.
+    pub fn dt(&self) -> f64 {
+        self.dt
+    }
+
+    /// Current state.
+    pub fn state(&self) -> &SVector<f64, N> {
+        &self.x
+    }
+
+    /// Overwrite the state (tests, initial conditions). Non-finite → zero.
+    pub fn set_state(&mut self, x: SVector<f64, N>) {
+        self.x = if x.iter().all(|v| v.is_finite()) {
+            x
+        } else {
+            SVector::zeros()
+        };
+    }
+
+    /// Zero the state and counters.
+    pub fn reset(&mut self) {
+        self.x = SVector::zeros();
+        self.stop_steps = 0;
+        self.resets = 0;
+    }
+
+    /// Number of steps that started with the magnet on an end stop.
+    pub fn end_stop_steps(&self) -> u64 {
+        self.stop_steps
+    }
+
+    /// Number of times a non-finite state was detected and reset to zero.
+    pub fn nonfinite_resets(&self) -> u64 {
+        self.resets
+    }
+
+    #[inline]
+    fn regime_of(&self, x: &SVector<f64, N>) -> usize {
+        match self.stroke {
+            Some((v, h, s)) => {
+                let r = x[v] - x[h];
+                if r > s {
+                    1
+                } else if r < -s {
+                    2
+                } else {
+                    0
+                }
+            }
+            None => 0,
+        }
+    }
+
+    #[inline]
+    fn deriv(&self, x: &SVector<f64, N>, u: &SVector<f64, NU>) -> SVector<f64, N> {
+        let r = self.regime_of(x);
+        self.a[r] * x + self.b[r] * u
+    }
+
+    /// Advance one step with inputs `u` (held over the step) and return the
+    /// outputs at the end of the step. Non-finite inputs are replaced by 0;
+    /// a non-finite state (only possible with an unstable explicit scheme)
+    /// is reset to zero and counted.
+    #[inline]
+    pub fn step(&mut self, u: &SVector<f64, NU>) -> AxisOutput {
+        let mut u = *u;
+        for v in u.iter_mut() {
+            if !v.is_finite() {
+                *v = 0.0;
+            }
+        }
+        let r0 = self.regime_of(&self.x);
+        if r0 != 0 {
+            self.stop_steps += 1;
+        }
+        match self.integrator {
+            Integrator::Zoh => {
+                self.x = self.phi[r0] * self.x + self.gamma[r0] * u;
+            }
+            Integrator::Rk4 => {
+                let h = self.dt;
+                let x = self.x;
+                let k1 = self.deriv(&x, &u);
+                let k2 = self.deriv(&(x + k1 * (0.5 * h)), &u);
+                let k3 = self.deriv(&(x + k2 * (0.5 * h)), &u);
+                let k4 = self.deriv(&(x + k3 * h), &u);
+                self.x = x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
+            }
+            Integrator::SemiImplicitEuler => {
+                let h = self.dt;
+                let d = self.a[r0] * self.x + self.b[r0] * u;
+                let mut xn = self.x;
+                for i in self.n_pos..N {
+                    xn[i] += h * d[i];
+                }
+                // Positions with the new velocities (their rows read only
+                // non-position states).
+                let a = &self.a[r0];
+                for i in 0..self.n_pos {
+                    let mut s = 0.0;
+                    for j in self.n_pos..N {
+                        s += a[(i, j)] * xn[j];
+                    }
+                    xn[i] += h * s;
+                }
+                self.x = xn;
+            }
+        }
+        if !self.x.iter().all(|v| v.is_finite()) {
+            self.x = SVector::zeros();
+            self.resets += 1;
+        }
+        let r1 = self.regime_of(&self.x);
+        let y = self.c[r1] * self.x + self.d[r1] * u;
+        AxisOutput {
+            accel: y[OUT_ACCEL],
+            tip: y[OUT_TIP],
+            motor: y[OUT_MOTOR],
+            stroke: y[OUT_STROKE],
+        }
+    }
+}
+
+/// Inputs of the two-axis plant for one sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PlantInput {
+    /// Pantograph force command (x, y), N.
+    pub force_n: [f64; 2],
+    /// Haptuator drive (x axis), V.
+    pub drive_v: f64,
+    /// Hand position (x, y), m.
+    pub hand_m: [f64; 2],
+    /// Hand velocity (x, y), m/s.
+    pub hand_vel_m_s: [f64; 2],
+}
+
+/// Outputs of the two-axis plant after one sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PlantOutput {
+    /// Tip acceleration (x, y), m/s².
+    pub accel_m_s2: [f64; 2],
+    /// Tip position (x, y), m.
+    pub tip_m: [f64; 2],
+    /// Motor-side (encoder) position (x, y), m.
+    pub motor_m: [f64; 2],
+    /// Haptuator magnet stroke, m.
+    pub stroke_m: f64,
+}
+
+/// The two-axis dual-stage plant (x with Haptuator, y without).
+#[derive(Debug, Clone)]
+pub struct DualStagePlant {
+    /// x axis simulator.
+    pub x: AxisSim<NX>,
+    /// y axis simulator.
+    pub y: AxisSim<NYAX>,
+}
+
+impl DualStagePlant {
+    /// Build both axes from a configuration at its sample rate.
+    pub fn new(cfg: &RigConfig, integrator: Integrator) -> Result<Self, RigError> {
+        Self::with_rate(cfg, integrator, cfg.rig.sample_rate_hz)
+    }
+
+    /// Build both axes at an explicit sample rate (Hz).
+    pub fn with_rate(cfg: &RigConfig, integrator: Integrator, fs: f64) -> Result<Self, RigError> {
+        if !(fs.is_finite() && fs > 0.0) {
+            return Err(RigError::InvalidParameter {
+                name: "fs",
+                value: fs,
+                reason: "sample rate must be finite and > 0".into(),
+            });
+        }
+        let mx = AxisModel::new(cfg, Axis::X)?;
+        let my = AxisModel::new(cfg, Axis::Y)?;
+        Ok(Self {
+            x: AxisSim::new(&mx, integrator, 1.0 / fs)?,
+            y: AxisSim::new(&my, integrator, 1.0 / fs)?,
+        })
+    }
+
+    /// Zero both axes.
+    pub fn reset(&mut self) {
+        self.x.reset();
+        self.y.reset();
+    }
+
+    /// Advance one sample.
+    #[inline]
+    pub fn step(&mut self, i: &PlantInput) -> PlantOutput {
+        let ux = SVector::<f64, NU>::from([
+            i.force_n[0],
+            i.drive_v,
+            i.hand_m[0],
+            i.hand_vel_m_s[0],
+            1.0,
+        ]);
+        let uy = SVector::<f64, NU>::from([i.force_n[1], 0.0, i.hand_m[1], i.hand_vel_m_s[1], 1.0]);
+        let ox = self.x.step(&ux);
+        let oy = self.y.step(&uy);
+        PlantOutput {
+            accel_m_s2: [ox.accel, oy.accel],
+            tip_m: [ox.tip, oy.tip],
+            motor_m: [ox.motor, oy.motor],
+            stroke_m: ox.stroke,
+        }
+    }
+}

@@ -1,0 +1,974 @@
+//! Optical tweezer: an overdamped Brownian bead in a harmonic trap
+//! (paper §4.1, eqs. 4–6), with a coverslip wall, fixed spherical obstacles,
+//! contact and escape.
+//!
+//! **Model.** The bead's inertia is dropped: m/γ₀ ≈ 1 µs for a 3 µm glass
+//! bead in water, two orders of magnitude below the 100 µs sample period
+//! (the paper quotes ≈2 µs and drops it too, eq. 6). In each direction i of
+//! a frame in which the drag is diagonal,
+//!
+//! γ_i ẋ_i = −k_i (x_i − e_i(t)) + γ_i v_d,i + √(2 k_B T γ_i) ξ_i(t),
+//!
+//! with k_i the trap stiffness κ (plus the contact stiffness along the
+//! obstacle normal inside the contact zone), e_i the equilibrium (trap
+//! position, moving linearly over a step) and v_d the Itô drift
+//! k_B T ∂(1/γ_⊥)/∂h along the normal near an obstacle.
+//!
+//! **Exact step.** With γ_i frozen over a (sub)step h, c = e^{−h/τ},
+//! τ = γ_i/k_i, w = ė_i:
+//! x(h) = e(h) + c (x₀ − e(0)) + (v_d − w) τ (1 − c) + √((k_BT/k_i)(1 − c²)) N(0,1),
+//! the exact Ornstein–Uhlenbeck transition (REFERENCE-VALUES.md), stable for
+//! every h. Euler–Maruyama is available for comparison (biased variance
+//! (k_BT/κ)/(1 − h/2τ), unstable for h > 2τ).
+//!
+//! **Drag.** Stokes γ₀ = 6πηR. A coverslip at centre distance H scales the
+//! in-plane drag by Faxén's parallel factor. Near an obstacle (surface at
+//! distance h from the bead centre along the normal n) the drag along n is
+//! Brenner's (Schäffer et al. 2007 approximation) and along the tangent
+//! Faxén's, both treating the obstacle surface as locally plane; the nearest
+//! obstacle only; wall and obstacle factors multiply. h is clamped at
+//! h/R ≥ 1.1 ([`DRAG_CLAMP_GAP_OVER_R`]) near contact, and the Itô drift is
+//! zero inside the clamp.
+//!
+//! **Contact.** A short-range linear repulsion k_c (δ − g) along n for a
+//! surface gap g < δ; sub-steps (more when the trap moves fast or the bead
+//! is close) keep each move below a fraction of δ and of the gap, and a
+//! reflecting boundary at g = 0 guarantees that nothing tunnels.
+//!
+//! **Escape.** Beyond `escape_distance` from the trap centre (the linear
+//! range, default ≈ R) the bead is lost: no optical force, free diffusion,
+//! until the trap comes back within half that distance (recapture).
+
+use crate::config::TweezerConfig;
+use crate::error::RigError;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Boltzmann constant, J/K (exact, SI 2019).
+pub const BOLTZMANN: f64 = 1.380_649e-23;
+
+/// Largest number of sub-steps per sample.
+pub const MAX_SUBSTEPS: u32 = 4096;
+
+/// Clamp of the drag formulas near contact: the surface distance h used in
+/// Faxén/Brenner is at least (1 + this)·R, i.e. h/R ≥ 1.1, the range in which
+/// Schäffer's approximation is validated (and the scale of surface
+/// roughness below which lubrication theory stops applying).
+pub const DRAG_CLAMP_GAP_OVER_R: f64 = 0.1;
+
+/// Stokes drag of a sphere, γ₀ = 6π η R (N·s/m).
+pub fn stokes_drag(viscosity_pa_s: f64, radius_m: f64) -> f64 {
+    6.0 * PI * viscosity_pa_s * radius_m
+}
+
+/// Faxén's parallel wall correction γ∥/γ₀ for s = R/h (h = centre–wall
+/// distance): 1/(1 − 9/16 s + 1/8 s³ − 45/256 s⁴ − 1/16 s⁵).
+pub fn faxen_parallel(s: f64) -> f64 {
+    1.0 / (1.0 - 9.0 / 16.0 * s + 0.125 * s.powi(3) - 45.0 / 256.0 * s.powi(4) - 0.0625 * s.powi(5))
+}
+
+/// Perpendicular mobility ratio γ₀/γ⊥ (Schäffer et al. 2007 approximation
+/// of Brenner's series), s = R/h.
+pub fn perpendicular_mobility(s: f64) -> f64 {
+    1.0 - 9.0 / 8.0 * s + 0.5 * s.powi(3) - 0.57 * s.powi(4)
+        + 0.2 * s.powi(5)
+        + 7.0 / 200.0 * s.powi(11)
+        - 0.04 * s.powi(12)
+}
+
+/// d/ds of [`perpendicular_mobility`].
+pub fn perpendicular_mobility_ds(s: f64) -> f64 {
+    -9.0 / 8.0 + 1.5 * s * s - 2.28 * s.powi(3) + s.powi(4) + 77.0 / 200.0 * s.powi(10)
+        - 0.48 * s.powi(11)
+}
+
+/// Brenner's perpendicular wall correction γ⊥/γ₀ (Schäffer's approximation,
+/// within 0.1 % of the exact series for h/R ≥ 1.1), s = R/h.
+pub fn brenner_perpendicular(s: f64) -> f64 {
+    1.0 / perpendicular_mobility(s)
+}
+
+/// Bead integrator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TweezerIntegrator {
+    /// Exact Ornstein–Uhlenbeck transition (default).
+    Exact,
+    /// Euler–Maruyama (comparison only).
+    Euler,
+}
+
+impl std::str::FromStr for TweezerIntegrator {
+    type Err = RigError;
+    fn from_str(s: &str) -> Result<Self, RigError> {
+        match s {
+            "exact" => Ok(Self::Exact),
+            "euler" => Ok(Self::Euler),
+            _ => Err(RigError::InvalidInput(format!(
+                "unknown integrator `{s}` (expected exact|euler)"
+            ))),
+        }
+    }
+}
+
+/// A fixed spherical obstacle whose centre lies in the focal plane.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Obstacle {
+    /// Centre (x, y), m.
+    pub centre_m: [f64; 2],
+    /// Radius, m.
+    pub radius_m: f64,
+}
+
+/// Physical and numerical parameters of the simulated tweezer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TweezerParams {
+    /// Bead radius R, m.
+    pub radius_m: f64,
+    /// Dynamic viscosity η, Pa·s.
+    pub viscosity_pa_s: f64,
+    /// Temperature T, K.
+    pub temperature_k: f64,
+    /// Trap stiffness κ, N/m.
+    pub stiffness_n_per_m: f64,
+    /// Bead-centre to coverslip distance H, m (None: no wall).
+    pub wall_distance_m: Option<f64>,
+    /// Trap linear range, m (escape beyond it).
+    pub escape_distance_m: f64,
+    /// Contact range δ, m.
+    pub contact_range_m: f64,
+    /// Contact stiffness k_c, N/m.
+    pub contact_stiffness_n_per_m: f64,
+    /// Obstacles.
+    pub obstacles: Vec<Obstacle>,
+    /// Integrator.
+    pub integrator: TweezerIntegrator,
+    /// Apply the Itô drift k_BT ∂(1/γ⊥)/∂h near obstacles (disable only to
+    /// demonstrate the artefact).
+    pub ito_drift: bool,
+    /// RNG seed.
+    pub seed: u64,
+}
+
+impl TweezerParams {
+    /// Paper defaults: R = 1.5 µm glass bead in water at 20 °C, κ = 20 pN/µm,
+    /// no wall, no obstacles.
+    pub fn paper_default() -> Self {
+        Self {
+            radius_m: 1.5e-6,
+            viscosity_pa_s: 1.0016e-3,
+            temperature_k: 293.15,
+            stiffness_n_per_m: 2.0e-5,
+            wall_distance_m: None,
+            escape_distance_m: 1.5e-6,
+            contact_range_m: 2.0e-8,
+            contact_stiffness_n_per_m: 2.0e-3,
+            obstacles: Vec::new(),
+            integrator: TweezerIntegrator::Exact,
+            ito_drift: true,
+            seed: 0,
+        }
+    }
+
+    /// From the `[tweezer]` section of a rig file.
+    pub fn from_config(c: &TweezerConfig) -> Self {
+        Self {
+            radius_m: c.radius_m,
+            viscosity_pa_s: c.viscosity_pa_s,
+            temperature_k: c.temperature_k,
+            stiffness_n_per_m: c.stiffness_n_per_m,
+            wall_distance_m: c.wall_distance_m,
+            escape_distance_m: c.escape_distance_m,
+            contact_range_m: c.contact_range_m,
+            contact_stiffness_n_per_m: c.contact_stiffness_n_per_m,
+            obstacles: c
+                .obstacles
+                .iter()
+                .map(|o| Obstacle {
+                    centre_m: [o.x_m, o.y_m],
+                    radius_m: o.radius_m,
+                })
+                .collect(),
+            integrator: TweezerIntegrator::Exact,
+            ito_drift: true,
+            seed: c.seed,
+        }
+    }
+
+    /// Check every parameter.
+    pub fn validate(&self) -> Result<(), RigError> {
+        let pos = |name: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(RigError::InvalidParameter {
+                    name,
+                    value: v,
+                    reason: "must be finite and > 0".into(),
+                })
+            }
+        };
+        pos("radius_m", self.radius_m)?;
+        pos("viscosity_pa_s", self.viscosity_pa_s)?;
+        pos("temperature_k", self.temperature_k)?;
+        pos("stiffness_n_per_m", self.stiffness_n_per_m)?;
+        pos("escape_distance_m", self.escape_distance_m)?;
+        pos("contact_range_m", self.contact_range_m)?;
+        pos("contact_stiffness_n_per_m", self.contact_stiffness_n_per_m)?;
+        if let Some(h) = self.wall_distance_m
+            && !(h.is_finite() && h > self.radius_m)
+        {
+            return Err(RigError::InvalidParameter {
+                name: "wall_distance_m",
+                value: h,
+                reason: format!("must exceed the bead radius {} m", self.radius_m),
+            });
+        }
+        for o in &self.obstacles {
+            if !(o.radius_m.is_finite()
+                && o.radius_m > 0.0
+                && o.centre_m.iter().all(|v| v.is_finite()))
+            {
+                return Err(RigError::InvalidParameter {
+                    name: "obstacles",
+                    value: o.radius_m,
+                    reason: "obstacle radius must be > 0 and centre finite".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// k_B T, J.
+    pub fn kt(&self) -> f64 {
+        BOLTZMANN * self.temperature_k
+    }
+
+    /// Stokes drag γ₀, N·s/m.
+    pub fn gamma0(&self) -> f64 {
+        stokes_drag(self.viscosity_pa_s, self.radius_m)
+    }
+
+    /// Faxén factor of the coverslip (1 without wall).
+    pub fn wall_factor(&self) -> f64 {
+        self.wall_distance_m
+            .map_or(1.0, |h| faxen_parallel(self.radius_m / h))
+    }
+
+    /// In-plane drag far from obstacles, N·s/m.
+    pub fn gamma_free(&self) -> f64 {
+        self.gamma0() * self.wall_factor()
+    }
+
+    /// Corner frequency f_c = κ/(2πγ) far from obstacles, Hz.
+    pub fn corner_hz(&self) -> f64 {
+        self.stiffness_n_per_m / (2.0 * PI * self.gamma_free())
+    }
+
+    /// Diffusion coefficient D = k_BT/γ far from obstacles, m²/s.
+    pub fn diffusion(&self) -> f64 {
+        self.kt() / self.gamma_free()
+    }
+
+    /// Equipartition variance k_BT/κ per axis, m².
+    pub fn variance_theory(&self) -> f64 {
+        self.kt() / self.stiffness_n_per_m
+    }
+
+    /// Relaxation time τ = γ/κ, s.
+    pub fn tau(&self) -> f64 {
+        self.gamma_free() / self.stiffness_n_per_m
+    }
+}
+
+/// Events of one sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TweezerEvents {
+    /// The bead entered an obstacle's contact zone.
+    pub contact_start: bool,
+    /// The bead left the contact zone (with hysteresis, 3δ).
+    pub contact_end: bool,
+    /// The bead left the trap's linear range and is lost.
+    pub escaped: bool,
+    /// A lost bead was recaptured by the trap.
+    pub recaptured: bool,
+}
+
+impl TweezerEvents {
+    /// True if any event fired.
+    pub fn any(&self) -> bool {
+        self.contact_start || self.contact_end || self.escaped || self.recaptured
+    }
+}
+
+/// One sample of tweezer output.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TweezerSample {
+    /// Bead centre (x, y), m.
+    pub bead_m: [f64; 2],
+    /// Trap centre (x, y), m.
+    pub trap_m: [f64; 2],
+    /// Optical force on the bead κ(trap − bead), N (0 when lost).
+    pub force_n: [f64; 2],
+    /// Surface gap to the nearest obstacle, m (∞ without obstacles).
+    pub gap_m: f64,
+    /// Inside an obstacle's contact zone.
+    pub in_contact: bool,
+    /// Bead held by the trap.
+    pub trapped: bool,
+    /// Events of this sample.
+    pub events: TweezerEvents,
+    /// Sub-steps used.
+    pub substeps: u32,
+}
+
+/// An optical tweezer driven at the loop rate: trap position in, bead
+/// position, optical force and events out. Implemented by [`SimTweezer`]
+/// now and by live tweezers later.
+pub trait Tweezer {
+    /// Loop sample rate, Hz.
+    fn sample_rate_hz(&self) -> f64;
+    /// Trap stiffness κ, N/m.
+    fn stiffness_n_per_m(&self) -> f64;
+    /// Move the trap to `trap_m` (linearly over the sample period) and
+    /// advance one sample. Must not allocate, lock or panic.
+    fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample;
+    /// Put the trap at `trap_m` and the bead in it (trapped, no contact).
+    fn reset(&mut self, trap_m: [f64; 2]);
+}
+
+/// Simulated tweezer (module docs).
+#[derive(Debug, Clone)]
+pub struct SimTweezer {
+    p: TweezerParams,
+    fs: f64,
+    dt: f64,
+    kt: f64,
+    gamma0: f64,
+    fw: f64,
+    bead: [f64; 2],
+    trap: [f64; 2],
+    trapped: bool,
+    in_contact: bool,
+    rng: ChaCha8Rng,
+    // Free-space full-step coefficients (exact OU): c, τ(1 − c), σ.
+    free_c: f64,
+    free_tau_1mc: f64,
+    free_sigma: f64,
+    d_free: f64,
+    reflections: u64,
+    nonfinite: u64,
+}
+
+/// Scalar Ornstein–Uhlenbeck coefficients of one direction over a sub-step:
+/// stiffness `k` (N/m) toward an equilibrium moving linearly `e0` → `e1` (m),
+/// drag `g` (N·s/m), drift velocity `v` (m/s).
+#[derive(Debug, Clone, Copy)]
+struct Ou {
+    k: f64,
+    e0: f64,
+    e1: f64,
+    g: f64,
+    v: f64,
+}
+
+fn norm2(v: [f64; 2]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1]).sqrt()
+}
+
+impl SimTweezer {
+    /// Create at sample rate `fs_hz` with the bead in the trap at the origin.
+    pub fn new(params: TweezerParams, fs_hz: f64) -> Result<Self, RigError> {
+        params.validate()?;
+        if !(fs_hz.is_finite() && fs_hz > 0.0) {
+            return Err(RigError::InvalidParameter {
+                name: "fs",
+                value: fs_hz,
+                reason: "must be finite and > 0".into(),
+            });
+        }
+        let dt = 1.0 / fs_hz;
+        let kt = params.kt();
+        let gamma0 = params.gamma0();
+        let fw = params.wall_factor();
+        let gf = gamma0 * fw;
+        let tau = gf / params.stiffness_n_per_m;
+        let c = (-dt / tau).exp();
+        let rng = ChaCha8Rng::seed_from_u64(params.seed);
+        Ok(Self {
+            free_c: c,
+            free_tau_1mc: tau * (1.0 - c),
+            free_sigma: (kt / params.stiffness_n_per_m * (1.0 - c * c)).sqrt(),
+            d_free: kt / gf,
+            p: params,
+            fs: fs_hz,
+            dt,
+            kt,
+            gamma0,
+            fw,
+            bead: [0.0; 2],
+            trap: [0.0; 2],
+            trapped: true,
+            in_contact: false,
+            rng,
+            reflections: 0,
+            nonfinite: 0,
+        })
+    }
+
+    /// Parameters.
+    pub fn params(&self) -> &TweezerParams {
+        &self.p
+    }
+
+    /// Current bead position, m.
+    pub fn bead(&self) -> [f64; 2] {
+        self.bead
+    }
+
+    /// Place the bead (tests, scenes). Non-finite → unchanged.
+    pub fn set_bead(&mut self, bead: [f64; 2]) {
+        if bead.iter().all(|v| v.is_finite()) {
+            self.bead = bead;
+        }
+    }
+
+    /// Is the bead held by the trap?
+    pub fn trapped(&self) -> bool {
+        self.trapped
+    }
+
+    /// Number of reflections at an obstacle surface (overlap prevented).
+    pub fn reflections(&self) -> u64 {
+        self.reflections
+    }
+
+    /// Number of non-finite bead states that were reset (diverging Euler).
+    pub fn nonfinite_resets(&self) -> u64 {
+        self.nonfinite
+    }
+
+    /// Nearest obstacle: (index, unit normal from its centre to the bead,
+    /// surface gap g = |r − c| − R − R_o).
+    #[inline]
+    fn nearest(&self, r: [f64; 2]) -> Option<(usize, [f64; 2], f64)> {
+        let mut best: Option<(usize, [f64; 2], f64)> = None;
+        for (i, o) in self.p.obstacles.iter().enumerate() {
+            let d = [r[0] - o.centre_m[0], r[1] - o.centre_m[1]];
+            let dist = norm2(d);
+            let gap = dist - self.p.radius_m - o.radius_m;
+            if best.is_none_or(|b| gap < b.2) {
+                let n = if dist > 0.0 {
+                    [d[0] / dist, d[1] / dist]
+                } else {
+                    [1.0, 0.0]
+                };
+                best = Some((i, n, gap));
+            }
+        }
+        best
+    }
+
+    #[inline]
+    fn normal(&mut self) -> f64 {
+        self.rng.sample::<f64, _>(StandardNormal)
+    }
+
+    /// One exact/EM update of a scalar coordinate x over h (see [`Ou`]).
+    #[inline]
+    fn scalar_step(&mut self, x: f64, ou: Ou, h: f64) -> f64 {
+        let Ou { k, e0, e1, g, v } = ou;
+        let n = self.normal();
+        match self.p.integrator {
+            TweezerIntegrator::Exact => {
+                if k > 0.0 {
+                    let tau = g / k;
+                    let c = (-h / tau).exp();
+                    let w = (e1 - e0) / h;
+                    e1 + c * (x - e0)
+                        + (v - w) * tau * (1.0 - c)
+                        + (self.kt / k * (1.0 - c * c)).sqrt() * n
+                } else {
+                    x + v * h + (2.0 * self.kt * h / g).sqrt() * n
+                }
+            }
+            TweezerIntegrator::Euler => {
+                x - h * k * (x - e0) / g + v * h + (2.0 * self.kt * h / g).sqrt() * n
+            }
+        }
+    }
+
+    fn substep(&mut self, ta: [f64; 2], tb: [f64; 2], h: f64) {
+        let kappa = if self.trapped {
+            self.p.stiffness_n_per_m
+        } else {
+            0.0
+        };
+        let r = self.p.radius_m;
+        let delta = self.p.contact_range_m;
+        match self.nearest(self.bead) {
+            None => {
+                let g = self.gamma0 * self.fw;
+                for i in 0..2 {
+                    self.bead[i] = self.scalar_step(
+                        self.bead[i],
+                        Ou {
+                            k: kappa,
+                            e0: ta[i],
+                            e1: tb[i],
+                            g,
+                            v: 0.0,
+                        },
+                        h,
+                    );
+                }
+            }
+            Some((oi, n, gap)) => {
+                let o = self.p.obstacles[oi];
+                let t = [-n[1], n[0]];
+                let rel = [self.bead[0] - o.centre_m[0], self.bead[1] - o.centre_m[1]];
+                let sn = rel[0] * n[0] + rel[1] * n[1];
+                let st = rel[0] * t[0] + rel[1] * t[1];
+                let proj = |p: [f64; 2], u: [f64; 2]| {
+                    (p[0] - o.centre_m[0]) * u[0] + (p[1] - o.centre_m[1]) * u[1]
+                };
+                // Distance from the bead centre to the obstacle surface.
+                let gmin = DRAG_CLAMP_GAP_OVER_R * r;
+                let clamped = gap < gmin;
+                let hs = r + gap.max(gmin);
+                let s = r / hs;
+                let g_perp = self.gamma0 * self.fw / perpendicular_mobility(s);
+                let g_par = self.gamma0 * self.fw * faxen_parallel(s);
+                let vd = if self.p.ito_drift && !clamped {
+                    // k_BT d(1/γ⊥)/dh = k_BT/(γ₀ f_w) · p'(s) · (−R/h²).
+                    self.kt / (self.gamma0 * self.fw)
+                        * perpendicular_mobility_ds(s)
+                        * (-r / (hs * hs))
+                } else {
+                    0.0
+                };
+                let (kc, s_star) = if gap < delta {
+                    (self.p.contact_stiffness_n_per_m, r + o.radius_m + delta)
+                } else {
+                    (0.0, 0.0)
+                };
+                let kn = kappa + kc;
+                let (en0, en1) = if kn > 0.0 {
+                    (
+                        (kappa * proj(ta, n) + kc * s_star) / kn,
+                        (kappa * proj(tb, n) + kc * s_star) / kn,
+                    )
+                } else {
+                    (sn, sn)
+                };
+                let sn1 = self.scalar_step(
+                    sn,
+                    Ou {
+                        k: kn,
+                        e0: en0,
+                        e1: en1,
+                        g: g_perp,
+                        v: vd,
+                    },
+                    h,
+                );
+                let st1 = self.scalar_step(
+                    st,
+                    Ou {
+                        k: kappa,
+                        e0: proj(ta, t),
+                        e1: proj(tb, t),
+                        g: g_par,
+                        v: 0.0,
+                    },
+                    h,
+                );
+                self.bead = [
+                    o.centre_m[0] + sn1 * n[0] + st1 * t[0],
+                    o.centre_m[1] + sn1 * n[1] + st1 * t[1],
+                ];
+                // Reflecting boundary: no overlap with any obstacle.
+                for k in 0..self.p.obstacles.len() {
+                    let ob = self.p.obstacles[k];
+                    let d = [self.bead[0] - ob.centre_m[0], self.bead[1] - ob.centre_m[1]];
+                    let dist = norm2(d);
+                    let contact = r + ob.radius_m;
+                    if dist < contact {
+                        let u = if dist > 0.0 {
+                            [d[0] / dist, d[1] / dist]
+                        } else {
+                            n
+                        };
+                        let target = contact + (contact - dist);
+                        self.bead = [
+                            ob.centre_m[0] + u[0] * target,
+                            ob.centre_m[1] + u[1] * target,
+                        ];
+                        self.reflections += 1;
+                    }
+                }
+            }
+        }
+        if !(self.bead[0].is_finite() && self.bead[1].is_finite()) {
+            self.bead = tb;
+            self.nonfinite += 1;
+        }
+        if self.trapped {
+            let d = [self.bead[0] - tb[0], self.bead[1] - tb[1]];
+            if norm2(d) > self.p.escape_distance_m {
+                self.trapped = false;
+            }
+        }
+    }
+}
+
+impl Tweezer for SimTweezer {
+    fn sample_rate_hz(&self) -> f64 {
+        self.fs
+    }
+
+    fn stiffness_n_per_m(&self) -> f64 {
+        self.p.stiffness_n_per_m
+    }
+
+    fn reset(&mut self, trap_m: [f64; 2]) {
+        let t = if trap_m.iter().all(|v| v.is_finite()) {
+            trap_m
+        } else {
+            [0.0; 2]
+        };
+        self.trap = t;
+        self.bead = t;
+        self.trapped = true;
+        self.in_contact = false;
+    }
+
+    fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample {
+        let p0 = self.trap;
+        let p1 = if trap_m.iter().all(|v| v.is_finite()) {
+            trap_m
+        } else {
+            p0
+        };
+        let was_trapped = self.trapped;
+        let mut ev = TweezerEvents::default();
+        let near = self.nearest(self.bead);
+        let n_sub: u32 = match near {
+            None => 1,
+            Some((_, _, gap)) => {
+                let travel = norm2([p1[0] - p0[0], p1[1] - p0[1]]);
+                let diff = 4.0 * (2.0 * self.d_free * self.dt).sqrt();
+                let l = travel + diff;
+                let delta = self.p.contact_range_m;
+                if gap < l + 2.0 * delta + self.p.escape_distance_m {
+                    let ell = (0.25 * delta).max(0.1 * gap.max(0.0));
+                    ((l / ell).ceil() as u32).clamp(1, MAX_SUBSTEPS)
+                } else {
+                    1
+                }
+            }
+        };
+        if near.is_none() && self.trapped && self.p.integrator == TweezerIntegrator::Exact {
+            // Fast path: free space, one exact step.
+            for i in 0..2 {
+                let w = (p1[i] - p0[i]) / self.dt;
+                let n = self.normal();
+                self.bead[i] = p1[i] + self.free_c * (self.bead[i] - p0[i]) - w * self.free_tau_1mc
+                    + self.free_sigma * n;
+            }
+            if !(self.bead[0].is_finite() && self.bead[1].is_finite()) {
+                self.bead = p1;
+                self.nonfinite += 1;
+            }
+            if norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]) > self.p.escape_distance_m {
+                self.trapped = false;
+            }
+        } else {
+            let h = self.dt / n_sub as f64;
+            let inv = 1.0 / n_sub as f64;
+            for k in 0..n_sub {
+                let a = k as f64 * inv;
+                let b = (k + 1) as f64 * inv;
+                let ta = [p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])];
+                let tb = [p0[0] + b * (p1[0] - p0[0]), p0[1] + b * (p1[1] - p0[1])];
+                self.substep(ta, tb, h);
+            }
+        }
+        self.trap = p1;
+        if was_trapped && !self.trapped {
+            ev.escaped = true;
+        }
+        if !self.trapped && !ev.escaped {
+            let d = norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]);
+            if d < 0.5 * self.p.escape_distance_m {
+                self.trapped = true;
+                ev.recaptured = true;
+            }
+        }
+        let gap = self.nearest(self.bead).map_or(f64::INFINITY, |n| n.2);
+        let delta = self.p.contact_range_m;
+        if !self.in_contact && gap < delta {
+            self.in_contact = true;
+            ev.contact_start = true;
+        } else if self.in_contact && gap > 3.0 * delta {
+            self.in_contact = false;
+            ev.contact_end = true;
+        }
+        let force = if self.trapped {
+            let k = self.p.stiffness_n_per_m;
+            [k * (p1[0] - self.bead[0]), k * (p1[1] - self.bead[1])]
+        } else {
+            [0.0; 2]
+        };
+        TweezerSample {
+            bead_m: self.bead,
+            trap_m: p1,
+            force_n: force,
+            gap_m: gap,
+            in_contact: self.in_contact,
+            trapped: self.trapped,
+            events: ev,
+            substeps: n_sub,
+        }
+    }
+}
+
+/// Arguments of `kilotouch sim tweezer` (units in the names).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TweezerSimArgs {
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Sample rate, Hz.
+    pub fs_hz: f64,
+    /// Trap stiffness, pN/µm.
+    pub stiffness_pn_um: f64,
+    /// Bead radius, µm.
+    pub radius_um: f64,
+    /// Temperature, K.
+    pub temperature_k: f64,
+    /// Viscosity, Pa·s.
+    pub viscosity_pa_s: f64,
+    /// Bead-centre to coverslip distance, µm.
+    pub wall_distance_um: Option<f64>,
+    /// Integrator.
+    pub integrator: TweezerIntegrator,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl Default for TweezerSimArgs {
+    fn default() -> Self {
+        Self {
+            duration_s: 10.0,
+            fs_hz: 10_000.0,
+            stiffness_pn_um: 20.0,
+            radius_um: 1.5,
+            temperature_k: 293.15,
+            viscosity_pa_s: 1.0016e-3,
+            wall_distance_um: None,
+            integrator: TweezerIntegrator::Exact,
+            seed: 1,
+        }
+    }
+}
+
+/// Result of `kilotouch sim tweezer` (SI units in the names).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TweezerSimReport {
+    /// Sample variance of x about its mean, m².
+    pub var_x_m2: f64,
+    /// Sample variance of y about its mean, m².
+    pub var_y_m2: f64,
+    /// Fitted corner frequency (aliased Lorentzian, x and y PSDs averaged), Hz.
+    pub fc_fit_hz: f64,
+    /// Fitted diffusion coefficient, m²/s.
+    pub d_fit_m2_s: f64,
+    /// κ/(2πγ) with γ including the wall factor, Hz.
+    pub fc_theory_hz: f64,
+    /// k_BT/κ, m².
+    pub var_theory_m2: f64,
+    /// k_BT/γ, m²/s.
+    pub d_theory_m2_s: f64,
+    /// Drag γ = γ₀·(Faxén factor), N·s/m.
+    pub gamma_n_s_m: f64,
+    /// Faxén factor of the wall (1 without).
+    pub wall_factor: f64,
+    /// Sample period over relaxation time, dt/τ.
+    pub dt_over_tau: f64,
+    /// Samples simulated per axis.
+    pub n_samples: usize,
+    /// Welch segment length used for the PSD.
+    pub nperseg: usize,
+    /// Fit band, Hz.
+    pub fit_band_hz: [f64; 2],
+    /// Integrator used.
+    pub integrator: TweezerIntegrator,
+    /// Seed used.
+    pub seed: u64,
+}
+
+/// Library entry point of `kilotouch sim tweezer`: simulate a bead in a
+/// fixed trap, report variances and an aliased-Lorentzian fit of the PSD
+/// (Welch, Hann, 50 % overlap, from `kilotouch_dsp::spectral::welch`).
+pub fn simulate_tweezer(args: &TweezerSimArgs) -> Result<TweezerSimReport, RigError> {
+    let bad = |name: &'static str, value: f64, reason: &str| RigError::InvalidParameter {
+        name,
+        value,
+        reason: reason.to_string(),
+    };
+    if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
+        return Err(bad("duration_s", args.duration_s, "must be finite and > 0"));
+    }
+    if !(args.fs_hz.is_finite() && args.fs_hz > 0.0) {
+        return Err(bad("fs_hz", args.fs_hz, "must be finite and > 0"));
+    }
+    let n = (args.duration_s * args.fs_hz).round();
+    if !(2048.0..=2.0e9).contains(&n) {
+        return Err(bad(
+            "duration_s",
+            args.duration_s,
+            "need between 2048 and 2e9 samples",
+        ));
+    }
+    let n = n as usize;
+    let params = TweezerParams {
+        radius_m: args.radius_um * 1e-6,
+        viscosity_pa_s: args.viscosity_pa_s,
+        temperature_k: args.temperature_k,
+        stiffness_n_per_m: args.stiffness_pn_um * 1e-6,
+        wall_distance_m: args.wall_distance_um.map(|h| h * 1e-6),
+        escape_distance_m: f64::MAX,
+        integrator: args.integrator,
+        seed: args.seed,
+        ..TweezerParams::paper_default()
+    };
+    params.validate()?;
+    let dt_over_tau = 1.0 / (args.fs_hz * params.tau());
+    if args.integrator == TweezerIntegrator::Euler && dt_over_tau >= 2.0 {
+        return Err(RigError::Unstable(format!(
+            "Euler–Maruyama is unstable for dt/τ = {dt_over_tau:.3} ≥ 2; use the exact integrator"
+        )));
+    }
+    let mut tw = SimTweezer::new(params.clone(), args.fs_hz)?;
+    // Start from the stationary distribution.
+    let sd = params.variance_theory().sqrt();
+    let b0 = [sd * tw.normal(), sd * tw.normal()];
+    tw.set_bead(b0);
+    let mut xs = Vec::with_capacity(n);
+    let mut ys = Vec::with_capacity(n);
+    for _ in 0..n {
+        let s = tw.step([0.0, 0.0]);
+        xs.push(s.bead_m[0]);
+        ys.push(s.bead_m[1]);
+    }
+    let var = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() - 1) as f64
+    };
+    let nperseg = (n / 16).clamp(256, 8192).next_power_of_two().min(n);
+    let cfg = kilotouch_dsp::spectral::WelchConfig::new(nperseg);
+    let px = kilotouch_dsp::spectral::welch(&xs, args.fs_hz, &cfg)?;
+    let py = kilotouch_dsp::spectral::welch(&ys, args.fs_hz, &cfg)?;
+    let psd: Vec<f64> = px.p.iter().zip(&py.p).map(|(a, b)| 0.5 * (a + b)).collect();
+    let f_lo = 3.0 * args.fs_hz / nperseg as f64;
+    let f_hi = 0.5 * args.fs_hz * (1.0 - 4.0 / nperseg as f64);
+    let fit = crate::lorentzian::fit_aliased_lorentzian(&px.f, &psd, args.fs_hz, f_lo, f_hi)?;
+    Ok(TweezerSimReport {
+        var_x_m2: var(&xs),
+        var_y_m2: var(&ys),
+        fc_fit_hz: fit.fc_hz,
+        d_fit_m2_s: fit.d_m2_s,
+        fc_theory_hz: params.corner_hz(),
+        var_theory_m2: params.variance_theory(),
+        d_theory_m2_s: params.diffusion(),
+        gamma_n_s_m: params.gamma_free(),
+        wall_factor: params.wall_factor(),
+        dt_over_tau,
+        n_samples: n,
+        nperseg,
+        fit_band_hz: [f_lo, f_hi],
+        integrator: args.integrator,
+        seed: args.seed,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wall_corrections_match_reference_table() {
+        // REFERENCE-VALUES.md (h/R, parallel, perpendicular).
+        let table = [
+            (1.1, 2.360, 11.46),
+            (1.5, 1.615, 3.205),
+            (2.0, 1.386, 2.126),
+            (3.0, 1.227, 1.569),
+            (5.0, 1.126, 1.285),
+            (10.0, 1.059, 1.126),
+        ];
+        for (hr, par, perp) in table {
+            let s = 1.0 / hr;
+            assert!(
+                (faxen_parallel(s) / par - 1.0).abs() < 2e-3,
+                "Faxén at h/R={hr}: {}",
+                faxen_parallel(s)
+            );
+            // Schäffer's approximation is within 0.1 % of the exact series.
+            assert!(
+                (brenner_perpendicular(s) / perp - 1.0).abs() < 1.5e-3,
+                "Brenner at h/R={hr}: {}",
+                brenner_perpendicular(s)
+            );
+        }
+    }
+
+    #[test]
+    fn mobility_derivative_matches_finite_difference() {
+        for s in [0.05, 0.3, 0.6, 0.9, 0.99] {
+            let h = 1e-6;
+            let fd = (perpendicular_mobility(s + h) - perpendicular_mobility(s - h)) / (2.0 * h);
+            assert!((fd - perpendicular_mobility_ds(s)).abs() < 1e-7, "s={s}");
+        }
+        // Lubrication limit: the mobility vanishes at contact like (1 − s).
+        assert!(perpendicular_mobility(1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn stokes_and_default_corner() {
+        let p = TweezerParams::paper_default();
+        // γ₀ = 6π·1.0016e-3·1.5e-6 = 2.8318e-8 N·s/m.
+        assert!((p.gamma0() - 2.8318e-8).abs() < 1e-11);
+        // f_c = κ/(2πγ₀) ≈ 112.4 Hz for 20 pN/µm; inertia m/γ₀ ≈ 1 µs.
+        assert!((p.corner_hz() / (2e-5 / (2.0 * PI * 2.8318e-8)) - 1.0).abs() < 1e-4);
+        let mass = 4.0 / 3.0 * PI * p.radius_m.powi(3) * 2500.0;
+        assert!(mass / p.gamma0() < 2e-6);
+    }
+
+    #[test]
+    fn nonfinite_trap_is_ignored() {
+        let mut t = SimTweezer::new(TweezerParams::paper_default(), 1e4).unwrap();
+        for _ in 0..100 {
+            let s = t.step([f64::NAN, f64::INFINITY]);
+            assert!(s.bead_m.iter().chain(&s.force_n).all(|v| v.is_finite()));
+        }
+    }
+
+    #[test]
+    fn invalid_parameters_rejected() {
+        let p = TweezerParams {
+            radius_m: -1.0,
+            ..TweezerParams::paper_default()
+        };
+        assert!(SimTweezer::new(p, 1e4).is_err());
+        let p = TweezerParams {
+            wall_distance_m: Some(1.0e-6),
+            ..TweezerParams::paper_default()
+        };
+        assert!(SimTweezer::new(p, 1e4).is_err());
+        assert!(SimTweezer::new(TweezerParams::paper_default(), 0.0).is_err());
+    }
+}
