@@ -118,7 +118,7 @@ impl Default for AnalysisConfig {
             nperseg: 2048,
             coherence_min: 0.9,
             smoothing_octaves: 1.0 / 12.0,
-            f_min_hz: 10.0,
+            f_min_hz: 20.0,
             f_max_hz: 2000.0,
             flat_tol_db: 1.0,
         }
@@ -138,6 +138,18 @@ pub struct HighFitConfig {
     /// Never trust the estimate below this frequency (Hz), whatever the
     /// coherence says.
     pub min_reliable_hz: Option<f64>,
+    /// The model must match the (smoothed) estimate within this over the
+    /// reliable band, dB: the band's lower edge is raised until it does.
+    pub model_tol_db: f64,
+    /// When the model of the configured orders misfits, try orders raised by
+    /// 1, 2, … up to this (numerator and denominator together) at each band
+    /// edge before raising the edge.
+    pub max_order_increase: usize,
+    /// Numbers of zeros at s = 0 to impose, tried in this order for each
+    /// order pair (an inertial actuator's acceleration response has a
+    /// double zero at DC, below the band a fit sees; see
+    /// `docs/theory/calibration.md`).
+    pub origin_zeros: Vec<usize>,
 }
 
 impl Default for HighFitConfig {
@@ -147,6 +159,9 @@ impl Default for HighFitConfig {
             den_order: 2,
             fit_max_hz: 1200.0,
             min_reliable_hz: None,
+            model_tol_db: 0.5,
+            max_order_increase: 3,
+            origin_zeros: vec![0, 2],
         }
     }
 }
@@ -159,9 +174,9 @@ pub struct CrossoverConfig {
     pub order: usize,
     /// Use this crossover frequency (Hz) instead of the automatic choice.
     pub fc_hz: Option<f64>,
-    /// Error budget of each channel's leakage through the other side of the
-    /// crossover, dB (see `docs/theory/calibration.md`).
-    pub skirt_budget_db: f64,
+    /// Largest predicted deviation accepted for the automatic choice, dB
+    /// (see `docs/theory/calibration.md`).
+    pub budget_db: f64,
     /// Never choose a crossover above this (Hz).
     pub max_hz: Option<f64>,
     /// Never choose a crossover below this (Hz).
@@ -173,7 +188,7 @@ impl Default for CrossoverConfig {
         Self {
             order: 4,
             fc_hz: None,
-            skirt_budget_db: 0.5,
+            budget_db: 0.5,
             max_hz: None,
             min_hz: 20.0,
         }
@@ -396,6 +411,13 @@ impl CalibrationConfig {
                 ),
             ));
         }
+        if h.den_order + h.max_order_increase > 8 {
+            return Err(CalibrationError::config(
+                "high_fit.max_order_increase",
+                h.max_order_increase,
+                "den_order + max_order_increase must be ≤ 8",
+            ));
+        }
         if h.den_order > h.num_order + 2 {
             return Err(CalibrationError::config(
                 "high_fit.den_order",
@@ -412,6 +434,14 @@ impl CalibrationConfig {
         }
         if let Some(v) = h.min_reliable_hz {
             finite_pos("high_fit.min_reliable_hz", v)?;
+        }
+        finite_pos("high_fit.model_tol_db", h.model_tol_db)?;
+        if h.origin_zeros.is_empty() || h.origin_zeros.iter().any(|&k| k > 4) {
+            return Err(CalibrationError::config(
+                "high_fit.origin_zeros",
+                format!("{:?}", h.origin_zeros),
+                "must be a non-empty list of counts in 0..=4",
+            ));
         }
         let c = &self.crossover;
         if !matches!(c.order, 2 | 4 | 8) {
@@ -430,7 +460,7 @@ impl CalibrationConfig {
                 "must be in (0, fs/2)",
             ));
         }
-        finite_pos("crossover.skirt_budget_db", c.skirt_budget_db)?;
+        finite_pos("crossover.budget_db", c.budget_db)?;
         finite_pos("crossover.min_hz", c.min_hz)?;
         if let Some(m) = c.max_hz
             && !(m.is_finite() && m > c.min_hz)

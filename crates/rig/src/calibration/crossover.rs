@@ -2,32 +2,43 @@
 //!
 //! The paper chose "the highest [f_c] that the Pantograph could allow in
 //! order to minimize the delay introduced by the filters" (§3.1). Made an
-//! algorithm: with the low path L and high path H of the Linkwitz–Riley
-//! crossover at f_c (|L + H| = 1), the delivered response is
-//! L·ĥ_L + H·ĥ_H with ĥ = channel response / its model. Each channel's
-//! error outside its trusted band leaks through the other side of the
-//! crossover:
+//! algorithm: with the low path L·C_L and the high path H·C_H of the chain
+//! designed for a candidate f_c (Linkwitz–Riley L, H; C_L = K/G0_L,
+//! C_H = K·F/Ĝ_H), the tip response to be expected is the chain applied to
+//! the *measured* channel responses,
 //!
 //! ```text
-//! e_L(f_c) = max_{f_b < f ≤ f_top} |L(f)|·|Ĥ_L(f)/G0_L − 1|   (measured, above the flat band)
-//! e_H(f_c) = max_{f ≤ f_r}       |H(f)|·1 = |H(f_r)|          (unknown below the reliable band:
-//!                                                                 assume a 100 % error)
+//! P(f) = [L(f) C_L Ĥ_L(f) + H(f) C_H(f) Ĥ_H(f)] / K_sys ,
 //! ```
 //!
-//! and | |L ĥ_L + H ĥ_H| − 1 | ≤ e_L + e_H by the triangle inequality. With
-//! the budget δ = 10^(b/20) − 1 (b = `skirt_budget_db`), f_c is the highest
-//! frequency on a 1/48-octave grid from min(f_b, `max_hz`) down to `min_hz`
-//! with e_L ≤ δ and e_H ≤ δ. e_L only falls and e_H only rises as f_c
-//! falls, so the admissible set is an interval [f_c,min,H, f_c,max,L]; when
-//! it is empty (the channels do not overlap enough) the grid point that
-//! minimises max(e_L, e_H) is taken and the conflict is reported. For LR4
-//! e_H ≤ δ means f_c ≥ f_r·((1 − δ)/δ)^(1/4): 2.0·f_r for b = 0.5 dB — the
-//! paper's 200 Hz over its unreliable 100 Hz.
+//! which differs from 1 where a channel departs from its model (G0_L above
+//! the low channel's flat band, Ĝ_H below the high channel's reliable band)
+//! and the crossover skirt lets that departure through, and where the two
+//! paths' phases disagree around f_c. The candidates are a 1/48-octave grid
+//! from min(f_b, `max_hz`) (f_b: upper edge of the low channel's flat band)
+//! down to `min_hz`; f_c is the **highest** candidate whose predicted
+//! deviation max |20·log10|P(f)|| over the verification bands is within
+//! `budget_db`. When none is (the channels do not overlap enough), the
+//! candidate with the smallest predicted deviation is taken and
+//! `over_budget` is set.
+//!
+//! Two leakage figures are reported as diagnostics at the chosen f_c
+//! (upper bounds of each channel's contribution by the triangle inequality,
+//! |L + H| = 1):
+//!
+//! ```text
+//! e_L = max_{f_b < f ≤ f_top} |L(f)|·|Ĥ_L(f)/G0_L − 1|
+//! e_H = max_{f < f_r}        |H(f)|·|Ĥ_H(f)/(Ĝ_H(f) e^{−j2πfτ}) − 1|   (1 where incoherent)
+//! ```
 
 use super::config::CalibrationConfig;
+use super::design::{predicted_max_abs_dev_db, unit_chain};
 use super::error::{CalibrationError, Result};
 use super::identify::{HighChannelId, LowChannelId};
+use super::measure::smooth_octave;
 use super::progress::{Step, StepContext};
+use super::verify::band_centres;
+use kilotouch_dsp::C64;
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use serde::{Deserialize, Serialize};
 
@@ -51,21 +62,59 @@ pub struct CrossoverChoice {
     pub order: usize,
     /// How `fc_hz` was set.
     pub rule: CrossoverRule,
-    /// Highest grid frequency with e_L ≤ δ (the low channel's limit), Hz.
-    pub fc_max_low_hz: f64,
-    /// Lowest grid frequency with e_H ≤ δ (the high channel's limit), Hz.
-    pub fc_min_high_hz: f64,
+    /// Highest candidate (upper edge of the low channel's flat band, or
+    /// `max_hz`), Hz.
+    pub fc_max_hz: f64,
+    /// Predicted max |deviation| over the verification bands at `fc_hz`, dB.
+    pub predicted_max_abs_dev_db: f64,
     /// Leakage bound of the low channel at `fc_hz`, 20·log10(1 + e_L), dB.
     pub low_leak_db: f64,
     /// Leakage bound of the high channel at `fc_hz`, 20·log10(1 + e_H), dB.
     pub high_leak_db: f64,
-    /// True when no frequency satisfied both bounds.
-    pub conflict: bool,
+    /// True when no candidate met the budget (the channels do not overlap
+    /// enough for it; the smallest predicted deviation was taken).
+    pub over_budget: bool,
     /// Human-readable explanation.
     pub note: String,
 }
 
-/// Leakage bounds (e_L, e_H) of a crossover at `fc` (module documentation).
+/// Per-bin model error ε_H of the high channel below its reliable band
+/// (module documentation): (bin frequency, ε_H).
+fn high_errors(high: &HighChannelId, cfg: &CalibrationConfig) -> Vec<(f64, f64)> {
+    let frf = &high.frf;
+    let w = cfg.analysis.smoothing_octaves;
+    let ratio: Vec<C64> = frf
+        .f_hz
+        .iter()
+        .zip(&frf.h)
+        .map(|(&f, &h)| h / high.response(f))
+        .collect();
+    let re = smooth_octave(
+        &frf.f_hz,
+        &ratio.iter().map(|r| r.re).collect::<Vec<_>>(),
+        w,
+    );
+    let im = smooth_octave(
+        &frf.f_hz,
+        &ratio.iter().map(|r| r.im).collect::<Vec<_>>(),
+        w,
+    );
+    let coh = smooth_octave(&frf.f_hz, &frf.coherence, w);
+    frf.range(0.0, high.reliable_band_hz[0] * (1.0 - 1e-12))
+        .map(|i| {
+            let e = (C64::new(re[i], im[i]) - 1.0).norm();
+            let e = if coh[i] >= cfg.analysis.coherence_min && e.is_finite() {
+                e
+            } else {
+                1.0
+            };
+            (frf.f_hz[i], e)
+        })
+        .collect()
+}
+
+/// Leakage bounds (e_L, e_H) of a crossover at `fc` Hz (module
+/// documentation).
 pub fn leakage(
     fc: f64,
     fs: f64,
@@ -82,7 +131,10 @@ pub fn leakage(
         .range(f_b * (1.0 + 1e-12), f_top)
         .map(|i| xo.response(frf.f_hz[i]).0.norm() * (frf.h[i] / low.g0 - 1.0).norm())
         .fold(0.0, f64::max);
-    let e_h = xo.response(high.reliable_band_hz[0]).1.norm();
+    let e_h = high_errors(high, cfg)
+        .iter()
+        .map(|&(f, e)| xo.response(f).1.norm() * e)
+        .fold(0.0, f64::max);
     Ok((e_l, e_h))
 }
 
@@ -102,7 +154,6 @@ pub fn choose_crossover(
     ctx.check_cancel(step)?;
     ctx.report(step, 0.0, "choosing the crossover frequency");
     let c = &cfg.crossover;
-    let delta = 10f64.powf(c.skirt_budget_db / 20.0) - 1.0;
     let cap = c
         .max_hz
         .map_or(low.flat_band_hz[1], |m| m.min(low.flat_band_hz[1]));
@@ -115,71 +166,87 @@ pub fn choose_crossover(
             ),
         ));
     }
-    let n = ((cap / c.min_hz).log2() * 48.0).floor() as usize;
-    let mut grid = Vec::with_capacity(n + 1);
-    for k in 0..=n {
-        let fc = cap * 2f64.powf(-(k as f64) / 48.0);
-        let (el, eh) = leakage(fc, fs, low, high, cfg)?;
-        grid.push((fc, el, eh));
-    }
-    let fc_max_low = grid.iter().find(|g| g.1 <= delta).map_or(c.min_hz, |g| g.0);
-    let fc_min_high = grid
-        .iter()
-        .rev()
-        .find(|g| g.2 <= delta)
-        .map_or(cap, |g| g.0);
-    let feasible = grid.iter().find(|g| g.1 <= delta && g.2 <= delta).copied();
-    let (choice, rule, conflict, note) = if let Some(fc) = c.fc_hz {
-        let (el, eh) = leakage(fc, fs, low, high, cfg)?;
+    let centres = band_centres(low, cfg)?;
+    let predict = |fc: f64| -> Result<f64> {
+        let chain = unit_chain(fs, fc, c.order, low, high, cfg)?;
+        Ok(predicted_max_abs_dev_db(&chain, 1.0, low, high, &centres))
+    };
+    let (fc, predicted, rule, over_budget, note) = if let Some(fc) = c.fc_hz {
+        let p = predict(fc)?;
         (
-            (fc, el, eh),
+            fc,
+            p,
             CrossoverRule::Override,
             false,
-            format!(
-                "set by configuration; the automatic rule allows {fc_min_high:.1}–{fc_max_low:.1} Hz"
-            ),
-        )
-    } else if let Some(g) = feasible {
-        (
-            g,
-            CrossoverRule::Automatic,
-            false,
-            format!(
-                "highest frequency the low channel allows ({fc_max_low:.1} Hz, flat band to {:.1} Hz) \
-                 with the high channel's leakage below its reliable band within budget \
-                 (needs ≥ {fc_min_high:.1} Hz)",
-                low.flat_band_hz[1]
-            ),
+            format!("set by configuration; predicted deviation {p:.2} dB"),
         )
     } else {
-        let g = grid
-            .iter()
-            .copied()
-            .min_by(|a, b| a.1.max(a.2).total_cmp(&b.1.max(b.2)))
-            .ok_or_else(|| CalibrationError::measurement(step, "empty crossover grid"))?;
-        (
-            g,
-            CrossoverRule::Automatic,
-            true,
-            format!(
-                "conflict: the low channel allows at most {fc_max_low:.1} Hz but the high channel \
-                 needs at least {fc_min_high:.1} Hz for a {} dB leakage budget; compromise at the \
-                 smallest worst-case leakage",
-                c.skirt_budget_db
+        let n = ((cap / c.min_hz).log2() * 48.0).floor() as usize;
+        let mut best: Option<(f64, f64)> = None;
+        let mut chosen = None;
+        for k in 0..=n {
+            let fc = cap * 2f64.powf(-(k as f64) / 48.0);
+            let p = predict(fc)?;
+            ctx.report(
+                step,
+                k as f64 / (n + 1) as f64,
+                &format!("{fc:.1} Hz: {p:.2} dB"),
+            );
+            if p <= c.budget_db {
+                chosen = Some((fc, p));
+                break;
+            }
+            if best.is_none_or(|b| p < b.1) {
+                best = Some((fc, p));
+            }
+        }
+        match (chosen, best) {
+            (Some((fc, p)), _) => (
+                fc,
+                p,
+                CrossoverRule::Automatic,
+                false,
+                format!(
+                    "highest frequency at or below the low channel's flat band edge ({cap:.1} Hz) \
+                     with a predicted deviation within {} dB ({p:.2} dB)",
+                    c.budget_db
+                ),
             ),
-        )
+            (None, Some((fc, p))) => (
+                fc,
+                p,
+                CrossoverRule::Automatic,
+                true,
+                format!(
+                    "over budget: no frequency from {:.1} to {cap:.1} Hz keeps the predicted deviation \
+                     within {} dB; chose the smallest ({p:.2} dB)",
+                    c.min_hz, c.budget_db
+                ),
+            ),
+            (None, None) => {
+                return Err(CalibrationError::measurement(step, "empty crossover grid"));
+            }
+        }
     };
+    let (el, eh) = leakage(fc, fs, low, high, cfg)?;
     let out = CrossoverChoice {
-        fc_hz: choice.0,
+        fc_hz: fc,
         order: c.order,
         rule,
-        fc_max_low_hz: fc_max_low,
-        fc_min_high_hz: fc_min_high,
-        low_leak_db: db(choice.1),
-        high_leak_db: db(choice.2),
-        conflict,
+        fc_max_hz: cap,
+        predicted_max_abs_dev_db: predicted,
+        low_leak_db: db(el),
+        high_leak_db: db(eh),
+        over_budget,
         note,
     };
-    ctx.report(step, 1.0, &format!("crossover at {:.1} Hz", out.fc_hz));
+    ctx.report(
+        step,
+        1.0,
+        &format!(
+            "crossover at {:.1} Hz (predicted {:.2} dB)",
+            out.fc_hz, predicted
+        ),
+    );
     Ok(out)
 }

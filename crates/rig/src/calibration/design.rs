@@ -136,6 +136,53 @@ pub fn chain_group_delay(c: &ChainCoefficients, f_hz: f64) -> f64 {
     -((dl + dh) / (l + h)).im / c.fs()
 }
 
+/// Chain coefficients with K_sys = 1 for a crossover at `fc` Hz, from the
+/// identified models and the design settings of `cfg`.
+pub fn unit_chain(
+    fs: f64,
+    fc: f64,
+    order: usize,
+    low: &LowChannelId,
+    high: &HighChannelId,
+    cfg: &CalibrationConfig,
+) -> Result<ChainCoefficients> {
+    let d = &cfg.design;
+    let design = ChainDesign {
+        fs,
+        crossover_order: order,
+        crossover_fc: fc,
+        k_sys: 1.0,
+        g0_l: low.g0,
+        g_h: high.model.clone(),
+        high: HighCompensatorConfig {
+            f_corner_hz: d.band_limit_hz,
+            zeta: d.band_limit_zeta,
+        },
+        c_h_prewarp: Prewarp::AtHz(d.c_h_prewarp_hz.unwrap_or(cfg.verify.f_max_hz)),
+    };
+    ChainCoefficients::design(&design).map_err(|e| CalibrationError::dsp("compensated chain", e))
+}
+
+/// Response predicted at `centres` (Hz) when `chain` (overall gain `k_sys`)
+/// drives channels with the measured responses of `low` and `high`:
+/// max over f of |20·log10|(L(f) Ĥ_L(f) + H(f) Ĥ_H(f))/K_sys||, dB.
+pub fn predicted_max_abs_dev_db(
+    chain: &ChainCoefficients,
+    k_sys: f64,
+    low: &LowChannelId,
+    high: &HighChannelId,
+    centres: &[f64],
+) -> f64 {
+    centres
+        .iter()
+        .map(|&f| {
+            let (l, h) = chain.response(f);
+            let p: C64 = (l * low.frf.at(f) + h * high.frf.at(f)) / k_sys;
+            (20.0 * p.norm().log10()).abs()
+        })
+        .fold(0.0, f64::max)
+}
+
 /// 1/96-octave grid from 0.1 Hz to just below Nyquist.
 fn log_grid(fs: f64) -> impl Iterator<Item = f64> {
     let top = 0.499 * fs;
@@ -212,12 +259,8 @@ pub fn design(
     out.high_drive_per_unit = hmax * out.k_sys;
     // Prediction from the measured responses at the verification bands.
     let chain = out.chain_coefficients()?;
-    let mut worst = 0.0_f64;
-    for f in super::verify::band_centres(low, cfg)? {
-        let (l, h) = chain.response(f);
-        let p: C64 = (l * low.frf.at(f) + h * high.frf.at(f)) / out.k_sys;
-        worst = worst.max((20.0 * p.norm().log10()).abs());
-    }
+    let centres = super::verify::band_centres(low, cfg)?;
+    let worst = predicted_max_abs_dev_db(&chain, out.k_sys, low, high, &centres);
     out.predicted_max_abs_dev_db = worst;
     ctx.report(
         step,

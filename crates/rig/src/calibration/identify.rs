@@ -1,29 +1,41 @@
 //! Steps 2 and 3: identification of the low (Pantograph) and high
 //! (Haptuator) channels, paper §3.2.
 //!
-//! * Low channel: G0_L and the flat band — the widest band (in octaves) of
-//!   contiguous bins, after fractional-octave smoothing, whose coherence is
-//!   ≥ γ²_min and whose magnitude stays within ±tol dB of one gain. G0_L is
-//!   that gain: the geometric midpoint of the largest and smallest smoothed
-//!   magnitude in the band (so every bin is within ±tol of it), with the sign
-//!   of the mean in-band phasor (a channel measured in antiphase has a
-//!   negative G0_L).
-//! * High channel: the reliable band — the widest contiguous run of bins up
-//!   to `fit_max_hz` whose smoothed coherence is ≥ γ²_min; its lower edge is
-//!   where the paper's "not reliable below 100 Hz" falls (saturation and a
-//!   weak response both lower the coherence). Ĝ_H(s) is fitted there
-//!   (Levy + Sanathanan–Koerner, [`kilotouch_dsp::fit::fit_tf`]) with
-//!   weights γ²/(1 − γ²) (inverse relative variance of H1).
+//! * Low channel: G0_L is the plateau level of the (fractional-octave
+//!   smoothed) magnitude: the level with the most octaves of coherent bins
+//!   (γ² ≥ γ²_min) within ±tol/2 of it, refined to the octave-weighted mean
+//!   of those bins, with the sign of the mean in-band phasor (a channel
+//!   measured in antiphase has a negative G0_L). The flat band is the
+//!   widest (in octaves) run of contiguous coherent bins within ±tol of
+//!   |G0_L|.
+//! * High channel: the coherent band is the widest contiguous run of bins
+//!   up to `fit_max_hz` whose smoothed coherence is ≥ γ²_min (saturation
+//!   and a weak response both lower it). Ĝ_H(s) is fitted by
+//!   Levy + Sanathanan–Koerner ([`kilotouch_dsp::fit::fit_tf`]) with weights
+//!   γ²/(1 − γ²) (inverse relative variance of H1) after removing a pure
+//!   delay τ (half-sample grid, best fit of the top two octaves). The
+//!   reliable band is where the model holds: its lower edge starts at the
+//!   coherent edge and rises in 1/6-octave steps until a model — the
+//!   configured orders (default 1/2, paper eq. 2), then orders raised by
+//!   one up to `max_order_increase`, each with 0 or 2 zeros imposed at
+//!   s = 0 — matches the estimate in magnitude and phase within
+//!   `model_tol_db` ([`model_error_db`]). This is the paper's "for
+//!   frequencies greater than 100 Hz the response was well approximated by
+//!   the following model". Right-half-plane zeros are reflected (C_H must be
+//!   stable) and zeros near s = 0 moved to −[`ORIGIN_ZERO_FLOOR`]·ω_lo.
 
 use super::config::CalibrationConfig;
 use super::error::{CalibrationError, Result};
 use super::interface::{CalibrationRig, Channel};
-use super::measure::{ChannelFrf, ExcitationSummary, RawRecord, measure_channel, smoothed};
+use super::measure::{
+    ChannelFrf, ExcitationSummary, RawRecord, measure_channel, smooth_octave, smoothed,
+};
 use super::progress::{Step, StepContext};
-use kilotouch_dsp::compensator::minimum_phase;
 use kilotouch_dsp::fit::{CoherenceWeighting, FitOptions, Mode, coherence_weights, fit_tf};
-use kilotouch_dsp::{C64, Tf};
+use kilotouch_dsp::poly::poly_from_roots;
+use kilotouch_dsp::{C64, DspError, Tf};
 use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
 
 /// Result of step 2.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -70,6 +82,8 @@ pub struct FitDiagnostics {
     pub reflected_poles: usize,
     /// Right-half-plane zeros reflected (minimum-phase model, same magnitude).
     pub reflected_zeros: usize,
+    /// Zeros moved off the origin to −[`ORIGIN_ZERO_FLOOR`]·ω_lo.
+    pub moved_zeros: usize,
     /// Resonances of the model (pole pairs).
     pub modes: Vec<Mode>,
     /// Antiresonances of the model (zero pairs).
@@ -85,8 +99,22 @@ pub struct HighChannelId {
     /// Band [f_lo, f_hi] (Hz) over which the model was fitted; below f_lo the
     /// estimate is unreliable.
     pub reliable_band_hz: [f64; 2],
+    /// Lowest frequency of the coherent band (coherence ≥ the minimum), Hz.
+    pub coherent_from_hz: f64,
+    /// Model magnitude error over the reliable band (smoothed, coherent
+    /// bins), dB.
+    pub model_error_db: f64,
     /// Fraction of the bins in the reliable band with coherence ≥ the minimum.
     pub coherent_fraction: f64,
+    /// Pure delay of the channel beyond the model, s: Ĥ(f) ≈
+    /// Ĝ_H(j2πf)·e^{−j2πfτ}. Negative for an advance (a zero-order-hold
+    /// simulation read at the end of each step leads by half a sample).
+    /// C_H does not invert it; the low channel has the same timing.
+    pub delay_s: f64,
+    /// Numerator order of the model.
+    pub num_order: usize,
+    /// Denominator order of the model.
+    pub den_order: usize,
     /// Fit diagnostics.
     pub fit: FitDiagnostics,
     /// How the channel was excited.
@@ -97,6 +125,14 @@ pub struct HighChannelId {
     /// Raw records (not stored in the calibration file).
     #[serde(skip)]
     pub raw: Vec<RawRecord>,
+}
+
+impl HighChannelId {
+    /// Model response including the delay, Ĝ_H(j2πf)·e^{−j2πfτ}, at `f_hz`.
+    pub fn response(&self, f_hz: f64) -> C64 {
+        self.model.response_hz(f_hz)
+            * C64::from_polar(1.0, -2.0 * std::f64::consts::PI * f_hz * self.delay_s)
+    }
 }
 
 /// Widest (in octaves) run of consecutive indices in `range` where `ok(i)`
@@ -139,16 +175,47 @@ pub fn flat_band(frf: &ChannelFrf, cfg: &CalibrationConfig) -> Option<(usize, us
     let a = &cfg.analysis;
     let (db, coh) = smoothed(frf, a.smoothing_octaves);
     let range = frf.range(a.f_min_hz, a.f_max_hz);
-    let (l, r) = widest_run(&frf.f_hz, range, &db, 2.0 * a.flat_tol_db, |i| {
-        coh[i] >= a.coherence_min
-    })?;
-    let (lo, hi) = db[l..=r]
+    let ok = |i: usize| coh[i] >= a.coherence_min && db[i].is_finite();
+    // Octave width of each bin (log-frequency measure, as third-octave bands
+    // see it).
+    let width = |i: usize| {
+        let f = &frf.f_hz;
+        if i + 1 < f.len() {
+            (f[i + 1] / f[i]).log2()
+        } else if i > 0 {
+            (f[i] / f[i - 1]).log2()
+        } else {
+            1.0
+        }
+    };
+    let bins: Vec<usize> = range.clone().filter(|&i| ok(i)).collect();
+    let half = 0.5 * a.flat_tol_db;
+    // Plateau level: the level with the most octaves within ±tol/2 of it.
+    let score = |g: f64| -> f64 {
+        bins.iter()
+            .filter(|&&j| (db[j] - g).abs() <= half)
+            .map(|&j| width(j))
+            .sum()
+    };
+    let c = bins
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-            (lo.min(v), hi.max(v))
-        });
-    let mid = 0.5 * (lo + hi);
-    Some((l, r, mid, 0.5 * (hi - lo)))
+        .copied()
+        .max_by(|&x, &y| score(db[x]).total_cmp(&score(db[y])))?;
+    let near: Vec<usize> = bins
+        .iter()
+        .copied()
+        .filter(|&j| (db[j] - db[c]).abs() <= half)
+        .collect();
+    let wsum: f64 = near.iter().map(|&j| width(j)).sum();
+    let g0_db = near.iter().map(|&j| width(j) * db[j]).sum::<f64>() / wsum;
+    let (l, r) = widest_run(&frf.f_hz, range, &db, f64::INFINITY, |i| {
+        ok(i) && (db[i] - g0_db).abs() <= a.flat_tol_db
+    })?;
+    let dev = db[l..=r]
+        .iter()
+        .map(|v| (v - g0_db).abs())
+        .fold(0.0, f64::max);
+    Some((l, r, g0_db, dev))
 }
 
 /// Step 2: identify the low channel (Pantograph on, Haptuator off).
@@ -244,7 +311,158 @@ pub fn identify_high<R: CalibrationRig + ?Sized>(
     Ok(id)
 }
 
+/// Model error of `model` (with delay `delay_s`) against `frf` over
+/// `lo..=hi` Hz: the ratio Ĥ/(Ĝ e^{−j2πfτ}) is smoothed (real and imaginary
+/// parts, fractional-octave) and 20·log10(1 + max |ratio − 1|) over the bins
+/// whose smoothed coherence `coh` reaches the minimum is returned, in dB.
+pub fn model_error_db(
+    frf: &ChannelFrf,
+    model: &Tf,
+    delay_s: f64,
+    (lo, hi): (f64, f64),
+    coh: &[f64],
+    cfg: &CalibrationConfig,
+) -> f64 {
+    let ratio: Vec<C64> = frf
+        .f_hz
+        .iter()
+        .zip(&frf.h)
+        .map(|(&f, &h)| h / (model.response_hz(f) * C64::from_polar(1.0, -2.0 * PI * f * delay_s)))
+        .collect();
+    let w = cfg.analysis.smoothing_octaves;
+    let re = smooth_octave(
+        &frf.f_hz,
+        &ratio.iter().map(|r| r.re).collect::<Vec<_>>(),
+        w,
+    );
+    let im = smooth_octave(
+        &frf.f_hz,
+        &ratio.iter().map(|r| r.im).collect::<Vec<_>>(),
+        w,
+    );
+    let e = frf
+        .range(lo, hi)
+        .filter(|&i| coh[i] >= cfg.analysis.coherence_min)
+        .map(|i| (C64::new(re[i], im[i]) - 1.0).norm())
+        .filter(|e| e.is_finite())
+        .fold(0.0, f64::max);
+    20.0 * (1.0 + e).log10()
+}
+
+/// Zeros of Ĝ_H closer to the origin than this fraction of the lower band
+/// edge (as angular frequency) are moved to −that (C_H must invert them):
+/// in the band each move changes |Ĝ_H| by at most 10·log10(1 + 1/256) =
+/// 0.017 dB and its phase by at most atan(1/16) = 3.6°, decaying as 1/f.
+pub const ORIGIN_ZERO_FLOOR: f64 = 1.0 / 16.0;
+
+/// A candidate model of the high channel.
+#[derive(Debug, Clone)]
+struct Candidate {
+    model: Tf,
+    /// The model whose error is judged: `model` with the zeros moved to the
+    /// floor put back at the origin.
+    judged: Tf,
+    fit: FitDiagnostics,
+}
+
+fn mode_list(r: &[C64]) -> Vec<Mode> {
+    let mut m: Vec<Mode> = r
+        .iter()
+        .filter(|z| z.im > 0.0)
+        .map(|z| Mode {
+            wn_rad_s: z.norm(),
+            wn_hz: z.norm() / (2.0 * PI),
+            zeta: -z.re / z.norm(),
+        })
+        .collect();
+    m.sort_by(|a, b| a.wn_rad_s.total_cmp(&b.wn_rad_s));
+    m
+}
+
+/// Complex fit ([`kilotouch_dsp::fit::fit_tf`]) of (nb, na) over `lo..=hi` Hz
+/// of `frf` with the delay `delay_s` removed and `k` zeros at the origin
+/// imposed (the data are divided by (j2πf)^k and (nb − k, na) fitted — an
+/// inertial actuator's acceleration response has zeros at DC, which a band
+/// fit above them cannot place). Right-half-plane zeros are then reflected
+/// (same magnitude) and zeros closer to the origin than
+/// [`ORIGIN_ZERO_FLOOR`]·ω_lo moved there (C_H must invert them). `Ok(None)`
+/// when the data do not determine the model.
+fn fit_candidate(
+    frf: &ChannelFrf,
+    w: &[f64],
+    (lo, hi): (f64, f64),
+    (nb, na, k): (usize, usize, usize),
+    delay_s: f64,
+) -> Result<Option<Candidate>> {
+    if k > nb {
+        return Ok(None);
+    }
+    let mut data = frf.without_delay(delay_s);
+    for (h, &f) in data.h.iter_mut().zip(&frf.f_hz) {
+        *h /= C64::new(0.0, 2.0 * PI * f).powu(k as u32);
+    }
+    let opts = FitOptions {
+        fmin_hz: Some(lo),
+        fmax_hz: Some(hi),
+        enforce_stability: true,
+        ..FitOptions::default()
+    };
+    let fit = match fit_tf(&data.f_hz, &data.h, Some(w), nb - k, na, &opts) {
+        Ok(f) => f,
+        Err(DspError::Numerical(_) | DspError::InvalidInput(_) | DspError::Degenerate(_)) => {
+            return Ok(None);
+        }
+        Err(e) => return Err(CalibrationError::dsp("fit of Ĝ_H", e)),
+    };
+    let floor = ORIGIN_ZERO_FLOOR * 2.0 * PI * lo;
+    let mut zeros = fit.zeros.clone();
+    zeros.extend(std::iter::repeat_n(C64::new(0.0, 0.0), k));
+    // `judged`: right-half-plane zeros reflected, zeros near the origin put
+    // exactly there; `model`: the same with those zeros at −floor.
+    let (mut judged, mut reflected_zeros, mut moved_zeros) = (zeros.clone(), 0, 0);
+    for (z, j) in zeros.iter_mut().zip(judged.iter_mut()) {
+        if z.norm() < floor {
+            *j = C64::new(0.0, 0.0);
+            *z = C64::new(-floor, 0.0);
+            moved_zeros += 1;
+        } else if z.re > 0.0 {
+            z.re = -z.re;
+            *j = *z;
+            reflected_zeros += 1;
+        }
+    }
+    let lead = fit.tf.num[0];
+    let model = Tf::new(poly_from_roots(&zeros, lead), fit.tf.den.clone())
+        .map_err(|e| CalibrationError::dsp("Ĝ_H", e))?;
+    let judged = Tf::new(poly_from_roots(&judged, lead), fit.tf.den.clone())
+        .map_err(|e| CalibrationError::dsp("Ĝ_H", e))?;
+    Ok(Some(Candidate {
+        judged,
+        model,
+        fit: FitDiagnostics {
+            rms_rel_error: fit.rms_rel_error,
+            max_mag_dev_db: fit.max_mag_dev_db,
+            condition_number: fit.condition_number,
+            iterations: fit.iterations,
+            converged: fit.converged,
+            n_points: fit.n_points,
+            reflected_poles: fit.reflected_poles,
+            reflected_zeros,
+            moved_zeros,
+            modes: fit.modes,
+            zero_modes: mode_list(&zeros),
+        },
+    }))
+}
+
 /// Step 3's analysis of a measured high-channel FRF: reliable band and fit.
+///
+/// The lower edge of the fitted band starts at the coherent edge and rises in
+/// 1/6-octave steps (keeping at least two octaves); at each edge the
+/// configured orders (nb, na), then (nb + 1, na + 1), … up to
+/// `max_order_increase` are fitted, and the first model whose error
+/// ([`model_error_db`]) is within `model_tol_db` is taken; failing that,
+/// the candidate with the smallest error.
 pub fn high_from_frf(
     frf: ChannelFrf,
     excitation: ExcitationSummary,
@@ -268,59 +486,96 @@ pub fn high_from_frf(
             ),
         )
     })?;
-    let mut f_lo = frf.f_hz[l];
+    let mut f_coh = frf.f_hz[l];
     if let Some(m) = h.min_reliable_hz {
-        f_lo = f_lo.max(m);
+        f_coh = f_coh.max(m);
     }
     let f_hi = h.fit_max_hz;
-    if frf.f_hz[r] / f_lo < 2f64.sqrt() {
+    if frf.f_hz[r] / f_coh < 2f64.sqrt() {
         return Err(CalibrationError::measurement(
             step,
             format!(
                 "the coherent band {:.1}–{:.1} Hz is narrower than half an octave: not enough \
                  to fit Ĝ_H (raise the high-channel amplitude or the number of periods)",
-                f_lo, frf.f_hz[r]
+                f_coh, frf.f_hz[r]
             ),
         ));
     }
+    let w = coherence_weights(&frf.coherence, CoherenceWeighting::SignalToNoise)
+        .map_err(|e| CalibrationError::dsp("coherence weights", e))?;
+    // Delay first: the configured orders fitted over the top two octaves with
+    // τ on a half-sample grid from −2 to +4 samples, then ±¼ sample around
+    // the best; the τ whose fit has the smallest RMS relative error is kept
+    // (a rational model cannot absorb a delay).
+    let top = ((f_hi / 4.0).max(f_coh), f_hi);
+    let err_at = |tau: f64| -> Result<f64> {
+        Ok(
+            match fit_candidate(&frf, &w, top, (h.num_order, h.den_order, 0), tau)? {
+                Some(c) if c.fit.rms_rel_error.is_finite() => c.fit.rms_rel_error,
+                _ => f64::INFINITY,
+            },
+        )
+    };
+    let ts = 1.0 / frf.fs;
+    let mut delay = (0.0, err_at(0.0)?);
+    for k in -4..=8 {
+        let tau = 0.5 * f64::from(k) * ts;
+        let e = err_at(tau)?;
+        if e < delay.1 {
+            delay = (tau, e);
+        }
+    }
+    for d in [-0.25, 0.25] {
+        let tau = delay.0 + d * ts;
+        let e = err_at(tau)?;
+        if e < delay.1 {
+            delay = (tau, e);
+        }
+    }
+    let delay_s = delay.0;
+    let mut best: Option<(f64, Candidate, f64)> = None;
+    let mut step_k = 0;
+    'edges: loop {
+        let f_lo = f_coh * 2f64.powf(f64::from(step_k) / 6.0);
+        if step_k > 0 && f_lo > f_hi / 4.0 {
+            break;
+        }
+        step_k += 1;
+        for extra in 0..=h.max_order_increase {
+            let (nb, na) = (h.num_order + extra, h.den_order + extra);
+            for &k in &h.origin_zeros {
+                let Some(cand) = fit_candidate(&frf, &w, (f_lo, f_hi), (nb, na, k), delay_s)?
+                else {
+                    continue;
+                };
+                let err = model_error_db(&frf, &cand.judged, delay_s, (f_lo, f_hi), &coh, cfg);
+                if best.as_ref().is_none_or(|b| err < b.2) {
+                    best = Some((f_lo, cand, err));
+                }
+                if err <= h.model_tol_db {
+                    break 'edges;
+                }
+            }
+        }
+    }
+    let (f_lo, cand, model_error_db) =
+        best.ok_or_else(|| CalibrationError::measurement(step, "no model of Ĝ_H could be fitted"))?;
     let band = frf.range(f_lo, f_hi);
     let coherent = band
         .clone()
         .filter(|&i| frf.coherence[i] >= a.coherence_min)
         .count();
     let coherent_fraction = coherent as f64 / band.len().max(1) as f64;
-    let w = coherence_weights(&frf.coherence, CoherenceWeighting::SignalToNoise)
-        .map_err(|e| CalibrationError::dsp("coherence weights", e))?;
-    let opts = FitOptions {
-        fmin_hz: Some(f_lo),
-        fmax_hz: Some(f_hi),
-        enforce_stability: true,
-        ..FitOptions::default()
-    };
-    let fit = fit_tf(&frf.f_hz, &frf.h, Some(&w), h.num_order, h.den_order, &opts)
-        .map_err(|e| CalibrationError::dsp("fit of Ĝ_H", e))?;
-    let reflected_zeros = fit.zeros.iter().filter(|z| z.re > 0.0).count();
-    let model = if reflected_zeros > 0 {
-        minimum_phase(&fit.tf).map_err(|e| CalibrationError::dsp("minimum-phase Ĝ_H", e))?
-    } else {
-        fit.tf.clone()
-    };
     Ok(HighChannelId {
-        model,
+        num_order: cand.model.num_degree(),
+        den_order: cand.model.den_degree(),
+        model: cand.model,
         reliable_band_hz: [f_lo, f_hi],
+        delay_s,
+        coherent_from_hz: f_coh,
+        model_error_db,
         coherent_fraction,
-        fit: FitDiagnostics {
-            rms_rel_error: fit.rms_rel_error,
-            max_mag_dev_db: fit.max_mag_dev_db,
-            condition_number: fit.condition_number,
-            iterations: fit.iterations,
-            converged: fit.converged,
-            n_points: fit.n_points,
-            reflected_poles: fit.reflected_poles,
-            reflected_zeros,
-            modes: fit.modes,
-            zero_modes: fit.zero_modes,
-        },
+        fit: cand.fit,
         excitation,
         frf,
         raw,
@@ -338,6 +593,7 @@ mod tests {
             coherence: f.iter().map(|&x| coh(x)).collect(),
             n_segments: 30,
             sensor_corrected: true,
+            fs: 10_000.0,
         }
     }
 
@@ -346,7 +602,7 @@ mod tests {
     }
 
     /// A channel that is exactly G0 between 40 and 250 Hz and jumps by
-    /// 20 dB from bin to bin outside: the flat band and gain are recovered to
+    /// 40 dB from bin to bin outside: the flat band and gain are recovered to
     /// the bin.
     #[test]
     fn flat_band_of_a_plateau() {
@@ -358,20 +614,21 @@ mod tests {
             } else if (x / df).round() as i64 % 2 == 0 {
                 C64::new(0.3, 0.0)
             } else {
-                C64::new(3.0, 0.0)
+                C64::new(30.0, 0.0)
             }
         };
         let mut cfg = CalibrationConfig::default();
         cfg.analysis.smoothing_octaves = 0.0;
         let id = low_from_frf(frf_of(&f, g, |_| 0.99), Default::default(), vec![], &cfg).unwrap();
-        assert_eq!(id.g0, -3.0);
+        assert!((id.g0 + 3.0).abs() < 1e-12, "{}", id.g0);
         assert!((id.flat_band_hz[0] - 40.0).abs() < df);
         assert!((id.flat_band_hz[1] - 250.0).abs() < df);
-        assert_eq!(id.max_dev_db, 0.0);
+        assert!(id.max_dev_db < 1e-12);
     }
 
-    /// A slope of s dB/octave stays within ±1 dB over 2/s octaves: the band
-    /// found is that wide (to one bin) and G0 is the midpoint.
+    /// A slope of s dB/octave stays within ±1 dB of a level over 2/s octaves
+    /// at most: the band found is that wide (to one bin) and every bin in it
+    /// is within ±1 dB of G0.
     #[test]
     fn flat_band_of_a_slope_has_analytic_width() {
         let f = grid();
@@ -406,6 +663,7 @@ mod tests {
         let f = grid();
         let mut cfg = CalibrationConfig::default();
         cfg.analysis.smoothing_octaves = 0.0;
+        cfg.analysis.f_min_hz = 10.0;
         cfg.analysis.f_max_hz = 1000.0;
         let coh = |x: f64| {
             if (150.0..160.0).contains(&x) {
@@ -474,13 +732,19 @@ mod tests {
         assert_eq!(id.coherent_fraction, 1.0);
     }
 
-    /// A non-minimum-phase channel is replaced by its minimum-phase
-    /// reflection (same magnitude) so that C_H can invert it.
+    /// A non-minimum-phase channel (eq. 2 with its zero mirrored to
+    /// +2560 rad/s), fitted with the paper's orders only: the model is its
+    /// minimum-phase reflection (same magnitude) so that C_H can invert it,
+    /// and the phase mismatch is reported: at f the two differ by
+    /// 2·atan(2πf/2560), |e^{jφ} − 1| = 9.2 dB at 1.2 kHz (a little less after
+    /// the 1/12-octave smoothing of the ratio).
     #[test]
     fn rhp_zero_is_reflected() {
         let f = grid();
         let g = Tf::new(vec![-250.0, 6.4e5], vec![1.0, 2135.0, 4.56e6]).unwrap();
-        let cfg = CalibrationConfig::default();
+        let mut cfg = CalibrationConfig::default();
+        cfg.high_fit.max_order_increase = 0;
+        cfg.high_fit.origin_zeros = vec![0];
         let id = high_from_frf(
             frf_of(&f, |x| g.response_hz(x), |_| 0.999),
             Default::default(),
@@ -495,5 +759,13 @@ mod tests {
             let r = id.model.response_hz(x).norm() / g.response_hz(x).norm();
             assert!((r - 1.0).abs() < 1e-6);
         }
+        let top = f[f.partition_point(|&x| x <= 1200.0) - 1];
+        let phi = 2.0 * (2.0 * PI * top / 2560.0).atan();
+        let want = 20.0 * (1.0 + (C64::from_polar(1.0, phi) - 1.0).norm()).log10();
+        assert!(
+            id.model_error_db > 0.8 * want && id.model_error_db <= want,
+            "{} vs {want}",
+            id.model_error_db
+        );
     }
 }

@@ -59,6 +59,8 @@ pub struct ChannelFrf {
     pub n_segments: usize,
     /// True when the rig's sensor response was divided out.
     pub sensor_corrected: bool,
+    /// Sample rate of the record, Hz.
+    pub fs: f64,
 }
 
 impl ChannelFrf {
@@ -67,6 +69,16 @@ impl ChannelFrf {
         let a = self.f_hz.partition_point(|&f| f < lo);
         let b = self.f_hz.partition_point(|&f| f <= hi);
         a..b.max(a)
+    }
+
+    /// The estimate with a delay of `tau_s` seconds removed:
+    /// H(f)·e^{+j2πfτ} (a negative τ removes an advance).
+    pub fn without_delay(&self, tau_s: f64) -> ChannelFrf {
+        let mut out = self.clone();
+        for (h, &f) in out.h.iter_mut().zip(&self.f_hz) {
+            *h *= C64::from_polar(1.0, 2.0 * std::f64::consts::PI * f * tau_s);
+        }
+        out
     }
 
     /// Complex response at `f_hz` by linear interpolation of real and
@@ -284,6 +296,7 @@ pub(crate) fn estimate_frf<R: CalibrationRig + ?Sized>(
         None
     };
     let mut out = ChannelFrf {
+        fs,
         n_segments: est.n_segments,
         sensor_corrected: sensor.is_some(),
         ..ChannelFrf::default()

@@ -33,6 +33,7 @@ pub mod interface;
 pub mod measure;
 pub mod progress;
 pub mod report;
+pub mod sim;
 pub mod standin;
 pub mod verify;
 
@@ -46,6 +47,7 @@ pub use identify::{HighChannelId, LowChannelId};
 pub use interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigIdentity, RunStats};
 pub use progress::{NoProgress, Progress, Step, StepContext};
 pub use report::CalibrationReport;
+pub use sim::SimCalibrationRig;
 pub use standin::{StandInConfig, StandInRig};
 pub use verify::Verification;
 

@@ -65,8 +65,8 @@ pub struct CalibrationReport {
     pub high_reliable_band_hz: [f64; 2],
     /// True when the crossover was set by the configuration.
     pub crossover_overridden: bool,
-    /// True when the crossover rule found no frequency meeting both bounds.
-    pub crossover_conflict: bool,
+    /// True when no crossover frequency met the predicted-deviation budget.
+    pub crossover_over_budget: bool,
     /// True when the accelerometer response was divided out.
     pub sensor_corrected: bool,
     /// The rig.
@@ -106,7 +106,7 @@ impl CalibrationReport {
             low_flat_band_hz: o.low.flat_band_hz,
             high_reliable_band_hz: o.high.reliable_band_hz,
             crossover_overridden: o.crossover.rule == CrossoverRule::Override,
-            crossover_conflict: o.crossover.conflict,
+            crossover_over_budget: o.crossover.over_budget,
             sensor_corrected: v.sensor_corrected,
             rig: o.identity.clone(),
         }
@@ -139,8 +139,8 @@ impl CalibrationReport {
             } else {
                 ""
             },
-            if self.crossover_conflict {
-                " (channel conflict)"
+            if self.crossover_over_budget {
+                " (over the predicted-deviation budget)"
             } else {
                 ""
             },
