@@ -1,1 +1,188 @@
-fn main() {}
+//! Criterion benchmarks of kilotouch-rig (`cargo bench -p kilotouch-rig`).
+//!
+//! Each iteration runs `N` steps; criterion's throughput line gives steps/s
+//! and time/N is the cost per step. Keys of `kilotouch bench --json`:
+//! * `plant_ns_per_step`          ← `plant/dual_stage_zoh` (both axes, ZOH)
+//! * `tweezer_ns_per_step`        ← `tweezer/free_exact`
+//! * `closed_loop_ns_per_sample`  ← `closed_loop/dual` (chain + plant +
+//!   accelerometer + tweezer + coupling, one sample per `process_block`)
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use kilotouch_rig::accel::Accelerometer;
+use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
+use kilotouch_rig::lti::Integrator;
+use kilotouch_rig::plant::{Axis, AxisModel, AxisSim, DualStagePlant, NU, NX, PlantInput};
+use kilotouch_rig::rig::SimRig;
+use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerIntegrator, TweezerParams};
+use nalgebra::SVector;
+use std::hint::black_box;
+
+const N: usize = 10_000;
+
+/// Precomputed test signal (no `sin` inside the timed loops).
+static DRIVE: std::sync::LazyLock<Vec<f64>> = std::sync::LazyLock::new(|| {
+    (0..4096)
+        .map(|k| 0.3 * ((k as f64) * 0.0731).sin())
+        .collect()
+});
+
+#[inline]
+fn drive(k: usize) -> f64 {
+    DRIVE[k & 4095]
+}
+
+fn bench_plant(c: &mut Criterion) {
+    let cfg = RigConfig::default();
+    let mut g = c.benchmark_group("plant");
+    g.throughput(Throughput::Elements(N as u64));
+    let mut p = DualStagePlant::new(&cfg, Integrator::Zoh).expect("plant");
+    g.bench_function("dual_stage_zoh", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for k in 0..N {
+                let o = p.step(&PlantInput {
+                    force_n: [drive(k), -drive(k)],
+                    drive_v: drive(k + 3),
+                    ..Default::default()
+                });
+                acc += o.accel_m_s2[0];
+            }
+            black_box(acc)
+        })
+    });
+    let m = AxisModel::new(&cfg, Axis::X).expect("model");
+    for integ in Integrator::ALL {
+        let mut s = AxisSim::<NX>::new(&m, integ, 1e-4).expect("sim");
+        g.bench_function(format!("x_axis_{}", integ.name()), |b| {
+            b.iter(|| {
+                let mut acc = 0.0;
+                for k in 0..N {
+                    let o = s.step(&SVector::<f64, NU>::from([
+                        drive(k),
+                        drive(k + 3),
+                        0.0,
+                        0.0,
+                        1.0,
+                    ]));
+                    acc += o.accel;
+                }
+                black_box(acc)
+            })
+        });
+    }
+    g.finish();
+}
+
+fn bench_tweezer(c: &mut Criterion) {
+    let mut g = c.benchmark_group("tweezer");
+    g.throughput(Throughput::Elements(N as u64));
+    for (name, integ) in [
+        ("free_exact", TweezerIntegrator::Exact),
+        ("free_euler", TweezerIntegrator::Euler),
+    ] {
+        let mut t = SimTweezer::new(
+            TweezerParams {
+                integrator: integ,
+                ..TweezerParams::paper_default()
+            },
+            1e4,
+        )
+        .expect("tweezer");
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut acc = 0.0;
+                for k in 0..N {
+                    acc += t.step([1e-9 * drive(k), 0.0]).force_n[0];
+                }
+                black_box(acc)
+            })
+        });
+    }
+    // Pressed against an obstacle (drag tensor, contact, sub-steps).
+    let p = TweezerParams {
+        obstacles: vec![Obstacle {
+            centre_m: [10e-6, 0.0],
+            radius_m: 5e-6,
+        }],
+        ..TweezerParams::paper_default()
+    };
+    let mut t = SimTweezer::new(p, 1e4).expect("tweezer");
+    let trap = [10e-6 - 5e-6 - 1.5e-6 + 0.5e-6, 0.0];
+    t.reset(trap);
+    g.bench_function("pressed_on_obstacle", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for _ in 0..N {
+                acc += t.step(trap).force_n[0];
+            }
+            black_box(acc)
+        })
+    });
+    // The default scene: two obstacles several µm away (drag corrections on).
+    let cfg = RigConfig::default();
+    let mut t = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4).expect("tweezer");
+    g.bench_function("default_scene_free", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for k in 0..N {
+                acc += t.step([1e-9 * drive(k), 0.0]).force_n[0];
+            }
+            black_box(acc)
+        })
+    });
+    g.finish();
+}
+
+fn bench_accel(c: &mut Criterion) {
+    let cfg = RigConfig::default();
+    let mut a = Accelerometer::new(&cfg.accelerometer, 1e4).expect("accel");
+    let mut g = c.benchmark_group("accelerometer");
+    g.throughput(Throughput::Elements(N as u64));
+    g.bench_function("sample", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for k in 0..N {
+                acc += a.sample([drive(k), 0.0, 0.0]).m_s2[0];
+            }
+            black_box(acc)
+        })
+    });
+    g.finish();
+}
+
+fn bench_closed_loop(c: &mut Criterion) {
+    let cfg = RigConfig::default();
+    let mut g = c.benchmark_group("closed_loop");
+    g.throughput(Throughput::Elements(N as u64));
+    for (name, mode) in [
+        ("dual", CouplingMode::Dual),
+        ("pantograph", CouplingMode::Pantograph),
+    ] {
+        let rig = SimRig::new(&cfg).expect("rig");
+        let tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4).expect("tweezer");
+        let mut coupling = Coupling::from_config(&cfg).expect("coupling");
+        coupling.set_mode(mode);
+        let mut cl = ClosedLoop::new(rig, tw, coupling).expect("loop");
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut acc = 0.0;
+                for _ in 0..N {
+                    let (cmd, _) = cl.step().expect("step");
+                    acc += cmd.force_n[0];
+                }
+                black_box(acc)
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_plant,
+    bench_tweezer,
+    bench_accel,
+    bench_closed_loop
+);
+criterion_main!(benches);

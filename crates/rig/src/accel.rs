@@ -1,10 +1,10 @@
 //! Fingertip accelerometer after the MMA7361L (paper §2.1, Fig. 1).
 //!
 //! Per axis i, with a(t_n) the true acceleration (m/s²) plus a static part
-//! (gravity), w[n] white Gaussian noise and α_i = e^{−2π f_i/f_s}:
+//! (gravity), w\[n\] white Gaussian noise and α_i = e^{−2π f_i/f_s}:
 //!
-//! s_i[n] = α_i s_i[n−1] + (1 − α_i)(a_i[n] + w_i[n]),
-//! y_i[n] = Q(clip(s_i[n], ±range)),
+//! s_i\[n\] = α_i s_i\[n−1\] + (1 − α_i)(a_i\[n\] + w_i\[n\]),
+//! y_i\[n\] = Q(clip(s_i\[n\], ±range)),
 //!
 //! i.e. a one-pole low-pass with corner f_i (datasheet bandwidth: 400 Hz x/y,
 //! 300 Hz z), noise added before the pole so that the output density in the

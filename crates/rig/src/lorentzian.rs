@@ -1,6 +1,6 @@
 //! Power spectrum of a bead in a harmonic trap and its fit.
 //!
-//! For the exact (Ornstein–Uhlenbeck) sampled process x[n+1] = c x[n] + σ ξ,
+//! For the exact (Ornstein–Uhlenbeck) sampled process x\[n+1\] = c x\[n\] + σ ξ,
 //! c = e^{−x}, x = 2π f_c/f_s, the two-sided PSD is the *aliased Lorentzian*
 //! (Berg-Sørensen & Flyvbjerg 2004, eq. 4; REFERENCE-VALUES.md)
 //!

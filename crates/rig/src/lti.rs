@@ -2,7 +2,7 @@
 //!
 //! A continuous model ẋ = A x + B u, y = C x + D u is held with dynamic
 //! sizes ([`StateSpace`]); it is built and analysed offline (allocation is
-//! fine there). A one-step map x[n+1] = Φ x[n] + Γ u[n] for a step `dt`
+//! fine there). A one-step map x\[n+1\] = Φ x\[n\] + Γ u\[n\] for a step `dt`
 //! (input held constant over the step) is produced by:
 //!
 //! * [`zoh`]: exact zero-order hold, Φ = e^{A dt}, Γ = ∫₀^dt e^{Aτ} dτ B,
@@ -315,8 +315,8 @@ pub fn one_step_map(
     }
 }
 
-/// Frequency response of the sampled system x[n+1] = Φx[n] + Γu[n] with the
-/// output read at the end of each step, y[n] = C x[n+1] + D u[n] (the
+/// Frequency response of the sampled system x\[n+1\] = Φx\[n\] + Γu\[n\] with the
+/// output read at the end of each step, y\[n\] = C x\[n+1\] + D u\[n\] (the
 /// convention of the simulated rig: a command written at sample n is seen
 /// by the sensors read at the same tick, one step later):
 /// H(z) = z C (zI − Φ)⁻¹ Γ + D at z = e^{j2πf/fs}.

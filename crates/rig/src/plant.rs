@@ -393,15 +393,200 @@ pub struct AxisSim<const N: usize> {
     dt: f64,
     n_pos: usize,
     x: SVector<f64, N>,
-    phi: [SMatrix<f64, N, N>; 3],
-    gamma: [SMatrix<f64, N, NU>; 3],
+    // Column-major copies of [Φ | Γ] for the hand-written ZOH update.
+    phi_cols: [[[f64; N]; N]; 3],
+    gamma_cols: [[[f64; N]; NU]; 3],
     a: [SMatrix<f64, N, N>; 3],
     b: [SMatrix<f64, N, NU>; 3],
     c: [SMatrix<f64, NY, N>; 3],
     d: [SMatrix<f64, NY, NU>; 3],
     stroke: Option<(usize, usize, f64)>,
+    tip: usize,
+    motor: usize,
     stop_steps: u64,
     resets: u64,
+    // Modal form of the ZOH maps (None: dense update).
+    modal: Option<Box<[ModalRegime<N>; 3]>>,
+    z: [f64; N],
+    cur: usize,
+}
+
+/// The ZOH map of one regime in real modal coordinates x = T z:
+/// z ← Λ z + T⁻¹Γ u with Λ block-diagonal (2×2 blocks [[a, b], [−b, a]] for
+/// the eigenvalue pairs a ± jb of Φ, then the real eigenvalues).
+#[derive(Debug, Clone)]
+struct ModalRegime<const N: usize> {
+    n_pairs: usize,
+    a: [f64; N],
+    b: [f64; N],
+    lr: [f64; N],
+    gam: [[f64; N]; NU],
+    acc: [f64; N],
+    acc_d: [f64; NU],
+    tip: [f64; N],
+    motor: [f64; N],
+    stroke: [f64; N],
+    t: [[f64; N]; N],
+    tinv: [[f64; N]; N],
+}
+
+/// Dot product with four partial sums (breaks the add-latency chain).
+#[inline]
+fn dot<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
+    let mut s = [0.0; 4];
+    for i in 0..N {
+        s[i % 4] += a[i] * b[i];
+    }
+    (s[0] + s[1]) + (s[2] + s[3])
+}
+
+/// Column-major matrix–vector product y = M x (M given by its columns).
+#[inline]
+fn colmul<const N: usize>(cols: &[[f64; N]; N], x: &[f64; N]) -> [f64; N] {
+    let mut y = [0.0; N];
+    for (col, &xj) in cols.iter().zip(x) {
+        for (yi, ci) in y.iter_mut().zip(col) {
+            *yi += ci * xj;
+        }
+    }
+    y
+}
+
+/// Real modal decomposition of Φ: `None` if Φ is defective, has repeated
+/// eigenvalues or an ill-conditioned eigenbasis (the dense update is used then).
+fn modal_regime<const N: usize>(
+    phi: &DMatrix<f64>,
+    gamma: &DMatrix<f64>,
+    c: &DMatrix<f64>,
+    d: &DMatrix<f64>,
+    picks: (usize, usize, Option<usize>),
+) -> Option<ModalRegime<N>> {
+    use num_complex::Complex64 as C;
+    let n = phi.nrows();
+    if n != N {
+        return None;
+    }
+    let ev = lti::eigenvalues(phi);
+    let scale = ev.iter().map(|z| z.norm()).fold(1.0, f64::max);
+    let tol = 1e-9 * scale;
+    let mut pairs: Vec<C> = ev.iter().copied().filter(|z| z.im > tol).collect();
+    let mut reals: Vec<f64> = ev
+        .iter()
+        .filter(|z| z.im.abs() <= tol)
+        .map(|z| z.re)
+        .collect();
+    if 2 * pairs.len() + reals.len() != n {
+        return None;
+    }
+    pairs.sort_by(|x, y| x.norm().total_cmp(&y.norm()));
+    reals.sort_by(f64::total_cmp);
+    // Distinct eigenvalues only (inverse iteration and diagonalisability).
+    let all: Vec<C> = pairs
+        .iter()
+        .copied()
+        .chain(reals.iter().map(|&r| C::new(r, 0.0)))
+        .collect();
+    for i in 0..all.len() {
+        for j in 0..i {
+            if (all[i] - all[j]).norm() < 1e-7 * scale {
+                return None;
+            }
+        }
+    }
+    let eigvec = |lam: C| -> Option<Vec<C>> {
+        let mu = lam + C::new(1e-11, 1e-11) * scale;
+        let m = DMatrix::<C>::from_fn(n, n, |i, j| {
+            let v = C::new(phi[(i, j)], 0.0);
+            if i == j { v - mu } else { v }
+        });
+        let lu = m.lu();
+        let mut v = DMatrix::<C>::from_fn(n, 1, |i, _| {
+            C::new(1.0 + 0.1 * i as f64, 0.3 - 0.05 * i as f64)
+        });
+        for _ in 0..3 {
+            v = lu.solve(&v)?;
+            let nv = v.iter().map(|z| z.norm_sqr()).sum::<f64>().sqrt();
+            if !(nv.is_finite() && nv > 0.0) {
+                return None;
+            }
+            v /= C::new(nv, 0.0);
+        }
+        Some(v.iter().copied().collect())
+    };
+    let mut t = DMatrix::<f64>::zeros(n, n);
+    let mut lam = DMatrix::<f64>::zeros(n, n);
+    for (k, &p) in pairs.iter().enumerate() {
+        let v = eigvec(p)?;
+        for i in 0..n {
+            t[(i, 2 * k)] = v[i].re;
+            t[(i, 2 * k + 1)] = v[i].im;
+        }
+        lam[(2 * k, 2 * k)] = p.re;
+        lam[(2 * k, 2 * k + 1)] = p.im;
+        lam[(2 * k + 1, 2 * k)] = -p.im;
+        lam[(2 * k + 1, 2 * k + 1)] = p.re;
+    }
+    let np = pairs.len();
+    for (k, &r) in reals.iter().enumerate() {
+        let v = eigvec(C::new(r, 0.0))?;
+        // Make the vector real: rotate by the phase of its largest entry.
+        let big = v
+            .iter()
+            .copied()
+            .max_by(|a, b| a.norm().total_cmp(&b.norm()))?;
+        let ph = big / C::new(big.norm(), 0.0);
+        for i in 0..n {
+            t[(i, 2 * np + k)] = (v[i] / ph).re;
+        }
+        lam[(2 * np + k, 2 * np + k)] = r;
+    }
+    let tinv = t.clone().try_inverse()?;
+    let cond = t.norm() * tinv.norm();
+    let resid = (phi * &t - &t * &lam).norm() / (phi.norm().max(1.0) * t.norm());
+    if !(cond.is_finite() && cond < 1e8 && resid < 1e-11) {
+        return None;
+    }
+    let g = &tinv * gamma;
+    let ct = c * &t;
+    let mut m = ModalRegime::<N> {
+        n_pairs: np,
+        a: [0.0; N],
+        b: [0.0; N],
+        lr: [0.0; N],
+        gam: [[0.0; N]; NU],
+        acc: [0.0; N],
+        acc_d: [0.0; NU],
+        tip: [0.0; N],
+        motor: [0.0; N],
+        stroke: [0.0; N],
+        t: [[0.0; N]; N],
+        tinv: [[0.0; N]; N],
+    };
+    for (k, p) in pairs.iter().enumerate() {
+        m.a[k] = p.re;
+        m.b[k] = p.im;
+    }
+    for (k, &r) in reals.iter().enumerate() {
+        m.lr[2 * np + k] = r;
+    }
+    for j in 0..NU {
+        for i in 0..N {
+            m.gam[j][i] = g[(i, j)];
+        }
+        m.acc_d[j] = d[(OUT_ACCEL, j)];
+    }
+    let (h, m1, v) = picks;
+    for i in 0..N {
+        m.acc[i] = ct[(OUT_ACCEL, i)];
+        m.tip[i] = t[(h, i)];
+        m.motor[i] = t[(m1, i)];
+        m.stroke[i] = v.map_or(0.0, |v| t[(v, i)] - t[(h, i)]);
+        for j in 0..N {
+            m.t[j][i] = t[(i, j)];
+            m.tinv[j][i] = tinv[(i, j)];
+        }
+    }
+    Some(m)
 }
 
 impl<const N: usize> AxisSim<N> {
@@ -431,21 +616,66 @@ impl<const N: usize> AxisSim<N> {
             d[i] = to_s(&ss.d)?;
         }
         let stroke = model.dofs.v.map(|v| (v, model.dofs.h, model.stroke_m));
+        let modal = if integrator == Integrator::Zoh {
+            let picks = (model.dofs.h, model.dofs.m1, model.dofs.v);
+            let mut regs_m = Vec::with_capacity(3);
+            for ss in regs.iter() {
+                let (p, g) = lti::zoh(&ss.a, &ss.b, dt)?;
+                regs_m.push(modal_regime::<N>(&p, &g, &ss.c, &ss.d, picks));
+            }
+            match (regs_m.pop(), regs_m.pop(), regs_m.pop()) {
+                (Some(Some(m2)), Some(Some(m1)), Some(Some(m0))) => Some(Box::new([m0, m1, m2])),
+                _ => None,
+            }
+        } else {
+            None
+        };
+        let mut phi_cols = [[[0.0; N]; N]; 3];
+        let mut gamma_cols = [[[0.0; N]; NU]; 3];
+        for r in 0..3 {
+            for j in 0..N {
+                for i in 0..N {
+                    phi_cols[r][j][i] = phi[r][(i, j)];
+                }
+            }
+            for j in 0..NU {
+                for i in 0..N {
+                    gamma_cols[r][j][i] = gamma[r][(i, j)];
+                }
+            }
+        }
         Ok(Self {
+            phi_cols,
+            gamma_cols,
             integrator,
             dt,
             n_pos,
             x: SVector::zeros(),
-            phi,
-            gamma,
             a,
             b,
             c,
             d,
             stroke,
+            tip: model.dofs.h,
+            motor: model.dofs.m1,
             stop_steps: 0,
             resets: 0,
+            modal,
+            z: [0.0; N],
+            cur: 0,
         })
+    }
+
+    /// True when the ZOH update runs in modal coordinates (fast path).
+    pub fn is_modal(&self) -> bool {
+        self.modal.is_some()
+    }
+
+    /// Use the dense ZOH update even if a modal form exists (comparison).
+    pub fn force_dense(&mut self) {
+        let x = self.state();
+        self.modal = None;
+        self.x = x;
     }
 
     /// Integration scheme.
@@ -458,9 +688,12 @@ impl<const N: usize> AxisSim<N> {
         self.dt
     }
 
-    /// Current state.
-    pub fn state(&self) -> &SVector<f64, N> {
-        &self.x
+    /// Current (physical) state.
+    pub fn state(&self) -> SVector<f64, N> {
+        match &self.modal {
+            Some(m) => SVector::from(colmul(&m[self.cur].t, &self.z)),
+            None => self.x,
+        }
     }
 
     /// Overwrite the state (tests, initial conditions). Non-finite → zero.
@@ -470,13 +703,80 @@ impl<const N: usize> AxisSim<N> {
         } else {
             SVector::zeros()
         };
+        if let Some(m) = &self.modal {
+            self.cur = self.regime_of(&self.x);
+            let xa: [f64; N] = self.x.into();
+            self.z = colmul(&m[self.cur].tinv, &xa);
+        }
     }
 
     /// Zero the state and counters.
     pub fn reset(&mut self) {
         self.x = SVector::zeros();
+        self.z = [0.0; N];
+        self.cur = 0;
         self.stop_steps = 0;
         self.resets = 0;
+    }
+
+    #[inline]
+    fn regime_of_stroke(&self, r: f64) -> usize {
+        match self.stroke {
+            Some((_, _, s)) if r > s => 1,
+            Some((_, _, s)) if r < -s => 2,
+            _ => 0,
+        }
+    }
+
+    /// The modal ZOH step (see [`ModalRegime`]).
+    #[inline]
+    fn step_modal(&mut self, u: &SVector<f64, NU>) -> Option<AxisOutput> {
+        let regs = self.modal.as_deref()?;
+        let r0 = self.cur;
+        let m = &regs[r0];
+        let z = &self.z;
+        let mut zn = [0.0; N];
+        let np = m.n_pairs;
+        for k in 0..np {
+            let (zr, zi) = (z[2 * k], z[2 * k + 1]);
+            zn[2 * k] = m.a[k] * zr + m.b[k] * zi;
+            zn[2 * k + 1] = m.a[k] * zi - m.b[k] * zr;
+        }
+        for j in 2 * np..N {
+            zn[j] = m.lr[j] * z[j];
+        }
+        for (col, &uj) in m.gam.iter().zip(u.iter()) {
+            for (zi, ci) in zn.iter_mut().zip(col) {
+                *zi += ci * uj;
+            }
+        }
+        if !zn.iter().all(|v| v.is_finite()) {
+            zn = [0.0; N];
+            self.resets += 1;
+        }
+        let mut cur = r0;
+        if self.stroke.is_some() {
+            let r1 = self.regime_of_stroke(dot(&m.stroke, &zn));
+            if r1 != r0 {
+                let x = colmul(&m.t, &zn);
+                zn = colmul(&regs[r1].tinv, &x);
+                cur = r1;
+            }
+        }
+        let m = &regs[cur];
+        let ua: [f64; NU] = (*u).into();
+        let out = AxisOutput {
+            accel: dot(&m.acc, &zn) + dot(&m.acc_d, &ua),
+            tip: dot(&m.tip, &zn),
+            motor: dot(&m.motor, &zn),
+            stroke: dot(&m.stroke, &zn),
+        };
+        self.z = zn;
+        self.cur = cur;
+        if r0 != 0 {
+            self.stop_steps += 1;
+        }
+        Some(out)
     }
 
     /// Number of steps that started with the magnet on an end stop.
@@ -524,13 +824,32 @@ impl<const N: usize> AxisSim<N> {
                 *v = 0.0;
             }
         }
+        if self.integrator == Integrator::Zoh
+            && let Some(o) = self.step_modal(&u)
+        {
+            return o;
+        }
         let r0 = self.regime_of(&self.x);
         if r0 != 0 {
             self.stop_steps += 1;
         }
         match self.integrator {
             Integrator::Zoh => {
-                self.x = self.phi[r0] * self.x + self.gamma[r0] * u;
+                // x ← Φ x + Γ u as column axpys over fixed-size arrays.
+                let mut y = [0.0; N];
+                let pc = &self.phi_cols[r0];
+                for (col, &xj) in pc.iter().zip(self.x.iter()) {
+                    for (yi, ci) in y.iter_mut().zip(col.iter()) {
+                        *yi += ci * xj;
+                    }
+                }
+                let gc = &self.gamma_cols[r0];
+                for (col, &uj) in gc.iter().zip(u.iter()) {
+                    for (yi, ci) in y.iter_mut().zip(col.iter()) {
+                        *yi += ci * uj;
+                    }
+                }
+                self.x = SVector::from(y);
             }
             Integrator::Rk4 => {
                 let h = self.dt;
@@ -566,12 +885,19 @@ impl<const N: usize> AxisSim<N> {
             self.resets += 1;
         }
         let r1 = self.regime_of(&self.x);
-        let y = self.c[r1] * self.x + self.d[r1] * u;
+        // Only the acceleration needs a product; the other outputs are state
+        // picks (their C rows are unit vectors, D rows zero).
+        let accel = self.c[r1].row(OUT_ACCEL).dot(&self.x.transpose())
+            + self.d[r1].row(OUT_ACCEL).dot(&u.transpose());
+        let (tip, motor, stroke) = match self.stroke {
+            Some((v, h, _)) => (self.x[h], self.x[self.motor], self.x[v] - self.x[h]),
+            None => (self.x[self.tip], self.x[self.motor], 0.0),
+        };
         AxisOutput {
-            accel: y[OUT_ACCEL],
-            tip: y[OUT_TIP],
-            motor: y[OUT_MOTOR],
-            stroke: y[OUT_STROKE],
+            accel,
+            tip,
+            motor,
+            stroke,
         }
     }
 }

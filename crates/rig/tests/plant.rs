@@ -563,3 +563,58 @@ fn dual_stage_plant_static_deflection_matches_finger_stiffness() {
     }
     assert!((o.motor_m[0] - 1e-3).abs() < 1e-8 && (o.motor_m[1] - 2e-3).abs() < 1e-8);
 }
+
+/// The modal ZOH update (fast path) and the dense one give the same outputs,
+/// through end-stop episodes (regime switches change the modal basis).
+#[test]
+fn modal_and_dense_zoh_agree() {
+    let cfg = RigConfig::default();
+    let m = x_model();
+    let mut fast = AxisSim::<NX>::new(&m, Integrator::Zoh, 1e-4).unwrap();
+    let mut dense = AxisSim::<NX>::new(&m, Integrator::Zoh, 1e-4).unwrap();
+    assert!(fast.is_modal());
+    dense.force_dense();
+    assert!(!dense.is_modal());
+    let vmax = cfg.limits.haptuator_drive_max_v;
+    let (mut err, mut scale) = (0.0_f64, 0.0_f64);
+    for k in 0..20_000 {
+        let t = k as f64 * 1e-4;
+        let u = SVector::<f64, NU>::from([
+            0.8 * (2.0 * PI * 37.0 * t).sin(),
+            vmax * (2.0 * PI * 55.0 * t).sin(),
+            1e-3 * (2.0 * PI * 3.0 * t).sin(),
+            1e-3 * 2.0 * PI * 3.0 * (2.0 * PI * 3.0 * t).cos(),
+            1.0,
+        ]);
+        let a = fast.step(&u);
+        let b = dense.step(&u);
+        for (x, y) in [
+            (a.accel, b.accel),
+            (a.tip * 1e4, b.tip * 1e4),
+            (a.stroke * 1e4, b.stroke * 1e4),
+        ] {
+            err = err.max((x - y).abs());
+            scale = scale.max(y.abs());
+        }
+    }
+    assert!(fast.end_stop_steps() > 100 && fast.end_stop_steps() == dense.end_stop_steps());
+    assert!(err < 1e-8 * scale, "{err:e} vs {scale:e}");
+    let d = (fast.state() - dense.state()).norm() / dense.state().norm();
+    assert!(d < 1e-8, "{d:e}");
+    // The y axis has a modal form too; without branches (defective phantom
+    // DOF) the simulator falls back to the dense update.
+    let my = AxisModel::new(&cfg, Axis::Y).unwrap();
+    assert!(
+        AxisSim::<NYAX>::new(&my, Integrator::Zoh, 1e-4)
+            .unwrap()
+            .is_modal()
+    );
+    let mut c2 = cfg.clone();
+    c2.plant.motor_branch = None;
+    let m2 = AxisModel::new(&c2, Axis::X).unwrap();
+    assert!(
+        !AxisSim::<NX>::new(&m2, Integrator::Zoh, 1e-4)
+            .unwrap()
+            .is_modal()
+    );
+}
