@@ -24,9 +24,12 @@ pub enum CalibrationError {
         /// One sentence per failed item.
         problems: Vec<String>,
     },
-    /// The rig reported an error or returned unusable data.
+    /// The rig returned unusable data or is unusable for calibration.
     #[error("rig error: {0}")]
     Rig(String),
+    /// The rig (or its configuration) reported an error.
+    #[error(transparent)]
+    Device(#[from] crate::error::RigError),
     /// A configuration value is out of range.
     #[error("invalid calibration setting `{field}` = {value}: {reason}")]
     InvalidConfig {

@@ -1,13 +1,14 @@
 //! Steps 2 and 3: identification of the low (Pantograph) and high
 //! (Haptuator) channels, paper §3.2.
 //!
-//! * Low channel: G0_L is the plateau level of the (fractional-octave
-//!   smoothed) magnitude: the level with the most octaves of coherent bins
-//!   (γ² ≥ γ²_min) within ±tol/2 of it, refined to the octave-weighted mean
-//!   of those bins, with the sign of the mean in-band phasor (a channel
-//!   measured in antiphase has a negative G0_L). The flat band is the
-//!   widest (in octaves) run of contiguous coherent bins within ±tol of
-//!   |G0_L|.
+//! * Low channel: the flat band is the widest (in octaves) run of
+//!   contiguous bins, after fractional-octave smoothing, with coherence
+//!   ≥ γ²_min and a magnitude spread of at most 2·tol dB, so that one gain
+//!   is within ±tol of all of them. G0_L is that gain: the band's plateau
+//!   level (the level with the most octaves of bins within ±tol/2 of it,
+//!   refined to their octave-weighted mean) kept within [max − tol,
+//!   min + tol]; its sign is that of the mean in-band phasor (a channel
+//!   measured in antiphase has a negative G0_L).
 //! * High channel: the coherent band is the widest contiguous run of bins
 //!   up to `fit_max_hz` whose smoothed coherence is ≥ γ²_min (saturation
 //!   and a weak response both lower it). Ĝ_H(s) is fitted by
@@ -173,48 +174,40 @@ fn widest_run(
 /// deviation in dB)`, see the module documentation.
 pub fn flat_band(frf: &ChannelFrf, cfg: &CalibrationConfig) -> Option<(usize, usize, f64, f64)> {
     let a = &cfg.analysis;
+    let tol = a.flat_tol_db;
     let (db, coh) = smoothed(frf, a.smoothing_octaves);
     let range = frf.range(a.f_min_hz, a.f_max_hz);
-    let ok = |i: usize| coh[i] >= a.coherence_min && db[i].is_finite();
-    // Octave width of each bin (log-frequency measure, as third-octave bands
-    // see it).
+    let (l, r) = widest_run(&frf.f_hz, range, &db, 2.0 * tol, |i| {
+        coh[i] >= a.coherence_min && db[i].is_finite()
+    })?;
+    let band = &db[l..=r];
+    let (lo, hi) = band
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    // Octave width of each bin (the log-frequency measure third-octave
+    // bands see).
+    let f = &frf.f_hz;
     let width = |i: usize| {
-        let f = &frf.f_hz;
         if i + 1 < f.len() {
             (f[i + 1] / f[i]).log2()
-        } else if i > 0 {
-            (f[i] / f[i - 1]).log2()
         } else {
-            1.0
+            (f[i] / f[i - 1]).log2()
         }
     };
-    let bins: Vec<usize> = range.clone().filter(|&i| ok(i)).collect();
-    let half = 0.5 * a.flat_tol_db;
-    // Plateau level: the level with the most octaves within ±tol/2 of it.
-    let score = |g: f64| -> f64 {
-        bins.iter()
-            .filter(|&&j| (db[j] - g).abs() <= half)
-            .map(|&j| width(j))
-            .sum()
-    };
-    let c = bins
-        .iter()
-        .copied()
-        .max_by(|&x, &y| score(db[x]).total_cmp(&score(db[y])))?;
-    let near: Vec<usize> = bins
-        .iter()
-        .copied()
-        .filter(|&j| (db[j] - db[c]).abs() <= half)
-        .collect();
-    let wsum: f64 = near.iter().map(|&j| width(j)).sum();
-    let g0_db = near.iter().map(|&j| width(j) * db[j]).sum::<f64>() / wsum;
-    let (l, r) = widest_run(&frf.f_hz, range, &db, f64::INFINITY, |i| {
-        ok(i) && (db[i] - g0_db).abs() <= a.flat_tol_db
-    })?;
-    let dev = db[l..=r]
-        .iter()
-        .map(|v| (v - g0_db).abs())
-        .fold(0.0, f64::max);
+    // Plateau level: the in-band level with the most octaves within ±tol/2
+    // of it (refined to their octave-weighted mean), then kept within
+    // [hi − tol, lo + tol] so that the whole band stays within ±tol.
+    let half = 0.5 * tol;
+    let db = &db;
+    let near = |g: f64| (l..=r).filter(move |&j| (db[j] - g).abs() <= half);
+    let score = |g: f64| near(g).map(width).sum::<f64>();
+    let c = (l..=r).max_by(|&x, &y| score(db[x]).total_cmp(&score(db[y])))?;
+    let wsum: f64 = near(db[c]).map(width).sum();
+    let plateau = near(db[c]).map(|j| width(j) * db[j]).sum::<f64>() / wsum;
+    let g0_db = plateau.clamp(hi - tol, lo + tol);
+    let dev = band.iter().map(|v| (v - g0_db).abs()).fold(0.0, f64::max);
     Some((l, r, g0_db, dev))
 }
 

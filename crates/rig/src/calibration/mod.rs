@@ -47,7 +47,7 @@ pub use identify::{HighChannelId, LowChannelId};
 pub use interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigIdentity, RunStats};
 pub use progress::{NoProgress, Progress, Step, StepContext};
 pub use report::CalibrationReport;
-pub use sim::SimCalibrationRig;
+pub use sim::{RigAdapter, calibrate_sim, rig_config_hash};
 pub use standin::{StandInConfig, StandInRig};
 pub use verify::Verification;
 

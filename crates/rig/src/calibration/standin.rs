@@ -110,9 +110,9 @@ pub struct StandInConfig {
 }
 
 impl Default for StandInConfig {
-    /// Paper-like defaults (Fig. 5): G0_L = 8 (m/s²)/N flat from ~20 Hz, an
-    /// antiresonance at 300 Hz and resonance at 380 Hz, a sharp pair at
-    /// 780/820 Hz; G_H = 20 × eq. 2; magnet 5 g at 60 Hz with ±0.5 mm of
+    /// Paper-like defaults (Fig. 5): G0_L = 8 (m/s²)/N flat from ~20 Hz to
+    /// ~200 Hz, an antiresonance at 350 Hz and resonance at 440 Hz, a sharp
+    /// pair at 780/820 Hz; G_H = 20 × eq. 2; magnet 5 g at 60 Hz with ±0.5 mm of
     /// stroke; MMA7361L-like sensor (400 Hz, 350 µg/√Hz, ±6 g).
     fn default() -> Self {
         Self {
@@ -120,13 +120,13 @@ impl Default for StandInConfig {
             name: "standin".into(),
             serial: "-".into(),
             g0_l: 8.0,
-            finger_hz: 15.0,
+            finger_hz: 10.0,
             finger_zeta: 0.7,
             low_modes: vec![
                 ModePair {
-                    anti_hz: 300.0,
+                    anti_hz: 350.0,
                     anti_zeta: 0.1,
-                    res_hz: 380.0,
+                    res_hz: 440.0,
                     res_zeta: 0.15,
                 },
                 ModePair {
