@@ -12,6 +12,7 @@
 //! `docs/THEORY.md`; speed and accuracy tables: `docs/perf/rig.md`.
 
 pub mod accel;
+pub mod calibration;
 pub mod config;
 pub mod coupling;
 pub mod error;
