@@ -32,6 +32,8 @@ pub enum Command {
     Tfest(commands::tfest::Args),
     /// Statistics on a long-format CSV: one-way ANOVA, repeated-measures ANOVA or Friedman.
     Stats(commands::stats::Args),
+    /// Calibrate a rig: identify both channels, choose the crossover, design the compensators, verify flatness.
+    Calibrate(commands::calibrate::Args),
     /// Rig files and rig checks.
     #[command(subcommand)]
     Rig(commands::rig::RigCommand),
@@ -82,6 +84,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Frf(a)) => commands::frf::run(&a),
         Some(Command::Tfest(a)) => commands::tfest::run(&a),
         Some(Command::Stats(a)) => commands::stats::run(&a),
+        Some(Command::Calibrate(a)) => commands::calibrate::run(&a),
         Some(Command::Rig(c)) => commands::rig::run(&c),
         Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
