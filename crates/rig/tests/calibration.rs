@@ -95,27 +95,30 @@ fn group_delay_is_the_lr4_dc_delay() {
 }
 
 /// Robustness, not tuning: heavier terminal assembly, softer finger and
-/// stiffer Haptuator suspension, each by 30 %, still verify within ±1.5 dB.
+/// stiffer Haptuator suspension, each by 30 % and by 40 %, still verify
+/// within ±1.5 dB.
 #[test]
 fn perturbed_plants_verify_within_1_5_db() {
-    type Perturb = fn(&mut RigConfig);
-    let cases: [(&str, Perturb); 3] = [
-        ("m_h × 1.3", |c| c.plant.m_h *= 1.3),
-        ("k_f × 0.7", |c| c.plant.k_f *= 0.7),
-        ("k_v × 1.3", |c| c.plant.k_v *= 1.3),
+    type Perturb = fn(&mut RigConfig, f64);
+    let cases: [(&str, Perturb, [f64; 2]); 3] = [
+        ("m_h", |c, x| c.plant.m_h *= x, [1.3, 1.4]),
+        ("k_f", |c, x| c.plant.k_f *= x, [0.7, 0.6]),
+        ("k_v", |c, x| c.plant.k_v *= x, [1.3, 1.4]),
     ];
-    for (name, perturb) in cases {
-        let mut rc = RigConfig::default();
-        perturb(&mut rc);
-        let out = calibrate_quietly(&mut sim(&rc), &CalibrationConfig::default());
-        let v = &out.verification;
-        assert!(
-            v.max_abs_dev_db <= 1.5,
-            "{name}: {} dB\n{}",
-            v.max_abs_dev_db,
-            out.report().table()
-        );
-        assert!(v.uncompensated_max_abs_dev_db > v.max_abs_dev_db);
+    for (name, perturb, factors) in cases {
+        for x in factors {
+            let mut rc = RigConfig::default();
+            perturb(&mut rc, x);
+            let out = calibrate_quietly(&mut sim(&rc), &CalibrationConfig::default());
+            let v = &out.verification;
+            assert!(
+                v.max_abs_dev_db <= 1.5,
+                "{name} × {x}: {} dB\n{}",
+                v.max_abs_dev_db,
+                out.report().table()
+            );
+            assert!(v.uncompensated_max_abs_dev_db > v.max_abs_dev_db + 3.0);
+        }
     }
 }
 
@@ -551,7 +554,7 @@ fn report_has_the_json_contract_fields() {
     let bands = v["bands"].as_array().unwrap();
     assert!(bands.len() >= 13);
     assert!(bands.iter().all(|b| b["f"].is_f64() && b["db"].is_f64()));
-    assert_eq!(v["low_gain"].as_f64().unwrap(), out.low.g0);
+    assert_eq!(v["low_gain"].as_f64().unwrap(), out.design.g0_l);
     let back: CalibrationReport = serde_json::from_value(v).unwrap();
     assert_eq!(back, out.report());
     assert!(out.report().table().contains("max |deviation|"));

@@ -3,7 +3,7 @@
 //! The paper chose "the highest [f_c] that the Pantograph could allow in
 //! order to minimize the delay introduced by the filters" (§3.1). Made an
 //! algorithm: with the low path L·C_L and the high path H·C_H of the chain
-//! designed for a candidate f_c (Linkwitz–Riley L, H; C_L = K/G0_L,
+//! designed for a candidate f_c (Linkwitz–Riley L, H; C_L = K/G0_L(f_c),
 //! C_H = K·F/Ĝ_H), the tip response to be expected is the chain applied to
 //! the *measured* channel responses,
 //!
@@ -14,7 +14,11 @@
 //! which differs from 1 where a channel departs from its model (G0_L above
 //! the low channel's flat band, Ĝ_H below the high channel's reliable band)
 //! and the crossover skirt lets that departure through, and where the two
-//! paths' phases disagree around f_c. The candidates are a 1/48-octave grid
+//! paths' phases disagree around f_c. G0_L(f_c) is the static gain over the
+//! part of the flat band at or below f_c, where the low channel carries the
+//! signal ([`super::identify::gain_below`]): the minimax midpoint of its
+//! magnitude there, so that the in-band ripple the compensation cannot
+//! remove is split evenly. The candidates are a 1/48-octave grid
 //! from min(f_b, `max_hz`) (f_b: upper edge of the low channel's flat band)
 //! down to `min_hz`; f_c is the **highest** candidate whose predicted
 //! deviation max |20·log10|P(f)|| over the verification bands is within
@@ -27,14 +31,14 @@
 //! |L + H| = 1):
 //!
 //! ```text
-//! e_L = max_{f_b < f ≤ f_top} |L(f)|·|Ĥ_L(f)/G0_L − 1|
+//! e_L = max_{f_b < f ≤ f_top} |L(f)|·|Ĥ_L(f)/G0_L(f_c) − 1|
 //! e_H = max_{f < f_r}        |H(f)|·|Ĥ_H(f)/(Ĝ_H(f) e^{−j2πfτ}) − 1|   (1 where incoherent)
 //! ```
 
 use super::config::CalibrationConfig;
 use super::design::{predicted_max_abs_dev_db, unit_chain};
 use super::error::{CalibrationError, Result};
-use super::identify::{HighChannelId, LowChannelId};
+use super::identify::{HighChannelId, LowChannelId, gain_below};
 use super::measure::smooth_octave;
 use super::progress::{Step, StepContext};
 use super::verify::band_centres;
@@ -62,6 +66,9 @@ pub struct CrossoverChoice {
     pub order: usize,
     /// How `fc_hz` was set.
     pub rule: CrossoverRule,
+    /// Low-channel static gain over the flat band at or below `fc_hz`,
+    /// (m/s²)/N: the G0_L of C_L = K_sys/G0_L.
+    pub g0_l: f64,
     /// Highest candidate (upper edge of the low channel's flat band, or
     /// `max_hz`), Hz.
     pub fc_max_hz: f64,
@@ -124,12 +131,13 @@ pub fn leakage(
 ) -> Result<(f64, f64)> {
     let xo = LinkwitzRiley::new(cfg.crossover.order, fc, fs)
         .map_err(|e| CalibrationError::dsp("crossover design", e))?;
+    let g0 = gain_below(low, fc, cfg);
     let f_b = low.flat_band_hz[1];
     let f_top = cfg.verify.f_max_hz * 10f64.powf(0.05);
     let frf = &low.frf;
     let e_l = frf
         .range(f_b * (1.0 + 1e-12), f_top)
-        .map(|i| xo.response(frf.f_hz[i]).0.norm() * (frf.h[i] / low.g0 - 1.0).norm())
+        .map(|i| xo.response(frf.f_hz[i]).0.norm() * (frf.h[i] / g0 - 1.0).norm())
         .fold(0.0, f64::max);
     let e_h = high_errors(high, cfg)
         .iter()
@@ -168,7 +176,7 @@ pub fn choose_crossover(
     }
     let centres = band_centres(low, cfg)?;
     let predict = |fc: f64| -> Result<f64> {
-        let chain = unit_chain(fs, fc, c.order, low, high, cfg)?;
+        let chain = unit_chain(fs, fc, c.order, gain_below(low, fc, cfg), high, cfg)?;
         Ok(predicted_max_abs_dev_db(&chain, 1.0, low, high, &centres))
     };
     let (fc, predicted, rule, over_budget, note) = if let Some(fc) = c.fc_hz {
@@ -233,6 +241,7 @@ pub fn choose_crossover(
         fc_hz: fc,
         order: c.order,
         rule,
+        g0_l: gain_below(low, fc, cfg),
         fc_max_hz: cap,
         predicted_max_abs_dev_db: predicted,
         low_leak_db: db(el),

@@ -54,7 +54,8 @@ pub struct CompensatorDesign {
     /// Which limit set `k_sys_max` ("Pantograph force", "Haptuator drive",
     /// "accelerometer range"), or "configuration" when K_sys was given.
     pub k_sys_limited_by: String,
-    /// Low-channel static gain G0_L, (m/s²)/N.
+    /// Low-channel static gain G0_L over the flat band below the crossover
+    /// ([`CrossoverChoice::g0_l`]), (m/s²)/N.
     pub g0_l: f64,
     /// High-channel model Ĝ_H(s).
     pub g_h: Tf,
@@ -136,13 +137,14 @@ pub fn chain_group_delay(c: &ChainCoefficients, f_hz: f64) -> f64 {
     -((dl + dh) / (l + h)).im / c.fs()
 }
 
-/// Chain coefficients with K_sys = 1 for a crossover at `fc` Hz, from the
-/// identified models and the design settings of `cfg`.
+/// Chain coefficients with K_sys = 1 for a crossover at `fc` Hz, low-channel
+/// gain `g0_l`, the identified high channel and the design settings of
+/// `cfg`.
 pub fn unit_chain(
     fs: f64,
     fc: f64,
     order: usize,
-    low: &LowChannelId,
+    g0_l: f64,
     high: &HighChannelId,
     cfg: &CalibrationConfig,
 ) -> Result<ChainCoefficients> {
@@ -152,7 +154,7 @@ pub fn unit_chain(
         crossover_order: order,
         crossover_fc: fc,
         k_sys: 1.0,
-        g0_l: low.g0,
+        g0_l,
         g_h: high.model.clone(),
         high: HighCompensatorConfig {
             f_corner_hz: d.band_limit_hz,
@@ -211,7 +213,7 @@ pub fn design(
         k_sys: 1.0,
         k_sys_max: 1.0,
         k_sys_limited_by: String::new(),
-        g0_l: low.g0,
+        g0_l: xo.g0_l,
         g_h: high.model.clone(),
         c_l: 0.0,
         c_h: high.model.clone(),

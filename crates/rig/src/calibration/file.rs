@@ -255,7 +255,7 @@ impl CalibrationFile {
         if d.crossover_hz != self.crossover.fc_hz || d.crossover_order != self.crossover.order {
             return Err(invalid(origin, "compensators and crossover disagree"));
         }
-        if d.g_h != self.high.model || d.g0_l != self.low.g0 {
+        if d.g_h != self.high.model || d.g0_l != self.crossover.g0_l {
             return Err(invalid(
                 origin,
                 "compensators do not use the identified models",

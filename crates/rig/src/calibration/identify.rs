@@ -211,6 +211,26 @@ pub fn flat_band(frf: &ChannelFrf, cfg: &CalibrationConfig) -> Option<(usize, us
     Some((l, r, g0_db, dev))
 }
 
+/// The low channel's static gain over the part of its flat band at or below
+/// `fc_hz` — where, with a crossover at `fc_hz`, the low channel carries the
+/// signal: the minimax midpoint of the smoothed magnitude over those bins,
+/// with the sign of G0_L. Equal to |G0_L|'s band when `fc_hz` is at or above
+/// the flat band's upper edge; G0_L itself when no bin qualifies.
+pub fn gain_below(low: &LowChannelId, fc_hz: f64, cfg: &CalibrationConfig) -> f64 {
+    let (db, _) = smoothed(&low.frf, cfg.analysis.smoothing_octaves);
+    let [lo, hi] = low.flat_band_hz;
+    let r = low.frf.range(lo, hi.min(fc_hz));
+    if r.is_empty() {
+        return low.g0;
+    }
+    let (mn, mx) = db[r]
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    low.g0.signum() * 10f64.powf(0.5 * (mn + mx) / 20.0)
+}
+
 /// Step 2: identify the low channel (Pantograph on, Haptuator off).
 pub fn identify_low<R: CalibrationRig + ?Sized>(
     rig: &mut R,
@@ -644,6 +664,31 @@ mod tests {
                 assert!((20.0 * (h / id.g0).log10()).abs() <= 1.0 + 1e-12);
             }
         }
+    }
+
+    /// The gain below a crossover is the minimax midpoint of the flat band's
+    /// magnitude up to f_c: for a slope of s dB/octave from f_lo, the
+    /// magnitude at the geometric mean of f_lo and f_c (to a bin), with the
+    /// sign of G0_L; the whole flat band's value for f_c above it.
+    #[test]
+    fn gain_below_a_crossover_is_the_minimax_midpoint() {
+        let f = grid();
+        let slope = -1.0;
+        let g = |x: f64| C64::new(-10f64.powf(slope * (x / 100.0).log2() / 20.0), 0.0);
+        let mut cfg = CalibrationConfig::default();
+        cfg.analysis.smoothing_octaves = 0.0;
+        cfg.analysis.f_min_hz = 50.0;
+        cfg.analysis.f_max_hz = 200.0;
+        let id = low_from_frf(frf_of(&f, g, |_| 0.99), Default::default(), vec![], &cfg).unwrap();
+        assert!(id.g0 < 0.0);
+        let [lo, _] = id.flat_band_hz;
+        let fc = 120.0;
+        let top = f[f.partition_point(|&x| x <= fc) - 1];
+        let want = -10f64.powf(slope * ((lo * top).sqrt() / 100.0).log2() / 20.0);
+        let got = gain_below(&id, fc, &cfg);
+        assert!((got / want - 1.0).abs() < 1e-12, "{got} vs {want}");
+        assert!((gain_below(&id, 1e4, &cfg) / id.g0 - 1.0).abs() < 0.02);
+        assert_eq!(gain_below(&id, 1.0, &cfg), id.g0);
     }
 
     fn g_vals(f: &[f64], g: impl Fn(f64) -> C64) -> Vec<f64> {

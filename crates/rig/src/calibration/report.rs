@@ -39,8 +39,11 @@ pub struct BandReport {
 pub struct CalibrationReport {
     /// Crossover frequency, Hz.
     pub crossover_hz: f64,
-    /// Identified static gain of the low channel G0_L, (m/s²)/N.
+    /// Static gain of the low channel G0_L used in C_L = K_sys/G0_L (over
+    /// the flat band below the crossover), (m/s²)/N.
     pub low_gain: f64,
+    /// G0_L identified over the whole flat band (step 2), (m/s²)/N.
+    pub low_gain_flat_band: f64,
     /// Identified high-channel model Ĝ_H(s).
     pub high_model: ModelReport,
     /// Verification table.
@@ -79,7 +82,8 @@ impl CalibrationReport {
         let v = &o.verification;
         Self {
             crossover_hz: o.crossover.fc_hz,
-            low_gain: o.low.g0,
+            low_gain: o.design.g0_l,
+            low_gain_flat_band: o.low.g0,
             high_model: ModelReport {
                 num: o.high.model.num.clone(),
                 den: o.high.model.den.clone(),
