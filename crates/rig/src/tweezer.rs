@@ -42,8 +42,8 @@
 use crate::config::TweezerConfig;
 use crate::error::RigError;
 use rand::{RngExt, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -356,7 +356,7 @@ pub struct SimTweezer {
     trap: [f64; 2],
     trapped: bool,
     in_contact: bool,
-    rng: ChaCha8Rng,
+    rng: Xoshiro256PlusPlus,
     // Free-space full-step coefficients (exact OU): c, τ(1 − c), σ.
     free_c: f64,
     free_tau_1mc: f64,
@@ -406,7 +406,7 @@ impl SimTweezer {
         let gf = gamma0 * fw;
         let tau = gf / params.stiffness_n_per_m;
         let c = (-dt / tau).exp();
-        let rng = ChaCha8Rng::seed_from_u64(params.seed);
+        let rng = Xoshiro256PlusPlus::seed_from_u64(params.seed);
         Ok(Self {
             free_c: c,
             free_tau_1mc: tau * (1.0 - c),
