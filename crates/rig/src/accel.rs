@@ -212,7 +212,7 @@ impl Accelerometer {
                 clipped = true;
             }
             if self.lsb > 0.0 {
-                y = (y / self.lsb).round() * self.lsb;
+                y = crate::round_half_away(y / self.lsb) * self.lsb;
             }
             out[i] = y;
         }
