@@ -21,8 +21,8 @@ use crate::config::AccelerometerConfig;
 use crate::error::RigError;
 use num_complex::Complex64 as C64;
 use rand::{RngExt, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::f64::consts::PI;
 
 /// Standard gravity, m/s².
@@ -49,7 +49,7 @@ pub struct Accelerometer {
     range: f64,
     lsb: f64,
     offset: [f64; 3],
-    rng: ChaCha8Rng,
+    rng: Xoshiro256PlusPlus,
     seed: u64,
     clipped: u64,
     nonfinite: u64,
@@ -109,7 +109,7 @@ impl Accelerometer {
             range: cfg.range_g * STANDARD_GRAVITY,
             lsb: cfg.lsb_m_s2,
             offset,
-            rng: ChaCha8Rng::seed_from_u64(cfg.seed),
+            rng: Xoshiro256PlusPlus::seed_from_u64(cfg.seed),
             seed: cfg.seed,
             clipped: 0,
             nonfinite: 0,
@@ -154,7 +154,7 @@ impl Accelerometer {
     /// Reset the filter to the static acceleration and re-seed the noise.
     pub fn reset(&mut self) {
         self.state = self.offset;
-        self.rng = ChaCha8Rng::seed_from_u64(self.seed);
+        self.rng = Xoshiro256PlusPlus::seed_from_u64(self.seed);
         self.clipped = 0;
         self.nonfinite = 0;
     }
@@ -212,7 +212,7 @@ impl Accelerometer {
                 clipped = true;
             }
             if self.lsb > 0.0 {
-                y = (y / self.lsb).round() * self.lsb;
+                y = crate::round_half_away(y / self.lsb) * self.lsb;
             }
             out[i] = y;
         }

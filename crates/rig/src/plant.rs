@@ -755,12 +755,16 @@ impl<const N: usize> AxisSim<N> {
             self.resets += 1;
         }
         let mut cur = r0;
+        // The stroke (0 without a Haptuator: no end stops, no product).
+        let mut stroke = 0.0;
         if self.stroke.is_some() {
-            let r1 = self.regime_of_stroke(dot(&m.stroke, &zn));
+            stroke = dot(&m.stroke, &zn);
+            let r1 = self.regime_of_stroke(stroke);
             if r1 != r0 {
                 let x = colmul(&m.t, &zn);
                 zn = colmul(&regs[r1].tinv, &x);
                 cur = r1;
+                stroke = dot(&regs[r1].stroke, &zn);
             }
         }
         let m = &regs[cur];
@@ -769,7 +773,7 @@ impl<const N: usize> AxisSim<N> {
             accel: dot(&m.acc, &zn) + dot(&m.acc_d, &ua),
             tip: dot(&m.tip, &zn),
             motor: dot(&m.motor, &zn),
-            stroke: dot(&m.stroke, &zn),
+            stroke,
         };
         self.z = zn;
         self.cur = cur;

@@ -556,7 +556,7 @@ impl<C: Clock> SimRig<C> {
 
     fn quantise(&self, x: f64) -> f64 {
         if self.encoder_res > 0.0 {
-            (x / self.encoder_res).round() * self.encoder_res
+            crate::round_half_away(x / self.encoder_res) * self.encoder_res
         } else {
             x
         }

@@ -42,8 +42,8 @@
 use crate::config::TweezerConfig;
 use crate::error::RigError;
 use rand::{RngExt, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -70,7 +70,13 @@ pub fn stokes_drag(viscosity_pa_s: f64, radius_m: f64) -> f64 {
 /// Faxén's parallel wall correction γ∥/γ₀ for s = R/h (h = centre–wall
 /// distance): 1/(1 − 9/16 s + 1/8 s³ − 45/256 s⁴ − 1/16 s⁵).
 pub fn faxen_parallel(s: f64) -> f64 {
-    1.0 / (1.0 - 9.0 / 16.0 * s + 0.125 * s.powi(3) - 45.0 / 256.0 * s.powi(4) - 0.0625 * s.powi(5))
+    1.0 / faxen_parallel_mobility(s)
+}
+
+/// Parallel mobility ratio γ₀/γ∥ = 1/[`faxen_parallel`] (Faxén's series).
+#[inline]
+fn faxen_parallel_mobility(s: f64) -> f64 {
+    1.0 - 9.0 / 16.0 * s + 0.125 * s.powi(3) - 45.0 / 256.0 * s.powi(4) - 0.0625 * s.powi(5)
 }
 
 /// Perpendicular mobility ratio γ₀/γ⊥ (Schäffer et al. 2007 approximation
@@ -356,11 +362,14 @@ pub struct SimTweezer {
     trap: [f64; 2],
     trapped: bool,
     in_contact: bool,
-    rng: ChaCha8Rng,
+    rng: Xoshiro256PlusPlus,
     // Free-space full-step coefficients (exact OU): c, τ(1 − c), σ.
     free_c: f64,
     free_tau_1mc: f64,
     free_sigma: f64,
+    // Free-space mobility 1/(γ₀ f_w), m/(N·s); 1/R, 1/m.
+    free_mu: f64,
+    inv_radius: f64,
     // 4·√(2 D dt): diffusion length scale of one sample, m.
     diff_len: f64,
     // Nearest obstacle after the last step (None inside: not yet known).
@@ -371,13 +380,14 @@ pub struct SimTweezer {
 
 /// Scalar Ornstein–Uhlenbeck coefficients of one direction over a sub-step:
 /// stiffness `k` (N/m) toward an equilibrium moving linearly `e0` → `e1` (m),
-/// drag `g` (N·s/m), drift velocity `v` (m/s).
+/// mobility `mu` = 1/γ (m/(N·s), the inverse drag: the wall corrections are
+/// mobility polynomials, so no division is needed), drift velocity `v` (m/s).
 #[derive(Debug, Clone, Copy)]
 struct Ou {
     k: f64,
     e0: f64,
     e1: f64,
-    g: f64,
+    mu: f64,
     v: f64,
 }
 
@@ -406,12 +416,14 @@ impl SimTweezer {
         let gf = gamma0 * fw;
         let tau = gf / params.stiffness_n_per_m;
         let c = (-dt / tau).exp();
-        let rng = ChaCha8Rng::seed_from_u64(params.seed);
+        let rng = Xoshiro256PlusPlus::seed_from_u64(params.seed);
         Ok(Self {
             free_c: c,
             free_tau_1mc: tau * (1.0 - c),
             free_sigma: (kt / params.stiffness_n_per_m * (1.0 - c * c)).sqrt(),
             diff_len: 4.0 * (2.0 * kt / gf * dt).sqrt(),
+            free_mu: 1.0 / gf,
+            inv_radius: 1.0 / params.radius_m,
             near_cache: None,
             p: params,
             fs: fs_hz,
@@ -466,21 +478,24 @@ impl SimTweezer {
     /// surface gap g = |r − c| − R − R_o).
     #[inline]
     fn nearest(&self, r: [f64; 2]) -> Option<(usize, [f64; 2], f64)> {
-        let mut best: Option<(usize, [f64; 2], f64)> = None;
+        // Pick the nearest by gap first; normalise only the winner's offset.
+        let mut best: Option<(usize, [f64; 2], f64, f64)> = None;
         for (i, o) in self.p.obstacles.iter().enumerate() {
             let d = [r[0] - o.centre_m[0], r[1] - o.centre_m[1]];
             let dist = norm2(d);
             let gap = dist - self.p.radius_m - o.radius_m;
             if best.is_none_or(|b| gap < b.2) {
-                let n = if dist > 0.0 {
-                    [d[0] / dist, d[1] / dist]
-                } else {
-                    [1.0, 0.0]
-                };
-                best = Some((i, n, gap));
+                best = Some((i, d, gap, dist));
             }
         }
-        best
+        best.map(|(i, d, gap, dist)| {
+            let n = if dist > 0.0 {
+                [d[0] / dist, d[1] / dist]
+            } else {
+                [1.0, 0.0]
+            };
+            (i, n, gap)
+        })
     }
 
     #[inline]
@@ -489,32 +504,35 @@ impl SimTweezer {
     }
 
     /// One exact/EM update of a scalar coordinate x over h (see [`Ou`]).
+    /// `inv_h` = 1/h.
     #[inline]
-    fn scalar_step(&mut self, x: f64, ou: Ou, h: f64) -> f64 {
-        let Ou { k, e0, e1, g, v } = ou;
+    fn scalar_step(&mut self, x: f64, ou: Ou, h: f64, inv_h: f64) -> f64 {
+        let Ou { k, e0, e1, mu, v } = ou;
         let n = self.normal();
         match self.p.integrator {
             TweezerIntegrator::Exact => {
                 if k > 0.0 {
-                    let tau = g / k;
-                    let c = (-h / tau).exp();
-                    let w = (e1 - e0) / h;
+                    // τ = γ/k, c = e^{−h/τ} = e^{−h k μ}.
+                    let kmu = k * mu;
+                    let c = (-h * kmu).exp();
+                    let tau = 1.0 / kmu;
+                    let w = (e1 - e0) * inv_h;
                     e1 + c * (x - e0)
                         + (v - w) * tau * (1.0 - c)
                         + (self.kt / k * (1.0 - c * c)).sqrt() * n
                 } else {
-                    x + v * h + (2.0 * self.kt * h / g).sqrt() * n
+                    x + v * h + (2.0 * self.kt * h * mu).sqrt() * n
                 }
             }
             TweezerIntegrator::Euler => {
-                x - h * k * (x - e0) / g + v * h + (2.0 * self.kt * h / g).sqrt() * n
+                x - h * k * (x - e0) * mu + v * h + (2.0 * self.kt * h * mu).sqrt() * n
             }
         }
     }
 
     /// One sub-step; `near` is the nearest obstacle at the start, the return
     /// value the nearest obstacle at the end (after any reflection).
-    fn substep(&mut self, ta: [f64; 2], tb: [f64; 2], h: f64, near: Near) -> Near {
+    fn substep(&mut self, ta: [f64; 2], tb: [f64; 2], h: f64, inv_h: f64, near: Near) -> Near {
         let kappa = if self.trapped {
             self.p.stiffness_n_per_m
         } else {
@@ -524,7 +542,7 @@ impl SimTweezer {
         let delta = self.p.contact_range_m;
         match near {
             None => {
-                let g = self.gamma0 * self.fw;
+                let mu = 1.0 / (self.gamma0 * self.fw);
                 for i in 0..2 {
                     self.bead[i] = self.scalar_step(
                         self.bead[i],
@@ -532,10 +550,11 @@ impl SimTweezer {
                             k: kappa,
                             e0: ta[i],
                             e1: tb[i],
-                            g,
+                            mu,
                             v: 0.0,
                         },
                         h,
+                        inv_h,
                     );
                 }
             }
@@ -553,13 +572,15 @@ impl SimTweezer {
                 let clamped = gap < gmin;
                 let hs = r + gap.max(gmin);
                 let s = r / hs;
-                let g_perp = self.gamma0 * self.fw / perpendicular_mobility(s);
-                let g_par = self.gamma0 * self.fw * faxen_parallel(s);
+                // Mobilities 1/γ⊥ and 1/γ∥ (no division on the bead's
+                // dependency chain).
+                let mu0 = self.free_mu;
+                let mu_perp = mu0 * perpendicular_mobility(s);
+                let mu_par = mu0 * faxen_parallel_mobility(s);
                 let vd = if self.p.ito_drift && !clamped {
-                    // k_BT d(1/γ⊥)/dh = k_BT/(γ₀ f_w) · p'(s) · (−R/h²).
-                    self.kt / (self.gamma0 * self.fw)
-                        * perpendicular_mobility_ds(s)
-                        * (-r / (hs * hs))
+                    // k_BT d(1/γ⊥)/dh = k_BT/(γ₀ f_w) · p'(s) · (−R/h²),
+                    // with R/h² = s²/R.
+                    self.kt * mu0 * perpendicular_mobility_ds(s) * (-(s * s) * self.inv_radius)
                 } else {
                     0.0
                 };
@@ -583,10 +604,11 @@ impl SimTweezer {
                         k: kn,
                         e0: en0,
                         e1: en1,
-                        g: g_perp,
+                        mu: mu_perp,
                         v: vd,
                     },
                     h,
+                    inv_h,
                 );
                 let st1 = self.scalar_step(
                     st,
@@ -594,10 +616,11 @@ impl SimTweezer {
                         k: kappa,
                         e0: proj(ta, t),
                         e1: proj(tb, t),
-                        g: g_par,
+                        mu: mu_par,
                         v: 0.0,
                     },
                     h,
+                    inv_h,
                 );
                 self.bead = [
                     o.centre_m[0] + sn1 * n[0] + st1 * t[0],
@@ -703,13 +726,14 @@ impl Tweezer for SimTweezer {
             }
         } else {
             let h = self.dt / n_sub as f64;
+            let inv_h = n_sub as f64 * self.fs;
             let inv = 1.0 / n_sub as f64;
             for k in 0..n_sub {
                 let a = k as f64 * inv;
                 let b = (k + 1) as f64 * inv;
                 let ta = [p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])];
                 let tb = [p0[0] + b * (p1[0] - p0[0]), p0[1] + b * (p1[1] - p0[1])];
-                near = self.substep(ta, tb, h, near);
+                near = self.substep(ta, tb, h, inv_h, near);
             }
         }
         self.trap = p1;
