@@ -1,4 +1,4 @@
-//! Accuracy and stability tables for `docs/perf/rig.md`.
+//! Accuracy and stability tables for `docs/PERFORMANCE.md`.
 //!
 //! `cargo run --release -p kilotouch-rig --example rig_tables`
 //! (timings come from `cargo bench -p kilotouch-rig`).

@@ -9,7 +9,7 @@
 //! trap.
 //!
 //! Units are SI unless a name says otherwise. Theory and references:
-//! `docs/THEORY.md`; speed and accuracy tables: `docs/perf/rig.md`.
+//! `docs/THEORY.md`; speed and accuracy tables: `docs/PERFORMANCE.md`.
 
 pub mod accel;
 pub mod calibration;
