@@ -64,17 +64,17 @@ pub fn check<R: CalibrationRig + ?Sized>(
     ctx.report(step, 0.0, "rig self-test");
     let report = rig.check()?;
     let mut problems = Vec::new();
-    for (ok, what) in [
-        (report.sensor_alive, "accelerometer not alive"),
-        (report.sensor_in_range, "accelerometer out of range at rest"),
-        (report.responding, "rig not responding"),
-        (report.safety_armed, "safety limits not armed"),
-    ] {
-        if !ok {
-            problems.push(what.to_owned());
+    if !report.ok() {
+        for (ok, what) in [
+            (report.sensor_alive, "accelerometer not alive"),
+            (report.sensor_in_range, "accelerometer out of range at rest"),
+            (report.responding, "rig not responding"),
+            (report.safety_armed, "safety limits not armed"),
+        ] {
+            if !ok {
+                problems.push(what.to_owned());
+            }
         }
-    }
-    if !problems.is_empty() {
         problems.extend(report.messages.iter().cloned());
         return Err(CalibrationError::CheckFailed { problems });
     }

@@ -126,32 +126,6 @@ pub trait CalibrationRig {
     fn sensor_response(&self, f_hz: f64) -> Option<C64>;
 }
 
-impl<R: CalibrationRig + ?Sized> CalibrationRig for &mut R {
-    fn sample_rate(&self) -> f64 {
-        (**self).sample_rate()
-    }
-    fn identity(&self) -> RigIdentity {
-        (**self).identity()
-    }
-    fn check(&mut self) -> Result<CheckReport> {
-        (**self).check()
-    }
-    fn run(
-        &mut self,
-        low_drive: &[f64],
-        high_drive: &[f64],
-        accel: &mut [f64],
-    ) -> Result<RunStats> {
-        (**self).run(low_drive, high_drive, accel)
-    }
-    fn limits(&self) -> ActuatorLimits {
-        (**self).limits()
-    }
-    fn sensor_response(&self, f_hz: f64) -> Option<C64> {
-        (**self).sensor_response(f_hz)
-    }
-}
-
 /// Which channel a measurement drives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
