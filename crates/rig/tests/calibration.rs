@@ -135,10 +135,7 @@ fn sim_identification_matches_the_analytic_plant() {
     let [lo, hi] = out.low.flat_band_hz;
     let mut f = lo;
     while f <= hi {
-        let g = model
-            .channel_response(kilotouch_rig::Channel::Low, f)
-            .unwrap()
-            .norm();
+        let g = model.channel_response(Channel::Low, f).unwrap().norm();
         let dev = 20.0 * (g / out.low.g0.abs()).log10();
         assert!(dev.abs() <= out.low.flat_tol_db + 0.3, "{f} Hz: {dev} dB");
         f *= 2f64.powf(1.0 / 24.0);
@@ -146,10 +143,7 @@ fn sim_identification_matches_the_analytic_plant() {
     let [lo, hi] = out.high.reliable_band_hz;
     let mut f = lo;
     while f <= hi {
-        let g = model
-            .channel_response(kilotouch_rig::Channel::High, f)
-            .unwrap()
-            .norm();
+        let g = model.channel_response(Channel::High, f).unwrap().norm();
         let dev = 20.0 * (out.high.model.response_hz(f).norm() / g).log10();
         assert!(dev.abs() <= 0.6, "{f} Hz: {dev} dB");
         f *= 2f64.powf(1.0 / 24.0);
