@@ -6,7 +6,7 @@
 
 use super::config::CalibrationConfig;
 use super::error::{CalibrationError, Result};
-use super::interface::{CalibrationRig, Channel, CheckReport};
+use super::interface::{CalibrationRig, Channel, CheckReport, channel_name};
 use super::measure::{RawRecord, run_channel};
 use super::progress::{Step, StepContext};
 use kilotouch_dsp::excitation::mls_signal;
@@ -64,17 +64,17 @@ pub fn check<R: CalibrationRig + ?Sized>(
     ctx.report(step, 0.0, "rig self-test");
     let report = rig.check()?;
     let mut problems = Vec::new();
-    for (ok, what) in [
-        (report.sensor_alive, "accelerometer not alive"),
-        (report.sensor_in_range, "accelerometer out of range at rest"),
-        (report.responding, "rig not responding"),
-        (report.safety_armed, "safety limits not armed"),
-    ] {
-        if !ok {
-            problems.push(what.to_owned());
+    if !report.ok() {
+        for (ok, what) in [
+            (report.sensor_alive, "accelerometer not alive"),
+            (report.sensor_in_range, "accelerometer out of range at rest"),
+            (report.responding, "rig not responding"),
+            (report.safety_armed, "safety limits not armed"),
+        ] {
+            if !ok {
+                problems.push(what.to_owned());
+            }
         }
-    }
-    if !problems.is_empty() {
         problems.extend(report.messages.iter().cloned());
         return Err(CalibrationError::CheckFailed { problems });
     }
@@ -104,13 +104,13 @@ pub fn check<R: CalibrationRig + ?Sized>(
     let mut snr = [0.0; 2];
     for (k, channel) in [Channel::Low, Channel::High].into_iter().enumerate() {
         ctx.check_cancel(step)?;
-        let a = cfg.check.burst_fraction * channel.limit(&limits);
+        let a = cfg.check.burst_fraction * limits.of(channel);
         let drive: Vec<f64> = burst.iter().map(|v| v * a).collect();
         let rec = run_channel(
             rig,
             channel,
             &drive,
-            format!("check {} burst", channel.name()),
+            format!("check {} burst", channel_name(channel)),
         )?;
         let (_, rms) = mean_rms(&rec.accel);
         snr[k] = snr_db(rms, noise);
@@ -118,7 +118,7 @@ pub fn check<R: CalibrationRig + ?Sized>(
             problems.push(format!(
                 "{} channel not responding: burst of amplitude {a:.3} gave {rms:.3e} m/s² RMS, \
                  {:.1} dB above the noise at rest (need {} dB)",
-                channel.name(),
+                channel_name(channel),
                 snr[k],
                 cfg.check.min_snr_db
             ));
@@ -129,7 +129,7 @@ pub fn check<R: CalibrationRig + ?Sized>(
             (2.0 + k as f64) / 3.0,
             &format!(
                 "{} channel responds {:.1} dB above noise",
-                channel.name(),
+                channel_name(channel),
                 snr[k]
             ),
         );

@@ -126,56 +126,25 @@ pub trait CalibrationRig {
     fn sensor_response(&self, f_hz: f64) -> Option<C64>;
 }
 
-impl<R: CalibrationRig + ?Sized> CalibrationRig for &mut R {
-    fn sample_rate(&self) -> f64 {
-        (**self).sample_rate()
-    }
-    fn identity(&self) -> RigIdentity {
-        (**self).identity()
-    }
-    fn check(&mut self) -> Result<CheckReport> {
-        (**self).check()
-    }
-    fn run(
-        &mut self,
-        low_drive: &[f64],
-        high_drive: &[f64],
-        accel: &mut [f64],
-    ) -> Result<RunStats> {
-        (**self).run(low_drive, high_drive, accel)
-    }
-    fn limits(&self) -> ActuatorLimits {
-        (**self).limits()
-    }
-    fn sensor_response(&self, f_hz: f64) -> Option<C64> {
-        (**self).sensor_response(f_hz)
+/// Which channel a measurement drives: the plant's [`Channel`] (`Low`:
+/// Pantograph on, Haptuator off; `High`: the reverse).
+pub use crate::plant::Channel;
+
+/// "low" or "high".
+pub fn channel_name(channel: Channel) -> &'static str {
+    match channel {
+        Channel::Low => "low",
+        Channel::High => "high",
     }
 }
 
-/// Which channel a measurement drives.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Channel {
-    /// Pantograph on, Haptuator off.
-    Low,
-    /// Pantograph off, Haptuator on.
-    High,
-}
-
-impl Channel {
-    /// "low" or "high".
-    pub fn name(self) -> &'static str {
-        match self {
-            Channel::Low => "low",
-            Channel::High => "high",
-        }
-    }
-
-    /// The drive limit of this channel.
-    pub fn limit(self, limits: &ActuatorLimits) -> f64 {
-        match self {
-            Channel::Low => limits.max_force_n,
-            Channel::High => limits.max_high_drive,
+impl ActuatorLimits {
+    /// The drive limit of `channel` (N for the Pantograph, drive unit for the
+    /// Haptuator).
+    pub fn of(&self, channel: Channel) -> f64 {
+        match channel {
+            Channel::Low => self.max_force_n,
+            Channel::High => self.max_high_drive,
         }
     }
 }

@@ -18,7 +18,7 @@
 
 use super::config::{CalibrationConfig, ExcitationConfig};
 use super::error::{CalibrationError, Result};
-use super::interface::{CalibrationRig, Channel, RunStats};
+use super::interface::{CalibrationRig, Channel, RunStats, channel_name};
 use super::progress::{Step, StepContext};
 use kilotouch_dsp::C64;
 use kilotouch_dsp::design::{self, FilterKind, Prewarp};
@@ -214,11 +214,11 @@ pub fn measure_channel<R: CalibrationRig + ?Sized>(
         Channel::High => &cfg.high,
     };
     let fs = rig.sample_rate();
-    let limit = channel.limit(&rig.limits());
+    let limit = rig.limits().of(channel);
     if !(limit.is_finite() && limit > 0.0) {
         return Err(CalibrationError::Rig(format!(
             "{} channel drive limit {limit} is not finite and > 0",
-            channel.name()
+            channel_name(channel)
         )));
     }
     let (unit, lead) = excitation_signal(exc, fs)?;
@@ -240,7 +240,7 @@ pub fn measure_channel<R: CalibrationRig + ?Sized>(
             n as f64 / total,
             &format!(
                 "{} channel: run {n}, amplitude {amplitude:.4}{}",
-                channel.name(),
+                channel_name(channel),
                 if saturated { " — saturated" } else { "" }
             ),
         );
