@@ -89,9 +89,8 @@ pub fn roots(p: &[f64]) -> Result<Vec<C64>> {
             for i in 1..n {
                 m[(i, i - 1)] = 1.0;
             }
-            balance(&mut m);
+            let (m, _) = balance(&m);
             let ev = m
-                .clone()
                 .try_schur(f64::EPSILON, 10_000)
                 .ok_or_else(|| {
                     DspError::Numerical("companion-matrix eigenvalues did not converge".into())
@@ -134,26 +133,25 @@ fn polish(p: &[f64], mut z: C64) -> C64 {
     z
 }
 
-/// Parlett–Reinsch balancing (powers of two, so no rounding) to improve the
-/// accuracy of the eigenvalues of a badly scaled companion matrix.
-fn balance(m: &mut DMatrix<f64>) {
+/// Balance a square matrix by a diagonal similarity with powers of two
+/// (Parlett–Reinsch): returns (D⁻¹ M D, d) with d the diagonal of D.
+pub fn balance(m: &DMatrix<f64>) -> (DMatrix<f64>, Vec<f64>) {
     let n = m.nrows();
+    let mut a = m.clone();
+    let mut d = vec![1.0; n];
     let radix = 2.0_f64;
-    let mut converged = false;
-    let mut sweeps = 0;
-    while !converged && sweeps < 100 {
-        converged = true;
-        sweeps += 1;
+    for _sweep in 0..100 {
+        let mut converged = true;
         for i in 0..n {
             let mut c = 0.0;
             let mut r = 0.0;
             for j in 0..n {
                 if j != i {
-                    c += m[(j, i)].abs();
-                    r += m[(i, j)].abs();
+                    c += a[(j, i)].abs();
+                    r += a[(i, j)].abs();
                 }
             }
-            if c == 0.0 || r == 0.0 {
+            if c == 0.0 || r == 0.0 || !c.is_finite() || !r.is_finite() {
                 continue;
             }
             let s = c + r;
@@ -172,15 +170,20 @@ fn balance(m: &mut DMatrix<f64>) {
             }
             if (cc + rr) < 0.95 * s {
                 converged = false;
+                d[i] *= f;
                 for j in 0..n {
-                    m[(i, j)] /= f;
+                    a[(i, j)] /= f;
                 }
                 for j in 0..n {
-                    m[(j, i)] *= f;
+                    a[(j, i)] *= f;
                 }
             }
         }
+        if converged {
+            break;
+        }
     }
+    (a, d)
 }
 
 /// Sort complex roots for stable presentation: by real part, then imaginary part.

@@ -118,58 +118,7 @@ impl Integrator {
     }
 }
 
-/// Balance a square matrix by a diagonal similarity with powers of two
-/// (Parlett–Reinsch): returns (D⁻¹ M D, d) with d the diagonal of D.
-pub fn balance(m: &DMatrix<f64>) -> (DMatrix<f64>, Vec<f64>) {
-    let n = m.nrows();
-    let mut a = m.clone();
-    let mut d = vec![1.0; n];
-    let radix = 2.0_f64;
-    for _sweep in 0..100 {
-        let mut converged = true;
-        for i in 0..n {
-            let mut c = 0.0;
-            let mut r = 0.0;
-            for j in 0..n {
-                if j != i {
-                    c += a[(j, i)].abs();
-                    r += a[(i, j)].abs();
-                }
-            }
-            if c == 0.0 || r == 0.0 || !c.is_finite() || !r.is_finite() {
-                continue;
-            }
-            let s = c + r;
-            let mut f = 1.0;
-            let mut cc = c;
-            let mut rr = r;
-            while cc < rr / radix {
-                cc *= radix;
-                rr /= radix;
-                f *= radix;
-            }
-            while cc >= rr * radix {
-                cc /= radix;
-                rr *= radix;
-                f /= radix;
-            }
-            if (cc + rr) < 0.95 * s {
-                converged = false;
-                d[i] *= f;
-                for j in 0..n {
-                    a[(i, j)] /= f;
-                }
-                for j in 0..n {
-                    a[(j, i)] *= f;
-                }
-            }
-        }
-        if converged {
-            break;
-        }
-    }
-    (a, d)
-}
+pub use kilotouch_dsp::poly::balance;
 
 /// Eigenvalues of a real square matrix (balanced first; nalgebra's Schur).
 pub fn eigenvalues(m: &DMatrix<f64>) -> Vec<C64> {
