@@ -36,22 +36,7 @@ pub const CELLS_LONG_FILE: &str = "cells_long.csv";
 /// File name of the wide summary.
 pub const CELLS_WIDE_FILE: &str = "cells_wide.csv";
 
-/// Neumaier-compensated mean of a non-empty slice (the algorithm of
-/// [`crate::stats::Design`]).
-pub fn compensated_mean(values: &[f64]) -> f64 {
-    let mut sum = 0.0_f64;
-    let mut comp = 0.0_f64;
-    for &v in values {
-        let t = sum + v;
-        if sum.abs() >= v.abs() {
-            comp += (sum - t) + v;
-        } else {
-            comp += (v - t) + sum;
-        }
-        sum = t;
-    }
-    (sum + comp) / values.len() as f64
-}
+pub use crate::stats::compensated_mean;
 
 /// One participant × condition cell.
 #[derive(Debug, Clone, PartialEq)]

@@ -12,8 +12,9 @@ use serde::Serialize;
 
 use super::error::{MissingCell, Result, StatsError};
 
-/// Neumaier-compensated mean of a non-empty slice.
-fn mean(values: &[f64]) -> f64 {
+/// Neumaier-compensated mean of a non-empty slice (Neumaier 1974): the
+/// cell means of every table the study crate writes or analyses.
+pub fn compensated_mean(values: &[f64]) -> f64 {
     let mut sum = 0.0_f64;
     let mut comp = 0.0_f64;
     for &v in values {
@@ -120,7 +121,7 @@ impl Design {
             return None;
         }
         let cell = &self.cells[subject * self.conditions.len() + condition];
-        (!cell.is_empty()).then(|| mean(cell))
+        (!cell.is_empty()).then(|| compensated_mean(cell))
     }
 
     /// Every (subject, condition) pair without data, subjects in data order.
@@ -155,7 +156,7 @@ impl Design {
         if !missing.is_empty() {
             return Err(StatsError::IncompleteDesign { missing });
         }
-        let values = self.cells.iter().map(|c| mean(c)).collect();
+        let values = self.cells.iter().map(|c| compensated_mean(c)).collect();
         Ok(CellMatrix {
             subjects: self.subjects.clone(),
             conditions: self.conditions.clone(),
@@ -207,7 +208,7 @@ impl Design {
                 let values = (0..self.subjects.len())
                     .filter_map(|si| {
                         let cell = &self.cells[si * k + ci];
-                        (!cell.is_empty()).then(|| mean(cell))
+                        (!cell.is_empty()).then(|| compensated_mean(cell))
                     })
                     .collect();
                 (c.clone(), values)
@@ -514,7 +515,7 @@ mod tests {
     #[test]
     fn compensated_mean_survives_large_offsets() {
         let big = 1e16;
-        let m = mean(&[big, 1.0, -big, 1.0]);
+        let m = compensated_mean(&[big, 1.0, -big, 1.0]);
         assert_eq!(m, 0.5);
     }
 }

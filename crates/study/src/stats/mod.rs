@@ -32,7 +32,7 @@ use std::str::FromStr;
 use serde::Serialize;
 
 pub use anova::{OneWayAnova, RmAnova, one_way_anova, oneway, rm_anova};
-pub use design::{CellMatrix, Design};
+pub use design::{CellMatrix, Design, compensated_mean};
 pub use error::{MissingCell, Result, StatsError};
 pub use friedman::{Friedman, friedman};
 pub use pairwise::{
