@@ -6,7 +6,7 @@
 //! simulated or live — that can do that at a fixed sample rate can be
 //! calibrated; the same code runs on both.
 
-use super::error::Result;
+use super::error::{CalibrationError, Result};
 use kilotouch_dsp::C64;
 use serde::{Deserialize, Serialize};
 
@@ -147,4 +147,18 @@ impl ActuatorLimits {
             Channel::High => self.max_high_drive,
         }
     }
+}
+
+/// Length check shared by every [`CalibrationRig::run`]: both drive records
+/// must be as long as the acceleration record. Returns that length.
+pub fn check_run_lengths(low_drive: &[f64], high_drive: &[f64], accel: &[f64]) -> Result<usize> {
+    let n = accel.len();
+    if low_drive.len() != n || high_drive.len() != n {
+        return Err(CalibrationError::Rig(format!(
+            "drive lengths {} and {} differ from the record length {n}",
+            low_drive.len(),
+            high_drive.len()
+        )));
+    }
+    Ok(n)
 }

@@ -5,6 +5,7 @@
 
 use super::error::{CalibrationError, Result};
 use super::hash::content_hash;
+use super::interface::check_run_lengths;
 use super::interface::{ActuatorLimits, CalibrationRig, CheckReport, RigIdentity, RunStats};
 use super::progress::Progress;
 use super::{CalibrationConfig, CalibrationOutcome, calibrate};
@@ -159,14 +160,7 @@ impl<R: Rig> CalibrationRig for RigAdapter<R> {
         high_drive: &[f64],
         accel: &mut [f64],
     ) -> Result<RunStats> {
-        let n = accel.len();
-        if low_drive.len() != n || high_drive.len() != n {
-            return Err(CalibrationError::Rig(format!(
-                "drive lengths {} and {} differ from the record length {n}",
-                low_drive.len(),
-                high_drive.len()
-            )));
-        }
+        let n = check_run_lengths(low_drive, high_drive, accel)?;
         self.ensure_running()?;
         let mut stats = RunStats {
             samples: n,

@@ -23,6 +23,7 @@
 
 use super::error::{CalibrationError, Result};
 use super::hash::content_hash;
+use super::interface::check_run_lengths;
 use super::interface::{
     ActuatorLimits, CalibrationRig, Channel, CheckReport, RigIdentity, RunStats,
 };
@@ -319,14 +320,7 @@ impl CalibrationRig for StandInRig {
         high_drive: &[f64],
         accel: &mut [f64],
     ) -> Result<RunStats> {
-        let n = accel.len();
-        if low_drive.len() != n || high_drive.len() != n {
-            return Err(CalibrationError::Rig(format!(
-                "drive lengths {} and {} differ from the record length {n}",
-                low_drive.len(),
-                high_drive.len()
-            )));
-        }
+        let n = check_run_lengths(low_drive, high_drive, accel)?;
         let c = &self.cfg;
         let mut stats = RunStats {
             samples: n,

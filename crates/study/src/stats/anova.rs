@@ -240,21 +240,7 @@ fn contrast_eigenvalues(m: &CellMatrix) -> Vec<f64> {
 /// subject shows exactly the same condition effect), where F is unbounded.
 pub fn rm_anova(m: &CellMatrix) -> Result<RmAnova> {
     const TEST: &str = "repeated-measures ANOVA";
-    let (n, k) = (m.n_subjects(), m.n_conditions());
-    if k < 2 {
-        return Err(StatsError::TooFewConditions {
-            test: TEST,
-            needed: 2,
-            got: k,
-        });
-    }
-    if n < 2 {
-        return Err(StatsError::TooFewSubjects {
-            test: TEST,
-            needed: 2,
-            got: n,
-        });
-    }
+    let (n, k) = m.require_at_least_2x2(TEST)?;
     let values = m.values();
     let scale = values.iter().fold(0.0_f64, |a, &v| a.max(v.abs()));
     let grand = values.iter().sum::<f64>() / (n * k) as f64;

@@ -269,6 +269,27 @@ pub struct CellMatrix {
 }
 
 impl CellMatrix {
+    /// `(subjects, conditions)`, or the error `test` reports when there are
+    /// fewer than 2 of either (no within-subject comparison is possible).
+    pub fn require_at_least_2x2(&self, test: &'static str) -> Result<(usize, usize)> {
+        let (n, k) = (self.n_subjects(), self.n_conditions());
+        if k < 2 {
+            return Err(StatsError::TooFewConditions {
+                test,
+                needed: 2,
+                got: k,
+            });
+        }
+        if n < 2 {
+            return Err(StatsError::TooFewSubjects {
+                test,
+                needed: 2,
+                got: n,
+            });
+        }
+        Ok((n, k))
+    }
+
     /// Builds a matrix from labels and row-major values
     /// (`values[i * conditions.len() + j]` = subject i, condition j).
     ///

@@ -50,21 +50,7 @@ pub struct Friedman {
 /// across all conditions ([`StatsError::ZeroVariance`]).
 pub fn friedman(m: &CellMatrix) -> Result<Friedman> {
     const TEST: &str = "Friedman test";
-    let (n, k) = (m.n_subjects(), m.n_conditions());
-    if k < 2 {
-        return Err(StatsError::TooFewConditions {
-            test: TEST,
-            needed: 2,
-            got: k,
-        });
-    }
-    if n < 2 {
-        return Err(StatsError::TooFewSubjects {
-            test: TEST,
-            needed: 2,
-            got: n,
-        });
-    }
+    let (n, k) = m.require_at_least_2x2(TEST)?;
     // Doubled rank sums stay exact integers.
     let mut doubled_sums = vec![0_u64; k];
     let mut ties = 0.0;
