@@ -5,7 +5,10 @@
 //! * `plant_ns_per_step`          ← `plant/dual_stage_zoh` (both axes, ZOH)
 //! * `tweezer_ns_per_step`        ← `tweezer/free_exact`
 //! * `closed_loop_ns_per_sample`  ← `closed_loop/dual` (chain + plant +
-//!   accelerometer + tweezer + coupling, one sample per `process_block`)
+//!   accelerometer + tweezer + coupling + safety layer, one sample per
+//!   `process_block`)
+//! * `safety/apply` (enabled, slew and limits active) and
+//!   `safety/apply_disabled`: the safety layer alone, per sample.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use kilotouch_rig::accel::Accelerometer;
@@ -13,7 +16,8 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
 use kilotouch_rig::lti::Integrator;
 use kilotouch_rig::plant::{Axis, AxisModel, AxisSim, DualStagePlant, NU, NX, PlantInput};
-use kilotouch_rig::rig::SimRig;
+use kilotouch_rig::rig::{ActuatorFrame, SensorFrame, SimRig};
+use kilotouch_rig::safety::{SafetyLayer, SafetyState};
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerIntegrator, TweezerParams};
 use nalgebra::SVector;
 use std::hint::black_box;
@@ -178,11 +182,48 @@ fn bench_closed_loop(c: &mut Criterion) {
     g.finish();
 }
 
+fn bench_safety(c: &mut Criterion) {
+    let cfg = RigConfig::default();
+    let mut g = c.benchmark_group("safety");
+    g.throughput(Throughput::Elements(N as u64));
+    let mut on = SafetyLayer::from_config(&cfg).expect("safety");
+    on.arm().expect("arm");
+    while on.state() != SafetyState::Enabled {
+        on.apply(ActuatorFrame::default(), &SensorFrame::default(), false);
+    }
+    let mut off = SafetyLayer::from_config(&cfg).expect("safety");
+    for (name, layer) in [("apply", &mut on), ("apply_disabled", &mut off)] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut acc = 0.0;
+                for k in 0..N {
+                    // ±12 N commands: the axis, norm and slew limits bind.
+                    let o = layer.apply(
+                        ActuatorFrame {
+                            force_n: [40.0 * drive(k), -30.0 * drive(k + 7)],
+                            haptuator_v: 10.0 * drive(k + 3),
+                        },
+                        &SensorFrame {
+                            handle_m: [1e-6 * drive(k), 0.0],
+                            ..Default::default()
+                        },
+                        false,
+                    );
+                    acc += o.force_n[0] + o.haptuator_v;
+                }
+                black_box(acc)
+            })
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
     bench_plant,
     bench_tweezer,
     bench_accel,
-    bench_closed_loop
+    bench_closed_loop,
+    bench_safety
 );
 criterion_main!(benches);

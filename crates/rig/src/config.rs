@@ -40,6 +40,9 @@ pub struct RigConfig {
     pub coupling: CouplingConfig,
     /// Actuator limits.
     pub limits: LimitsConfig,
+    /// Safety layer (`crate::safety`); absent = the defaults.
+    #[serde(default)]
+    pub safety: SafetyConfig,
 }
 
 /// `[rig]`: identity and timing.
@@ -221,6 +224,136 @@ pub struct LimitsConfig {
     pub pantograph_force_max_n: f64,
     /// Largest Haptuator drive, V.
     pub haptuator_drive_max_v: f64,
+}
+
+/// `[safety]`: the safety layer every closed-loop run passes through
+/// (`crate::safety`, `docs/safety-audio.md`). Per-axis force and drive limits
+/// are `[limits]`; this section adds the rest. Every key has a default, so a
+/// rig file may omit the section or any key of it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetyConfig {
+    /// Largest norm of the Pantograph force vector (x, y), N.
+    pub force_norm_max_n: f64,
+    /// Largest rate of change of the force vector, N/s (norm of ΔF·f_s).
+    pub force_slew_max_n_per_s: f64,
+    /// Duration of the raised-cosine ramp when forces come on, s (0 = none).
+    pub ramp_time_s: f64,
+    /// Forces come on only once the commanded force norm is below this, N.
+    pub enable_force_max_n: f64,
+    /// Handle speed above which the layer trips, m/s.
+    pub handle_velocity_max_m_s: f64,
+    /// Span L of the handle-velocity differences, samples (3 ≤ L ≤ 250).
+    pub velocity_span_samples: u32,
+    /// Length of the watchdog's sliding window, s.
+    pub watchdog_window_s: f64,
+    /// The watchdog trips when more than this fraction of the window's
+    /// samples missed their deadline (M = round(fraction·W) samples; the
+    /// fraction keeps the setting independent of the sample rate).
+    pub watchdog_max_missed_fraction: f64,
+    /// Arm when a closed loop starts (forces still wait for a small command
+    /// and ramp on).
+    pub arm_on_start: bool,
+}
+
+impl Default for SafetyConfig {
+    fn default() -> Self {
+        Self {
+            force_norm_max_n: 5.0,
+            force_slew_max_n_per_s: 2000.0,
+            ramp_time_s: 0.2,
+            enable_force_max_n: 0.05,
+            handle_velocity_max_m_s: 2.0,
+            velocity_span_samples: 10,
+            watchdog_window_s: 0.1,
+            watchdog_max_missed_fraction: 0.1,
+            arm_on_start: true,
+        }
+    }
+}
+
+impl SafetyConfig {
+    /// Ramp length at `fs` Hz: round(`ramp_time_s`·fs) samples.
+    pub fn ramp_samples(&self, fs: f64) -> u64 {
+        crate::round_half_away(self.ramp_time_s * fs).max(0.0) as u64
+    }
+
+    /// Watchdog window at `fs` Hz: round(`watchdog_window_s`·fs) samples,
+    /// at least 1.
+    pub fn watchdog_window_samples(&self, fs: f64) -> usize {
+        (crate::round_half_away(self.watchdog_window_s * fs).max(1.0) as usize)
+            .min(crate::safety::MAX_WATCHDOG_WINDOW + 1)
+    }
+
+    /// Watchdog limit at `fs` Hz: M = round(fraction·W) missed samples
+    /// (more than M trip).
+    pub fn watchdog_max_missed(&self, fs: f64) -> u32 {
+        let m = crate::round_half_away(
+            self.watchdog_max_missed_fraction * self.watchdog_window_samples(fs) as f64,
+        );
+        if m.is_finite() && m > 0.0 {
+            m.min(u32::MAX as f64) as u32
+        } else {
+            0
+        }
+    }
+
+    /// Problems for a rig at `fs` Hz as (key, value, message).
+    pub fn issue(&self, fs: f64) -> Vec<(&'static str, f64, String)> {
+        let mut v = Vec::new();
+        for (k, x) in [
+            ("force_norm_max_n", self.force_norm_max_n),
+            ("force_slew_max_n_per_s", self.force_slew_max_n_per_s),
+            ("enable_force_max_n", self.enable_force_max_n),
+            ("handle_velocity_max_m_s", self.handle_velocity_max_m_s),
+            ("watchdog_window_s", self.watchdog_window_s),
+        ] {
+            if !(x.is_finite() && x > 0.0) {
+                v.push((k, x, format!("must be finite and > 0 (got {x})")));
+            }
+        }
+        let r = self.ramp_time_s;
+        if !(r.is_finite() && (0.0..=3600.0).contains(&r)) {
+            v.push((
+                "ramp_time_s",
+                r,
+                format!("must be in [0, 3600] s (got {r})"),
+            ));
+        }
+        let l = self.velocity_span_samples;
+        if !(3..=crate::safety::MAX_VELOCITY_SPAN).contains(&l) {
+            v.push((
+                "velocity_span_samples",
+                l as f64,
+                format!(
+                    "must be in [3, {}] (got {l})",
+                    crate::safety::MAX_VELOCITY_SPAN
+                ),
+            ));
+        }
+        if self.watchdog_window_s.is_finite() && self.watchdog_window_s > 0.0 && fs.is_finite() {
+            let w = self.watchdog_window_samples(fs);
+            if w > crate::safety::MAX_WATCHDOG_WINDOW {
+                v.push((
+                    "watchdog_window_s",
+                    self.watchdog_window_s,
+                    format!(
+                        "is {w} samples at {fs} Hz; at most {} allowed",
+                        crate::safety::MAX_WATCHDOG_WINDOW
+                    ),
+                ));
+            }
+        }
+        let q = self.watchdog_max_missed_fraction;
+        if !(q.is_finite() && (0.0..1.0).contains(&q)) {
+            v.push((
+                "watchdog_max_missed_fraction",
+                q,
+                format!("must be in [0, 1) (got {q}); 1 would never trip"),
+            ));
+        }
+        v
+    }
 }
 
 impl Default for RigConfig {
@@ -519,6 +652,11 @@ impl RigConfig {
             }
             if !(c.handle_origin_m[i].is_finite() && c.trap_offset_m[i].is_finite()) {
                 v.push(("coupling", "trap_offset_m", "must be finite".into()));
+            }
+        }
+        if fs.is_finite() && fs > 0.0 {
+            for (key, _, message) in self.safety.issue(fs) {
+                v.push(("safety", key, message));
             }
         }
         v

@@ -21,10 +21,11 @@
 //! the actuator limits and a non-finite value never reaches an actuator (it
 //! is replaced by 0 and counted).
 
-use crate::config::{CouplingConfig, CouplingModeConfig, RigConfig};
+use crate::config::{CouplingConfig, CouplingModeConfig, RigConfig, SafetyConfig};
 use crate::error::RigError;
 use crate::plant::{Axis, AxisModel, Channel};
 use crate::rig::{ActuatorFrame, Rig, SensorFrame};
+use crate::safety::{SafetyLayer, SafetyStatus, TripReason};
 use crate::tweezer::{Tweezer, TweezerSample};
 use kilotouch_dsp::Tf;
 use kilotouch_dsp::chain::{Chain, ChainCoefficients, ChainDesign};
@@ -307,6 +308,11 @@ impl<S: ForceSplitter> Coupling<S> {
 
 /// A rig, a tweezer and the coupling, run sample by sample (block size 1:
 /// the force computed from the sensors of sample n is applied at n + 1).
+/// Every command passes through the [`SafetyLayer`] (`crate::safety`): hard
+/// and slew limits, ramp-on, handle-speed trip, watchdog (a block that lost
+/// frames, skipped samples or ended more than one sample period late counts
+/// as a missed deadline), emergency stop ([`ClosedLoop::estop`] or an
+/// [`EStopHandle`](crate::safety::EStopHandle) from any thread).
 #[derive(Debug)]
 pub struct ClosedLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
     /// The rig.
@@ -315,18 +321,42 @@ pub struct ClosedLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
     pub tweezer: T,
     /// The coupling.
     pub coupling: Coupling<S>,
+    /// The safety layer every command passes through.
+    pub safety: SafetyLayer,
     sensors: SensorFrame,
+    missed: bool,
 }
 
 impl<R: Rig, T: Tweezer, S: ForceSplitter> ClosedLoop<R, T, S> {
-    /// Assemble; starts the rig.
-    pub fn new(mut rig: R, tweezer: T, coupling: Coupling<S>) -> Result<Self, RigError> {
+    /// Assemble with the default `[safety]` settings and the rig's own
+    /// limits and rate ([`SafetyLayer::for_rig`]); starts the rig and arms
+    /// the layer (forces come on once the command is small, through the
+    /// ramp).
+    pub fn new(rig: R, tweezer: T, coupling: Coupling<S>) -> Result<Self, RigError> {
+        let safety = SafetyLayer::for_rig(rig.identity(), &SafetyConfig::default())?;
+        Self::with_safety(rig, tweezer, coupling, safety)
+    }
+
+    /// Assemble with an explicit safety layer (e.g.
+    /// [`SafetyLayer::from_config`] for a rig file's `[safety]`); starts the
+    /// rig and arms the layer when its `arm_on_start` is set.
+    pub fn with_safety(
+        mut rig: R,
+        tweezer: T,
+        coupling: Coupling<S>,
+        mut safety: SafetyLayer,
+    ) -> Result<Self, RigError> {
         rig.start()?;
+        if safety.arm_on_start() {
+            safety.arm()?;
+        }
         Ok(Self {
             rig,
             tweezer,
             coupling,
+            safety,
             sensors: SensorFrame::default(),
+            missed: false,
         })
     }
 
@@ -335,12 +365,33 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> ClosedLoop<R, T, S> {
         &self.sensors
     }
 
+    /// Safety state, trip and counters.
+    pub fn safety_status(&self) -> SafetyStatus {
+        self.safety.status()
+    }
+
+    /// Emergency stop: zero output from the next sample, latched until
+    /// `safety.reset()` and `safety.arm()`.
+    pub fn estop(&mut self) {
+        self.safety.estop();
+    }
+
     /// Advance one sample; returns the command sent and the tweezer sample.
     #[inline]
     pub fn step(&mut self) -> Result<(ActuatorFrame, TweezerSample), RigError> {
         let (cmd, s) = self.coupling.step(&self.sensors, &mut self.tweezer);
+        let cmd = self.safety.apply(cmd, &self.sensors, self.missed);
         let mut out = [SensorFrame::default()];
-        self.rig.process_block(&[cmd], &mut out)?;
+        let report = match self.rig.process_block(&[cmd], &mut out) {
+            Ok(r) => r,
+            Err(e) => {
+                self.safety.fault(TripReason::RigError);
+                return Err(e);
+            }
+        };
+        self.missed = report.lost_frames > 0
+            || report.skipped_samples > 0
+            || report.lag_s * self.safety.sample_rate_hz() > 1.0;
         self.sensors = out[0];
         Ok((cmd, s))
     }

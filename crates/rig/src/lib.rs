@@ -20,6 +20,7 @@ pub mod lorentzian;
 pub mod lti;
 pub mod plant;
 pub mod rig;
+pub mod safety;
 pub mod sim;
 pub mod tweezer;
 

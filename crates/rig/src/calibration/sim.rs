@@ -31,11 +31,13 @@ pub struct RigAdapter<R: Rig> {
 
 /// Hash of a rig configuration for [`RigIdentity::config_hash`]: the
 /// content hash ([`super::hash`]) of the configuration with the noise seeds
-/// set to zero — a different seed is the same rig.
+/// set to zero and the `[safety]` section at its defaults — a different seed
+/// or safety setting is the same rig.
 pub fn rig_config_hash(cfg: &RigConfig) -> Result<String> {
     let mut c = cfg.clone();
     c.accelerometer.seed = 0;
     c.tweezer.seed = 0;
+    c.safety = crate::config::SafetyConfig::default();
     content_hash(&c)
 }
 
