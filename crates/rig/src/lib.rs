@@ -12,6 +12,8 @@
 //! `docs/THEORY.md`; speed and accuracy tables: `docs/PERFORMANCE.md`.
 
 pub mod accel;
+#[cfg(feature = "audio")]
+pub mod audio;
 pub mod calibration;
 pub mod config;
 pub mod coupling;
