@@ -424,8 +424,9 @@ impl Watchdog {
     }
 }
 
-/// The safety layer (module docs).
-#[derive(Debug, Clone)]
+/// The safety layer (module docs). Not `Clone`: a copy would share the
+/// emergency-stop flag of its [`EStopHandle`]s.
+#[derive(Debug)]
 pub struct SafetyLayer {
     limits: HardLimits,
     fs: f64,

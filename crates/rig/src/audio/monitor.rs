@@ -15,8 +15,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// delay, so that the next input sample is known before it is needed):
 /// y[m] = x[k] + (p_m − k)(x[k+1] − x[k]), k = ⌊p_m⌋. For a sinusoid of
 /// amplitude A at f the error is at most A(2πf/f_in)²/8 (the interpolation
-/// error h²/8·max|x''| with h one input sample), e.g. −44 dB re A at 1 kHz
-/// from 10 kHz; the images above f_in/2 are attenuated by sinc² of the
+/// error h²/8·max|x''| with h one input sample), e.g. 0.049·A (−26 dB) at
+/// 1 kHz from 10 kHz; the images above f_in/2 are attenuated by sinc² of the
 /// triangular kernel. Adequate for listening, not for measurement.
 #[derive(Debug, Clone)]
 pub struct LinearResampler {
