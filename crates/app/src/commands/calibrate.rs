@@ -6,7 +6,9 @@ use crate::output::emit;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::calibration::sim::{calibrate_sim, rig_config_hash};
-use kilotouch_rig::calibration::{CalibrationConfig, CalibrationOutcome, RigAdapter, Step, calibrate};
+use kilotouch_rig::calibration::{
+    CalibrationConfig, CalibrationOutcome, RigAdapter, Step, calibrate,
+};
 use kilotouch_rig::live::{RigSpec, SerialConfig, SerialRig};
 use kilotouch_rig::rig::Rig;
 use std::io::{IsTerminal, Write};

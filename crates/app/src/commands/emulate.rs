@@ -52,6 +52,9 @@ pub struct Args {
     /// Hang (no input, no output) after this many seconds.
     #[arg(long)]
     pub stall_after_s: Option<f64>,
+    /// Length of the stall, s (default: for ever).
+    #[arg(long)]
+    pub stall_for_s: Option<f64>,
     /// Close the pty and exit after this many seconds.
     #[arg(long)]
     pub disconnect_after_s: Option<f64>,
@@ -80,6 +83,7 @@ impl Args {
                 corrupt_rate: self.corrupt_rate,
                 drop_rate: self.drop_rate,
                 stall_after: secs("stall-after-s", self.stall_after_s)?,
+                stall_for: secs("stall-for-s", self.stall_for_s)?,
                 disconnect_after: secs("disconnect-after-s", self.disconnect_after_s)?,
                 seed: self.seed.unwrap_or(0),
             },

@@ -25,8 +25,10 @@
 //!
 //! # Watchdog
 //!
-//! When no valid host frame has arrived for `watchdog` while running, the
-//! outputs are set to the instrument's safe command (DAQ: all zero), a FAULT
+//! When the device has run out of commands and no valid host frame has
+//! arrived for `watchdog` (counted from the later of the last valid host
+//! frame and the moment the commands ran out: commands the host sent ahead
+//! are played out, at most [`COMMAND_RING`] samples), the outputs are set to the instrument's safe command (DAQ: all zero), a FAULT
 //! (watchdog) and a STATUS (tripped) frame are sent, and the device stops
 //! streaming until the next START.
 //!
@@ -34,7 +36,8 @@
 //!
 //! Every outgoing byte is dropped with probability `drop_rate`, else XORed
 //! with a random non-zero byte with probability `corrupt_rate`; after
-//! `stall_after` the device neither reads nor writes (a hung firmware);
+//! `stall_after` the device neither reads nor writes (a hung firmware), for
+//! `stall_for` or for ever;
 //! after `disconnect_after` [`Emulator::advance`] returns
 //! [`Next::Disconnect`] (the transport then closes: an unplugged cable).
 
@@ -79,8 +82,11 @@ pub struct FaultInjection {
     pub corrupt_rate: f64,
     /// Probability that an outgoing byte is dropped, in [0, 1].
     pub drop_rate: f64,
-    /// Hang (no input, no output) this long after creation.
+    /// Hang (no input, no output) this long after creation…
     pub stall_after: Option<Duration>,
+    /// …for this long (`None`: for ever). Input arriving during the stall
+    /// is lost; afterwards the watchdog has tripped.
+    pub stall_for: Option<Duration>,
     /// Disconnect this long after creation.
     pub disconnect_after: Option<Duration>,
     /// Seed of the fault generator.
@@ -201,6 +207,7 @@ pub struct Emulator<I: Instrument> {
     batch_seq: u64,
     last_host: Duration,
     waiting_status_at: Option<Duration>,
+    waiting_since: Option<Duration>,
     created: Duration,
     out: Vec<u8>,
     scratch: Vec<u8>,
@@ -240,6 +247,7 @@ impl<I: Instrument> Emulator<I> {
             batch_seq: 0,
             last_host: now,
             waiting_status_at: None,
+            waiting_since: None,
             created: now,
             out: Vec::with_capacity(1 << 16),
             scratch: Vec::with_capacity(4096),
@@ -279,10 +287,10 @@ impl<I: Instrument> Emulator<I> {
     }
 
     fn stalled(&self, now: Duration) -> bool {
-        self.cfg
-            .faults
-            .stall_after
-            .is_some_and(|s| now.saturating_sub(self.created) >= s)
+        let t = now.saturating_sub(self.created);
+        let f = self.cfg.faults;
+        f.stall_after
+            .is_some_and(|s| t >= s && f.stall_for.is_none_or(|d| t < s + d))
     }
 
     /// Bytes waiting to be sent.
@@ -464,6 +472,7 @@ impl<I: Instrument> Emulator<I> {
         self.applied = self.inst.safe_command(&self.applied);
         self.ring.fill(None);
         self.waiting_status_at = None;
+        self.waiting_since = None;
     }
 
     /// Wall time at which sample `seq` is due (end of its period).
@@ -487,15 +496,6 @@ impl<I: Instrument> Emulator<I> {
             return Next::WakeAt(now + Duration::from_millis(50));
         }
         if self.state != DeviceState::Running {
-            return Next::WakeAt(now + Duration::from_millis(50));
-        }
-        if now.saturating_sub(self.last_host) >= self.cfg.watchdog {
-            // Watchdog: outputs safe, report, stop streaming.
-            self.flush_batch();
-            self.stats.watchdog_trips += 1;
-            self.go_idle(DeviceState::Tripped);
-            self.send_fault(fault::WATCHDOG);
-            self.send_status();
             return Next::WakeAt(now + Duration::from_millis(50));
         }
         let elapsed = now.saturating_sub(self.anchor_time).as_secs_f64();
@@ -526,21 +526,38 @@ impl<I: Instrument> Emulator<I> {
                 self.flush_batch();
             }
         }
-        if waiting {
+        if !waiting {
+            self.waiting_since = None;
+        } else {
             self.flush_batch();
+            // The watchdog window runs from the later of the last valid host
+            // frame and the moment the device ran out of commands.
+            let since = *self
+                .waiting_since
+                .get_or_insert(self.due_time(self.next_seq).min(now));
+            let deadline = self.last_host.max(since) + self.cfg.watchdog;
+            if now >= deadline {
+                // Watchdog: outputs safe, report, stop streaming.
+                self.stats.watchdog_trips += 1;
+                self.go_idle(DeviceState::Tripped);
+                self.send_fault(fault::WATCHDOG);
+                self.send_status();
+                return Next::WakeAt(now + Duration::from_millis(50));
+            }
             if self.waiting_status_at.is_none_or(|t| now >= t) {
                 self.send_status();
                 self.waiting_status_at = Some(now + STATUS_PERIOD);
             }
         }
-        // Wake when the current batch will be full, at a status repeat, or
-        // at the watchdog deadline, whichever comes first.
+        // Wake when the current batch will be full, or while waiting at the
+        // next status repeat or the watchdog deadline, whichever comes first.
         let fill = self.next_seq + (self.cfg.batch - self.batch.len()) as u64 - 1;
         let mut wake = self.due_time(fill.max(pos));
-        if waiting {
-            wake = wake.min(self.waiting_status_at.unwrap_or(wake));
+        if let (true, Some(since)) = (waiting, self.waiting_since) {
+            wake = wake
+                .min(self.waiting_status_at.unwrap_or(wake))
+                .min(self.last_host.max(since) + self.cfg.watchdog);
         }
-        wake = wake.min(self.last_host + self.cfg.watchdog);
         Next::WakeAt(wake.max(now))
     }
 }
