@@ -120,7 +120,8 @@ struct Exchange {
 /// [`super::tweezer_link::LinkTweezer`].
 pub struct Link {
     cfg: SerialConfig,
-    port: Box<dyn SerialPort>,
+    /// `None` only while reopening.
+    port: Option<Box<dyn SerialPort>>,
     decoder: Decoder,
     rx: Box<[u8]>,
     pub(crate) tx: Vec<u8>,
@@ -155,7 +156,7 @@ impl Link {
         let port = open_port(cfg)?;
         let mut link = Self {
             cfg: cfg.clone(),
-            port,
+            port: Some(port),
             decoder: Decoder::new(),
             rx: vec![0u8; frame::MAX_FRAME].into_boxed_slice(),
             tx: Vec::with_capacity(1 << 16),
@@ -180,7 +181,9 @@ impl Link {
 
     /// Reopen the port (after a disconnect) and handshake again.
     pub fn reopen(&mut self, kind: DeviceKind) -> Result<(), RigError> {
-        self.port = open_port(&self.cfg)?;
+        // Close first: the port is opened with an exclusive lock.
+        self.port = None;
+        self.port = Some(open_port(&self.cfg)?);
         self.decoder_base = self.decoder_stats_total();
         self.decoder = Decoder::new();
         self.handshake(kind)
@@ -240,10 +243,12 @@ impl Link {
 
     /// Send the bytes in `tx` and clear it.
     pub(crate) fn flush_tx(&mut self) -> Result<(), RigError> {
-        let _ = self
-            .port
-            .set_timeout(self.cfg.timeout.max(Duration::from_millis(10)));
-        let r = self.port.write_all(&self.tx);
+        let Some(port) = self.port.as_mut() else {
+            self.tx.clear();
+            return Err(self.disconnected("the port is closed"));
+        };
+        let _ = port.set_timeout(self.cfg.timeout.max(Duration::from_millis(10)));
+        let r = port.write_all(&self.tx);
         self.tx.clear();
         r.map_err(|e| self.disconnected(&format!("write failed, the device vanished ({e})")))
     }
@@ -251,8 +256,14 @@ impl Link {
     /// Read whatever arrives within `wait` into the decoder. `Ok(false)`:
     /// nothing arrived.
     fn read_some(&mut self, wait: Duration) -> Result<bool, LinkErr> {
-        let _ = self.port.set_timeout(wait);
-        match self.port.read(&mut self.rx) {
+        let Some(port) = self.port.as_mut() else {
+            return Err(LinkErr::Io(std::io::Error::new(
+                ErrorKind::NotConnected,
+                "the port is closed",
+            )));
+        };
+        let _ = port.set_timeout(wait);
+        match port.read(&mut self.rx) {
             Ok(0) => Err(LinkErr::Io(std::io::Error::new(
                 ErrorKind::UnexpectedEof,
                 "end of file on the port",
@@ -310,7 +321,9 @@ impl Link {
     }
 
     fn handshake(&mut self, kind: DeviceKind) -> Result<(), RigError> {
-        let _ = self.port.clear(ClearBuffer::Input);
+        if let Some(p) = self.port.as_mut() {
+            let _ = p.clear(ClearBuffer::Input);
+        }
         self.decoder.clear();
         let deadline = Instant::now() + self.cfg.handshake_timeout;
         let mut buf = [0u8; frame::MAX_PAYLOAD];
@@ -377,8 +390,10 @@ impl Link {
     pub fn stop(&mut self) {
         self.tx.clear();
         frame::write_frame(&mut self.tx, frame::ty::STOP, |_| {});
-        let _ = self.port.set_timeout(Duration::from_millis(20));
-        let _ = self.port.write_all(&self.tx);
+        if let Some(p) = self.port.as_mut() {
+            let _ = p.set_timeout(Duration::from_millis(20));
+            let _ = p.write_all(&self.tx);
+        }
         self.tx.clear();
     }
 
@@ -492,6 +507,12 @@ impl Link {
             if idle >= cfg.timeout {
                 return Err(LinkErr::Stalled);
             }
+            let Some(port) = port.as_mut() else {
+                return Err(LinkErr::Io(std::io::Error::new(
+                    ErrorKind::NotConnected,
+                    "the port is closed",
+                )));
+            };
             let _ = port.set_timeout((cfg.timeout - idle).min(Duration::from_millis(20)));
             match port.read(rx) {
                 Ok(0) => {
