@@ -9,7 +9,10 @@ use std::process::{Command, Stdio};
 fn rig_check_streams_10_khz_for_60_s_with_no_lost_frame() {
     let bin = env!("CARGO_BIN_EXE_kilotouch");
     let mut emu = Command::new(bin)
-        .args(["emulate", "daq", "--pty"])
+        // Generous watchdog and host timeout: a shared CI machine may
+        // deschedule either process for tens of ms; what is under test is
+        // the stream (rate, lost frames), not the fault timing.
+        .args(["emulate", "daq", "--pty", "--watchdog-ms", "1000"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -18,7 +21,7 @@ fn rig_check_streams_10_khz_for_60_s_with_no_lost_frame() {
     BufReader::new(emu.stdout.take().expect("stdout"))
         .read_line(&mut path)
         .expect("pty path");
-    let rig = format!("serial:{}", path.trim());
+    let rig = format!("serial:{},timeout-ms=1000", path.trim());
     let out = Command::new(bin)
         .args(["rig", "check", "--rig", &rig, "--duration", "60", "--json"])
         .output()

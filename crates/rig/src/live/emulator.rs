@@ -223,7 +223,7 @@ impl<I: Instrument> Emulator<I> {
         hello.watchdog_ms = cfg.watchdog.as_millis().min(u128::from(u16::MAX)) as u16;
         hello.batch = cfg.batch as u8;
         let fs = f64::from(hello.sample_rate_hz);
-        if !(fs > 0.0) {
+        if fs.is_nan() || fs <= 0.0 {
             return Err(RigError::InvalidParameter {
                 name: "sample_rate_hz",
                 value: fs,
@@ -379,10 +379,7 @@ impl<I: Instrument> Emulator<I> {
         while !data.is_empty() {
             let n = self.decoder.push(data);
             data = &data[n..];
-            loop {
-                let Some(f) = self.decoder.next_frame() else {
-                    break;
-                };
+            while let Some(f) = self.decoder.next_frame() {
                 let (ty, len) = (f.ty, f.payload.len());
                 let mut payload = [0u8; frame::MAX_PAYLOAD];
                 payload[..len].copy_from_slice(f.payload);
@@ -638,7 +635,7 @@ pub fn code_to_value(code: i16, max: f64) -> f64 {
 /// i16 output code of `v` with full scale `max` (rounded, saturated;
 /// non-finite → 0). Returns (code, clamped?).
 pub fn value_to_code(v: f64, max: f64) -> (i16, bool) {
-    if !v.is_finite() || !(max > 0.0) {
+    if !v.is_finite() || max.is_nan() || max <= 0.0 {
         return (0, false);
     }
     let x = crate::round_half_away(v / max * 32767.0);

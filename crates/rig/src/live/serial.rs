@@ -411,6 +411,7 @@ impl Link {
         let mut expected = first;
         let mut ex = Exchange::default();
         let mut last_frame = Instant::now();
+        let mut grace_used = false;
         let Self {
             decoder,
             stats,
@@ -467,12 +468,10 @@ impl Link {
                         };
                         let next = frame::unwrap_seq(st.next_seq, expected);
                         match st.state {
-                            DeviceState::Running => {
-                                if next > expected {
-                                    let to = next.min(end);
-                                    fill_lost(expected, to, &mut ex, stats, &mut sink);
-                                    expected = to;
-                                }
+                            DeviceState::Running if next > expected => {
+                                let to = next.min(end);
+                                fill_lost(expected, to, &mut ex, stats, &mut sink);
+                                expected = to;
                             }
                             DeviceState::Tripped if next >= expected => {
                                 return Err(LinkErr::Watchdog {
@@ -503,17 +502,27 @@ impl Link {
             if expected >= end {
                 return Ok(ex);
             }
+            // Past the timeout, look once more without waiting before
+            // declaring a stall: the host itself may have been descheduled
+            // while the device's frames were arriving.
             let idle = last_frame.elapsed();
-            if idle >= cfg.timeout {
-                return Err(LinkErr::Stalled);
-            }
+            let wait = if idle >= cfg.timeout {
+                if grace_used {
+                    return Err(LinkErr::Stalled);
+                }
+                grace_used = true;
+                Duration::from_millis(1)
+            } else {
+                grace_used = false;
+                (cfg.timeout - idle).min(Duration::from_millis(20))
+            };
             let Some(port) = port.as_mut() else {
                 return Err(LinkErr::Io(std::io::Error::new(
                     ErrorKind::NotConnected,
                     "the port is closed",
                 )));
             };
-            let _ = port.set_timeout((cfg.timeout - idle).min(Duration::from_millis(20)));
+            let _ = port.set_timeout(wait);
             match port.read(rx) {
                 Ok(0) => {
                     return Err(LinkErr::Io(std::io::Error::new(
@@ -867,10 +876,10 @@ impl Rig for SerialRig {
                 }) if self.link.config().rearm_after_idle_trip && !retried => {
                     retried = true;
                     self.faults.push(RigFault::WatchdogTripped { seq: s });
-                    self.next_seq = self.link.start().map_err(|e| {
-                        self.state = RigState::Disconnected;
-                        e
-                    })?;
+                    self.next_seq = self
+                        .link
+                        .start()
+                        .inspect_err(|_| self.state = RigState::Disconnected)?;
                 }
                 Err(e) => return Err(self.fail(e)),
             }
