@@ -42,6 +42,9 @@ pub enum Command {
     Sim(commands::sim::SimCommand),
     /// Measure the speed of the signal chain and of Welch's estimator.
     Bench(commands::bench::Args),
+    /// Device emulators serving the serial protocol on a pseudo-terminal (for tests and firmware work).
+    #[command(subcommand)]
+    Emulate(commands::emulate::EmulateCommand),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -88,6 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Rig(c)) => commands::rig::run(&c),
         Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
+        Some(Command::Emulate(c)) => commands::emulate::run(&c),
     }
 }
 

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod crossover;
+pub mod emulate;
 pub mod frf;
 pub mod psd;
 pub mod rig;

@@ -18,6 +18,7 @@ pub mod calibration;
 pub mod config;
 pub mod coupling;
 pub mod error;
+pub mod live;
 pub mod lorentzian;
 pub mod lti;
 pub mod plant;

@@ -3,8 +3,14 @@
 //! centres) on a rig, headless.
 
 use crate::output::emit;
-use kilotouch_rig::calibration::sim::calibrate_sim;
-use kilotouch_rig::calibration::{CalibrationConfig, Step};
+use kilotouch_rig::RigConfig;
+use kilotouch_rig::accel::Accelerometer;
+use kilotouch_rig::calibration::sim::{calibrate_sim, rig_config_hash};
+use kilotouch_rig::calibration::{
+    CalibrationConfig, CalibrationOutcome, RigAdapter, Step, calibrate,
+};
+use kilotouch_rig::live::{RigSpec, SerialConfig, SerialRig};
+use kilotouch_rig::rig::Rig;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -12,10 +18,13 @@ use std::sync::atomic::AtomicBool;
 /// Arguments of `kilotouch calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Rig to calibrate: `sim` (the simulated rig).
+    /// Rig to calibrate: `sim` (the simulated rig) or `serial:PATH[,baud=N][,timeout-ms=N]`
+    /// (a DAQ speaking docs/PROTOCOL.md, e.g. `kilotouch emulate daq --pty`).
     #[arg(long, default_value = "sim")]
     pub rig: String,
-    /// Rig file for the simulated rig (default: the built-in rig).
+    /// Rig file: the simulated rig, or for a serial rig the description of its
+    /// accelerometer (whose response is divided out) and the configuration hash
+    /// stored in the calibration file (default: the built-in rig).
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
     /// Seed of the simulated sensor noise.
@@ -68,14 +77,42 @@ impl StderrProgress {
     }
 }
 
-/// Run the command.
-pub fn run(a: &Args) -> anyhow::Result<()> {
-    if a.rig != "sim" {
+/// Calibrate the DAQ on a serial link: the rig file describes its
+/// accelerometer (response divided out) and identifies its configuration.
+fn calibrate_serial(
+    cfg: &SerialConfig,
+    rig_config: Option<&std::path::Path>,
+    cal_cfg: &CalibrationConfig,
+    out: Option<&std::path::Path>,
+    progress: &mut dyn kilotouch_rig::calibration::Progress,
+    cancel: &AtomicBool,
+) -> anyhow::Result<CalibrationOutcome> {
+    let rc = match rig_config {
+        Some(p) => RigConfig::load(p)?,
+        None => RigConfig::default(),
+    };
+    let mut cfg = cfg.clone();
+    // The device idles between runs while the host computes; its watchdog
+    // may trip then, with nothing owed: restart it instead of failing.
+    cfg.rearm_after_idle_trip = true;
+    let rig = SerialRig::open(&cfg)?;
+    let fs = rig.sample_rate_hz();
+    if (fs - rc.rig.sample_rate_hz).abs() > 1e-9 * fs {
         anyhow::bail!(
-            "--rig {}: only the simulated rig (`--rig sim`) is available in this build",
-            a.rig
+            "the device runs at {fs} Hz but the rig file says {} Hz",
+            rc.rig.sample_rate_hz
         );
     }
+    let sensor = Accelerometer::new(&rc.accelerometer, fs)?;
+    let mut adapter = RigAdapter::new(rig, rig_config_hash(&rc)?, Some(sensor));
+    let outcome = calibrate(&mut adapter, cal_cfg, out, progress, cancel);
+    let _ = adapter.rig_mut().stop();
+    Ok(outcome?)
+}
+
+/// Run the command.
+pub fn run(a: &Args) -> anyhow::Result<()> {
+    let spec: RigSpec = a.rig.parse()?;
     let cal_cfg = CalibrationConfig::default();
     let cancel = AtomicBool::new(false);
     let mut bar = StderrProgress {
@@ -84,14 +121,28 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
     };
     let mut progress =
         |step: Step, fraction: f64, message: &str| bar.report(step, fraction, message);
-    let outcome = calibrate_sim(
-        a.rig_config.as_deref(),
-        a.seed,
-        &cal_cfg,
-        a.out.as_deref(),
-        &mut progress,
-        &cancel,
-    )?;
+    let outcome = match &spec {
+        RigSpec::Sim => calibrate_sim(
+            a.rig_config.as_deref(),
+            a.seed,
+            &cal_cfg,
+            a.out.as_deref(),
+            &mut progress,
+            &cancel,
+        )?,
+        RigSpec::Serial(cfg) => calibrate_serial(
+            cfg,
+            a.rig_config.as_deref(),
+            &cal_cfg,
+            a.out.as_deref(),
+            &mut progress,
+            &cancel,
+        )
+        .map_err(|e| anyhow::anyhow!("--rig {}: {e:#}", spec.describe()))?,
+        RigSpec::Audio(_) => {
+            anyhow::bail!("--rig {}: {}", spec.describe(), RigSpec::audio_not_built())
+        }
+    };
     let report = outcome.report();
     if let Some(p) = &a.out {
         eprintln!("calibration file written to {}", p.display());

@@ -1,7 +1,16 @@
 //! `kilotouch rig …`: rig files and rig checks.
 
+use anyhow::Context;
 use clap::Subcommand;
+use kilotouch_rig::RigConfig;
 use kilotouch_rig::config::default_config_text;
+use kilotouch_rig::live::{RigSpec, SerialRig};
+use kilotouch_rig::rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::output::emit;
 
 /// `kilotouch rig` subcommands.
 #[derive(Debug, Subcommand)]
@@ -15,6 +24,159 @@ pub enum RigCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Stream zero commands to a rig for a while and report frames, lost frames, CRC errors and the rate.
+    Check(CheckArgs),
+}
+
+/// Arguments of `kilotouch rig check`.
+#[derive(Debug, clap::Args)]
+pub struct CheckArgs {
+    /// Rig: `sim` (paced simulation), `serial:PATH[,baud=N][,timeout-ms=N]`, `audio[:DEVICE]`.
+    #[arg(long, default_value = "sim")]
+    pub rig: String,
+    /// Streaming time, s.
+    #[arg(long, default_value_t = 5.0)]
+    pub duration: f64,
+    /// Frames per block.
+    #[arg(long, default_value_t = 100)]
+    pub block: usize,
+    /// Rig file of the simulated rig.
+    #[arg(long)]
+    pub rig_config: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Result of `rig check` (JSON with `--json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct CheckReport {
+    /// The rig checked.
+    pub rig: String,
+    /// Device name.
+    pub device: String,
+    /// Device firmware.
+    pub firmware: String,
+    /// Nominal sample rate, Hz.
+    pub nominal_rate_hz: f64,
+    /// Frames exchanged (received + lost).
+    pub frames: u64,
+    /// Frames received.
+    pub received: u64,
+    /// Frames lost (sequence gaps).
+    pub lost: u64,
+    /// Candidate frames with a bad CRC (serial rigs).
+    pub crc_errors: u64,
+    /// Bytes skipped while resynchronising (serial rigs).
+    pub bytes_skipped: u64,
+    /// Samples executed by the device with a held (late) command.
+    pub late_commands: u64,
+    /// Measured rate: frames / wall time of the streaming, Hz.
+    pub rate_hz: f64,
+    /// Wall time of the streaming, s.
+    pub duration_s: f64,
+    /// Longest `process_block` call, ms.
+    pub max_block_ms: f64,
+}
+
+impl CheckReport {
+    fn table(&self) -> String {
+        format!(
+            "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
+             crc errors {} ({} bytes skipped)\n  late commands {}\n  rate      {:.1} Hz \
+             (nominal {:.0} Hz) over {:.2} s, longest block {:.2} ms\n",
+            self.rig,
+            self.device,
+            self.firmware,
+            self.frames,
+            self.received,
+            self.lost,
+            self.crc_errors,
+            self.bytes_skipped,
+            self.late_commands,
+            self.rate_hz,
+            self.nominal_rate_hz,
+            self.duration_s,
+            self.max_block_ms
+        )
+    }
+}
+
+/// Stream zero commands through `rig` for `duration` s in blocks of `block`.
+fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> anyhow::Result<(u64, u64, f64, f64)> {
+    let cmds = vec![ActuatorFrame::default(); block];
+    let mut sens = vec![SensorFrame::default(); block];
+    rig.start()?;
+    let t0 = Instant::now();
+    let (mut frames, mut lost, mut max_block) = (0u64, 0u64, 0.0f64);
+    while t0.elapsed().as_secs_f64() < duration {
+        let tb = Instant::now();
+        let r = rig.process_block(&cmds, &mut sens)?;
+        max_block = max_block.max(tb.elapsed().as_secs_f64());
+        frames += r.frames as u64;
+        lost += u64::from(r.lost_frames);
+    }
+    let elapsed = t0.elapsed().as_secs_f64();
+    rig.stop()?;
+    Ok((frames, lost, elapsed, max_block))
+}
+
+fn check(a: &CheckArgs) -> anyhow::Result<CheckReport> {
+    if !(a.duration.is_finite() && a.duration > 0.0) {
+        anyhow::bail!("--duration must be finite and > 0, got {}", a.duration);
+    }
+    if !(1..=65_536).contains(&a.block) {
+        anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
+    }
+    let spec: RigSpec = a.rig.parse()?;
+    match &spec {
+        RigSpec::Sim => {
+            let rc = match &a.rig_config {
+                Some(p) => RigConfig::load(p)?,
+                None => RigConfig::default(),
+            };
+            let mut rig = SimRig::paced(&rc, 0.5)?;
+            let (frames, lost, elapsed, max_block) = stream(&mut rig, a.duration, a.block)?;
+            let id = rig.identity().clone();
+            Ok(CheckReport {
+                rig: spec.describe(),
+                device: id.name,
+                firmware: id.firmware,
+                nominal_rate_hz: id.sample_rate_hz,
+                frames,
+                received: frames - lost,
+                lost,
+                crc_errors: 0,
+                bytes_skipped: 0,
+                late_commands: 0,
+                rate_hz: frames as f64 / elapsed,
+                duration_s: elapsed,
+                max_block_ms: 1e3 * max_block,
+            })
+        }
+        RigSpec::Serial(cfg) => {
+            let mut rig = SerialRig::open(cfg)?;
+            let (frames, lost, elapsed, max_block) = stream(&mut rig, a.duration, a.block)?;
+            let id = rig.identity().clone();
+            let ls = rig.link_stats();
+            Ok(CheckReport {
+                rig: spec.describe(),
+                device: id.name,
+                firmware: id.firmware,
+                nominal_rate_hz: id.sample_rate_hz,
+                frames,
+                received: frames - lost,
+                lost,
+                crc_errors: ls.crc_errors,
+                bytes_skipped: ls.bytes_skipped,
+                late_commands: ls.late_commands,
+                rate_hz: frames as f64 / elapsed,
+                duration_s: elapsed,
+                max_block_ms: 1e3 * max_block,
+            })
+        }
+        RigSpec::Audio(_) => Err(RigSpec::audio_not_built().into()),
+    }
 }
 
 /// Run a `rig` subcommand.
@@ -26,6 +188,10 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
         }
         #[cfg(feature = "audio")]
         RigCommand::ListAudio { json } => list_audio(*json),
+        RigCommand::Check(a) => {
+            let report = check(a).with_context(|| format!("rig check --rig {}", a.rig))?;
+            emit(a.json, &report, || report.table())
+        }
     }
 }
 

@@ -1,0 +1,27 @@
+//! Live rigs over a serial link: the protocol of `docs/PROTOCOL.md`, the
+//! host side ([`SerialRig`], [`LinkTweezer`]) and the device emulators that
+//! serve the protocol on a pseudo-terminal with the simulated plant or
+//! tweezer behind it (`kilotouch emulate daq|tweezer --pty`).
+//!
+//! * [`frame`]: framing (sync, length, type, payload, CRC-16/CCITT-FALSE),
+//!   payloads and the resynchronising [`frame::Decoder`].
+//! * [`emulator`]: device logic independent of the transport (pacing,
+//!   command buffer, batching, watchdog, fault injection), with the DAQ
+//!   instrument ([`emulator::DaqInstrument`]).
+//! * [`pty`]: pseudo-terminal creation and the serving loop.
+//! * [`serial`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`serial::Link`].
+//! * [`tweezer_link`]: [`LinkTweezer`] ([`crate::Tweezer`]) and the tweezer
+//!   instrument.
+//! * [`spec`]: parsing of `--rig sim | serial:PATH[,baud=N] | audio[:DEVICE]`.
+
+pub mod emulator;
+pub mod frame;
+pub mod pty;
+pub mod serial;
+pub mod spec;
+pub mod tweezer_link;
+
+pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection};
+pub use serial::{LinkStats, SerialConfig, SerialRig};
+pub use spec::RigSpec;
+pub use tweezer_link::{LinkTweezer, TweezerInstrument};

@@ -1,0 +1,953 @@
+//! Host side of the serial protocol: the link ([`Link`]: port, handshake,
+//! sequence tracking) and the serial DAQ rig ([`SerialRig`]: [`Rig`]).
+//!
+//! `process_block` sends the block's commands (COMMANDS frames, sequence
+//! numbers `first_seq + i`), then reads device frames until every sample
+//! `first_seq .. first_seq + n` is accounted for: received, or lost — a gap
+//! in the sequence numbers of SAMPLES frames, or samples a STATUS frame
+//! says were executed but never arrived. Lost samples become placeholder
+//! frames flagged [`FrameFlags::LOST`] holding the last good values. If no
+//! valid frame arrives for [`SerialConfig::timeout`] the rig commands the
+//! outputs to zero (STOP), enters [`RigState::Disconnected`] and returns
+//! [`RigError::Disconnected`]; an I/O error or end of file on the port
+//! (device unplugged, emulator killed) does the same at once.
+//! [`SerialRig::reconnect`] reopens the port.
+//!
+//! After `start` nothing is allocated: the receive buffer, the decoder and
+//! the transmit buffer are sized when the port is opened, commands are
+//! converted to codes in a fixed array.
+
+use super::emulator::value_to_code;
+use super::frame::{
+    self, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DeviceKind, DeviceState, Hello,
+    PROTOCOL_VERSION, WireItem, fault, flag,
+};
+use crate::error::RigError;
+use crate::rig::{
+    ActuatorFrame, BlockReport, FaultQueue, FrameFlags, Rig, RigFault, RigIdentity, RigKind,
+    RigState, RigStatus, SensorFrame,
+};
+use serialport::{ClearBuffer, SerialPort};
+use std::io::{ErrorKind, Read, Write};
+use std::time::{Duration, Instant};
+
+/// Settings of a serial link (from `--rig serial:PATH[,baud=N]…`, see
+/// [`super::spec::RigSpec`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SerialConfig {
+    /// Port, e.g. `/dev/ttyACM0` or a pty `/dev/pts/N`.
+    pub path: String,
+    /// Baud rate (ignored by USB CDC and ptys; a UART needs ≥ 2 Mbaud for
+    /// 10 kHz, `docs/PROTOCOL.md`).
+    pub baud: u32,
+    /// No valid device frame for this long while waiting → the device is
+    /// declared stalled/gone.
+    pub timeout: Duration,
+    /// Handshake and START answers must arrive within this.
+    pub handshake_timeout: Duration,
+    /// Restart the device automatically when its watchdog tripped while the
+    /// host was between blocks (no sample owed, nothing lost), e.g. during
+    /// the computations between calibration runs. Off: the trip is reported
+    /// as an error and the rig stays faulted until `start`.
+    pub rearm_after_idle_trip: bool,
+}
+
+impl SerialConfig {
+    /// Default baud rate.
+    pub const DEFAULT_BAUD: u32 = 2_000_000;
+    /// Default stall timeout.
+    pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(100);
+
+    /// Defaults for the port `path`.
+    pub fn new(path: impl Into<String>) -> Self {
+        Self {
+            path: path.into(),
+            baud: Self::DEFAULT_BAUD,
+            timeout: Self::DEFAULT_TIMEOUT,
+            handshake_timeout: Duration::from_secs(2),
+            rearm_after_idle_trip: false,
+        }
+    }
+}
+
+/// Counters of a link (cumulative over reconnects).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Valid device frames decoded.
+    pub frames: u64,
+    /// Samples received.
+    pub samples: u64,
+    /// Samples lost (placeholders).
+    pub lost: u64,
+    /// Candidate frames with a bad CRC.
+    pub crc_errors: u64,
+    /// Headers with an impossible length.
+    pub bad_lengths: u64,
+    /// Bytes skipped while resynchronising.
+    pub bytes_skipped: u64,
+    /// Samples the device executed with a held (late) command.
+    pub late_commands: u64,
+    /// FAULT frames received.
+    pub device_faults: u64,
+    /// Samples received outside the block being waited for (ignored).
+    pub stray_samples: u64,
+}
+
+/// How an exchange ended badly.
+#[derive(Debug)]
+enum LinkErr {
+    /// No valid frame within the timeout.
+    Stalled,
+    /// I/O error or end of file.
+    Io(std::io::Error),
+    /// The device's watchdog tripped (or it rejected commands as idle).
+    Watchdog {
+        seq: u64,
+        /// Samples of the block received before.
+        received: bool,
+    },
+}
+
+/// Outcome of one exchange.
+#[derive(Debug, Clone, Copy, Default)]
+struct Exchange {
+    lost: u32,
+    first_lost: Option<u64>,
+}
+
+/// The host end of a serial link: port, decoder, handshake, sequence
+/// tracking. Shared by [`SerialRig`] and
+/// [`super::tweezer_link::LinkTweezer`].
+pub struct Link {
+    cfg: SerialConfig,
+    /// `None` only while reopening.
+    port: Option<Box<dyn SerialPort>>,
+    decoder: Decoder,
+    rx: Box<[u8]>,
+    pub(crate) tx: Vec<u8>,
+    hello: Hello,
+    stats: LinkStats,
+    decoder_base: frame::DecoderStats,
+}
+
+impl std::fmt::Debug for Link {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Link")
+            .field("path", &self.cfg.path)
+            .field("hello", &self.hello)
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+fn open_port(cfg: &SerialConfig) -> Result<Box<dyn SerialPort>, RigError> {
+    let port = serialport::new(&cfg.path, cfg.baud)
+        .timeout(Duration::from_millis(10))
+        .open()
+        .map_err(|e| {
+            RigError::Disconnected(format!("cannot open serial port {}: {e}", cfg.path))
+        })?;
+    Ok(port)
+}
+
+impl Link {
+    /// Open the port, handshake and check that the device is of `kind`.
+    pub fn open(cfg: &SerialConfig, kind: DeviceKind) -> Result<Self, RigError> {
+        let port = open_port(cfg)?;
+        let mut link = Self {
+            cfg: cfg.clone(),
+            port: Some(port),
+            decoder: Decoder::new(),
+            rx: vec![0u8; frame::MAX_FRAME].into_boxed_slice(),
+            tx: Vec::with_capacity(1 << 16),
+            hello: Hello {
+                version: 0,
+                sample_rate_hz: 0,
+                watchdog_ms: 0,
+                batch: 0,
+                caps: Caps::Tweezer(frame::TweezerCaps {
+                    stiffness_n_per_m: 0.0,
+                }),
+                name: String::new(),
+                serial: String::new(),
+                firmware: String::new(),
+            },
+            stats: LinkStats::default(),
+            decoder_base: frame::DecoderStats::default(),
+        };
+        link.handshake(kind)?;
+        Ok(link)
+    }
+
+    /// Reopen the port (after a disconnect) and handshake again.
+    pub fn reopen(&mut self, kind: DeviceKind) -> Result<(), RigError> {
+        // Close first: the port is opened with an exclusive lock.
+        self.port = None;
+        self.port = Some(open_port(&self.cfg)?);
+        self.decoder_base = self.decoder_stats_total();
+        self.decoder = Decoder::new();
+        self.handshake(kind)
+    }
+
+    /// Settings.
+    pub fn config(&self) -> &SerialConfig {
+        &self.cfg
+    }
+
+    /// The device's handshake answer.
+    pub fn hello(&self) -> &Hello {
+        &self.hello
+    }
+
+    fn decoder_stats_total(&self) -> frame::DecoderStats {
+        let d = self.decoder.stats();
+        let b = self.decoder_base;
+        frame::DecoderStats {
+            frames: b.frames + d.frames,
+            crc_errors: b.crc_errors + d.crc_errors,
+            bad_lengths: b.bad_lengths + d.bad_lengths,
+            bytes_skipped: b.bytes_skipped + d.bytes_skipped,
+        }
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> LinkStats {
+        let d = self.decoder_stats_total();
+        LinkStats {
+            frames: d.frames,
+            crc_errors: d.crc_errors,
+            bad_lengths: d.bad_lengths,
+            bytes_skipped: d.bytes_skipped + self.stats.bytes_skipped,
+            ..self.stats
+        }
+    }
+
+    fn disconnected(&self, why: &str) -> RigError {
+        RigError::Disconnected(format!("{}: {why}", self.cfg.path))
+    }
+
+    fn map_err(&self, e: LinkErr) -> RigError {
+        match e {
+            LinkErr::Stalled => self.disconnected(&format!(
+                "no data from the device for {} ms (stalled or unplugged); outputs commanded to zero",
+                self.cfg.timeout.as_millis()
+            )),
+            LinkErr::Io(e) => self.disconnected(&format!("the device vanished ({e})")),
+            LinkErr::Watchdog { seq, .. } => RigError::Device(format!(
+                "{}: the device watchdog tripped at sample {seq} (no host frame within {} ms); \
+                 outputs are zero, call start() to resume",
+                self.cfg.path, self.hello.watchdog_ms
+            )),
+        }
+    }
+
+    /// Send the bytes in `tx` and clear it.
+    pub(crate) fn flush_tx(&mut self) -> Result<(), RigError> {
+        let Some(port) = self.port.as_mut() else {
+            self.tx.clear();
+            return Err(self.disconnected("the port is closed"));
+        };
+        let _ = port.set_timeout(self.cfg.timeout.max(Duration::from_millis(10)));
+        let r = port.write_all(&self.tx);
+        self.tx.clear();
+        r.map_err(|e| self.disconnected(&format!("write failed, the device vanished ({e})")))
+    }
+
+    /// Read whatever arrives within `wait` into the decoder. `Ok(false)`:
+    /// nothing arrived.
+    fn read_some(&mut self, wait: Duration) -> Result<bool, LinkErr> {
+        let Some(port) = self.port.as_mut() else {
+            return Err(LinkErr::Io(std::io::Error::new(
+                ErrorKind::NotConnected,
+                "the port is closed",
+            )));
+        };
+        let _ = port.set_timeout(wait);
+        match port.read(&mut self.rx) {
+            Ok(0) => Err(LinkErr::Io(std::io::Error::new(
+                ErrorKind::UnexpectedEof,
+                "end of file on the port",
+            ))),
+            Ok(n) => {
+                // At most MAX_FRAME bytes are read, and the decoder always
+                // has room for that once next_frame has returned None.
+                let taken = self.decoder.push(&self.rx[..n]);
+                self.stats.bytes_skipped += (n - taken) as u64;
+                Ok(true)
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => Ok(false),
+            Err(e) if e.kind() == ErrorKind::Interrupted => Ok(false),
+            Err(e) => Err(LinkErr::Io(e)),
+        }
+    }
+
+    /// Wait for the first frame of type `want` (others skipped) and return
+    /// its payload copied into `out` (length).
+    fn wait_for(
+        &mut self,
+        want: u8,
+        accept: impl Fn(&[u8]) -> bool,
+        out: &mut [u8; frame::MAX_PAYLOAD],
+        deadline: Instant,
+    ) -> Result<usize, RigError> {
+        loop {
+            while let Some(f) = self.decoder.next_frame() {
+                if f.ty == want && accept(f.payload) {
+                    let n = f.payload.len();
+                    out[..n].copy_from_slice(f.payload);
+                    return Ok(n);
+                }
+                if f.ty == frame::ty::FAULT
+                    && let Some(fr) = frame::parse_fault(f.payload)
+                    && fr.code == fault::VERSION
+                {
+                    return Err(RigError::Device(format!(
+                        "{}: the device does not speak protocol version {PROTOCOL_VERSION}",
+                        self.cfg.path
+                    )));
+                }
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(self.disconnected(&format!(
+                    "no answer from the device within {} ms (is it a kilotouch device, and is \
+                     the emulator running?)",
+                    self.cfg.handshake_timeout.as_millis()
+                )));
+            }
+            self.read_some((deadline - now).min(Duration::from_millis(50)))
+                .map_err(|e| self.map_err(e))?;
+        }
+    }
+
+    fn handshake(&mut self, kind: DeviceKind) -> Result<(), RigError> {
+        if let Some(p) = self.port.as_mut() {
+            let _ = p.clear(ClearBuffer::Input);
+        }
+        self.decoder.clear();
+        let deadline = Instant::now() + self.cfg.handshake_timeout;
+        let mut buf = [0u8; frame::MAX_PAYLOAD];
+        let hello = loop {
+            frame::write_frame(&mut self.tx, frame::ty::HELLO_REQ, |o| {
+                o.extend_from_slice(&PROTOCOL_VERSION.to_le_bytes())
+            });
+            self.flush_tx()?;
+            let step = (Instant::now() + Duration::from_millis(250)).min(deadline);
+            match self.wait_for(frame::ty::HELLO, |_| true, &mut buf, step) {
+                Ok(n) => match frame::parse_hello(&buf[..n]) {
+                    Some(h) => break h,
+                    None => {
+                        return Err(RigError::Device(format!(
+                            "{}: malformed HELLO from the device",
+                            self.cfg.path
+                        )));
+                    }
+                },
+                Err(RigError::Disconnected(_)) if Instant::now() < deadline => continue,
+                Err(e) => return Err(e),
+            }
+        };
+        if hello.version != PROTOCOL_VERSION {
+            return Err(RigError::Device(format!(
+                "{}: device speaks protocol version {}, this host {PROTOCOL_VERSION}",
+                self.cfg.path, hello.version
+            )));
+        }
+        if hello.kind() != kind {
+            return Err(RigError::Device(format!(
+                "{}: expected a {kind:?} device, found a {:?} (`{}`)",
+                self.cfg.path,
+                hello.kind(),
+                hello.name
+            )));
+        }
+        if hello.sample_rate_hz == 0 {
+            return Err(RigError::Device(format!(
+                "{}: device reports a sample rate of 0 Hz",
+                self.cfg.path
+            )));
+        }
+        self.hello = hello;
+        Ok(())
+    }
+
+    /// Send START and wait for the device to run; returns the device's next
+    /// sequence number.
+    pub fn start(&mut self) -> Result<u64, RigError> {
+        frame::write_frame(&mut self.tx, frame::ty::START, |_| {});
+        self.flush_tx()?;
+        let deadline = Instant::now() + self.cfg.handshake_timeout;
+        let mut buf = [0u8; frame::MAX_PAYLOAD];
+        let running =
+            |p: &[u8]| frame::parse_status(p).is_some_and(|s| s.state == DeviceState::Running);
+        let n = self.wait_for(frame::ty::STATUS, running, &mut buf, deadline)?;
+        let st = frame::parse_status(&buf[..n])
+            .ok_or_else(|| RigError::Device("malformed STATUS".into()))?;
+        Ok(u64::from(st.next_seq))
+    }
+
+    /// Send STOP (best effort: errors ignored, short timeout).
+    pub fn stop(&mut self) {
+        self.tx.clear();
+        frame::write_frame(&mut self.tx, frame::ty::STOP, |_| {});
+        if let Some(p) = self.port.as_mut() {
+            let _ = p.set_timeout(Duration::from_millis(20));
+            let _ = p.write_all(&self.tx);
+        }
+        self.tx.clear();
+    }
+
+    /// Wait until samples `first .. first + n` (frame type `sample_ty`) are
+    /// accounted for; `sink(i, Some(sample))` for each received sample,
+    /// `sink(i, None)` for each lost one, in order of i.
+    fn exchange<S: WireItem>(
+        &mut self,
+        sample_ty: u8,
+        first: u64,
+        n: usize,
+        mut sink: impl FnMut(usize, Option<&S>),
+    ) -> Result<Exchange, LinkErr> {
+        let end = first + n as u64;
+        let mut expected = first;
+        let mut ex = Exchange::default();
+        let mut last_frame = Instant::now();
+        let mut grace_used = false;
+        let Self {
+            decoder,
+            stats,
+            cfg,
+            port,
+            rx,
+            ..
+        } = self;
+        let fill_lost = |from: u64,
+                         to: u64,
+                         ex: &mut Exchange,
+                         stats: &mut LinkStats,
+                         sink: &mut dyn FnMut(usize, Option<&S>)| {
+            for q in from..to {
+                sink((q - first) as usize, None);
+            }
+            if to > from {
+                ex.lost += (to - from) as u32;
+                ex.first_lost.get_or_insert(from);
+                stats.lost += to - from;
+            }
+        };
+        loop {
+            while expected < end {
+                let Some(f) = decoder.next_frame() else {
+                    break;
+                };
+                last_frame = Instant::now();
+                match f.ty {
+                    t if t == sample_ty => {
+                        let Some((seq32, cnt)) = frame::block_header::<S>(f.payload) else {
+                            continue;
+                        };
+                        let base = frame::unwrap_seq(seq32, expected);
+                        for i in 0..cnt {
+                            let q = base + i as u64;
+                            if q < expected {
+                                continue;
+                            }
+                            if q >= end {
+                                stats.stray_samples += 1;
+                                continue;
+                            }
+                            fill_lost(expected, q, &mut ex, stats, &mut sink);
+                            let s = frame::block_item::<S>(f.payload, i);
+                            sink((q - first) as usize, Some(&s));
+                            stats.samples += 1;
+                            expected = q + 1;
+                        }
+                    }
+                    frame::ty::STATUS => {
+                        let Some(st) = frame::parse_status(f.payload) else {
+                            continue;
+                        };
+                        let next = frame::unwrap_seq(st.next_seq, expected);
+                        match st.state {
+                            DeviceState::Running if next > expected => {
+                                let to = next.min(end);
+                                fill_lost(expected, to, &mut ex, stats, &mut sink);
+                                expected = to;
+                            }
+                            DeviceState::Tripped if next >= expected => {
+                                return Err(LinkErr::Watchdog {
+                                    seq: next,
+                                    received: expected > first,
+                                });
+                            }
+                            _ => {}
+                        }
+                    }
+                    frame::ty::FAULT => {
+                        stats.device_faults += 1;
+                        if let Some(fr) = frame::parse_fault(f.payload) {
+                            let seq = frame::unwrap_seq(fr.seq, expected);
+                            if (fr.code == fault::WATCHDOG && seq >= expected)
+                                || fr.code == fault::NOT_RUNNING
+                            {
+                                return Err(LinkErr::Watchdog {
+                                    seq,
+                                    received: expected > first,
+                                });
+                            }
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            if expected >= end {
+                return Ok(ex);
+            }
+            // Past the timeout, look once more without waiting before
+            // declaring a stall: the host itself may have been descheduled
+            // while the device's frames were arriving.
+            let idle = last_frame.elapsed();
+            let wait = if idle >= cfg.timeout {
+                if grace_used {
+                    return Err(LinkErr::Stalled);
+                }
+                grace_used = true;
+                Duration::from_millis(1)
+            } else {
+                grace_used = false;
+                (cfg.timeout - idle).min(Duration::from_millis(20))
+            };
+            let Some(port) = port.as_mut() else {
+                return Err(LinkErr::Io(std::io::Error::new(
+                    ErrorKind::NotConnected,
+                    "the port is closed",
+                )));
+            };
+            let _ = port.set_timeout(wait);
+            match port.read(rx) {
+                Ok(0) => {
+                    return Err(LinkErr::Io(std::io::Error::new(
+                        ErrorKind::UnexpectedEof,
+                        "end of file on the port",
+                    )));
+                }
+                Ok(k) => {
+                    // rx holds MAX_FRAME bytes, which always fit (module docs).
+                    let taken = decoder.push(&rx[..k]);
+                    stats.bytes_skipped += (k - taken) as u64;
+                }
+                Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => {}
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) => return Err(LinkErr::Io(e)),
+            }
+        }
+    }
+}
+
+impl Link {
+    /// Send `cmds` (frame type `cmd_ty`, sequence numbers from `*first`)
+    /// and wait for their samples (as `exchange`). After a watchdog trip
+    /// between exchanges the device is restarted when
+    /// [`SerialConfig::rearm_after_idle_trip`] is set (`*first` moves to the
+    /// device's next sequence number).
+    pub(crate) fn exchange_items<C: WireItem, S: WireItem>(
+        &mut self,
+        cmd_ty: u8,
+        sample_ty: u8,
+        first: &mut u64,
+        cmds: &[C],
+        mut sink: impl FnMut(usize, Option<&S>),
+    ) -> Result<(), LinkErrorKind> {
+        let mut retried = false;
+        loop {
+            let mut off = 0usize;
+            for chunk in cmds.chunks(frame::max_items::<C>()) {
+                frame::write_block(&mut self.tx, cmd_ty, (*first + off as u64) as u32, chunk);
+                off += chunk.len();
+            }
+            self.flush_tx().map_err(|_| LinkErrorKind::Disconnected)?;
+            match self.exchange::<S>(sample_ty, *first, cmds.len(), &mut sink) {
+                Ok(_) => return Ok(()),
+                Err(LinkErr::Watchdog {
+                    received: false, ..
+                }) if self.cfg.rearm_after_idle_trip && !retried => {
+                    retried = true;
+                    *first = self.start().map_err(|_| LinkErrorKind::Disconnected)?;
+                }
+                Err(LinkErr::Watchdog { .. }) => return Err(LinkErrorKind::Watchdog),
+                Err(_) => return Err(LinkErrorKind::Disconnected),
+            }
+        }
+    }
+}
+
+/// Kind of a link failure, for callers that cannot return a [`RigError`]
+/// (the [`crate::tweezer::Tweezer`] trait).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkErrorKind {
+    /// Stalled, unplugged, I/O error.
+    Disconnected,
+    /// The device watchdog tripped (outputs safe until restarted).
+    Watchdog,
+}
+
+/// A DAQ on a serial link as a [`Rig`] (module docs).
+#[derive(Debug)]
+pub struct SerialRig {
+    link: Link,
+    identity: RigIdentity,
+    caps: DaqCaps,
+    state: RigState,
+    next_seq: u64,
+    faults: FaultQueue,
+    st: RigStatus,
+    last: SensorFrame,
+    cmd_codes: [DaqCommand; Self::FRAME_COMMANDS],
+}
+
+impl SerialRig {
+    /// Commands per COMMANDS frame.
+    pub const FRAME_COMMANDS: usize = 32;
+
+    /// Open the port and handshake with a DAQ.
+    pub fn open(cfg: &SerialConfig) -> Result<Self, RigError> {
+        let link = Link::open(cfg, DeviceKind::Daq)?;
+        let (identity, caps) = Self::identity_of(&link)?;
+        Ok(Self {
+            link,
+            identity,
+            caps,
+            state: RigState::Idle,
+            next_seq: 0,
+            faults: FaultQueue::default(),
+            st: RigStatus {
+                state: RigState::Idle,
+                frames: 0,
+                lost_frames: 0,
+                skipped_samples: 0,
+                clipped_frames: 0,
+                limited_frames: 0,
+                end_stop_frames: 0,
+                nonfinite_commands: 0,
+                faults_pending: 0,
+                faults_dropped: 0,
+            },
+            last: SensorFrame::default(),
+            cmd_codes: [DaqCommand::default(); Self::FRAME_COMMANDS],
+        })
+    }
+
+    fn identity_of(link: &Link) -> Result<(RigIdentity, DaqCaps), RigError> {
+        let h = link.hello();
+        let Caps::Daq(caps) = h.caps else {
+            return Err(RigError::Device("not a DAQ".into()));
+        };
+        for (name, v) in [
+            ("encoder_counts_per_m", caps.encoder_counts_per_m),
+            ("accel_m_s2_per_code", caps.accel_m_s2_per_code),
+            ("force_max_n", caps.force_max_n),
+            ("drive_max_v", caps.drive_max_v),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(RigError::Device(format!(
+                    "{}: device capability {name} = {v} is not finite and > 0",
+                    link.config().path
+                )));
+            }
+        }
+        Ok((
+            RigIdentity {
+                kind: RigKind::SerialDaq,
+                name: h.name.clone(),
+                serial: h.serial.clone(),
+                firmware: h.firmware.clone(),
+                sample_rate_hz: f64::from(h.sample_rate_hz),
+                force_max_n: caps.force_max_n,
+                haptuator_max_v: caps.drive_max_v,
+                accel_range_m_s2: caps.accel_range_m_s2,
+            },
+            caps,
+        ))
+    }
+
+    /// Reopen the port after a disconnect (same path) and handshake; the
+    /// rig is then idle (`start` to resume).
+    pub fn reconnect(&mut self) -> Result<(), RigError> {
+        self.link.reopen(DeviceKind::Daq)?;
+        let (identity, caps) = Self::identity_of(&self.link)?;
+        self.identity = identity;
+        self.caps = caps;
+        self.state = RigState::Idle;
+        Ok(())
+    }
+
+    /// Link counters.
+    pub fn link_stats(&self) -> LinkStats {
+        self.link.stats()
+    }
+
+    /// The device's handshake answer.
+    pub fn hello(&self) -> &Hello {
+        self.link.hello()
+    }
+
+    /// Device capabilities.
+    pub fn caps(&self) -> DaqCaps {
+        self.caps
+    }
+
+    /// Encode and send the commands of a block.
+    fn send(&mut self, s: u64, commands: &[ActuatorFrame]) -> Result<(), RigError> {
+        let c = self.caps;
+        let mut off = 0usize;
+        for chunk in commands.chunks(Self::FRAME_COMMANDS) {
+            for (dst, a) in self.cmd_codes.iter_mut().zip(chunk) {
+                *dst = DaqCommand {
+                    force: [
+                        value_to_code(a.force_n[0], c.force_max_n).0,
+                        value_to_code(a.force_n[1], c.force_max_n).0,
+                    ],
+                    drive: value_to_code(a.haptuator_v, c.drive_max_v).0,
+                };
+            }
+            frame::write_block(
+                &mut self.link.tx,
+                frame::ty::COMMANDS,
+                (s + off as u64) as u32,
+                &self.cmd_codes[..chunk.len()],
+            );
+            off += chunk.len();
+        }
+        self.link.flush_tx()
+    }
+
+    fn fail(&mut self, e: LinkErr) -> RigError {
+        match e {
+            LinkErr::Watchdog { seq, .. } => {
+                self.state = RigState::Faulted;
+                self.faults.push(RigFault::WatchdogTripped { seq });
+            }
+            LinkErr::Stalled | LinkErr::Io(_) => {
+                self.link.stop();
+                self.state = RigState::Disconnected;
+                self.faults.push(RigFault::Disconnected);
+            }
+        }
+        self.link.map_err(e)
+    }
+}
+
+/// Host-side flags of a command: non-finite values and clamping.
+fn command_flags(a: &ActuatorFrame, c: &DaqCaps) -> u8 {
+    let mut f = 0;
+    for (v, max) in [
+        (a.force_n[0], c.force_max_n),
+        (a.force_n[1], c.force_max_n),
+        (a.haptuator_v, c.drive_max_v),
+    ] {
+        if !v.is_finite() {
+            f |= FrameFlags::NONFINITE_COMMAND;
+        } else if value_to_code(v, max).1 {
+            f |= FrameFlags::LIMITED;
+        }
+    }
+    f
+}
+
+impl Rig for SerialRig {
+    fn identity(&self) -> &RigIdentity {
+        &self.identity
+    }
+
+    fn start(&mut self) -> Result<(), RigError> {
+        if self.state == RigState::Disconnected {
+            return Err(RigError::Disconnected(format!(
+                "{}: call reconnect() first",
+                self.link.config().path
+            )));
+        }
+        match self.link.start() {
+            Ok(seq) => {
+                self.next_seq = seq;
+                self.state = RigState::Running;
+                Ok(())
+            }
+            Err(e) => {
+                if matches!(e, RigError::Disconnected(_)) {
+                    self.state = RigState::Disconnected;
+                }
+                Err(e)
+            }
+        }
+    }
+
+    fn stop(&mut self) -> Result<(), RigError> {
+        if self.state != RigState::Disconnected {
+            self.link.stop();
+            self.state = RigState::Idle;
+        }
+        Ok(())
+    }
+
+    fn process_block(
+        &mut self,
+        commands: &[ActuatorFrame],
+        sensors: &mut [SensorFrame],
+    ) -> Result<BlockReport, RigError> {
+        match self.state {
+            RigState::Running => {}
+            RigState::Disconnected => {
+                return Err(RigError::Disconnected(format!(
+                    "{}: call reconnect() first",
+                    self.link.config().path
+                )));
+            }
+            RigState::Faulted => {
+                return Err(RigError::NotReady(
+                    "the device watchdog tripped: call start() to resume".into(),
+                ));
+            }
+            RigState::Idle => {
+                return Err(RigError::NotReady(
+                    "call start() before process_block()".into(),
+                ));
+            }
+        }
+        if commands.len() != sensors.len() {
+            return Err(RigError::InvalidInput(format!(
+                "{} commands but {} sensor frames",
+                commands.len(),
+                sensors.len()
+            )));
+        }
+        let n = commands.len();
+        let mut report = BlockReport {
+            first_seq: self.next_seq,
+            frames: n,
+            ..Default::default()
+        };
+        if n == 0 {
+            return Ok(report);
+        }
+        let mut retried = false;
+        let ex = loop {
+            let s = self.next_seq;
+            report.first_seq = s;
+            self.send(s, commands)?;
+            let caps = self.caps;
+            let last = &mut self.last;
+            let mut late = 0u64;
+            let r = self
+                .link
+                .exchange::<DaqSample>(frame::ty::SAMPLES, s, n, |i, smp| {
+                    let local = command_flags(&commands[i], &caps);
+                    let seq = s + i as u64;
+                    sensors[i] = match smp {
+                        Some(d) => {
+                            if d.flags & flag::CMD_LATE != 0 {
+                                late += 1;
+                            }
+                            let f = SensorFrame {
+                                seq,
+                                handle_m: d.enc.map(|e| f64::from(e) / caps.encoder_counts_per_m),
+                                accel_m_s2: d.acc.map(|a| f64::from(a) * caps.accel_m_s2_per_code),
+                                flags: FrameFlags((d.flags & flag::HOST_MASK) | local),
+                            };
+                            *last = f;
+                            f
+                        }
+                        None => SensorFrame {
+                            seq,
+                            flags: FrameFlags(FrameFlags::LOST | local),
+                            ..*last
+                        },
+                    };
+                });
+            self.link.stats.late_commands += late;
+            if late > 0 {
+                self.faults.push(RigFault::Overrun {
+                    seq: s,
+                    skipped: late,
+                });
+            }
+            match r {
+                Ok(ex) => break ex,
+                Err(LinkErr::Watchdog {
+                    received: false, ..
+                }) if self.link.config().rearm_after_idle_trip && !retried => {
+                    retried = true;
+                    self.faults.push(RigFault::WatchdogTripped { seq: s });
+                    self.next_seq = self
+                        .link
+                        .start()
+                        .inspect_err(|_| self.state = RigState::Disconnected)?;
+                }
+                Err(e) => return Err(self.fail(e)),
+            }
+        };
+        self.next_seq = report.first_seq + n as u64;
+        report.lost_frames = ex.lost;
+        if let Some(first_seq) = ex.first_lost {
+            self.faults.push(RigFault::LostFrames {
+                first_seq,
+                count: ex.lost,
+            });
+        }
+        // Counters and first-of-kind faults, as the simulated rig reports them.
+        let (mut nf, mut lim, mut clip, mut stop) = (false, false, false, false);
+        for f in sensors.iter() {
+            let fl = f.flags;
+            if fl.has(FrameFlags::NONFINITE_COMMAND) {
+                self.st.nonfinite_commands += 1;
+                if !nf {
+                    self.faults.push(RigFault::NonFiniteCommand { seq: f.seq });
+                    nf = true;
+                }
+            }
+            if fl.has(FrameFlags::LIMITED) {
+                self.st.limited_frames += 1;
+                if !lim {
+                    self.faults.push(RigFault::ActuatorLimited { seq: f.seq });
+                    lim = true;
+                }
+            }
+            if fl.has(FrameFlags::CLIPPED) {
+                self.st.clipped_frames += 1;
+                if !clip {
+                    self.faults.push(RigFault::SensorClipped { seq: f.seq });
+                    clip = true;
+                }
+            }
+            if fl.has(FrameFlags::END_STOP) {
+                self.st.end_stop_frames += 1;
+                if !stop {
+                    self.faults.push(RigFault::EndStop { seq: f.seq });
+                    stop = true;
+                }
+            }
+        }
+        self.st.frames += n as u64;
+        self.st.lost_frames += u64::from(ex.lost);
+        Ok(report)
+    }
+
+    fn status(&self) -> RigStatus {
+        RigStatus {
+            state: self.state,
+            faults_pending: self.faults.len(),
+            faults_dropped: self.faults.dropped(),
+            ..self.st
+        }
+    }
+
+    fn pop_fault(&mut self) -> Option<RigFault> {
+        self.faults.pop()
+    }
+}
+
+impl Drop for SerialRig {
+    fn drop(&mut self) {
+        if self.state == RigState::Running {
+            self.link.stop();
+        }
+    }
+}

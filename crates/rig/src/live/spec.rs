@@ -1,0 +1,131 @@
+//! `--rig` specifications: `sim`, `serial:PATH[,baud=N][,timeout-ms=N]`,
+//! `audio[:DEVICE]`.
+
+use super::serial::SerialConfig;
+use crate::error::RigError;
+use std::time::Duration;
+
+/// Which rig a command talks to.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RigSpec {
+    /// The simulated rig.
+    Sim,
+    /// A DAQ (or the emulator) on a serial port.
+    Serial(SerialConfig),
+    /// An audio interface (`None`: the default device).
+    Audio(Option<String>),
+}
+
+impl RigSpec {
+    /// Short description for messages, e.g. `serial:/dev/ttyACM0`.
+    pub fn describe(&self) -> String {
+        match self {
+            RigSpec::Sim => "sim".into(),
+            RigSpec::Serial(c) => format!("serial:{}", c.path),
+            RigSpec::Audio(None) => "audio".into(),
+            RigSpec::Audio(Some(d)) => format!("audio:{d}"),
+        }
+    }
+
+    /// The error for an audio rig in a build without it.
+    pub fn audio_not_built() -> RigError {
+        RigError::NotReady(
+            "audio-interface rigs are not available in this build (cargo feature `audio`)".into(),
+        )
+    }
+}
+
+fn bad(spec: &str, why: impl std::fmt::Display) -> RigError {
+    RigError::InvalidInput(format!(
+        "--rig {spec}: {why} (expected `sim`, `serial:PATH[,baud=N][,timeout-ms=N]` or \
+         `audio[:DEVICE]`)"
+    ))
+}
+
+impl std::str::FromStr for RigSpec {
+    type Err = RigError;
+
+    fn from_str(s: &str) -> Result<Self, RigError> {
+        let t = s.trim();
+        if t == "sim" {
+            return Ok(RigSpec::Sim);
+        }
+        if t == "audio" {
+            return Ok(RigSpec::Audio(None));
+        }
+        if let Some(dev) = t.strip_prefix("audio:") {
+            if dev.is_empty() {
+                return Err(bad(s, "empty audio device name"));
+            }
+            return Ok(RigSpec::Audio(Some(dev.to_string())));
+        }
+        let Some(rest) = t.strip_prefix("serial:") else {
+            return Err(bad(s, "unknown rig"));
+        };
+        let mut parts = rest.split(',');
+        let path = parts.next().unwrap_or("");
+        if path.is_empty() {
+            return Err(bad(s, "missing port path"));
+        }
+        let mut cfg = SerialConfig::new(path);
+        for opt in parts {
+            let (k, v) = opt
+                .split_once('=')
+                .ok_or_else(|| bad(s, format!("option `{opt}` is not key=value")))?;
+            let num: u64 = v
+                .parse()
+                .map_err(|_| bad(s, format!("`{k}` needs a whole number, got `{v}`")))?;
+            match k {
+                "baud" if (1..=u64::from(u32::MAX)).contains(&num) => cfg.baud = num as u32,
+                "timeout-ms" if (1..=60_000).contains(&num) => {
+                    cfg.timeout = Duration::from_millis(num)
+                }
+                "baud" | "timeout-ms" => return Err(bad(s, format!("`{k}` = {num} out of range"))),
+                _ => return Err(bad(s, format!("unknown option `{k}`"))),
+            }
+        }
+        Ok(RigSpec::Serial(cfg))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn parses_every_form_and_rejects_bad_ones() {
+        assert_eq!("sim".parse::<RigSpec>().unwrap(), RigSpec::Sim);
+        assert_eq!("audio".parse::<RigSpec>().unwrap(), RigSpec::Audio(None));
+        assert_eq!(
+            "audio:hw:1".parse::<RigSpec>().unwrap(),
+            RigSpec::Audio(Some("hw:1".into()))
+        );
+        let RigSpec::Serial(c) = "serial:/dev/ttyACM0".parse().unwrap() else {
+            panic!()
+        };
+        assert_eq!(c.path, "/dev/ttyACM0");
+        assert_eq!(c.baud, SerialConfig::DEFAULT_BAUD);
+        let RigSpec::Serial(c) = "serial:/dev/pts/3,baud=921600,timeout-ms=40"
+            .parse()
+            .unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!((c.path.as_str(), c.baud), ("/dev/pts/3", 921_600));
+        assert_eq!(c.timeout, Duration::from_millis(40));
+        for bad in [
+            "",
+            "serial:",
+            "serial:/dev/x,baud",
+            "serial:/dev/x,baud=fast",
+            "serial:/dev/x,baud=0",
+            "serial:/dev/x,parity=odd",
+            "audio:",
+            "usb",
+        ] {
+            let e = bad.parse::<RigSpec>().unwrap_err().to_string();
+            assert!(e.contains("--rig"), "{bad}: {e}");
+        }
+    }
+}
