@@ -42,6 +42,9 @@ pub enum Command {
     Sim(commands::sim::SimCommand),
     /// Measure the speed of the signal chain and of Welch's estimator.
     Bench(commands::bench::Args),
+    /// Studies: simulated runs of a protocol.
+    #[command(subcommand)]
+    Study(commands::study::StudyCommand),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -88,6 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Rig(c)) => commands::rig::run(&c),
         Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
+        Some(Command::Study(c)) => commands::study::run(&c),
     }
 }
 

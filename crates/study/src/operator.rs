@@ -113,6 +113,8 @@ pub struct Observation<'a> {
 /// What a participant is told before a trial.
 #[derive(Debug, Clone)]
 pub struct TrialBrief {
+    /// 0-based participant index (who is at the handle).
+    pub participant: u32,
     /// The task.
     pub task: TaskKind,
     /// Hand → trap mapping (learned in training).
@@ -220,8 +222,8 @@ impl Default for OperatorParams {
             visual_noise_m: 0.05e-6,
             visual_contact_gap_m: 0.2e-6,
             haptic_delay_s: 0.06,
-            force_lowpass_hz: 8.0,
-            force_threshold_n: 0.05,
+            force_lowpass_hz: 5.0,
+            force_threshold_n: 0.1,
             force_weber: 0.10,
             force_direction_sd_deg: 12.0,
             vibration_band_hz: 100.0,
@@ -598,9 +600,6 @@ impl SimOperator {
         match self.plan {
             Plan::Moving | Plan::Waiting | Plan::Circling => {
                 if felt || vib_recent {
-                    if std::env::var_os("KT_DEBUG").is_some() {
-                        eprintln!("retreat: felt={felt} |F|={fmag:.3} vib={vib_recent}");
-                    }
                     self.plan = Plan::Retreating;
                     let dir = if felt {
                         // The felt force pushes the hand away from the
@@ -701,4 +700,74 @@ impl Participant for SimOperator {
 /// for tests of the operator's direction perception.
 pub fn direction_error_deg(dir: [f64; 2], normal: [f64; 2]) -> f64 {
     angle_between(dir, normal).to_degrees()
+}
+
+/// Simulated participants of a study: the [`SimOperator`] of the trial's
+/// participant ([`OperatorParams::for_participant`]), rebuilt when the
+/// participant changes. Every trial resets the operator's state, so a trial
+/// behaves the same whatever ran before it.
+#[derive(Debug, Clone)]
+pub struct SimCohort {
+    study_seed: u64,
+    control_rate_hz: f64,
+    sample_rate_hz: f64,
+    current: Option<(u32, SimOperator)>,
+    failed: Option<String>,
+}
+
+impl SimCohort {
+    /// A cohort for study seed `study_seed`, with `act` called at
+    /// `control_rate_hz` on a rig running at `sample_rate_hz`.
+    pub fn new(study_seed: u64, control_rate_hz: f64, sample_rate_hz: f64) -> Self {
+        Self {
+            study_seed,
+            control_rate_hz,
+            sample_rate_hz,
+            current: None,
+            failed: None,
+        }
+    }
+
+    /// Why the last operator could not be built (invalid filter band for
+    /// this sample rate), if so; the hand then stays still.
+    pub fn error(&self) -> Option<&str> {
+        self.failed.as_deref()
+    }
+
+    /// The current operator.
+    pub fn operator(&self) -> Option<&SimOperator> {
+        self.current.as_ref().map(|(_, o)| o)
+    }
+}
+
+impl Participant for SimCohort {
+    fn begin_trial(&mut self, brief: &TrialBrief) {
+        if self
+            .current
+            .as_ref()
+            .is_none_or(|(p, _)| *p != brief.participant)
+        {
+            let params = OperatorParams::for_participant(self.study_seed, brief.participant);
+            match SimOperator::new(params, self.control_rate_hz, self.sample_rate_hz) {
+                Ok(op) => {
+                    self.current = Some((brief.participant, op));
+                    self.failed = None;
+                }
+                Err(e) => {
+                    self.current = None;
+                    self.failed = Some(e.to_string());
+                }
+            }
+        }
+        if let Some((_, op)) = &mut self.current {
+            op.begin_trial(brief);
+        }
+    }
+
+    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+        match &mut self.current {
+            Some((_, op)) => op.act(obs),
+            None => obs.handle_m,
+        }
+    }
 }

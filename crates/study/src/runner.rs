@@ -222,6 +222,7 @@ impl TrialSetup {
             params,
             scene,
             brief: TrialBrief {
+                participant: key.participant,
                 task: TaskKind::of(&protocol.task),
                 mapping,
                 start_trap_m: start_m,

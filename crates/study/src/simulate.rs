@@ -24,7 +24,7 @@ use serde::Serialize;
 use crate::export::{
     PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name, raw_layout_for,
 };
-use crate::operator::{OperatorParams, SimOperator};
+use crate::operator::SimCohort;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
 use crate::runner::{NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout};
@@ -99,22 +99,29 @@ pub fn run_planned(
     let key = planned.key;
     let fs = engine.sample_rate_hz();
     let cfg = *engine.config();
-    let mut op = SimOperator::new(
-        OperatorParams::for_participant(protocol.seeds.study, key.participant),
-        fs / cfg.act_every as f64,
-        fs,
-    )?;
+    let mut op = SimCohort::new(protocol.seeds.study, fs / cfg.act_every as f64, fs);
     let setup = engine.setup(protocol, key);
     let started = UtcTime::now();
+    let setup_ok = |op: &SimCohort| -> Result<(), RunError> {
+        match op.error() {
+            Some(e) => Err(RunError::Config(format!("simulated operator: {e}"))),
+            None => Ok(()),
+        }
+    };
     let outcome = match cfg.raw {
         Some(dtype) => {
             let layout = raw_layout_for(planned, started, raw_layout(fs, dtype));
             let mut w = NpyWriter::create(&dir.join(raw_file_name(planned)), layout)?;
             let o = engine.run_trial(&setup, &mut op, &mut w)?;
+            setup_ok(&op)?;
             w.finish()?;
             o
         }
-        None => engine.run_trial(&setup, &mut op, &mut NoRaw)?,
+        None => {
+            let o = engine.run_trial(&setup, &mut op, &mut NoRaw)?;
+            setup_ok(&op)?;
+            o
+        }
     };
     Ok((started, outcome))
 }
