@@ -436,9 +436,9 @@ impl SimOperator {
     fn perceive_force(&mut self, obs: &Observation<'_>) -> [f64; 2] {
         let a = 1.0 - (-2.0 * PI * self.p.force_lowpass_hz * obs.dt_s).exp();
         for f in obs.force_n {
-            for i in 0..2 {
-                let v = if f[i].is_finite() { f[i] } else { 0.0 };
-                self.force_lp[i] += a * (v - self.force_lp[i]);
+            for (lp, &x) in self.force_lp.iter_mut().zip(f) {
+                let v = if x.is_finite() { x } else { 0.0 };
+                *lp += a * (v - *lp);
             }
         }
         let d = self.force_delay.push(self.force_lp);
@@ -451,9 +451,9 @@ impl SimOperator {
         let a_l = 1.0 - (-obs.dt_s / self.p.vibration_long_s).exp();
         for acc in obs.accel_m_s2 {
             let mut e = 0.0;
-            for i in 0..2 {
-                let v = if acc[i].is_finite() { acc[i] } else { 0.0 };
-                let y = self.vib_hp[i].process(v);
+            for (hp, &x) in self.vib_hp.iter_mut().zip(acc) {
+                let v = if x.is_finite() { x } else { 0.0 };
+                let y = hp.process(v);
                 e += y * y;
             }
             self.env_short += a_s * (e - self.env_short);
@@ -519,8 +519,8 @@ impl SimOperator {
             self.noise[i] = c * self.noise[i] + s * g;
         }
         let w = 2.0 * PI * self.p.arm_bandwidth_hz;
-        for i in 0..2 {
-            let goal = target[i] + self.noise[i];
+        for (i, &t) in target.iter().enumerate() {
+            let goal = t + self.noise[i];
             // Critically damped: x'' = w²(goal − x) − 2w x' (semi-implicit Euler).
             let acc = w * w * (goal - self.arm_pos[i]) - 2.0 * w * self.arm_vel[i];
             self.arm_vel[i] += acc * dt;

@@ -294,9 +294,9 @@ impl<S: Station> TrialEngine<S> {
                 "act_every and trajectory_every must be ≥ 1".into(),
             ));
         }
-        if !(cfg.camera_fps.is_finite() && cfg.camera_fps > 0.0)
-            || !(cfg.camera_latency_s.is_finite() && cfg.camera_latency_s >= 0.0)
-        {
+        let fps_ok = cfg.camera_fps.is_finite() && cfg.camera_fps > 0.0;
+        let latency_ok = cfg.camera_latency_s.is_finite() && cfg.camera_latency_s >= 0.0;
+        if !(fps_ok && latency_ok) {
             return Err(RunError::Config(format!(
                 "camera_fps must be > 0 and camera_latency_s ≥ 0, got {} and {}",
                 cfg.camera_fps, cfg.camera_latency_s
@@ -491,7 +491,7 @@ impl<S: Station> TrialEngine<S> {
             }
             // Camera: capture every frame period, display after the latency.
             let mut ev = 0.0;
-            if self.k % self.frame_every == 0 {
+            if self.k.is_multiple_of(self.frame_every) {
                 let geometry = self.geometry;
                 let f = VisualFrame {
                     seq: self.frame_seq,

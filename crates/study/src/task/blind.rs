@@ -146,7 +146,8 @@ impl BlindAccumulator {
             self.sum_fh += fh;
         }
         let sep = norm([s.bead_m[0] - s.trap_m[0], s.bead_m[1] - s.trap_m[1]]);
-        let escaped = !s.trapped || !(sep <= self.p.escape_distance_m);
+        // NaN separation (non-finite position) counts as an escape.
+        let escaped = !s.trapped || sep.is_nan() || sep > self.p.escape_distance_m;
         let in_contact = self.g.gap_m(s.bead_m) < self.p.contact_gap_m;
         if in_contact {
             if self.first_contact_s.is_none() {

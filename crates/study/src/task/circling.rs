@@ -138,7 +138,8 @@ impl CirclingAccumulator {
         self.t_last = s.t_s;
         let off = [s.bead_m[0] - s.trap_m[0], s.bead_m[1] - s.trap_m[1]];
         let sep = norm(off);
-        let escaped = !s.trapped || !(sep <= self.p.escape_distance_m);
+        // NaN separation (non-finite position) counts as an escape.
+        let escaped = !s.trapped || sep.is_nan() || sep > self.p.escape_distance_m;
         let gap = self.g.gap_m(s.bead_m);
         let in_contact = gap < self.p.contact_gap_m;
         let rel = self.g.rel(s.bead_m);
