@@ -45,6 +45,9 @@ pub enum Command {
     /// Device emulators serving the serial protocol on a pseudo-terminal (for tests and firmware work).
     #[command(subcommand)]
     Emulate(commands::emulate::EmulateCommand),
+    /// Studies: simulated runs of a protocol.
+    #[command(subcommand)]
+    Study(commands::study::StudyCommand),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -92,6 +95,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
         Some(Command::Emulate(c)) => commands::emulate::run(&c),
+        Some(Command::Study(c)) => commands::study::run(&c),
     }
 }
 

@@ -9,4 +9,5 @@ pub mod psd;
 pub mod rig;
 pub mod sim;
 pub mod stats;
+pub mod study;
 pub mod tfest;

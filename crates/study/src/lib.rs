@@ -16,7 +16,11 @@
 pub mod counterbalance;
 pub mod export;
 pub mod journal;
+pub mod operator;
 pub mod protocol;
 pub mod rawsig;
+pub mod runner;
 pub mod seeds;
+pub mod simulate;
 pub mod stats;
+pub mod task;

@@ -163,6 +163,34 @@ pub fn raw_file_name(planned: &PlannedTrial) -> String {
     )
 }
 
+/// `layout` with the trial identity added to its attributes (participant,
+/// condition, phase, trial, session_index, seed, started_utc), as
+/// [`StudyStore::raw_writer`] writes it.
+pub fn raw_layout_for(
+    planned: &PlannedTrial,
+    started_utc: UtcTime,
+    layout: RawLayout,
+) -> RawLayout {
+    let mut layout = layout;
+    let p = planned;
+    let attrs = [
+        (
+            "participant",
+            serde_json::Value::from(p.participant.clone()),
+        ),
+        ("condition", p.key.condition.code().into()),
+        ("phase", p.key.phase.as_str().into()),
+        ("trial", p.key.trial.into()),
+        ("session_index", p.session_index.into()),
+        ("seed", format_seed(p.seed).into()),
+        ("started_utc", started_utc.to_string().into()),
+    ];
+    for (k, v) in attrs {
+        layout.attrs.insert(k.to_owned(), v);
+    }
+    layout
+}
+
 /// What [`StudyStore::open`] found and repaired.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Recovery {
@@ -899,26 +927,30 @@ impl StudyStore {
     /// Those of [`NpyWriter::create`].
     pub fn raw_writer(&self, ticket: &mut TrialTicket, layout: RawLayout) -> Result<NpyWriter> {
         let rel = raw_file_name(&ticket.planned);
-        let mut layout = layout;
-        let p = &ticket.planned;
-        let attrs = [
-            (
-                "participant",
-                serde_json::Value::from(p.participant.clone()),
-            ),
-            ("condition", p.key.condition.code().into()),
-            ("phase", p.key.phase.as_str().into()),
-            ("trial", p.key.trial.into()),
-            ("session_index", p.session_index.into()),
-            ("seed", format_seed(p.seed).into()),
-            ("started_utc", ticket.started_utc.to_string().into()),
-        ];
-        for (k, v) in attrs {
-            layout.attrs.insert(k.to_owned(), v);
-        }
+        let layout = raw_layout_for(&ticket.planned, ticket.started_utc, layout);
         let w = NpyWriter::create(&self.dir.join(&rel), layout)?;
         ticket.raw_file = Some(rel);
         Ok(w)
+    }
+
+    /// Records in the ticket a raw file that was written before the trial
+    /// was begun in the store (by a worker thread that ran the trial, with
+    /// [`raw_layout_for`] and the same start time), so [`TrialTicket::row`]
+    /// fills `raw_file`. The file must be finished.
+    ///
+    /// # Errors
+    /// [`ExportError::Trial`] when the file or its sidecar does not exist.
+    pub fn attach_raw(&self, ticket: &mut TrialTicket) -> Result<()> {
+        let rel = raw_file_name(&ticket.planned);
+        let path = self.dir.join(&rel);
+        if !path.is_file() || !crate::rawsig::sidecar_path(&path).is_file() {
+            return Err(ExportError::Trial {
+                key: ticket.key(),
+                message: format!("raw file `{rel}` or its sidecar does not exist"),
+            });
+        }
+        ticket.raw_file = Some(rel);
+        Ok(())
     }
 
     /// Commits a finished trial: checks the row against its ticket and

@@ -1,0 +1,181 @@
+//! `kilotouch study simulate`: a whole study run by the simulated operator
+//! on the simulated rig, written to a crash-safe output folder
+//! (`trials.csv`, summaries, `session.json`, journal, raw NPY files).
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+
+use anyhow::Context;
+use kilotouch_rig::config::RigConfig;
+use kilotouch_study::protocol::Protocol;
+use kilotouch_study::runner::RunnerConfig;
+use kilotouch_study::simulate::{SimulateOptions, SimulateReport, simulate};
+
+use crate::output::emit;
+
+/// `kilotouch study …`.
+#[derive(Debug, clap::Subcommand)]
+pub enum StudyCommand {
+    /// Run a whole study with simulated participants on the simulated rig.
+    Simulate(SimulateArgs),
+}
+
+/// Arguments of `kilotouch study simulate`.
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// Protocol: a TOML file, or a built-in name (`paper`, `blind`).
+    #[arg(long, default_value = "paper")]
+    pub protocol: String,
+    /// Number of participants (default: the protocol's).
+    #[arg(long)]
+    pub participants: Option<u32>,
+    /// Study seed (default: the protocol's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue the study in --out (after a kill or crash).
+    #[arg(long)]
+    pub resume: bool,
+    /// Do not write raw-signal files.
+    #[arg(long)]
+    pub no_raw: bool,
+    /// Worker threads (default: available cores). Results do not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Rig file of the simulated rig (default: the built-in rig).
+    #[arg(long)]
+    pub rig_config: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Run a `study` subcommand.
+pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
+    match c {
+        StudyCommand::Simulate(a) => run_simulate(a),
+    }
+}
+
+fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
+    let path = PathBuf::from(spec);
+    if path.is_file() {
+        return Protocol::load(&path).map_err(anyhow::Error::from);
+    }
+    if kilotouch_study::protocol::BUILTIN_NAMES.contains(&spec) {
+        return Protocol::builtin(spec).map_err(anyhow::Error::from);
+    }
+    anyhow::bail!(
+        "--protocol {spec}: no such file, and not a built-in protocol (expected a TOML file or one of: {})",
+        kilotouch_study::protocol::BUILTIN_NAMES.join(", ")
+    )
+}
+
+/// Progress on stderr: a bar redrawn in place on a terminal, a line per
+/// 10 % otherwise.
+struct Bar {
+    tty: bool,
+    last_decile: Option<usize>,
+}
+
+impl Bar {
+    fn report(&mut self, done: usize, total: usize) {
+        let f = if total == 0 {
+            1.0
+        } else {
+            done as f64 / total as f64
+        };
+        let mut err = std::io::stderr().lock();
+        if self.tty {
+            let width = 30;
+            let filled = ((f * width as f64).round() as usize).min(width);
+            let _ = write!(
+                err,
+                "\r\x1b[2K[{}{}] {:3.0}% {done}/{total} trials",
+                "#".repeat(filled),
+                " ".repeat(width - filled),
+                f * 100.0
+            );
+            if done >= total {
+                let _ = writeln!(err);
+            }
+        } else {
+            let decile = (f * 10.0).floor() as usize;
+            if self.last_decile != Some(decile) {
+                let _ = writeln!(err, "[{:3.0}%] {done}/{total} trials", f * 100.0);
+                self.last_decile = Some(decile);
+            }
+        }
+    }
+}
+
+fn human(r: &SimulateReport) -> String {
+    let mut s = String::new();
+    s.push_str(&format!(
+        "study `{}` (seed {}, {} participants) in {}\n",
+        r.protocol,
+        r.seed,
+        r.participants,
+        r.out.display()
+    ));
+    s.push_str(&format!("  {}\n", r.recovery));
+    s.push_str(&format!(
+        "  trials: {} planned, {} already complete, {} run now\n",
+        r.planned, r.already_completed, r.ran
+    ));
+    s.push_str(&format!(
+        "  rows: {} test ({} successful), {} practice\n",
+        r.test_rows, r.test_success, r.practice_rows
+    ));
+    s.push_str(&format!(
+        "  simulated {:.1} s in {:.2} s wall on {} thread(s), raw files: {}\n",
+        r.simulated_s,
+        r.wall_s,
+        r.threads,
+        if r.raw { "yes" } else { "no" }
+    ));
+    s
+}
+
+fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
+    let mut protocol = load_protocol(&a.protocol)?;
+    if let Some(n) = a.participants {
+        protocol.participants = n;
+    }
+    if let Some(s) = a.seed {
+        protocol.seeds.study = s;
+    }
+    protocol
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    let rig = match &a.rig_config {
+        Some(p) => RigConfig::load(p)?,
+        None => RigConfig::default(),
+    };
+    let threads = match a.threads {
+        Some(0) => anyhow::bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    let mut runner = RunnerConfig::default();
+    if a.no_raw {
+        runner.raw = None;
+    }
+    let opts = SimulateOptions {
+        protocol,
+        out: a.out.clone(),
+        resume: a.resume,
+        rig,
+        runner,
+        threads,
+    };
+    let mut bar = Bar {
+        tty: std::io::stderr().is_terminal(),
+        last_decile: None,
+    };
+    let report = simulate(&opts, &mut |done, total| bar.report(done, total))
+        .with_context(|| format!("study simulate into {}", a.out.display()))?;
+    emit(a.json, &report, || human(&report))
+}

@@ -1,0 +1,773 @@
+//! Participants: the [`Participant`] trait the session runner drives, what a
+//! participant observes ([`Observation`]), and a seeded simulated operator
+//! ([`SimOperator`]) that performs both tasks through the hand position only.
+//!
+//! # What a participant gets
+//!
+//! Every `act` call (1 kHz by default) carries only what a person has:
+//!
+//! * the **visual frame** — trap, bead and obstacle positions as the camera
+//!   saw them, at the camera frame rate and after its latency (`None` in the
+//!   blind task);
+//! * the **force at the handle** as the rig renders it (the Pantograph
+//!   command, N; zero in V), sample by sample since the last call;
+//! * the **fingertip acceleration** as the rig's accelerometer senses it
+//!   (m/s²), sample by sample;
+//! * the handle position (proprioception).
+//!
+//! The condition label is never passed: V, P and D differ for a participant
+//! only through these signals.
+//!
+//! # The simulated operator
+//!
+//! Perception (each channel with its own delay and threshold):
+//!
+//! * *Force* (kinesthetic, low band): the handle force low-passed at
+//!   `force_lowpass_hz`, delayed by `haptic_delay_s`, felt when its
+//!   magnitude exceeds `force_threshold_n`; magnitude perceived with a
+//!   per-trial gain error of SD `force_weber` (Weber fraction), direction
+//!   with SD `force_direction_sd_deg`.
+//! * *Vibration* (Pacinian, high band): the in-plane acceleration
+//!   high-passed at `vibration_band_hz`; short (`vibration_short_s`) and
+//!   long (`vibration_long_s`) mean-square envelopes; a *vibration
+//!   transient* (the collision spike of paper Fig. 9d) is detected when the
+//!   short envelope exceeds the detection threshold
+//!   `vibration_threshold_m_s2` (RMS) and the long one by the RMS ratio
+//!   `vibration_change_ratio`.
+//! * *Vision*: each camera frame is perceived `visual_delay_s` after it is
+//!   displayed, with Gaussian localisation noise `visual_noise_m` on each
+//!   position; surfaces are seen touching when the seen gap is below
+//!   `visual_contact_gap_m`.
+//!
+//! Control (identical in every condition): contact is *believed* when force
+//! is felt, a vibration transient was detected within `vibration_memory_s`, or
+//! contact is seen. *Circling*: the commanded trap point is
+//! c + (R_c + d)·(cos θ, sin θ); without believed contact d decreases at
+//! `approach_speed_m_s`; with felt force d is servoed towards the force goal
+//! `force_goal_n` (gain `force_gain_m_per_n_s`); with seen contact d is
+//! corrected once per perceived frame towards the visual push goal
+//! `visual_push_goal_m` (fraction `visual_gain`); θ advances at
+//! `circling_speed_m_s`/R_c while contact is believed. *Blind navigation*:
+//! move along the instructed heading at `blind_speed_m_s` until contact is
+//! believed, then retreat at `retreat_speed_m_s` along the perceived force
+//! direction (or straight back without a felt force). The hand target
+//! passes through signal-dependent motor noise (an Ornstein–Uhlenbeck
+//! process, SD `motor_noise_m` + `motor_noise_gain`·|hand speed|, Harris &
+//! Wolpert 1998) and a critically damped second-order "arm" at
+//! `arm_bandwidth_hz`.
+//!
+//! Parameters, their sources and the model's limits: `docs/STUDY.md` §13.
+
+use std::f64::consts::PI;
+
+use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
+use kilotouch_dsp::filter::Sos;
+use rand_chacha::ChaCha20Rng;
+use rand_chacha::rand_core::SeedableRng;
+use serde::{Deserialize, Serialize};
+
+use crate::export::TaskKind;
+use crate::seeds::{SplitMix64, splitmix64_mix};
+use crate::task::station::HandMapping;
+use crate::task::{angle_between, norm, unit_uniform};
+
+/// One camera frame as displayed to the participant (sample plane, m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisualFrame {
+    /// Frame number within the trial (0, 1, …).
+    pub seq: u64,
+    /// Capture time, s since the trial start.
+    pub captured_s: f64,
+    /// Manipulated bead centre, m.
+    pub bead_m: [f64; 2],
+    /// Trap centre (cross-hair), m.
+    pub trap_m: [f64; 2],
+    /// Obstacle centre, m.
+    pub obstacle_m: [f64; 2],
+    /// Obstacle radius, m.
+    pub obstacle_radius_m: f64,
+    /// Bead radius, m.
+    pub bead_radius_m: f64,
+}
+
+/// What a participant observes at one `act` call.
+#[derive(Debug, Clone, Copy)]
+pub struct Observation<'a> {
+    /// Time since the trial start, s.
+    pub t_s: f64,
+    /// Sample period of the slices below, s.
+    pub dt_s: f64,
+    /// Latest displayed camera frame (`None` before the first one and in
+    /// the blind task).
+    pub frame: Option<VisualFrame>,
+    /// Force rendered at the handle by the Pantograph for every sample
+    /// since the last call, N (zero in V).
+    pub force_n: &'a [[f64; 2]],
+    /// Fingertip acceleration sensed by the rig for every sample since the
+    /// last call, m/s² (x, y, z).
+    pub accel_m_s2: &'a [[f64; 3]],
+    /// Handle position, m.
+    pub handle_m: [f64; 2],
+}
+
+/// What a participant is told before a trial.
+#[derive(Debug, Clone)]
+pub struct TrialBrief {
+    /// 0-based participant index (who is at the handle).
+    pub participant: u32,
+    /// The task.
+    pub task: TaskKind,
+    /// Hand → trap mapping (learned in training).
+    pub mapping: HandMapping,
+    /// Trap position at the start, m.
+    pub start_trap_m: [f64; 2],
+    /// Blind task: the instructed initial direction (unit vector).
+    pub heading: [f64; 2],
+    /// Blind task: how far to retreat, m.
+    pub retreat_distance_m: f64,
+    /// The trial's participant generator ([`crate::seeds::STREAM_PARTICIPANT`]).
+    pub rng: ChaCha20Rng,
+}
+
+/// A participant: a person at the GUI, a recorded trajectory, or the
+/// simulated operator.
+pub trait Participant {
+    /// A trial starts.
+    fn begin_trial(&mut self, brief: &TrialBrief) {
+        let _ = brief;
+    }
+    /// Where the hand goes next (m, handle coordinates). Called every
+    /// control period; must not allocate in real-time use.
+    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2];
+}
+
+/// The GUI's participant: the hand follows the mouse (set `hand_m`
+/// between runner calls).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MouseParticipant {
+    /// Current mouse position mapped to handle coordinates, m.
+    pub hand_m: [f64; 2],
+}
+
+impl Participant for MouseParticipant {
+    fn act(&mut self, _obs: &Observation<'_>) -> [f64; 2] {
+        self.hand_m
+    }
+}
+
+/// Parameters of the simulated operator (SI units; see the module docs and
+/// `docs/STUDY.md` §13 for sources).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OperatorParams {
+    /// Delay from a displayed frame to its use, s (visuomotor delay
+    /// ≈ 100–200 ms).
+    pub visual_delay_s: f64,
+    /// Localisation noise per seen position (sample plane), m.
+    pub visual_noise_m: f64,
+    /// Seen surfaces touch below this gap, m (optical resolution of the
+    /// display ≈ 0.2 µm).
+    pub visual_contact_gap_m: f64,
+    /// Delay of the haptic percepts, s (long-latency reflex 50–100 ms).
+    pub haptic_delay_s: f64,
+    /// Low-pass of the force percept, Hz.
+    pub force_lowpass_hz: f64,
+    /// Force detection threshold at the hand, N.
+    pub force_threshold_n: f64,
+    /// Weber fraction of force magnitude (SD of the per-trial gain error).
+    pub force_weber: f64,
+    /// SD of the perceived force direction, degrees.
+    pub force_direction_sd_deg: f64,
+    /// Corner of the vibration (high-band) high-pass, Hz.
+    pub vibration_band_hz: f64,
+    /// Vibration detection threshold, m/s² RMS.
+    pub vibration_threshold_m_s2: f64,
+    /// Short envelope time constant, s.
+    pub vibration_short_s: f64,
+    /// Long (baseline) envelope time constant, s.
+    pub vibration_long_s: f64,
+    /// Envelope change (RMS ratio) detected as an event.
+    pub vibration_change_ratio: f64,
+    /// How long a vibration event keeps contact believed, s.
+    pub vibration_memory_s: f64,
+    /// Radial approach speed without believed contact, m/s (sample plane).
+    pub approach_speed_m_s: f64,
+    /// Tangential speed while circling, m/s (sample plane).
+    pub circling_speed_m_s: f64,
+    /// Force goal at the hand while in contact, N ("push lightly").
+    pub force_goal_n: f64,
+    /// Force servo gain, m of trap per N of error per s.
+    pub force_gain_m_per_n_s: f64,
+    /// Visual push goal: trap this far inside the bead's radius, m.
+    pub visual_push_goal_m: f64,
+    /// Fraction of the visual push error corrected per perceived frame.
+    pub visual_gain: f64,
+    /// Blind task: speed along the heading, m/s.
+    pub blind_speed_m_s: f64,
+    /// Blind task: retreat speed, m/s.
+    pub retreat_speed_m_s: f64,
+    /// Motor noise floor (hand coordinates), m.
+    pub motor_noise_m: f64,
+    /// Signal-dependent motor noise: SD per hand speed, s.
+    pub motor_noise_gain: f64,
+    /// Correlation time of the motor noise, s.
+    pub motor_noise_tau_s: f64,
+    /// Bandwidth of the arm's second-order response, Hz.
+    pub arm_bandwidth_hz: f64,
+}
+
+impl Default for OperatorParams {
+    fn default() -> Self {
+        Self {
+            visual_delay_s: 0.15,
+            visual_noise_m: 0.05e-6,
+            visual_contact_gap_m: 0.2e-6,
+            haptic_delay_s: 0.06,
+            force_lowpass_hz: 5.0,
+            force_threshold_n: 0.1,
+            force_weber: 0.10,
+            force_direction_sd_deg: 12.0,
+            vibration_band_hz: 100.0,
+            vibration_threshold_m_s2: 0.17,
+            vibration_short_s: 0.02,
+            vibration_long_s: 0.5,
+            vibration_change_ratio: 3.0,
+            vibration_memory_s: 0.3,
+            approach_speed_m_s: 1.5e-6,
+            circling_speed_m_s: 3.0e-6,
+            force_goal_n: 0.3,
+            force_gain_m_per_n_s: 5.0e-6,
+            visual_push_goal_m: 0.15e-6,
+            visual_gain: 0.08,
+            blind_speed_m_s: 2.0e-6,
+            retreat_speed_m_s: 2.0e-6,
+            motor_noise_m: 0.3e-3,
+            motor_noise_gain: 0.08,
+            motor_noise_tau_s: 0.4,
+            arm_bandwidth_hz: 4.0,
+        }
+    }
+}
+
+/// Domain tag of the participant-trait generator ("kt-pers").
+const TRAIT_DOMAIN: u64 = 0x6b74_2d70_6572_7300;
+
+impl OperatorParams {
+    /// Parameters of participant `index` of a study: the defaults with
+    /// individual differences drawn from (study seed, participant) only —
+    /// never from the condition or the trial — so every trial of a
+    /// participant uses the same person: speeds ×U(0.75, 1.25), motor noise
+    /// ×U(0.7, 1.3), force goal ×U(0.8, 1.2), visual gain ×U(0.8, 1.25).
+    pub fn for_participant(study_seed: u64, index: u32) -> Self {
+        let mut g = SplitMix64::new(splitmix64_mix(study_seed ^ TRAIT_DOMAIN) ^ u64::from(index));
+        let mut u = || (g.next_u64() >> 11) as f64 / (1_u64 << 53) as f64;
+        let d = Self::default();
+        let speed = 0.75 + 0.5 * u();
+        let noise = 0.7 + 0.6 * u();
+        let force = 0.8 + 0.4 * u();
+        let vision = 0.8 + 0.45 * u();
+        Self {
+            approach_speed_m_s: d.approach_speed_m_s * speed,
+            circling_speed_m_s: d.circling_speed_m_s * speed,
+            blind_speed_m_s: d.blind_speed_m_s * speed,
+            retreat_speed_m_s: d.retreat_speed_m_s * speed,
+            motor_noise_m: d.motor_noise_m * noise,
+            force_goal_n: d.force_goal_n * force,
+            visual_gain: d.visual_gain * vision,
+            ..d
+        }
+    }
+}
+
+/// Fixed-capacity delay line of percepts sampled at the control rate.
+#[derive(Debug, Clone)]
+struct Delay<T: Copy> {
+    buf: Vec<T>,
+    head: usize,
+}
+
+impl<T: Copy> Delay<T> {
+    fn new(len: usize, fill: T) -> Self {
+        Self {
+            buf: vec![fill; len.max(1)],
+            head: 0,
+        }
+    }
+    fn fill(&mut self, v: T) {
+        self.buf.iter_mut().for_each(|x| *x = v);
+        self.head = 0;
+    }
+    /// Pushes `v`, returns the value pushed `len` calls ago.
+    fn push(&mut self, v: T) -> T {
+        let out = self.buf[self.head];
+        self.buf[self.head] = v;
+        self.head = (self.head + 1) % self.buf.len();
+        out
+    }
+}
+
+/// Phases of the operator's plan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Plan {
+    /// Circling: not yet oriented (no frame perceived).
+    Waiting,
+    /// Circling: approaching / going around.
+    Circling,
+    /// Blind: moving along the heading.
+    Moving,
+    /// Blind: retreating.
+    Retreating,
+}
+
+/// The seeded simulated operator (module docs).
+#[derive(Debug, Clone)]
+pub struct SimOperator {
+    p: OperatorParams,
+    rng: ChaCha20Rng,
+    task: TaskKind,
+    mapping: HandMapping,
+    // Perception.
+    force_lp: [f64; 2],
+    force_delay: Delay<[f64; 2]>,
+    vib_hp: [Sos; 2],
+    env_short: f64,
+    env_long: f64,
+    vib_delay: Delay<bool>,
+    last_vib_event_s: f64,
+    force_gain_err: f64,
+    frames: [Option<VisualFrame>; 16],
+    percept_frame: Option<VisualFrame>,
+    seen_noise: [[f64; 2]; 3],
+    // Plan.
+    plan: Plan,
+    centre: [f64; 2],
+    contact_r: f64,
+    depth: f64,
+    theta: f64,
+    direction: f64,
+    last_used_frame: u64,
+    point: [f64; 2],
+    heading: [f64; 2],
+    retreat_dir: [f64; 2],
+    retreated: f64,
+    retreat_distance: f64,
+    // Motor.
+    noise: [f64; 2],
+    arm_pos: [f64; 2],
+    arm_vel: [f64; 2],
+    prev_target: [f64; 2],
+    started: bool,
+}
+
+impl SimOperator {
+    /// An operator with `params`; `control_rate_hz` is the rate of `act`
+    /// calls and `sample_rate_hz` the rig's (for the filters).
+    ///
+    /// # Errors
+    /// Filter design failure (band outside (0, Nyquist)).
+    pub fn new(
+        params: OperatorParams,
+        control_rate_hz: f64,
+        sample_rate_hz: f64,
+    ) -> Result<Self, kilotouch_dsp::DspError> {
+        let hp = |f: f64| -> Result<Sos, kilotouch_dsp::DspError> {
+            Sos::new(butter(
+                2,
+                f,
+                sample_rate_hz,
+                FilterKind::Highpass,
+                Prewarp::AtCutoff,
+            )?)
+        };
+        let ticks = |s: f64| ((s * control_rate_hz).round() as usize).max(1);
+        let mapping = HandMapping {
+            scale: 1.0,
+            handle_origin_m: [0.0; 2],
+            trap_offset_m: [0.0; 2],
+        };
+        Ok(Self {
+            p: params,
+            rng: ChaCha20Rng::from_seed([0; 32]),
+            task: TaskKind::Circling,
+            mapping,
+            force_lp: [0.0; 2],
+            force_delay: Delay::new(ticks(params.haptic_delay_s), [0.0; 2]),
+            vib_hp: [hp(params.vibration_band_hz)?, hp(params.vibration_band_hz)?],
+            env_short: 0.0,
+            env_long: 0.0,
+            vib_delay: Delay::new(ticks(params.haptic_delay_s), false),
+            last_vib_event_s: f64::NEG_INFINITY,
+            force_gain_err: 1.0,
+            frames: [None; 16],
+            percept_frame: None,
+            seen_noise: [[0.0; 2]; 3],
+            plan: Plan::Waiting,
+            centre: [0.0; 2],
+            contact_r: 0.0,
+            depth: 0.0,
+            theta: 0.0,
+            direction: 1.0,
+            last_used_frame: u64::MAX,
+            point: [0.0; 2],
+            heading: [1.0, 0.0],
+            retreat_dir: [-1.0, 0.0],
+            retreated: 0.0,
+            retreat_distance: 0.0,
+            noise: [0.0; 2],
+            arm_pos: [0.0; 2],
+            arm_vel: [0.0; 2],
+            prev_target: [0.0; 2],
+            started: false,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &OperatorParams {
+        &self.p
+    }
+
+    fn gauss(&mut self) -> f64 {
+        // Box–Muller; u1 in (0, 1].
+        let u1 = 1.0 - unit_uniform(&mut self.rng);
+        let u2 = unit_uniform(&mut self.rng);
+        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+    }
+
+    /// Perceived force vector (delayed, low-passed, gain error), N.
+    fn perceive_force(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+        let a = 1.0 - (-2.0 * PI * self.p.force_lowpass_hz * obs.dt_s).exp();
+        for f in obs.force_n {
+            for (lp, &x) in self.force_lp.iter_mut().zip(f) {
+                let v = if x.is_finite() { x } else { 0.0 };
+                *lp += a * (v - *lp);
+            }
+        }
+        let d = self.force_delay.push(self.force_lp);
+        [d[0] * self.force_gain_err, d[1] * self.force_gain_err]
+    }
+
+    /// Whether a vibration transient is perceived now (delayed).
+    fn perceive_vibration(&mut self, obs: &Observation<'_>) -> bool {
+        let a_s = 1.0 - (-obs.dt_s / self.p.vibration_short_s).exp();
+        let a_l = 1.0 - (-obs.dt_s / self.p.vibration_long_s).exp();
+        for acc in obs.accel_m_s2 {
+            let mut e = 0.0;
+            for (hp, &x) in self.vib_hp.iter_mut().zip(acc) {
+                let v = if x.is_finite() { x } else { 0.0 };
+                let y = hp.process(v);
+                e += y * y;
+            }
+            self.env_short += a_s * (e - self.env_short);
+            self.env_long += a_l * (e - self.env_long);
+        }
+        let thr2 = self.p.vibration_threshold_m_s2 * self.p.vibration_threshold_m_s2;
+        let r2 = self.p.vibration_change_ratio * self.p.vibration_change_ratio;
+        let audible = self.env_short.max(self.env_long) > thr2;
+        let change = self.env_short > r2 * self.env_long;
+        // Ignore the first long time constant (baseline not settled).
+        let settled = obs.t_s > 2.0 * self.p.vibration_long_s;
+        self.vib_delay.push(audible && change && settled)
+    }
+
+    /// The frame perceived now (displayed at least `visual_delay_s` ago).
+    fn perceive_frame(&mut self, obs: &Observation<'_>) {
+        if let Some(f) = obs.frame {
+            let slot = (f.seq % self.frames.len() as u64) as usize;
+            if self.frames[slot].is_none_or(|g| g.seq != f.seq) {
+                self.frames[slot] = Some(f);
+            }
+        }
+        let mut best: Option<VisualFrame> = None;
+        for f in self.frames.iter().flatten() {
+            // Displayed at (roughly) the first act after capture + latency;
+            // the runner delivers it then, so the capture time bounds it.
+            if f.captured_s + self.p.visual_delay_s <= obs.t_s && best.is_none_or(|b| f.seq > b.seq)
+            {
+                best = Some(*f);
+            }
+        }
+        if let Some(f) = best
+            && self.percept_frame.is_none_or(|g| g.seq != f.seq)
+        {
+            for k in 0..3 {
+                self.seen_noise[k] = [
+                    self.p.visual_noise_m * self.gauss(),
+                    self.p.visual_noise_m * self.gauss(),
+                ];
+            }
+            self.percept_frame = Some(f);
+        }
+    }
+
+    fn motor(&mut self, target_trap: [f64; 2], dt: f64) -> [f64; 2] {
+        let target = self.mapping.to_hand(target_trap);
+        if !self.started {
+            self.arm_pos = target;
+            self.prev_target = target;
+            self.started = true;
+        }
+        let v = norm([
+            (target[0] - self.prev_target[0]) / dt,
+            (target[1] - self.prev_target[1]) / dt,
+        ]);
+        self.prev_target = target;
+        let sd = self.p.motor_noise_m + self.p.motor_noise_gain * v;
+        let tau = self.p.motor_noise_tau_s;
+        let c = (-dt / tau).exp();
+        let s = sd * (1.0 - c * c).sqrt();
+        for i in 0..2 {
+            let g = self.gauss();
+            self.noise[i] = c * self.noise[i] + s * g;
+        }
+        let w = 2.0 * PI * self.p.arm_bandwidth_hz;
+        for (i, &t) in target.iter().enumerate() {
+            let goal = t + self.noise[i];
+            // Critically damped: x'' = w²(goal − x) − 2w x' (semi-implicit Euler).
+            let acc = w * w * (goal - self.arm_pos[i]) - 2.0 * w * self.arm_vel[i];
+            self.arm_vel[i] += acc * dt;
+            self.arm_pos[i] += self.arm_vel[i] * dt;
+        }
+        self.arm_pos
+    }
+
+    fn circling(
+        &mut self,
+        obs: &Observation<'_>,
+        force: [f64; 2],
+        vib_recent: bool,
+        dt: f64,
+    ) -> [f64; 2] {
+        let fmag = norm(force);
+        let felt = fmag > self.p.force_threshold_n;
+        let Some(f) = self.percept_frame else {
+            // Nothing seen yet: hold still.
+            return self.point;
+        };
+        let c = [
+            f.obstacle_m[0] + self.seen_noise[2][0],
+            f.obstacle_m[1] + self.seen_noise[2][1],
+        ];
+        let b = [
+            f.bead_m[0] + self.seen_noise[0][0],
+            f.bead_m[1] + self.seen_noise[0][1],
+        ];
+        let t = [
+            f.trap_m[0] + self.seen_noise[1][0],
+            f.trap_m[1] + self.seen_noise[1][1],
+        ];
+        let rc = f.obstacle_radius_m + f.bead_radius_m;
+        let rb = norm([b[0] - c[0], b[1] - c[1]]);
+        let rt = norm([t[0] - c[0], t[1] - c[1]]);
+        let seen_gap = rb - rc;
+        let seen_touch = seen_gap < self.p.visual_contact_gap_m;
+        if self.plan == Plan::Waiting {
+            self.plan = Plan::Circling;
+            self.centre = c;
+            self.contact_r = rc;
+            self.theta = (b[1] - c[1]).atan2(b[0] - c[0]);
+            self.depth = seen_gap;
+            self.direction = if unit_uniform(&mut self.rng) < 0.5 {
+                1.0
+            } else {
+                -1.0
+            };
+        }
+        let touch = felt || vib_recent || seen_touch;
+        if !touch {
+            self.depth -= self.p.approach_speed_m_s * dt;
+        } else {
+            if felt {
+                self.depth += self.p.force_gain_m_per_n_s * (fmag - self.p.force_goal_n) * dt;
+            }
+            if seen_touch && f.seq != self.last_used_frame {
+                let push = rb - rt;
+                self.depth += self.p.visual_gain * (push - self.p.visual_push_goal_m);
+            }
+            self.theta += self.direction * self.p.circling_speed_m_s / self.contact_r * dt;
+        }
+        self.last_used_frame = f.seq;
+        self.depth = self.depth.clamp(-3.0e-6, 5.0e-6);
+        let r = self.contact_r + self.depth;
+        let _ = obs;
+        [
+            self.centre[0] + r * self.theta.cos(),
+            self.centre[1] + r * self.theta.sin(),
+        ]
+    }
+
+    fn blind(&mut self, force: [f64; 2], vib_recent: bool, dt: f64) -> [f64; 2] {
+        let fmag = norm(force);
+        let felt = fmag > self.p.force_threshold_n;
+        match self.plan {
+            Plan::Moving | Plan::Waiting | Plan::Circling => {
+                if felt || vib_recent {
+                    self.plan = Plan::Retreating;
+                    let dir = if felt {
+                        // The felt force pushes the hand away from the
+                        // obstacle: along the outward normal.
+                        let sd = self.p.force_direction_sd_deg.to_radians();
+                        let a = force[1].atan2(force[0]) + sd * self.gauss();
+                        [a.cos(), a.sin()]
+                    } else {
+                        [-self.heading[0], -self.heading[1]]
+                    };
+                    self.retreat_dir = dir;
+                    self.retreated = 0.0;
+                } else {
+                    self.point[0] += self.heading[0] * self.p.blind_speed_m_s * dt;
+                    self.point[1] += self.heading[1] * self.p.blind_speed_m_s * dt;
+                }
+            }
+            Plan::Retreating => {
+                if felt {
+                    // Keep moving away from what pushes: along the felt
+                    // force (the outward normal).
+                    let a = force[1].atan2(force[0]);
+                    self.retreat_dir = [a.cos(), a.sin()];
+                }
+                let step = self.p.retreat_speed_m_s * dt;
+                self.point[0] += self.retreat_dir[0] * step;
+                self.point[1] += self.retreat_dir[1] * step;
+                self.retreated += step;
+                // Retreated twice the instructed distance and the trial
+                // goes on: it was a false alarm; search on along the heading.
+                if self.retreated > 2.0 * self.retreat_distance {
+                    self.plan = Plan::Moving;
+                    self.retreated = 0.0;
+                    self.last_vib_event_s = f64::NEG_INFINITY;
+                }
+            }
+        }
+        self.point
+    }
+}
+
+impl Participant for SimOperator {
+    fn begin_trial(&mut self, brief: &TrialBrief) {
+        self.rng = brief.rng.clone();
+        self.task = brief.task;
+        self.mapping = brief.mapping;
+        self.force_lp = [0.0; 2];
+        self.force_delay.fill([0.0; 2]);
+        for h in &mut self.vib_hp {
+            h.reset();
+        }
+        self.env_short = 0.0;
+        self.env_long = 0.0;
+        self.vib_delay.fill(false);
+        self.last_vib_event_s = f64::NEG_INFINITY;
+        self.force_gain_err = (1.0 + self.p.force_weber * self.gauss()).max(0.2);
+        self.frames = [None; 16];
+        self.percept_frame = None;
+        self.plan = match brief.task {
+            TaskKind::Circling => Plan::Waiting,
+            TaskKind::BlindNavigation => Plan::Moving,
+        };
+        self.point = brief.start_trap_m;
+        self.heading = brief.heading;
+        self.retreat_dir = [-brief.heading[0], -brief.heading[1]];
+        self.retreated = 0.0;
+        self.retreat_distance = brief.retreat_distance_m;
+        self.last_used_frame = u64::MAX;
+        self.depth = 0.0;
+        self.noise = [0.0; 2];
+        self.arm_vel = [0.0; 2];
+        self.started = false;
+    }
+
+    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+        let dt = (obs.force_n.len().max(1) as f64) * obs.dt_s;
+        let force = self.perceive_force(obs);
+        if self.perceive_vibration(obs) {
+            self.last_vib_event_s = obs.t_s;
+        }
+        let vib_recent = obs.t_s - self.last_vib_event_s <= self.p.vibration_memory_s;
+        self.perceive_frame(obs);
+        let target = match self.task {
+            TaskKind::Circling => self.circling(obs, force, vib_recent, dt),
+            TaskKind::BlindNavigation => self.blind(force, vib_recent, dt),
+        };
+        self.point = target;
+        let hand = self.motor(target, dt);
+        if hand.iter().all(|v| v.is_finite()) {
+            hand
+        } else {
+            obs.handle_m
+        }
+    }
+}
+
+/// Angle (degrees) between a retreat direction and a normal; re-exported
+/// for tests of the operator's direction perception.
+pub fn direction_error_deg(dir: [f64; 2], normal: [f64; 2]) -> f64 {
+    angle_between(dir, normal).to_degrees()
+}
+
+/// Simulated participants of a study: the [`SimOperator`] of the trial's
+/// participant ([`OperatorParams::for_participant`]), rebuilt when the
+/// participant changes. Every trial resets the operator's state, so a trial
+/// behaves the same whatever ran before it.
+#[derive(Debug, Clone)]
+pub struct SimCohort {
+    study_seed: u64,
+    control_rate_hz: f64,
+    sample_rate_hz: f64,
+    current: Option<(u32, SimOperator)>,
+    failed: Option<String>,
+}
+
+impl SimCohort {
+    /// A cohort for study seed `study_seed`, with `act` called at
+    /// `control_rate_hz` on a rig running at `sample_rate_hz`.
+    pub fn new(study_seed: u64, control_rate_hz: f64, sample_rate_hz: f64) -> Self {
+        Self {
+            study_seed,
+            control_rate_hz,
+            sample_rate_hz,
+            current: None,
+            failed: None,
+        }
+    }
+
+    /// Why the last operator could not be built (invalid filter band for
+    /// this sample rate), if so; the hand then stays still.
+    pub fn error(&self) -> Option<&str> {
+        self.failed.as_deref()
+    }
+
+    /// The current operator.
+    pub fn operator(&self) -> Option<&SimOperator> {
+        self.current.as_ref().map(|(_, o)| o)
+    }
+}
+
+impl Participant for SimCohort {
+    fn begin_trial(&mut self, brief: &TrialBrief) {
+        if self
+            .current
+            .as_ref()
+            .is_none_or(|(p, _)| *p != brief.participant)
+        {
+            let params = OperatorParams::for_participant(self.study_seed, brief.participant);
+            match SimOperator::new(params, self.control_rate_hz, self.sample_rate_hz) {
+                Ok(op) => {
+                    self.current = Some((brief.participant, op));
+                    self.failed = None;
+                }
+                Err(e) => {
+                    self.current = None;
+                    self.failed = Some(e.to_string());
+                }
+            }
+        }
+        if let Some((_, op)) = &mut self.current {
+            op.begin_trial(brief);
+        }
+    }
+
+    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+        match &mut self.current {
+            Some((_, op)) => op.act(obs),
+            None => obs.handle_m,
+        }
+    }
+}

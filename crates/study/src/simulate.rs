@@ -1,0 +1,254 @@
+//! Simulated studies: every pending trial of a protocol run by the
+//! simulated operator on the simulated station, in parallel, stored in plan
+//! order (`kilotouch study simulate`).
+//!
+//! Each trial is a pure function of its key (scene, rig noise and operator
+//! noise come from the trial's generators; the operator's individual traits
+//! from (study seed, participant)), so worker threads may run trials in any
+//! order: results do not depend on the thread count. Workers write each
+//! trial's raw file directly to its final name; the calling thread commits
+//! rows strictly in plan order (journal `trial_started`, row + fsync,
+//! `trial_completed`), so after a kill the completed trials are a prefix of
+//! the plan and a resumed run re-runs exactly the rest (a raw file written
+//! ahead of its row is simply rewritten).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc;
+use std::time::Instant;
+
+use kilotouch_rig::config::RigConfig;
+use serde::Serialize;
+
+use crate::export::{
+    PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name, raw_layout_for,
+};
+use crate::operator::SimCohort;
+use crate::protocol::Protocol;
+use crate::rawsig::NpyWriter;
+use crate::runner::{NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout};
+use crate::task::station::SimStation;
+
+/// Options of [`simulate`].
+#[derive(Debug, Clone)]
+pub struct SimulateOptions {
+    /// The protocol (participants and seed already set).
+    pub protocol: Protocol,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Continue an existing folder (otherwise an existing study is an
+    /// error).
+    pub resume: bool,
+    /// Simulated rig.
+    pub rig: RigConfig,
+    /// Runner timing and raw-file dtype (`raw = None`: no raw files).
+    pub runner: RunnerConfig,
+    /// Worker threads (≥ 1).
+    pub threads: usize,
+}
+
+/// What a simulation did.
+#[derive(Debug, Clone, Serialize)]
+pub struct SimulateReport {
+    /// Output folder.
+    pub out: PathBuf,
+    /// Protocol name.
+    pub protocol: String,
+    /// Study seed.
+    pub seed: u64,
+    /// Participants.
+    pub participants: u32,
+    /// Trials in the plan (practice + test).
+    pub planned: usize,
+    /// Trials already complete when the run started (resume).
+    pub already_completed: usize,
+    /// Trials run now.
+    pub ran: usize,
+    /// Test rows in `trials.csv`.
+    pub test_rows: usize,
+    /// Practice rows.
+    pub practice_rows: usize,
+    /// Successful test trials.
+    pub test_success: usize,
+    /// Simulated time of the trials run now, s.
+    pub simulated_s: f64,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Threads used.
+    pub threads: usize,
+    /// Raw files written.
+    pub raw: bool,
+    /// What opening the folder found (resume report).
+    pub recovery: String,
+}
+
+type WorkerResult = Result<(UtcTime, TrialOutcome), RunError>;
+
+/// Runs one planned trial with the simulated operator on `engine`,
+/// writing its raw file under `dir` when the runner config asks for it.
+///
+/// # Errors
+/// Station, operator and raw-file errors.
+pub fn run_planned(
+    engine: &mut TrialEngine<SimStation>,
+    protocol: &Protocol,
+    planned: &PlannedTrial,
+    dir: &Path,
+) -> WorkerResult {
+    let key = planned.key;
+    let fs = engine.sample_rate_hz();
+    let cfg = *engine.config();
+    let mut op = SimCohort::new(protocol.seeds.study, fs / cfg.act_every as f64, fs);
+    let setup = engine.setup(protocol, key);
+    let started = UtcTime::now();
+    let setup_ok = |op: &SimCohort| -> Result<(), RunError> {
+        match op.error() {
+            Some(e) => Err(RunError::Config(format!("simulated operator: {e}"))),
+            None => Ok(()),
+        }
+    };
+    let outcome = match cfg.raw {
+        Some(dtype) => {
+            let layout = raw_layout_for(planned, started, raw_layout(fs, dtype));
+            let mut w = NpyWriter::create(&dir.join(raw_file_name(planned)), layout)?;
+            let o = engine.run_trial(&setup, &mut op, &mut w)?;
+            setup_ok(&op)?;
+            w.finish()?;
+            o
+        }
+        None => {
+            let o = engine.run_trial(&setup, &mut op, &mut NoRaw)?;
+            setup_ok(&op)?;
+            o
+        }
+    };
+    Ok((started, outcome))
+}
+
+/// Runs every pending trial of the study in `opts.out` (module docs).
+/// `progress(completed, planned)` is called after each commit.
+///
+/// # Errors
+/// [`RunError::State`] when the folder holds a study and `resume` is false;
+/// storage errors (e.g. a protocol mismatch on resume), station errors.
+pub fn simulate(
+    opts: &SimulateOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<SimulateReport, RunError> {
+    let t0 = Instant::now();
+    if opts.out.join(SESSION_FILE).exists() && !opts.resume {
+        return Err(RunError::State(format!(
+            "{} already holds a study; pass --resume to continue it or choose another folder",
+            opts.out.display()
+        )));
+    }
+    let threads = opts.threads.max(1);
+    let meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
+    let mut store = StudyStore::open(&opts.out, &opts.protocol, &meta)?;
+    let recovery = store.recovery().to_string();
+    let planned_total = store.plan().len();
+    let already = store.completed_count();
+    let pending: Vec<PlannedTrial> = store.pending().cloned().collect();
+    let dir = opts.out.clone();
+    let next = AtomicUsize::new(0);
+    let cancel = AtomicBool::new(false);
+    let mut simulated = 0.0;
+    let fs = opts.rig.rig.sample_rate_hz;
+    // Build one station per worker up front (chain design), so that an
+    // invalid rig is reported before anything runs.
+    let mut engines = Vec::with_capacity(threads);
+    for _ in 0..threads.min(pending.len().max(1)) {
+        engines.push(TrialEngine::new(SimStation::new(&opts.rig)?, opts.runner)?);
+    }
+    let result: Result<(), RunError> = std::thread::scope(|scope| {
+        let (tx, rx) = mpsc::channel::<(usize, WorkerResult)>();
+        for mut engine in engines.drain(..) {
+            let tx = tx.clone();
+            let (next, cancel, pending, dir) = (&next, &cancel, &pending, &dir);
+            let protocol = &opts.protocol;
+            scope.spawn(move || {
+                loop {
+                    if cancel.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(planned) = pending.get(i) else { break };
+                    let r = run_planned(&mut engine, protocol, planned, dir);
+                    let failed = r.is_err();
+                    if tx.send((i, r)).is_err() || failed {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        let mut done: BTreeMap<usize, (UtcTime, TrialOutcome)> = BTreeMap::new();
+        let mut commit_at = 0usize;
+        let mut completed = already;
+        let fail = |e: RunError| {
+            cancel.store(true, Ordering::Relaxed);
+            Err(e)
+        };
+        for (i, r) in rx {
+            match r {
+                Ok(v) => {
+                    done.insert(i, v);
+                }
+                Err(e) => return fail(e),
+            }
+            while let Some((started, outcome)) = done.remove(&commit_at) {
+                let planned = &pending[commit_at];
+                let r = (|| -> Result<(), RunError> {
+                    let mut ticket = store.begin_trial(planned.key, started)?;
+                    if opts.runner.raw.is_some() {
+                        store.attach_raw(&mut ticket)?;
+                    }
+                    let mut row = ticket.row();
+                    outcome.metrics.fill_row(&mut row);
+                    store.commit_trial(ticket, &row)?;
+                    Ok(())
+                })();
+                if let Err(e) = r {
+                    return fail(e);
+                }
+                simulated += outcome.samples as f64 / fs;
+                commit_at += 1;
+                completed += 1;
+                progress(completed, planned_total);
+            }
+        }
+        if commit_at != pending.len() {
+            return fail(RunError::State(format!(
+                "workers stopped after {commit_at} of {} trials",
+                pending.len()
+            )));
+        }
+        Ok(())
+    });
+    result?;
+    let files = store.close()?;
+    let rows = crate::export::read_trials(&opts.out.join(crate::export::TRIALS_FILE))?.rows;
+    let test: Vec<_> = rows
+        .iter()
+        .filter(|r| r.phase == crate::seeds::Phase::Test)
+        .collect();
+    let _ = files;
+    Ok(SimulateReport {
+        out: opts.out.clone(),
+        protocol: opts.protocol.name.clone(),
+        seed: opts.protocol.seeds.study,
+        participants: opts.protocol.participants,
+        planned: planned_total,
+        already_completed: already,
+        ran: pending.len(),
+        test_rows: test.len(),
+        practice_rows: rows.len() - test.len(),
+        test_success: test.iter().filter(|r| r.success).count(),
+        simulated_s: simulated,
+        wall_s: t0.elapsed().as_secs_f64(),
+        threads,
+        raw: opts.runner.raw.is_some(),
+        recovery,
+    })
+}

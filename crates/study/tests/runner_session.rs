@@ -1,0 +1,229 @@
+//! The session runner: states, pause/resume/notes/abort in the journal,
+//! every trial stored before the next begins, and crash/resume producing
+//! exactly the rows of an uninterrupted run (also across the parallel
+//! `simulate` path and any thread count).
+
+#![allow(clippy::unwrap_used)]
+
+use std::path::Path;
+
+use kilotouch_rig::config::RigConfig;
+use kilotouch_study::export::{StudyMeta, StudyStore, TRIALS_FILE, TrialRow, read_trials};
+use kilotouch_study::journal::{JOURNAL_FILE, Record, read_journal};
+use kilotouch_study::operator::SimCohort;
+use kilotouch_study::protocol::Protocol;
+use kilotouch_study::rawsig::{Dtype, read_npy, read_sidecar, sidecar_path};
+use kilotouch_study::runner::{RAW_CHANNELS, RunnerConfig, RunnerState, SessionRunner};
+use kilotouch_study::seeds::Phase;
+use kilotouch_study::simulate::{SimulateOptions, simulate};
+use kilotouch_study::task::station::SimStation;
+
+fn protocol() -> Protocol {
+    Protocol::from_toml_str(
+        "name = \"runner-test\"\nparticipants = 2\nconditions = [\"V\", \"D\"]\n\
+         trials_per_session = 2\n[training]\npractice_trials = 1\n\
+         [task.circling]\ntimeout_s = 25.0\n[seeds]\nstudy = 4242\n",
+        "<test>",
+    )
+    .unwrap()
+}
+
+fn config(raw: bool) -> RunnerConfig {
+    RunnerConfig {
+        raw: raw.then_some(Dtype::F32),
+        ..Default::default()
+    }
+}
+
+fn runner(dir: &Path, raw: bool) -> SessionRunner<SimStation> {
+    let store = StudyStore::open(dir, &protocol(), &StudyMeta::new("sim-test")).unwrap();
+    SessionRunner::new(
+        store,
+        SimStation::new(&RigConfig::default()).unwrap(),
+        config(raw),
+    )
+    .unwrap()
+}
+
+fn cohort() -> SimCohort {
+    SimCohort::new(protocol().seeds.study, 1000.0, 10_000.0)
+}
+
+/// Rows without the wall-clock columns (start time and the CRC covering it).
+fn comparable(dir: &Path) -> Vec<TrialRow> {
+    read_trials(&dir.join(TRIALS_FILE))
+        .unwrap()
+        .rows
+        .into_iter()
+        .map(|mut r| {
+            r.started_utc = kilotouch_study::export::UtcTime::from_unix_millis(0);
+            r
+        })
+        .collect()
+}
+
+#[test]
+fn runs_a_session_through_its_states_and_stores_every_trial() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    let mut r = runner(&dir, true);
+    let mut who = cohort();
+    assert_eq!(r.state(), RunnerState::Idle);
+    // Nothing runs before start.
+    assert_eq!(r.advance(&mut who, 100).unwrap().samples, 0);
+    let ev = r.start(&mut who).unwrap();
+    let first = ev.started.unwrap();
+    assert_eq!(first.phase, Phase::Practice);
+    assert_eq!(r.state(), RunnerState::Training(first));
+    // Steppable in small blocks; no commit happens inside advance.
+    let ev = r.advance(&mut who, 250).unwrap();
+    assert_eq!(ev.samples, 250);
+    assert_eq!(r.store().unwrap().completed_count(), 0);
+    // Pause: advance does nothing; resume continues the same trial.
+    r.pause("participant asked for a break").unwrap();
+    assert_eq!(r.state(), RunnerState::Paused(Some(first)));
+    assert_eq!(r.advance(&mut who, 100).unwrap().samples, 0);
+    r.note("fixed the chair height").unwrap();
+    r.resume(&mut who).unwrap();
+    assert_eq!(r.state(), RunnerState::Training(first));
+    // Run the practice trial to its end, then service commits it and
+    // begins the next trial.
+    let mut ended = None;
+    while ended.is_none() {
+        let ev = r.advance(&mut who, 1000).unwrap();
+        if ev.needs_service {
+            ended = ev.ended;
+        }
+    }
+    assert_eq!(ended.unwrap().0, first);
+    let ev = r.service(&mut who).unwrap();
+    let row = ev.committed.unwrap();
+    assert_eq!(row.phase, Phase::Practice);
+    assert_eq!(row.session_index, 0);
+    let second = ev.started.unwrap();
+    assert_ne!(second, first);
+    // On disk (fsynced) before the next trial began.
+    assert_eq!(read_trials(&dir.join(TRIALS_FILE)).unwrap().rows.len(), 1);
+    // Abort the second trial: it is stored as rejected, `aborted`.
+    r.advance(&mut who, 500).unwrap();
+    let ev = r.abort_trial().unwrap();
+    assert!(ev.needs_service);
+    let ev = r.service(&mut who).unwrap();
+    let aborted = ev.committed.unwrap();
+    assert!(!aborted.success);
+    assert_eq!(aborted.reject_reason, "aborted");
+    assert!((aborted.time_s.unwrap() - 0.05).abs() < 1e-9);
+    // Run the rest.
+    let mut calls = Vec::new();
+    r.run_to_end(&mut who, 4096, &mut |d, t| calls.push((d, t)))
+        .unwrap();
+    assert_eq!(r.state(), RunnerState::Done);
+    let planned = 2 * (2 + 2 * 2);
+    assert_eq!(calls.last(), Some(&(planned, planned)));
+    let rows = read_trials(&dir.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(rows.len(), planned);
+    assert_eq!(
+        rows.iter().filter(|r| r.phase == Phase::Practice).count(),
+        4
+    );
+    for row in &rows {
+        assert!(row.escaped.is_some() && row.contact_fraction.is_some());
+        assert!(row.time_s.unwrap() > 0.0 && row.time_s.unwrap() <= 25.0 + 1e-9);
+        let npy = dir.join(&row.raw_file);
+        let a = read_npy(&npy).unwrap();
+        assert_eq!(a.cols, RAW_CHANNELS);
+        // One raw row per sample: the last sample is the trial's end.
+        assert!((a.rows as f64 / 10_000.0 - row.time_s.unwrap()).abs() < 1e-9);
+        let side = read_sidecar(&sidecar_path(&npy)).unwrap();
+        assert_eq!(side.channels.len(), RAW_CHANNELS);
+        assert_eq!(side.channels[17].name, "hand_x");
+        // The end sample carries the end event (an abort happens between
+        // samples, so the aborted trial's last row has none).
+        let last_event = a.row(a.rows as usize - 1)[16];
+        if row.reject_reason == "aborted" {
+            assert_ne!(last_event, 9.0);
+        } else {
+            assert_eq!(last_event, 9.0, "end event code");
+        }
+    }
+    assert!(dir.join("cells_long.csv").is_file() && dir.join("cells_wide.csv").is_file());
+    let j = read_journal(&dir.join(JOURNAL_FILE)).unwrap();
+    let has = |f: &dyn Fn(&Record) -> bool| j.entries.iter().any(|e| f(&e.record));
+    assert!(has(
+        &|r| matches!(r, Record::Paused { reason } if reason.contains("break"))
+    ));
+    assert!(has(&|r| matches!(r, Record::Resumed)));
+    assert!(has(
+        &|r| matches!(r, Record::Note { text } if text.contains("chair"))
+    ));
+    assert!(has(&|r| matches!(r, Record::SessionDone { .. })));
+    // Invalid transitions are refused.
+    assert!(r.pause("x").is_err());
+    assert!(r.abort_trial().is_err());
+}
+
+/// Dropping a runner in the middle of a trial (a crash) and resuming with a
+/// new one gives exactly the rows of an uninterrupted run; the parallel
+/// `simulate` path gives them too, for any thread count.
+#[test]
+fn killed_session_resumes_to_the_uninterrupted_rows() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = tmp.path().join("full");
+    let mut r = runner(&full, false);
+    r.run_to_end(&mut cohort(), 10_000, &mut |_, _| {}).unwrap();
+    let reference = comparable(&full);
+    assert_eq!(reference.len(), 12);
+
+    let cut = tmp.path().join("cut");
+    let mut r = runner(&cut, false);
+    let mut who = cohort();
+    r.start(&mut who).unwrap();
+    let mut committed = 0;
+    while committed < 5 {
+        let ev = r.advance(&mut who, 3000).unwrap();
+        if ev.needs_service && r.service(&mut who).unwrap().committed.is_some() {
+            committed += 1;
+        }
+    }
+    r.advance(&mut who, 7777).unwrap(); // in the middle of trial 6
+    drop(r); // crash: no close, trial 6 open in the journal
+    let store = StudyStore::open(&cut, &protocol(), &StudyMeta::new("sim-test")).unwrap();
+    assert_eq!(store.recovery().interrupted.len(), 1);
+    assert_eq!(store.completed_count(), 5);
+    let mut r = SessionRunner::new(
+        store,
+        SimStation::new(&RigConfig::default()).unwrap(),
+        config(false),
+    )
+    .unwrap();
+    r.run_to_end(&mut cohort(), 10_000, &mut |_, _| {}).unwrap();
+    assert_eq!(comparable(&cut), reference);
+
+    for threads in [1, 3] {
+        let out = tmp.path().join(format!("sim{threads}"));
+        let opts = SimulateOptions {
+            protocol: protocol(),
+            out: out.clone(),
+            resume: false,
+            rig: RigConfig::default(),
+            runner: config(false),
+            threads,
+        };
+        let rep = simulate(&opts, &mut |_, _| {}).unwrap();
+        assert_eq!(rep.test_rows, 8);
+        assert_eq!(rep.practice_rows, 4);
+        assert_eq!(comparable(&out), reference, "threads = {threads}");
+        // A second run without --resume is refused, with --resume it finds
+        // nothing to do.
+        assert!(simulate(&opts, &mut |_, _| {}).is_err());
+        let rep = simulate(
+            &SimulateOptions {
+                resume: true,
+                ..opts.clone()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        assert_eq!(rep.ran, 0);
+    }
+}
