@@ -91,6 +91,15 @@ pub const MAX_WATCHDOG_WINDOW: usize = 1 << 20;
 /// Ring length of the velocity estimator (> L + 1, power of two).
 const RING: usize = 256;
 
+/// ‖(x, y)‖₂ as √(x² + y²): several times cheaper than `f64::hypot` (a
+/// libm call). Callers pass values bounded by the limits (no overflow) or
+/// accept +∞ for |x| ≳ 1e154 (a huge command or speed, which the comparisons
+/// then treat as too large, correctly).
+#[inline]
+fn norm2(x: f64, y: f64) -> f64 {
+    (x * x + y * y).sqrt()
+}
+
 /// Hard (stateless) actuator limits.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct HardLimits {
@@ -103,7 +112,8 @@ pub struct HardLimits {
 }
 
 impl HardLimits {
-    /// Validated limits (each finite and > 0).
+    /// Validated limits (each finite, > 0 and ≤ 1e6 N or V, so that squares
+    /// of limited values cannot overflow).
     pub fn new(
         force_axis_max_n: f64,
         force_norm_max_n: f64,
@@ -114,11 +124,11 @@ impl HardLimits {
             ("force_norm_max_n", force_norm_max_n),
             ("drive_max_v", drive_max_v),
         ] {
-            if !(v.is_finite() && v > 0.0) {
+            if !(v.is_finite() && v > 0.0 && v <= 1e6) {
                 return Err(RigError::InvalidParameter {
                     name,
                     value: v,
-                    reason: "must be finite and > 0".into(),
+                    reason: "must be finite, > 0 and ≤ 1e6".into(),
                 });
             }
         }
@@ -166,7 +176,7 @@ pub fn hard_limit(cmd: ActuatorFrame, lim: &HardLimits) -> (ActuatorFrame, Frame
             flags |= FrameFlags::LIMITED;
         }
     }
-    let n = f[0].hypot(f[1]);
+    let n = norm2(f[0], f[1]);
     if n > lim.force_norm_max_n {
         let s = lim.force_norm_max_n / n;
         f = [f[0] * s, f[1] * s];
@@ -370,8 +380,8 @@ impl VelocityEstimator {
         let e = &self.est;
         let vx = median3(e[0][0], e[1][0], e[2][0]);
         let vy = median3(e[0][1], e[1][1], e[2][1]);
-        let s = vx.hypot(vy);
-        // Positions are finite, so s is finite unless they differ by ~1e308.
+        let s = norm2(vx, vy);
+        // +∞ only for position differences beyond ~1e150 m: a trip.
         (Some(if s.is_finite() { s } else { f64::MAX }), bad)
     }
 }
@@ -574,7 +584,7 @@ impl SafetyLayer {
 
         if self.state == SafetyState::Arming
             && finite
-            && cmd.force_n[0].hypot(cmd.force_n[1]) < self.enable_force
+            && norm2(cmd.force_n[0], cmd.force_n[1]) < self.enable_force
             && speed.is_some_and(|s| s <= self.v_max)
         {
             self.ramp_k = 0;
@@ -613,7 +623,7 @@ impl SafetyLayer {
             }
             let mut f = lim.force_n;
             let d = [f[0] - self.prev_f[0], f[1] - self.prev_f[1]];
-            let dn = d[0].hypot(d[1]);
+            let dn = norm2(d[0], d[1]);
             if dn > self.slew_step {
                 let s = self.slew_step / dn;
                 let a = self.limits.force_axis_max_n;
