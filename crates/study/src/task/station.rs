@@ -14,6 +14,7 @@
 use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::{Coupling, CouplingMode};
 use kilotouch_rig::rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+use kilotouch_rig::safety::{SafetyLayer, SafetyStatus};
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerParams, TweezerSample};
 use rand_chacha::ChaCha20Rng;
 use rand_chacha::rand_core::Rng;
@@ -109,6 +110,9 @@ pub struct SimStation {
     rig: SimRig,
     tweezer: SimTweezer,
     coupling: Coupling,
+    /// Every command passes through the rig's safety layer (limits, slew,
+    /// ramp-on, handle-speed trip, e-stop), as in `ClosedLoop`.
+    safety: SafetyLayer,
     sensors: SensorFrame,
     haptic: bool,
 }
@@ -129,6 +133,7 @@ impl SimStation {
             rig,
             tweezer,
             coupling,
+            safety: SafetyLayer::from_config(cfg)?,
             sensors: SensorFrame::default(),
             haptic: true,
         })
@@ -147,6 +152,11 @@ impl SimStation {
     /// The coupling.
     pub fn coupling(&self) -> &Coupling {
         &self.coupling
+    }
+
+    /// The safety layer's state, trip and counters.
+    pub fn safety_status(&self) -> SafetyStatus {
+        self.safety.status()
     }
 }
 
@@ -201,6 +211,12 @@ impl Station for SimStation {
         self.sensors = SensorFrame::default();
         let trap = self.coupling.trap_target(self.sensors.handle_m);
         tweezer.reset(trap);
+        // A fresh, armed safety layer per trial: forces come on through the
+        // ramp once the command is small, and a resumed study reproduces
+        // every row exactly.
+        let mut safety = SafetyLayer::from_config(&cfg)?;
+        safety.arm()?;
+        self.safety = safety;
         self.rig = rig;
         self.tweezer = tweezer;
         Ok(())
@@ -222,6 +238,7 @@ impl Station for SimStation {
         } else {
             (ActuatorFrame::default(), [0.0; 2])
         };
+        let command = self.safety.apply(command, &self.sensors, false);
         let mut out = [SensorFrame::default()];
         self.rig.process_block(&[command], &mut out)?;
         self.sensors = out[0];
