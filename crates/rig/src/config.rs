@@ -227,7 +227,7 @@ pub struct LimitsConfig {
 }
 
 /// `[safety]`: the safety layer every closed-loop run passes through
-/// (`crate::safety`, `docs/safety-audio.md`). Per-axis force and drive limits
+/// (`crate::safety`, `docs/THEORY.md` (safety layer and audio rig)). Per-axis force and drive limits
 /// are `[limits]`; this section adds the rest. Every key has a default, so a
 /// rig file may omit the section or any key of it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

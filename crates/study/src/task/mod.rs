@@ -13,7 +13,7 @@
 //! through it ([`circling::circling_metrics`], [`blind::blind_metrics`]). The
 //! session runner feeds the accumulator online, so nothing is stored per
 //! sample; the unit tests feed hand-built trajectories. Definitions and
-//! equations: `docs/STUDY.md` §11 and `docs/tasks-theory.md`.
+//! equations: `docs/STUDY.md` §11 and `docs/THEORY.md` (study tasks).
 //!
 //! Units: SI inside (m, s, N); the exported columns carry their unit in
 //! their name (µm, pN, deg).
