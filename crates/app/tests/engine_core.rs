@@ -5,6 +5,8 @@
 //! Most tests step the engine core on the test thread with a manual clock
 //! (deterministic, no sleeping); one runs the engine on its own thread.
 
+#![allow(clippy::unwrap_used)]
+
 use kilotouch::engine::{
     BlockDriver, Command, Condition, EngineCore, EngineEvent, EngineHandle, EngineOptions,
     SafetyState, TelemetrySample, engine_pair, flags, splitter::SwapOutcome,

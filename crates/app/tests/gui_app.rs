@@ -3,6 +3,8 @@
 //! adapter is needed (the scene uses the egui-painter fallback without a
 //! wgpu render state, which these tests also check).
 
+#![allow(clippy::unwrap_used)]
+
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::engine::{SafetyState, flags};
@@ -182,4 +184,47 @@ fn dragging_in_the_scene_moves_the_trap() {
     h.step();
     let end = h.state().explore.last.unwrap().trap_m;
     assert!(ok, "trap went from {start:?} to {end:?}, target {target:?}");
+}
+
+fn kilotouch(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_kilotouch"))
+        .args(args)
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("run kilotouch")
+}
+
+#[test]
+fn gui_arguments_are_checked_before_any_window_opens() {
+    // --screenshot needs --quit-after: a usage error (2).
+    let o = kilotouch(&["gui", "--screenshot", "x.png"]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    // Bad numbers: clear errors, exit 1, no panic.
+    for args in [
+        &["gui", "--quit-after", "nan"][..],
+        &["gui", "--quit-after", "inf"][..],
+        &["gui", "--size", "5x5"][..],
+        &["gui", "--size", "wide"][..],
+    ] {
+        let o = kilotouch(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("kilotouch: error:") && !err.contains("panicked"),
+            "{err}"
+        );
+    }
+    let o = kilotouch(&["gui", "--page", "nowhere"]);
+    assert_eq!(o.status.code(), Some(2));
+    // Without a display the app fails with a clear message instead of hanging.
+    let o = kilotouch(&["gui", "--quit-after", "1"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("cannot open the GUI"), "{err}");
 }

@@ -64,6 +64,8 @@ pub struct ScreenshotPlan {
     pub after_s: f64,
     /// Exit code for `main` (0 ok, 1 blank or unwritable image).
     pub exit_code: Arc<AtomicI32>,
+    /// Bits per channel kept in the PNG.
+    pub bits: u8,
     start: Instant,
     requested: bool,
     tx: mpsc::Sender<Arc<egui::ColorImage>>,
@@ -72,12 +74,13 @@ pub struct ScreenshotPlan {
 
 impl ScreenshotPlan {
     /// New plan.
-    pub fn new(path: Option<PathBuf>, after_s: f64, exit_code: Arc<AtomicI32>) -> Self {
+    pub fn new(path: Option<PathBuf>, after_s: f64, exit_code: Arc<AtomicI32>, bits: u8) -> Self {
         let (tx, rx) = mpsc::channel();
         Self {
             path,
             after_s,
             exit_code,
+            bits,
             start: Instant::now(),
             requested: false,
             tx,
@@ -541,9 +544,11 @@ impl KilotouchApp {
         if let Some(e) = &self.engine {
             self.settings.condition = e.condition();
         }
-        // Live pages repaint continuously; others often enough to drain telemetry.
+        // Live pages repaint at 30 fps (the camera's rate; rendering faster
+        // only takes CPU from the engine), others often enough to drain
+        // the telemetry queue.
         if self.page == Page::Explore || self.page == Page::Rig {
-            ctx.request_repaint();
+            ctx.request_repaint_after(std::time::Duration::from_millis(33));
         } else {
             ctx.request_repaint_after(std::time::Duration::from_millis(100));
         }
@@ -553,7 +558,7 @@ impl KilotouchApp {
         let Some(plan) = &mut self.screenshot else {
             return;
         };
-        ctx.request_repaint();
+        ctx.request_repaint_after(std::time::Duration::from_millis(33));
         if !plan.requested && plan.start.elapsed().as_secs_f64() >= plan.after_s {
             plan.requested = true;
             match &plan.path {
@@ -568,7 +573,7 @@ impl KilotouchApp {
         }
         if let Ok(img) = plan.rx.try_recv() {
             let code = match &plan.path {
-                Some(p) => match super::save_png(&img, p) {
+                Some(p) => match super::save_png(&img, p, plan.bits) {
                     Ok(()) if super::image_is_blank(&img) => {
                         eprintln!("kilotouch: screenshot {} is blank", p.display());
                         1

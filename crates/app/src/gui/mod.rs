@@ -39,6 +39,10 @@ pub struct GuiArgs {
     /// Quit after this many seconds.
     #[arg(long, value_name = "SECONDS")]
     pub quit_after: Option<f64>,
+    /// Bits kept per colour channel in the screenshot (1–8; fewer = smaller
+    /// PNG, e.g. 5 for the README images).
+    #[arg(long, value_name = "BITS", default_value_t = 8, value_parser = clap::value_parser!(u8).range(1..=8))]
+    pub screenshot_bits: u8,
     /// Window size in points, WxH (default 1100x700).
     #[arg(long, value_name = "WxH", default_value = "1100x700")]
     pub size: String,
@@ -49,6 +53,7 @@ impl GuiArgs {
     pub fn default_args() -> Self {
         Self {
             size: "1100x700".into(),
+            screenshot_bits: 8,
             ..Default::default()
         }
     }
@@ -100,6 +105,7 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         persist_window: !shot,
         ..Default::default()
     };
+    let bits = args.screenshot_bits;
     let plan = args
         .quit_after
         .map(|q| (args.screenshot.clone(), q, exit_code.clone()));
@@ -109,7 +115,7 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         Box::new(move |cc| {
             let mut app = KilotouchApp::new(opts, cc.storage, cc.wgpu_render_state.as_ref());
             if let Some((path, q, code)) = plan {
-                app.screenshot = Some(app::ScreenshotPlan::new(path, q, code));
+                app.screenshot = Some(app::ScreenshotPlan::new(path, q, code, bits));
             }
             Ok(Box::new(app))
         }),
@@ -127,20 +133,24 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
     })
 }
 
-/// Save an egui image as PNG.
-pub fn save_png(img: &egui::ColorImage, path: &Path) -> anyhow::Result<()> {
+/// Save an egui image as an RGB PNG (opaque window; best compression),
+/// keeping the top `bits` (1–8) of each channel.
+pub fn save_png(img: &egui::ColorImage, path: &Path, bits: u8) -> anyhow::Result<()> {
+    let mask = 0xFFu8 << (8 - bits.clamp(1, 8));
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     let [w, h] = img.size;
-    let mut rgba = Vec::with_capacity(w * h * 4);
+    let mut rgb = Vec::with_capacity(w * h * 3);
     for p in &img.pixels {
-        rgba.extend_from_slice(&p.to_srgba_unmultiplied());
+        let [r, g, b, _] = p.to_srgba_unmultiplied();
+        rgb.extend_from_slice(&[r & mask, g & mask, b & mask]);
     }
-    image::save_buffer_with_format(
-        path,
-        &rgba,
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    PngEncoder::new_with_quality(file, CompressionType::Best, FilterType::Adaptive).write_image(
+        &rgb,
         u32::try_from(w)?,
         u32::try_from(h)?,
-        image::ColorType::Rgba8,
-        image::ImageFormat::Png,
+        image::ExtendedColorType::Rgb8,
     )?;
     Ok(())
 }
@@ -197,7 +207,7 @@ mod tests {
         let px: Vec<Color32> = (0..20 * 10)
             .map(|i| Color32::from_rgb(i as u8, 255 - i as u8, 7))
             .collect();
-        save_png(&ColorImage::new([20, 10], px.clone()), &p).unwrap();
+        save_png(&ColorImage::new([20, 10], px.clone()), &p, 8).unwrap();
         let back = image::open(&p).unwrap().to_rgba8();
         assert_eq!(back.dimensions(), (20, 10));
         // pixel (x 3, y 2) is index 2·20 + 3 = 43 → (43, 255 − 43, 7)
@@ -205,10 +215,15 @@ mod tests {
         assert!(
             save_png(
                 &ColorImage::new([1, 1], vec![Color32::RED]),
-                Path::new("/nonexistent/dir/x.png")
+                Path::new("/nonexistent/dir/x.png"),
+                8
             )
             .is_err()
         );
+        // 5 bits: the low 3 bits of every channel are cleared.
+        save_png(&ColorImage::new([20, 10], px), &p, 5).unwrap();
+        let back = image::open(&p).unwrap().to_rgba8();
+        assert_eq!(back.get_pixel(3, 2).0, [43 & 0xF8, 212 & 0xF8, 0, 255]);
     }
 
     #[test]

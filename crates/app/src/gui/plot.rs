@@ -412,10 +412,10 @@ mod tests {
             assert_eq!(mm.len(), cols);
             // Every sample lies within its column's [min, max] …
             let mut covered = 0;
-            for j in 0..cols {
+            for (j, m) in mm.iter().enumerate() {
                 let r = column_range(n, cols, j);
                 covered += r.len();
-                match mm[j] {
+                match *m {
                     None => assert!(r.is_empty()),
                     Some((lo, hi)) => {
                         for &v in &x[r.clone()] {

@@ -405,6 +405,56 @@ mod tests {
         assert!(higher.y < up.y, "specimen +y is screen up");
     }
 
+    fn count_circles(shapes: &[egui::epaint::ClippedShape]) -> (usize, usize) {
+        let (mut filled, mut stroked) = (0, 0);
+        for s in shapes {
+            if let egui::Shape::Circle(c) = &s.shape {
+                if c.fill != Color32::TRANSPARENT {
+                    filled += 1;
+                }
+                if c.stroke.width > 0.0 {
+                    stroked += 1;
+                }
+            }
+        }
+        (filled, stroked)
+    }
+
+    #[test]
+    fn painter_fallback_draws_every_bead_and_the_trap() {
+        let ctx = egui::Context::default();
+        let draw = |noise: f64, n_obstacles: usize| {
+            let mut out = ctx.run_ui(egui::RawInput::default(), |ui| {
+                let rect = Rect::from_min_size(Pos2::ZERO, egui::vec2(300.0, 300.0));
+                let f = SceneFrame {
+                    view: View::fit(rect, [0.0; 2], 24.0),
+                    bead_m: [0.0; 2],
+                    bead_radius_m: 1.5e-6,
+                    trap_m: [0.5e-6, 0.0],
+                    obstacles: (0..n_obstacles)
+                        .map(|k| Obstacle {
+                            centre_m: [-15e-6 + 10e-6 * k as f64, 12e-6],
+                            radius_m: 4e-6,
+                        })
+                        .collect(),
+                    blur_um: 0.2,
+                    noise,
+                    frame: 3,
+                    estop: false,
+                };
+                paint_fallback(ui.painter(), &f);
+            });
+            out.textures_delta.clear();
+            count_circles(&out.shapes)
+        };
+        // Per bead: outer ring (stroke), body (fill), rim (stroke), focus spot
+        // (fill); plus the trap marker (stroke). No noise dots at noise 0.
+        assert_eq!(draw(0.0, 0), (2, 3));
+        assert_eq!(draw(0.0, 3), (8, 9));
+        // Noise adds dots (filled circles), 400 per unit amplitude.
+        assert_eq!(draw(0.05, 3).0, 8 + 20);
+    }
+
     #[test]
     fn uniforms_pack_the_beads_and_the_trap() {
         let f = SceneFrame {

@@ -78,8 +78,8 @@ fn fs_main(v: VsOut) -> @location(0) vec4<f32> {
             i = i + bead_intensity(p, u.beads[k], blur);
         }
     }
-    // camera noise: new pattern every camera frame
-    i = i + u.params.y * (hash(floor(v.pos.xy), u.params.z) - 0.5);
+    // camera noise: new pattern every camera frame, on 2×2-pixel camera cells
+    i = i + u.params.y * (hash(floor(v.pos.xy * 0.5), u.params.z) - 0.5);
     i = clamp(i, 0.0, 1.0);
     var col = vec3<f32>(i * 0.97, i, i * 0.93);
     // trap marker: a thin ring (green; red while the emergency stop is latched)

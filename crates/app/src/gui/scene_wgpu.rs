@@ -186,4 +186,26 @@ mod tests {
             assert!(module.entry_points.iter().any(|e| e.name == entry));
         }
     }
+
+    /// With a GPU adapter (e.g. Mesa lavapipe), the real pipeline builds and
+    /// a broken shader is caught by the error scope (→ painter fallback).
+    /// Skipped when no adapter is available (CPU-only CI before the Xvfb step).
+    #[test]
+    fn pipeline_builds_and_a_broken_shader_falls_back() {
+        let rs = std::panic::catch_unwind(|| {
+            egui_kittest::wgpu::create_render_state(
+                egui_kittest::wgpu::default_wgpu_setup(),
+                Default::default(),
+            )
+        });
+        let Ok(rs) = rs else {
+            eprintln!("no wgpu adapter: skipped");
+            return;
+        };
+        install(&rs).expect("scene pipeline");
+        let err = install_with_shader(&rs, "fn broken( {").unwrap_err();
+        assert!(err.contains("scene pipeline"), "{err}");
+        let wrong_entry = SHADER.replace("fn fs_main", "fn fs_other");
+        assert!(install_with_shader(&rs, &wrong_entry).is_err());
+    }
 }

@@ -81,7 +81,7 @@ impl ExplorePage {
             tool: Tool::Drag,
             obstacle_radius_um: 5.0,
             blur_um: 0.25,
-            noise: 0.06,
+            noise: 0.04,
             trace_seconds: 2.0,
             gpu: false,
             view: None,
@@ -308,7 +308,7 @@ impl ExplorePage {
         let scene_side = (avail.x * 0.48).min(avail.y).max(120.0);
         ui.horizontal_top(|ui| {
             ui.vertical(|ui| {
-                self.scene_ui(ui, cfg, scene_side, engine.as_deref_mut());
+                self.scene_ui(ui, cfg, scene_side, engine);
             });
             ui.vertical(|ui| {
                 self.plots_ui(ui, avail.y);
