@@ -433,7 +433,8 @@ impl KilotouchApp {
                         let miss_col = if h.deadline_misses > 0 { Color32::from_rgb(230, 150, 40) } else { ui.visuals().text_color() };
                         ui.colored_label(miss_col, format!("deadline misses {}", h.deadline_misses))
                             .on_hover_text("blocks finished more than the tolerated latency after their deadline");
-                        ui.label(format!("worst {:.2} ms", 1e3 * h.worst_lateness_s));
+                        ui.label(format!("worst late {:.2} ms", 1e3 * h.worst_lateness_s.max(0.0)))
+                            .on_hover_text("largest lateness of a block past its deadline in the last 100 ms (0 = all on time)");
                         if h.telemetry_dropped > 0 {
                             ui.label(format!("telemetry dropped {}", h.telemetry_dropped));
                         }

@@ -192,7 +192,7 @@ impl RigPage {
                                     ("deadline misses", x.deadline_misses.to_string()),
                                     (
                                         "worst lateness (window)",
-                                        format!("{:.2} ms", 1e3 * x.worst_lateness_s),
+                                        format!("{:.2} ms", 1e3 * x.worst_lateness_s.max(0.0)),
                                     ),
                                     ("stalls (re-anchored)", x.overruns.to_string()),
                                     ("frames", r.frames.to_string()),
