@@ -19,9 +19,10 @@
 //!   report), so what makes a block late is the OS waking the thread late.
 //!   Under a normal (non-real-time) scheduling policy on a 2-core box that is
 //!   also compiling, wake-ups later than 2 ms do happen: measured while
-//!   developing this test (dev build, load average 6–13 from five other
-//!   builds): 3 593 late blocks of 60 200, worst 53 ms, 0 overruns, rate
-//!   10 001.8 Hz, 0 telemetry dropped. On a quiet machine, or with the engine
+//!   developing this test, load average 6–13 from five other builds:
+//!   dev build 3 593 late blocks of 60 200, worst 53 ms; test profile
+//!   (opt-level 2, engine load 0.4 % of each block) 1 125 of 60 200, worst
+//!   36 ms; both with 0 overruns, rate 10 kHz, 0 telemetry dropped. On a quiet machine, or with the engine
 //!   thread under SCHED_FIFO, run with `KILOTOUCH_STRICT_RT=1` to require 0.
 //!   The test always prints the counts.
 
