@@ -34,8 +34,10 @@ fn cond_index(c: Condition) -> usize {
 
 /// The known manipulation time of a test trial, s.
 fn time_s(p: usize, c: usize, t: u32) -> f64 {
-    40.0 + 5.0 * p as f64 + [15.0, 5.0, 0.0][c] + 0.7 * f64::from(t)
-        + 2.0 * ((p * 3 + c * 2 + t as usize) % 4) as f64
+    40.0 + 5.0 * p as f64
+        + [15.0, 5.0, 0.0][c]
+        + 0.7 * f64::from(t)
+        + 2.0 * ((p * p * 5 + c * c * 3 + t as usize * 7 + p * c) % 5) as f64
 }
 
 /// The known mean optical force, pN.
@@ -52,20 +54,21 @@ fn protocol() -> Protocol {
          trials_per_session = {TRIALS}\n[training]\npractice_trials = 1\n\
          [task.circling]\n[seeds]\nstudy = 7\n"
     );
-    Protocol::from_toml_str(&text, "<test>").unwrap()
+    Protocol::from_toml_str(&text, "<test>").expect("test setup")
 }
 
 /// Write the study folder.
 fn write_study(dir: &Path) {
     let protocol = protocol();
-    let mut store = StudyStore::open(dir, &protocol, &StudyMeta::new("sim-test")).unwrap();
+    let mut store =
+        StudyStore::open(dir, &protocol, &StudyMeta::new("sim-test")).expect("test setup");
     while let Some(planned) = store.next_pending().cloned() {
         let key = planned.key;
         let p = key.participant as usize;
         let c = cond_index(key.condition);
         let mut ticket = store
             .begin_trial(key, UtcTime::from_unix_millis(1_767_225_600_000))
-            .unwrap();
+            .expect("test setup");
         // P01's test trials carry raw signals: the bead goes once round a
         // circle of RADIUS_UM (channel order differs from the standard one
         // on purpose: the reader must use the sidecar's names).
@@ -80,14 +83,15 @@ fn write_study(dir: &Path) {
                 ],
                 attrs: serde_json::Map::new(),
             };
-            let mut raw = store.raw_writer(&mut ticket, layout).unwrap();
+            let mut raw = store.raw_writer(&mut ticket, layout).expect("test setup");
             let n = 9000 + 1000 * key.trial as usize;
             for i in 0..n {
                 let a = 2.0 * std::f64::consts::PI * i as f64 / (n - 1) as f64;
                 let r = RADIUS_UM * 1e-6;
-                raw.push(&[0.0, r * a.sin(), r * a.cos()]).unwrap();
+                raw.push(&[0.0, r * a.sin(), r * a.cos()])
+                    .expect("test setup");
             }
-            raw.finish().unwrap();
+            raw.finish().expect("test setup");
         }
         let mut row = ticket.row();
         row.escaped = Some(false);
@@ -106,9 +110,9 @@ fn write_study(dir: &Path) {
             row.time_s = Some(time_s(p, c, key.trial));
             row.force_mean_pn = Some(force_pn(p, c, key.trial));
         }
-        store.commit_trial(ticket, &row).unwrap();
+        store.commit_trial(ticket, &row).expect("test setup");
     }
-    store.close().unwrap();
+    store.close().expect("test setup");
 }
 
 /// Cell means (participant × condition, V P D) of a metric, from the known
@@ -216,9 +220,12 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     open(&mut h, &dir);
     assert_eq!(h.state().page.error(), None);
     // Another folder than the shell's: remembered through the shell.
-    assert!(h.state().requests.iter().any(
-        |r| matches!(r, ShellRequest::SetOutputDir(p) if p == &dir)
-    ));
+    assert!(
+        h.state()
+            .requests
+            .iter()
+            .any(|r| matches!(r, ShellRequest::SetOutputDir(p) if p == &dir))
+    );
     // 4 × 3 × 3 test trials (practice rows are read but not counted).
     h.get_by_label_contains("4 participants, conditions V, P, D, 36 test trials (48 rows)");
 
@@ -290,23 +297,40 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
 
     // Switch the metric through the combo box: mean optical force.
     h.get_by_label("Metric").click();
-    h.step();
+    h.run();
     h.get_by_label("mean optical force (pN)").click();
-    h.step();
-    h.step();
+    h.run();
     let yf = cell_means(force_pn);
     let (f_rm_force, _) = textbook_f(&yf);
     let st = h.state().page.stats().unwrap();
     assert_eq!(st.metric, "force_mean_pn");
     assert!((st.rm_anova.as_ref().unwrap().f / f_rm_force - 1.0).abs() < 1e-10);
+    // P − D is the same for every participant: the paired t-tests are
+    // undefined, and the page says why instead of failing the whole table.
+    assert!(st.pairwise_t.is_none());
+    assert!(
+        st.errors
+            .iter()
+            .any(|(t, e)| t == "paired_t" && e.contains("`P` vs `D`"))
+    );
+    h.get_by_label_contains("`P` vs `D`");
 
     // Export: stats.csv / stats.json next to the data, every metric.
-    h.get_by_label("Export statistics (stats.csv, stats.json)").click();
-    h.step();
+    h.get_by_label("Export statistics (stats.csv, stats.json)")
+        .click();
+    h.run();
+    assert!(
+        h.state().page.error().is_none(),
+        "{:?}",
+        h.state().page.error()
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("stats.json")).unwrap()).unwrap();
     let tables = json.as_array().unwrap();
-    let names: Vec<&str> = tables.iter().map(|t| t["metric"].as_str().unwrap()).collect();
+    let names: Vec<&str> = tables
+        .iter()
+        .map(|t| t["metric"].as_str().unwrap())
+        .collect();
     assert_eq!(names, ["n_success", "time_s", "force_mean_pn"]);
     let f_json = tables[1]["rm_anova"]["F"].as_f64().unwrap();
     assert!((f_json / f_rm - 1.0).abs() < 1e-10);
@@ -321,7 +345,7 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     // Regenerate the summaries: cells_long.csv comes back with the means.
     std::fs::remove_file(dir.join("cells_long.csv")).unwrap();
     h.get_by_label("Regenerate summaries").click();
-    h.step();
+    h.run();
     let long = std::fs::read_to_string(dir.join("cells_long.csv")).unwrap();
     let mut lines = long.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
@@ -341,7 +365,11 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     h.get_by_label("Load trajectories").click();
     let t0 = Instant::now();
     while h.state().page.trajectories().is_none() {
-        assert!(h.state().page.trajectory_error().is_none(), "{:?}", h.state().page.trajectory_error());
+        assert!(
+            h.state().page.trajectory_error().is_none(),
+            "{:?}",
+            h.state().page.trajectory_error()
+        );
         assert!(t0.elapsed() < Duration::from_secs(60));
         h.step();
         std::thread::sleep(Duration::from_millis(10));
@@ -378,7 +406,11 @@ fn the_shell_folder_opens_by_itself_and_bad_folders_give_errors() {
     let mut h = harness(state(Some(dir.clone())));
     h.step();
     h.step();
-    assert!(h.state().page.results().is_some(), "{:?}", h.state().page.error());
+    assert!(
+        h.state().page.results().is_some(),
+        "{:?}",
+        h.state().page.error()
+    );
     assert!(h.state().requests.is_empty());
 
     // A folder without trials.csv.
@@ -440,7 +472,11 @@ fn crc32(bytes: &[u8]) -> u32 {
     for &b in bytes {
         c ^= u32::from(b);
         for _ in 0..8 {
-            c = if c & 1 != 0 { (c >> 1) ^ 0xedb8_8320 } else { c >> 1 };
+            c = if c & 1 != 0 {
+                (c >> 1) ^ 0xedb8_8320
+            } else {
+                c >> 1
+            };
         }
     }
     !c

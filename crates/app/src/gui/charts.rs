@@ -298,9 +298,7 @@ pub fn log_freq_plot<'a>(id: &str, y_label: &'a str, height: f32) -> Plot<'a> {
         .height(height)
         .legend(Legend::default().position(Corner::LeftBottom))
         .x_grid_spacer(|input: GridInput| log_freq_marks(input.bounds))
-        .x_axis_formatter(|mark: GridMark, _range: &RangeInclusive<f64>| {
-            log_freq_label(mark.value)
-        })
+        .x_axis_formatter(|mark: GridMark, _range: &RangeInclusive<f64>| log_freq_label(mark.value))
         .x_axis_label("frequency (Hz)")
         .y_axis_label(y_label)
         .label_formatter(move |pos| {
@@ -308,7 +306,11 @@ pub fn log_freq_plot<'a>(id: &str, y_label: &'a str, height: f32) -> Plot<'a> {
                 egui_plot::HoverPosition::NearDataPoint { position, .. } => position,
                 egui_plot::HoverPosition::Elsewhere { position } => position,
             };
-            Some(format!("{} Hz\n{:.3} {y_label}", format_hz(f_of_log(p.x)), p.y))
+            Some(format!(
+                "{} Hz\n{:.3} {y_label}",
+                format_hz(f_of_log(p.x)),
+                p.y
+            ))
         })
 }
 
@@ -332,13 +334,7 @@ pub fn freq_chart(
 
 /// Bode plot of frequency responses: magnitude (dB) over phase (deg), and
 /// coherence (0–1) when given, with linked frequency axes (Fig. 5).
-pub fn bode(
-    ui: &mut Ui,
-    id: &str,
-    magnitude: &[Series],
-    phase: &[Series],
-    coherence: &[Series],
-) {
+pub fn bode(ui: &mut Ui, id: &str, magnitude: &[Series], phase: &[Series], coherence: &[Series]) {
     let link = egui::Id::unique((id, "bode-x"));
     let x_link = egui::Vec2b::new(true, false);
     log_freq_plot(&format!("{id}-mag"), "dB", 180.0)
@@ -665,7 +661,10 @@ mod tests {
         assert_eq!(log_f(-1.0), None);
         assert_eq!(log_f(f64::NAN), None);
         assert_eq!(log_f(f64::INFINITY), None);
-        let pts = log_points(&[0.0, 10.0, 100.0, f64::NAN, 1000.0], &[1.0, 2.0, f64::NAN, 4.0, 5.0]);
+        let pts = log_points(
+            &[0.0, 10.0, 100.0, f64::NAN, 1000.0],
+            &[1.0, 2.0, f64::NAN, 4.0, 5.0],
+        );
         assert_eq!(pts, vec![[1.0, 2.0], [3.0, 5.0]]);
         assert_eq!(db(10.0), 20.0);
         assert_eq!(db(-0.1), -20.0);
@@ -731,7 +730,12 @@ mod tests {
         assert!(whisker(0.0, 1.0, -1.0, 0.1).is_none());
         assert!(whisker(0.0, f64::NAN, 1.0, 0.1).is_none());
         // Zero SD: a flat whisker at the mean (still drawable).
-        assert!(whisker(0.0, 1.0, 0.0, 0.1).unwrap().iter().all(|p| p[1] == 1.0));
+        assert!(
+            whisker(0.0, 1.0, 0.0, 0.1)
+                .unwrap()
+                .iter()
+                .all(|p| p[1] == 1.0)
+        );
     }
 
     #[test]

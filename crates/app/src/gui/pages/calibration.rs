@@ -105,7 +105,8 @@ fn build_plots(f: &CalibrationFile) -> Plots {
     let high_frf = &f.high.frf;
     let measured = !low_frf.f_hz.is_empty() && !high_frf.f_hz.is_empty();
     let mag = |h: &[kilotouch_dsp::C64]| h.iter().map(|z| db(z.norm())).collect::<Vec<_>>();
-    let arg = |h: &[kilotouch_dsp::C64]| unwrap_phase_deg(&h.iter().map(|z| z.arg()).collect::<Vec<_>>());
+    let arg =
+        |h: &[kilotouch_dsp::C64]| unwrap_phase_deg(&h.iter().map(|z| z.arg()).collect::<Vec<_>>());
     let (mut low_mag, mut low_phase, mut low_coh) = (Vec::new(), Vec::new(), Vec::new());
     let (mut high_mag, mut high_phase, mut high_coh) = (Vec::new(), Vec::new(), Vec::new());
     if measured {
@@ -150,7 +151,11 @@ fn build_plots(f: &CalibrationFile) -> Plots {
             SUM_COLOR,
         ));
         let ph = if f.low.g0 < 0.0 { 180.0 } else { 0.0 };
-        low_phase.push(Series::dashed("model G0_L", vec![[x0, ph], [x1, ph]], SUM_COLOR));
+        low_phase.push(Series::dashed(
+            "model G0_L",
+            vec![[x0, ph], [x1, ph]],
+            SUM_COLOR,
+        ));
     }
     // High-channel model Ĝ_H(j2πf)·e^{−j2πfτ} over the analysed band.
     let grid = log_grid(a.f_min_hz.max(1.0), a.f_max_hz.max(a.f_min_hz * 2.0), 240);
@@ -176,8 +181,16 @@ fn build_plots(f: &CalibrationFile) -> Plots {
             h.push(db(hz.norm()));
             s.push(db((lz + hz).norm()));
         }
-        crossover.push(Series::solid("L (low-pass)", log_points(&xo_grid, &l), LOW_COLOR));
-        crossover.push(Series::solid("H (high-pass)", log_points(&xo_grid, &h), HIGH_COLOR));
+        crossover.push(Series::solid(
+            "L (low-pass)",
+            log_points(&xo_grid, &l),
+            LOW_COLOR,
+        ));
+        crossover.push(Series::solid(
+            "H (high-pass)",
+            log_points(&xo_grid, &h),
+            HIGH_COLOR,
+        ));
         crossover.push(Series::dashed("L + H", log_points(&xo_grid, &s), SUM_COLOR));
     }
     // Compensators C_L (a gain) and C_H(s) = K_sys·F(s)/Ĝ_H(s).
@@ -190,7 +203,11 @@ fn build_plots(f: &CalibrationFile) -> Plots {
             log_points(&xo_grid, &vec![c_l; xo_grid.len()]),
             LOW_COLOR,
         ),
-        Series::solid("C_H = K_sys·F/Ĝ_H", log_points(&xo_grid, &mag(&c_h)), HIGH_COLOR),
+        Series::solid(
+            "C_H = K_sys·F/Ĝ_H",
+            log_points(&xo_grid, &mag(&c_h)),
+            HIGH_COLOR,
+        ),
     ];
     let comp_phase = vec![Series::solid(
         "C_H",
@@ -313,6 +330,12 @@ impl CalibrationPage {
         self.load_path = p.display().to_string();
     }
 
+    /// The base settings (the page's fields override the seed and the
+    /// crossover rule), e.g. to set fields the page does not expose.
+    pub fn config_mut(&mut self) -> &mut CalibrationConfig {
+        &mut self.config
+    }
+
     /// The settings the next run uses (the base configuration with the
     /// page's overrides), or the reason they are invalid.
     pub fn effective_config(&self) -> Result<(CalibrationConfig, u64), String> {
@@ -346,7 +369,12 @@ impl CalibrationPage {
         self.progress = StepProgress::default();
         self.status = Some(Status::Info("calibrating…".into()));
         self.apply_despite_fail = false;
-        self.run = Some(CalibrationRun::start(rig, Some(seed), cfg, Some(ctx.clone())));
+        self.run = Some(CalibrationRun::start(
+            rig,
+            Some(seed),
+            cfg,
+            Some(ctx.clone()),
+        ));
     }
 
     fn poll(&mut self) {
@@ -634,7 +662,10 @@ impl CalibrationPage {
                 let ctx = ui.ctx().clone();
                 self.start(&ctx, env.rig_config);
             }
-            let cancelling = self.run.as_ref().is_some_and(CalibrationRun::cancel_requested);
+            let cancelling = self
+                .run
+                .as_ref()
+                .is_some_and(CalibrationRun::cancel_requested);
             if ui
                 .add_enabled(running && !cancelling, egui::Button::new("Cancel"))
                 .clicked()
@@ -719,7 +750,8 @@ impl CalibrationPage {
                     "apply although the verification failed",
                 );
             }
-            let enabled = passed == Some(true) || (passed == Some(false) && self.apply_despite_fail);
+            let enabled =
+                passed == Some(true) || (passed == Some(false) && self.apply_despite_fail);
             if ui
                 .add_enabled(enabled, egui::Button::new("Apply to engine"))
                 .clicked()

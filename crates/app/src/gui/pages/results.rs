@@ -170,8 +170,10 @@ impl ResultsPage {
                         t.len, t.offset
                     ));
                 }
-                if d.summary.participants.first().is_some() && self.traj_participant.is_empty() {
-                    self.traj_participant = d.summary.participants[0].clone();
+                if let Some(p) = d.summary.participants.first()
+                    && self.traj_participant.is_empty()
+                {
+                    self.traj_participant = p.clone();
                 }
                 if let Some(c) = d.summary.conditions.first()
                     && self.traj_condition.is_empty()
@@ -346,7 +348,9 @@ impl ResultsPage {
                     &label,
                     220.0,
                 );
-                ui.label("bars: mean over the participant's successful test trials; whiskers: ±1 SD");
+                ui.label(
+                    "bars: mean over the participant's successful test trials; whiskers: ±1 SD",
+                );
             });
         egui::CollapsingHeader::new("Per condition (Fig. 12)")
             .default_open(true)
@@ -385,7 +389,10 @@ impl ResultsPage {
             .default_open(true)
             .show(ui, |ui| stats_ui(ui, &view.stats));
         ui.horizontal(|ui| {
-            if ui.button("Export statistics (stats.csv, stats.json)").clicked() {
+            if ui
+                .button("Export statistics (stats.csv, stats.json)")
+                .clicked()
+            {
                 match d.export_stats() {
                     Ok((c, j)) => {
                         let m = format!("wrote {} and {}", c.display(), j.display());
@@ -533,7 +540,15 @@ fn stats_ui(ui: &mut egui::Ui, t: &StatsTable) {
         .spacing([10.0, 2.0])
         .show(ui, |ui| {
             for h in [
-                "test", "pair", "stat", "value", "df1", "df2", "p", "p (GG / HF / Holm)", "effect",
+                "test",
+                "pair",
+                "stat",
+                "value",
+                "df1",
+                "df2",
+                "p",
+                "p (GG / HF / Holm)",
+                "effect",
                 "note",
             ] {
                 ui.strong(h);

@@ -212,6 +212,9 @@ impl CalibrationRun {
         let rx = self.rx.as_ref()?;
         loop {
             match rx.try_recv() {
+                // The procedure ends with "not saved" (no output file):
+                // step 7 is the wizard's Save button, not the worker's.
+                Ok(Msg::Progress(Step::Save, _, _)) => {}
                 Ok(Msg::Progress(step, f, m)) => self.progress.apply(step, f, &m),
                 Ok(Msg::End(end)) => {
                     self.finish();

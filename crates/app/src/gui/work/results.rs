@@ -28,7 +28,9 @@
 
 use kilotouch_study::export::fsutil::write_atomic;
 use kilotouch_study::export::summary::trial_triples;
-use kilotouch_study::export::{Metric, Summary, TRIALS_FILE, TornTail, TrialRow, read_trials, summarize};
+use kilotouch_study::export::{
+    Metric, Summary, TRIALS_FILE, TornTail, TrialRow, read_trials, summarize,
+};
 use kilotouch_study::protocol::Condition;
 use kilotouch_study::rawsig::{read_npy, read_sidecar, sidecar_path};
 use kilotouch_study::seeds::Phase;
@@ -338,7 +340,12 @@ impl StudyResults {
     /// Metrics with data: the success count, then the numeric columns.
     pub fn metrics(&self) -> Vec<ResultMetric> {
         let mut v = vec![ResultMetric::SuccessCount];
-        v.extend(self.summary.metrics.iter().map(|&m| ResultMetric::Column(m)));
+        v.extend(
+            self.summary
+                .metrics
+                .iter()
+                .map(|&m| ResultMetric::Column(m)),
+        );
         v
     }
 
@@ -440,7 +447,13 @@ impl StudyResults {
         let design = match self.design(metric) {
             Ok(d) => d,
             Err(e) => {
-                for name in ["rm_anova", "friedman", "oneway_anova", "paired_t", "wilcoxon"] {
+                for name in [
+                    "rm_anova",
+                    "friedman",
+                    "oneway_anova",
+                    "paired_t",
+                    "wilcoxon",
+                ] {
                     t.errors.push((name.into(), e.clone()));
                 }
                 return t;
