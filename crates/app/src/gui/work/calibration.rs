@@ -298,13 +298,16 @@ mod tests {
     }
 
     #[test]
-    fn cancel_before_the_first_rig_run_stops_in_the_check_step() {
-        let mut run = CalibrationRun::start(
-            &RigConfig::default(),
-            Some(1),
-            CalibrationConfig::default(),
-            None,
-        );
+    fn cancel_stops_a_long_run_within_one_record() {
+        // Records of 2¹⁸ − 1 samples × 16 periods per channel: the whole
+        // procedure would take minutes; the flag is checked before every
+        // rig run, so the stop comes after at most one record.
+        let mut cfg = CalibrationConfig::default();
+        for exc in [&mut cfg.low, &mut cfg.high] {
+            exc.order = 18;
+            exc.periods = 16;
+        }
+        let mut run = CalibrationRun::start(&RigConfig::default(), Some(1), cfg, None);
         run.cancel();
         assert!(run.cancel_requested());
         let t0 = Instant::now();
@@ -315,10 +318,8 @@ mod tests {
             assert!(t0.elapsed() < Duration::from_secs(60), "no end");
             std::thread::sleep(Duration::from_millis(5));
         };
-        // The flag is checked before every rig run: raised before the
-        // first, the procedure cannot get past its first step with a run.
         match end {
-            RunEnd::Cancelled(step) => assert!(step.index() <= Step::IdentifyLow.index()),
+            RunEnd::Cancelled(step) => assert!(step.index() <= Step::IdentifyHigh.index()),
             other => panic!("expected a cancellation, got {other:?}"),
         }
     }
