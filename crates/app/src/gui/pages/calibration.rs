@@ -27,6 +27,7 @@ use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::work::calibration::{CalibrationRun, RunEnd, StepProgress};
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::calibration::measure::ChannelFrf;
 use kilotouch_rig::calibration::{
     CalibrationConfig, CalibrationFile, CalibrationRig, RigAdapter, RigIdentity, Step,
 };
@@ -98,49 +99,39 @@ fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .collect()
 }
 
+fn mag_db(h: &[kilotouch_dsp::C64]) -> Vec<f64> {
+    h.iter().map(|z| db(z.norm())).collect()
+}
+
+fn phase_deg(h: &[kilotouch_dsp::C64]) -> Vec<f64> {
+    unwrap_phase_deg(&h.iter().map(|z| z.arg()).collect::<Vec<_>>())
+}
+
+/// Magnitude (dB), unwrapped phase (deg) and coherence curves of a measured
+/// FRF (empty for an FRF not in memory, e.g. a loaded file).
+fn measured_series(
+    frf: &ChannelFrf,
+    color: egui::Color32,
+) -> (Vec<Series>, Vec<Series>, Vec<Series>) {
+    if frf.f_hz.is_empty() {
+        return (Vec::new(), Vec::new(), Vec::new());
+    }
+    let curve = |name: &str, y: &[f64]| vec![Series::solid(name, log_points(&frf.f_hz, y), color)];
+    (
+        curve("measured H1", &mag_db(&frf.h)),
+        curve("measured H1", &phase_deg(&frf.h)),
+        curve("coherence γ²", &frf.coherence),
+    )
+}
+
 fn build_plots(f: &CalibrationFile) -> Plots {
     let fs = f.rig.sample_rate_hz;
     let a = &f.settings.analysis;
     let low_frf = &f.low.frf;
     let high_frf = &f.high.frf;
     let measured = !low_frf.f_hz.is_empty() && !high_frf.f_hz.is_empty();
-    let mag = |h: &[kilotouch_dsp::C64]| h.iter().map(|z| db(z.norm())).collect::<Vec<_>>();
-    let arg =
-        |h: &[kilotouch_dsp::C64]| unwrap_phase_deg(&h.iter().map(|z| z.arg()).collect::<Vec<_>>());
-    let (mut low_mag, mut low_phase, mut low_coh) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut high_mag, mut high_phase, mut high_coh) = (Vec::new(), Vec::new(), Vec::new());
-    if measured {
-        low_mag.push(Series::solid(
-            "measured H1",
-            log_points(&low_frf.f_hz, &mag(&low_frf.h)),
-            LOW_COLOR,
-        ));
-        low_phase.push(Series::solid(
-            "measured H1",
-            log_points(&low_frf.f_hz, &arg(&low_frf.h)),
-            LOW_COLOR,
-        ));
-        low_coh.push(Series::solid(
-            "coherence γ²",
-            log_points(&low_frf.f_hz, &low_frf.coherence),
-            LOW_COLOR,
-        ));
-        high_mag.push(Series::solid(
-            "measured H1",
-            log_points(&high_frf.f_hz, &mag(&high_frf.h)),
-            HIGH_COLOR,
-        ));
-        high_phase.push(Series::solid(
-            "measured H1",
-            log_points(&high_frf.f_hz, &arg(&high_frf.h)),
-            HIGH_COLOR,
-        ));
-        high_coh.push(Series::solid(
-            "coherence γ²",
-            log_points(&high_frf.f_hz, &high_frf.coherence),
-            HIGH_COLOR,
-        ));
-    }
+    let (mut low_mag, mut low_phase, low_coh) = measured_series(low_frf, LOW_COLOR);
+    let (mut high_mag, mut high_phase, high_coh) = measured_series(high_frf, HIGH_COLOR);
     // Low-channel model: the gain G0_L over its flat band.
     let [fl0, fl1] = f.low.flat_band_hz;
     if let (Some(x0), Some(x1)) = (log_f(fl0), log_f(fl1)) {
@@ -162,12 +153,12 @@ fn build_plots(f: &CalibrationFile) -> Plots {
     let model: Vec<kilotouch_dsp::C64> = grid.iter().map(|&fr| f.high.response(fr)).collect();
     high_mag.push(Series::dashed(
         "fitted model Ĝ_H",
-        log_points(&grid, &mag(&model)),
+        log_points(&grid, &mag_db(&model)),
         SUM_COLOR,
     ));
     high_phase.push(Series::dashed(
         "fitted model Ĝ_H",
-        log_points(&grid, &arg(&model)),
+        log_points(&grid, &phase_deg(&model)),
         SUM_COLOR,
     ));
     // Crossover L, H and L + H (magnitudes, dB).
@@ -205,13 +196,13 @@ fn build_plots(f: &CalibrationFile) -> Plots {
         ),
         Series::solid(
             "C_H = K_sys·F/Ĝ_H",
-            log_points(&xo_grid, &mag(&c_h)),
+            log_points(&xo_grid, &mag_db(&c_h)),
             HIGH_COLOR,
         ),
     ];
     let comp_phase = vec![Series::solid(
         "C_H",
-        log_points(&xo_grid, &arg(&c_h)),
+        log_points(&xo_grid, &phase_deg(&c_h)),
         HIGH_COLOR,
     )];
     let bands = f

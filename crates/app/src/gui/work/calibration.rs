@@ -259,6 +259,18 @@ impl Drop for CalibrationRun {
 mod tests {
     use super::*;
 
+    /// Poll (as the UI does, never blocking) until the run ends.
+    fn wait_end(run: &mut CalibrationRun) -> RunEnd {
+        let t0 = Instant::now();
+        loop {
+            if let Some(e) = run.poll() {
+                return e;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(60), "no end");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
     #[test]
     fn progress_marks_earlier_steps_done_and_never_decreases() {
         let mut p = StepProgress::default();
@@ -281,14 +293,7 @@ mod tests {
         let mut cfg = CalibrationConfig::default();
         cfg.low.order = 2; // outside 4..=20
         let mut run = CalibrationRun::start(&RigConfig::default(), Some(1), cfg, None);
-        let t0 = Instant::now();
-        let end = loop {
-            if let Some(e) = run.poll() {
-                break e;
-            }
-            assert!(t0.elapsed() < Duration::from_secs(30), "no end");
-            std::thread::sleep(Duration::from_millis(5));
-        };
+        let end = wait_end(&mut run);
         match end {
             RunEnd::Failed(m) => assert!(m.contains("low.order"), "{m}"),
             other => panic!("expected a failure, got {other:?}"),
@@ -310,14 +315,7 @@ mod tests {
         let mut run = CalibrationRun::start(&RigConfig::default(), Some(1), cfg, None);
         run.cancel();
         assert!(run.cancel_requested());
-        let t0 = Instant::now();
-        let end = loop {
-            if let Some(e) = run.poll() {
-                break e;
-            }
-            assert!(t0.elapsed() < Duration::from_secs(60), "no end");
-            std::thread::sleep(Duration::from_millis(5));
-        };
+        let end = wait_end(&mut run);
         match end {
             RunEnd::Cancelled(step) => assert!(step.index() <= Step::IdentifyHigh.index()),
             other => panic!("expected a cancellation, got {other:?}"),

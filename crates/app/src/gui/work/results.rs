@@ -204,6 +204,25 @@ fn row(metric: &str, test: &str) -> StatsRow {
     }
 }
 
+/// A row of an omnibus test: statistic `name` = `value` with (df1, df2)
+/// and p.
+fn omnibus(
+    metric: &str,
+    test: &str,
+    name: &str,
+    value: f64,
+    df: (f64, Option<f64>),
+    p: f64,
+) -> StatsRow {
+    let mut r = row(metric, test);
+    r.statistic_name = name.into();
+    r.statistic = Some(value);
+    r.df1 = Some(df.0);
+    r.df2 = df.1;
+    r.p = Some(p);
+    r
+}
+
 impl StatsTable {
     /// The table as rows: RM ANOVA, Friedman, one-way ANOVA, then the
     /// post-hoc comparisons; a failed test gives a row with its error.
@@ -217,13 +236,8 @@ impl StatsTable {
                 .map(|(_, e)| e.clone())
                 .unwrap_or_default()
         };
-        let mut r = row(m, "rm_anova");
-        if let Some(a) = &self.rm_anova {
-            r.statistic_name = "F".into();
-            r.statistic = Some(a.f);
-            r.df1 = Some(a.df1);
-            r.df2 = Some(a.df2);
-            r.p = Some(a.p);
+        let rm = self.rm_anova.as_ref().map(|a| {
+            let mut r = omnibus(m, "rm_anova", "F", a.f, (a.df1, Some(a.df2)), a.p);
             r.p_gg = Some(a.p_gg);
             r.p_hf = Some(a.p_hf);
             r.effect_name = "partial η²".into();
@@ -235,35 +249,27 @@ impl StatsTable {
                 a.mauchly_p.map_or("n/a".into(), |p| format!("{p:.4}")),
                 a.ng2
             );
-        } else {
-            r.note = err("rm_anova");
-        }
-        out.push(r);
-        let mut r = row(m, "friedman");
-        if let Some(f) = &self.friedman {
-            r.statistic_name = "χ²".into();
-            r.statistic = Some(f.chi2);
-            r.df1 = Some(f.df);
-            r.p = Some(f.p);
+            r
+        });
+        let fr = self.friedman.as_ref().map(|f| {
+            let mut r = omnibus(m, "friedman", "χ²", f.chi2, (f.df, None), f.p);
             r.effect_name = "Kendall's W".into();
             r.effect = Some(f.kendall_w);
-        } else {
-            r.note = err("friedman");
-        }
-        out.push(r);
-        let mut r = row(m, "oneway_anova");
-        if let Some(o) = &self.oneway {
-            r.statistic_name = "F".into();
-            r.statistic = Some(o.f);
-            r.df1 = Some(o.df1);
-            r.df2 = Some(o.df2);
-            r.p = Some(o.p);
+            r
+        });
+        let one = self.oneway.as_ref().map(|o| {
+            let mut r = omnibus(m, "oneway_anova", "F", o.f, (o.df1, Some(o.df2)), o.p);
             r.effect_name = "η²".into();
             r.effect = Some(o.eta2);
-        } else {
-            r.note = err("oneway_anova");
+            r
+        });
+        for (name, r) in [("rm_anova", rm), ("friedman", fr), ("oneway_anova", one)] {
+            out.push(r.unwrap_or_else(|| {
+                let mut r = row(m, name);
+                r.note = err(name);
+                r
+            }));
         }
-        out.push(r);
         for (name, table) in [
             ("paired_t", &self.pairwise_t),
             ("wilcoxon", &self.pairwise_wilcoxon),
