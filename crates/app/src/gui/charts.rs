@@ -439,6 +439,19 @@ pub struct BarSeries {
     pub color: Color32,
     /// (mean, SD) per group; `None` = no data.
     pub values: Vec<Option<(f64, Option<f64>)>>,
+    /// Colour of each group's bar (empty: `color` for all).
+    pub group_colors: Vec<Color32>,
+}
+
+/// Top of the highest bar or whisker (mean + SD) of `series`, for the
+/// y range; `None` without finite data.
+pub fn bars_top(series: &[BarSeries]) -> Option<f64> {
+    series
+        .iter()
+        .flat_map(|s| s.values.iter().flatten())
+        .map(|(m, sd)| m + sd.unwrap_or(0.0).max(0.0))
+        .filter(|v| v.is_finite())
+        .reduce(f64::max)
 }
 
 /// Grouped bar chart with SD whiskers (Figs. 11–12): one group per entry of
@@ -453,11 +466,13 @@ pub fn bars_with_whiskers(
 ) {
     let n = series.len();
     let labels = groups.to_vec();
+    let top = bars_top(series).unwrap_or(0.0);
     Plot::new(id.to_owned())
         .height(height)
         .legend(Legend::default().position(Corner::RightTop))
         .y_axis_label(y_label.to_owned())
         .include_y(0.0)
+        .include_y(1.08 * top)
         .x_grid_spacer(move |input: GridInput| {
             let (lo, hi) = input.bounds;
             (0..labels.len())
@@ -486,7 +501,8 @@ pub fn bars_with_whiskers(
                         continue;
                     }
                     let (x, width) = grouped_x(i, j, n);
-                    bars.push(Bar::new(x, mean).width(width * 0.9).fill(s.color));
+                    let fill = s.group_colors.get(i).copied().unwrap_or(s.color);
+                    bars.push(Bar::new(x, mean).width(width * 0.9).fill(fill));
                     if let Some(pts) = sd.and_then(|sd| whisker(x, mean, sd, width * 0.2)) {
                         p.line(
                             Line::new("", PlotPoints::new(pts.to_vec()))
@@ -736,6 +752,22 @@ mod tests {
                 .iter()
                 .all(|p| p[1] == 1.0)
         );
+    }
+
+    #[test]
+    fn bars_top_includes_the_whisker() {
+        let s = |values| BarSeries {
+            name: String::new(),
+            color: Color32::WHITE,
+            values,
+            group_colors: Vec::new(),
+        };
+        let a = s(vec![Some((3.0, Some(2.0))), None, Some((4.5, None))]);
+        let b = s(vec![Some((f64::NAN, None)), Some((1.0, Some(0.5)))]);
+        assert_eq!(bars_top(&[a.clone(), b.clone()]), Some(5.0));
+        assert_eq!(bars_top(&[b]), Some(1.5));
+        assert_eq!(bars_top(&[s(vec![None])]), None);
+        assert_eq!(bars_top(&[]), None);
     }
 
     #[test]

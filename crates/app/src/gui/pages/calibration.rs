@@ -829,9 +829,9 @@ impl CalibrationPage {
                 row(
                     "high channel",
                     format!(
-                        "Ĝ_H num {:?}, den {:?}; reliable {:.0}–{:.0} Hz",
-                        f.high.model.num,
-                        f.high.model.den,
+                        "Ĝ_H(s) num [{}], den [{}] (s in rad/s); reliable {:.0}–{:.0} Hz",
+                        coefs(&f.high.model.num),
+                        coefs(&f.high.model.den),
                         f.high.reliable_band_hz[0],
                         f.high.reliable_band_hz[1]
                     ),
@@ -919,6 +919,14 @@ impl CalibrationPage {
                 ui.label("* band below the paper's 63 Hz, inside the low channel's flat band");
             });
     }
+}
+
+/// Polynomial coefficients, 4 significant digits.
+fn coefs(c: &[f64]) -> String {
+    c.iter()
+        .map(|x| format!("{x:.4e}"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Title of a step in the wizard.

@@ -338,6 +338,7 @@ impl ResultsPage {
                         name: c.clone(),
                         color: condition_color(c),
                         values: v.clone(),
+                        group_colors: Vec::new(),
                     })
                     .collect();
                 charts::bars_with_whiskers(
@@ -359,6 +360,12 @@ impl ResultsPage {
                     name: "all participants".into(),
                     color: condition_color(""),
                     values: view.conditions.values.clone(),
+                    group_colors: view
+                        .conditions
+                        .conditions
+                        .iter()
+                        .map(|c| condition_color(c))
+                        .collect(),
                 }];
                 charts::bars_with_whiskers(
                     ui,
