@@ -8,14 +8,17 @@
 //! blank) — how CI checks the app and how the README images are made.
 
 pub mod app;
+pub mod charts;
 pub mod env;
 pub mod pages;
 pub mod plot;
 pub mod scene;
 pub mod scene_wgpu;
 pub mod settings;
+pub mod work;
 
 pub use app::{AppOptions, KilotouchApp};
+pub use env::{PageEnv, ShellRequest};
 pub use settings::Page;
 
 use std::path::{Path, PathBuf};

@@ -1,0 +1,803 @@
+//! Static charts of the Calibration and Results pages (egui_plot): Bode and
+//! coherence plots on a logarithmic frequency axis (the paper's Fig. 5),
+//! third-octave deviation bars against a tolerance band (Fig. 7), bar charts
+//! with standard-deviation whiskers (Figs. 11–12) and trajectories (Fig. 10).
+//!
+//! # Logarithmic frequency axis
+//! egui_plot has linear axes only, so a frequency f (Hz) is plotted at
+//! x = log10(f) ([`log_f`]) and the axis is given a custom grid
+//! ([`log_freq_marks`]) and tick labels ([`log_freq_label`]): a mark at every
+//! m·10^d for m = 1…9, with "importance" (egui_plot's `step_size`, which
+//! sets how early a line or label fades out when zooming out) 1 for decades,
+//! 0.3 for the 2 and 5 marks (the 1-2-5 series, ≈ 0.3–0.4 decade apart) and
+//! 0.05 for the others (the closest pair, 9 and 10, is 0.046 decade apart).
+//! Only 1-2-5 marks get a label, in Hz with k/M prefixes ("20", "500",
+//! "1k", "2k").
+//!
+//! The pure parts (mark generation, labels, mapping, whisker geometry, mean
+//! and SD) are unit-tested; the drawing functions only hand their output to
+//! egui_plot.
+
+use egui::{Color32, Ui};
+use egui_plot::{
+    Bar, BarChart, Corner, GridInput, GridMark, Legend, Line, LineStyle, Plot, PlotPoints, PlotUi,
+    Span,
+};
+use std::ops::RangeInclusive;
+
+/// Lowest frequency the log axis generates marks for, log10(Hz).
+pub const LOG_F_MIN: f64 = -6.0;
+/// Highest frequency the log axis generates marks for, log10(Hz).
+pub const LOG_F_MAX: f64 = 9.0;
+
+/// Importance (`step_size`) of a decade mark.
+pub const DECADE_STEP: f64 = 1.0;
+/// Importance of a 2·10^d or 5·10^d mark.
+pub const ONE_TWO_FIVE_STEP: f64 = 0.3;
+/// Importance of the other marks (3, 4, 6, 7, 8, 9 ·10^d).
+pub const MINOR_STEP: f64 = 0.05;
+
+/// Colours of the study conditions V, P, D and of anything else.
+pub fn condition_color(code: &str) -> Color32 {
+    match code {
+        "V" => Color32::from_rgb(0x9e, 0x9e, 0x9e),
+        "P" => Color32::from_rgb(0x42, 0x85, 0xf4),
+        "D" => Color32::from_rgb(0xe6, 0x7c, 0x22),
+        _ => Color32::from_rgb(0x7c, 0xb3, 0x42),
+    }
+}
+
+/// Low channel / L colour.
+pub const LOW_COLOR: Color32 = Color32::from_rgb(0x42, 0x85, 0xf4);
+/// High channel / H colour.
+pub const HIGH_COLOR: Color32 = Color32::from_rgb(0xe6, 0x7c, 0x22);
+/// Sum / model colour.
+pub const SUM_COLOR: Color32 = Color32::from_rgb(0x4c, 0xaf, 0x50);
+/// Before-compensation colour.
+pub const BEFORE_COLOR: Color32 = Color32::from_rgb(0x9e, 0x9e, 0x9e);
+/// Pass colour.
+pub const PASS_COLOR: Color32 = Color32::from_rgb(0x2e, 0x9d, 0x3a);
+/// Fail / error colour.
+pub const FAIL_COLOR: Color32 = Color32::from_rgb(0xd3, 0x2f, 0x2f);
+
+/// x coordinate of frequency `f_hz` on a log-frequency plot: log10(f);
+/// `None` for f ≤ 0 or non-finite f.
+pub fn log_f(f_hz: f64) -> Option<f64> {
+    (f_hz.is_finite() && f_hz > 0.0).then(|| f_hz.log10())
+}
+
+/// Inverse of [`log_f`]: the frequency (Hz) at plot coordinate `x`.
+pub fn f_of_log(x: f64) -> f64 {
+    10f64.powf(x)
+}
+
+/// 20·log10|x| in dB (−∞ for 0, NaN for non-finite input).
+pub fn db(x: f64) -> f64 {
+    20.0 * x.abs().log10()
+}
+
+/// Points (log10 f, y) of the finite pairs with f > 0 (others are skipped,
+/// so a NaN or a DC bin never reaches the plot).
+pub fn log_points(f_hz: &[f64], y: &[f64]) -> Vec<[f64; 2]> {
+    f_hz.iter()
+        .zip(y)
+        .filter_map(|(&f, &v)| log_f(f).filter(|_| v.is_finite()).map(|x| [x, v]))
+        .collect()
+}
+
+/// Grid marks of a log-frequency axis whose visible range is
+/// `bounds` = (log10 f_lo, log10 f_hi) (module documentation). Bounds are
+/// clamped to [[`LOG_F_MIN`], [`LOG_F_MAX`]]; reversed bounds are accepted;
+/// non-finite bounds give no marks.
+pub fn log_freq_marks(bounds: (f64, f64)) -> Vec<GridMark> {
+    let (a, b) = bounds;
+    if !(a.is_finite() && b.is_finite()) {
+        return Vec::new();
+    }
+    let lo = a.min(b).max(LOG_F_MIN);
+    let hi = a.max(b).min(LOG_F_MAX);
+    if lo > hi {
+        return Vec::new();
+    }
+    let (d0, d1) = (lo.floor() as i32, hi.ceil() as i32);
+    let mut out = Vec::new();
+    for d in d0..=d1 {
+        for m in 1..=9u32 {
+            let value = f64::from(d) + f64::from(m).log10();
+            if value < lo || value > hi {
+                continue;
+            }
+            let step_size = match m {
+                1 => DECADE_STEP,
+                2 | 5 => ONE_TWO_FIVE_STEP,
+                _ => MINOR_STEP,
+            };
+            out.push(GridMark { value, step_size });
+        }
+    }
+    out
+}
+
+/// Mantissa m ∈ [1, 10) and decade d of 10^x, with m rounded to 6 digits
+/// (so that log10(m·10^d) maps back to exactly m).
+fn mantissa_decade(x: f64) -> (f64, i32) {
+    let mut d = x.floor();
+    let mut m = (10f64.powf(x - d) * 1e6).round() / 1e6;
+    if m >= 10.0 {
+        m /= 10.0;
+        d += 1.0;
+    }
+    (m, d as i32)
+}
+
+/// A frequency in Hz as a short tick label: 3 significant digits, k / M
+/// prefixes from 1 kHz / 1 MHz, no trailing zeros ("0.05", "20", "1k",
+/// "2.5k", "1M"). Empty for non-finite or non-positive input.
+pub fn format_hz(f_hz: f64) -> String {
+    if !(f_hz.is_finite() && f_hz > 0.0) {
+        return String::new();
+    }
+    let (value, suffix) = if f_hz >= 1e6 {
+        (f_hz / 1e6, "M")
+    } else if f_hz >= 1e3 {
+        (f_hz / 1e3, "k")
+    } else {
+        (f_hz, "")
+    };
+    // Round to 3 significant digits.
+    let e = value.log10().floor() as i32;
+    let scale = 10f64.powi(2 - e);
+    let rounded = (value * scale).round() / scale;
+    let decimals = usize::try_from((2 - e).max(0)).unwrap_or(0);
+    let mut s = format!("{rounded:.decimals$}");
+    if s.contains('.') {
+        while s.ends_with('0') {
+            s.pop();
+        }
+        if s.ends_with('.') {
+            s.pop();
+        }
+    }
+    s + suffix
+}
+
+/// Tick label of a log-frequency grid mark at x = log10(f): the frequency
+/// ([`format_hz`]) for the 1-2-5 marks, empty for the minor ones.
+pub fn log_freq_label(x: f64) -> String {
+    if !x.is_finite() {
+        return String::new();
+    }
+    let (m, _) = mantissa_decade(x);
+    if [1.0, 2.0, 5.0].iter().any(|k| (m - k).abs() < 1e-6) {
+        format_hz(10f64.powf(x))
+    } else {
+        String::new()
+    }
+}
+
+/// Phase in degrees, unwrapped: successive differences are brought into
+/// (−180°, 180°] by adding multiples of 360°, starting from the first
+/// value wrapped into (−180°, 180°]. Non-finite values pass through and do
+/// not disturb the running offset.
+pub fn unwrap_phase_deg(phase_rad: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(phase_rad.len());
+    let mut prev: Option<f64> = None;
+    for &p in phase_rad {
+        if !p.is_finite() {
+            out.push(f64::NAN);
+            continue;
+        }
+        let deg = p.to_degrees();
+        let v = match prev {
+            None => deg - 360.0 * ((deg + 180.0) / 360.0).ceil() + 360.0,
+            Some(q) => {
+                let d = deg - q;
+                q + d - 360.0 * ((d + 180.0) / 360.0).ceil() + 360.0
+            }
+        };
+        out.push(v);
+        prev = Some(v);
+    }
+    out
+}
+
+/// Mean (Neumaier-compensated, as the study crate's cell means) and sample
+/// standard deviation (n − 1 denominator; `None` for a single value) of the
+/// finite values; `None` when there is no finite value.
+pub fn mean_sd(values: &[f64]) -> Option<(f64, Option<f64>)> {
+    let v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let mean = kilotouch_study::stats::compensated_mean(&v);
+    let sd = (v.len() > 1).then(|| {
+        let dev: Vec<f64> = v.iter().map(|x| (x - mean) * (x - mean)).collect();
+        (kilotouch_study::stats::compensated_mean(&dev) * v.len() as f64 / (v.len() - 1) as f64)
+            .sqrt()
+    });
+    Some((mean, sd))
+}
+
+/// The polyline of an "I"-shaped whisker from `mean − sd` to `mean + sd` at
+/// `x`, with caps of half-width `cap`: bottom cap left → right, back to the
+/// centre, up the stem, top cap left → right. `None` when a value is not
+/// finite or `sd` < 0.
+pub fn whisker(x: f64, mean: f64, sd: f64, cap: f64) -> Option<[[f64; 2]; 6]> {
+    if !(x.is_finite() && mean.is_finite() && sd.is_finite() && cap.is_finite() && sd >= 0.0) {
+        return None;
+    }
+    let (lo, hi) = (mean - sd, mean + sd);
+    Some([
+        [x - cap, lo],
+        [x + cap, lo],
+        [x, lo],
+        [x, hi],
+        [x - cap, hi],
+        [x + cap, hi],
+    ])
+}
+
+/// x position of member `j` of `n` bars in group `i` (groups at integer x,
+/// members spread symmetrically over 80 % of the unit spacing), and the
+/// width of one bar.
+pub fn grouped_x(i: usize, j: usize, n: usize) -> (f64, f64) {
+    let n = n.max(1);
+    let width = 0.8 / n as f64;
+    let x = i as f64 - 0.4 + width * (j as f64 + 0.5);
+    (x, width)
+}
+
+/// One curve of a chart.
+#[derive(Debug, Clone)]
+pub struct Series {
+    /// Legend name.
+    pub name: String,
+    /// Points in plot coordinates (x = log10 f on frequency plots).
+    pub points: Vec<[f64; 2]>,
+    /// Colour.
+    pub color: Color32,
+    /// Dashed line (models, predictions) instead of solid (measurements).
+    pub dashed: bool,
+}
+
+impl Series {
+    /// A solid curve.
+    pub fn solid(name: impl Into<String>, points: Vec<[f64; 2]>, color: Color32) -> Self {
+        Self {
+            name: name.into(),
+            points,
+            color,
+            dashed: false,
+        }
+    }
+
+    /// A dashed curve.
+    pub fn dashed(name: impl Into<String>, points: Vec<[f64; 2]>, color: Color32) -> Self {
+        Self {
+            dashed: true,
+            ..Self::solid(name, points, color)
+        }
+    }
+
+    fn line(&self) -> Line<'static> {
+        let l = Line::new(self.name.clone(), PlotPoints::new(self.points.clone()))
+            .color(self.color)
+            .width(1.5);
+        if self.dashed {
+            l.style(LineStyle::Dashed { length: 6.0 })
+        } else {
+            l
+        }
+    }
+}
+
+/// A plot with a log-frequency x axis (module documentation): grid, tick
+/// labels in Hz, hover label "f Hz, y unit".
+pub fn log_freq_plot<'a>(id: &str, y_label: &'a str, height: f32) -> Plot<'a> {
+    Plot::new(id.to_owned())
+        .height(height)
+        .legend(Legend::default().position(Corner::LeftBottom))
+        .x_grid_spacer(|input: GridInput| log_freq_marks(input.bounds))
+        .x_axis_formatter(|mark: GridMark, _range: &RangeInclusive<f64>| log_freq_label(mark.value))
+        .x_axis_label("frequency (Hz)")
+        .y_axis_label(y_label)
+        .label_formatter(move |pos| {
+            let p = match pos {
+                egui_plot::HoverPosition::NearDataPoint { position, .. } => position,
+                egui_plot::HoverPosition::Elsewhere { position } => position,
+            };
+            Some(format!(
+                "{} Hz\n{:.3} {y_label}",
+                format_hz(f_of_log(p.x)),
+                p.y
+            ))
+        })
+}
+
+/// Draw `series` on a log-frequency plot; `extra` adds more items (spans,
+/// bars) before the curves.
+pub fn freq_chart(
+    ui: &mut Ui,
+    id: &str,
+    y_label: &str,
+    height: f32,
+    series: &[Series],
+    extra: impl FnOnce(&mut PlotUi<'_>),
+) {
+    log_freq_plot(id, y_label, height).show(ui, |p| {
+        extra(p);
+        for s in series {
+            p.line(s.line());
+        }
+    });
+}
+
+/// Bode plot of frequency responses: magnitude (dB) over phase (deg), and
+/// coherence (0–1) when given, with linked frequency axes (Fig. 5).
+pub fn bode(ui: &mut Ui, id: &str, magnitude: &[Series], phase: &[Series], coherence: &[Series]) {
+    let link = egui::Id::unique((id, "bode-x"));
+    let x_link = egui::Vec2b::new(true, false);
+    log_freq_plot(&format!("{id}-mag"), "dB", 180.0)
+        .link_axis(link, x_link)
+        .show(ui, |p| {
+            for s in magnitude {
+                p.line(s.line());
+            }
+        });
+    log_freq_plot(&format!("{id}-phase"), "deg", 120.0)
+        .link_axis(link, x_link)
+        .show(ui, |p| {
+            for s in phase {
+                p.line(s.line());
+            }
+        });
+    if !coherence.is_empty() {
+        log_freq_plot(&format!("{id}-coh"), "γ²", 90.0)
+            .link_axis(link, x_link)
+            .include_y(0.0)
+            .include_y(1.0)
+            .show(ui, |p| {
+                for s in coherence {
+                    p.line(s.line());
+                }
+            });
+    }
+}
+
+/// One third-octave band of a verification (Fig. 7).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BandBars {
+    /// Centre frequency, Hz.
+    pub centre_hz: f64,
+    /// Deviation before compensation (crossover alone), dB.
+    pub before_db: f64,
+    /// Deviation after compensation, dB.
+    pub after_db: f64,
+}
+
+/// Half-width of a band's bar pair on the log axis, decades (third-octave
+/// centres are 0.1 decade apart).
+const BAND_HALF: f64 = 0.04;
+
+/// Bars of the deviation per third-octave band, before (grey) and after
+/// (green inside the tolerance, red outside) compensation, over a shaded
+/// ±`tolerance_db` band (Fig. 7).
+pub fn third_octave_bars(ui: &mut Ui, id: &str, bands: &[BandBars], tolerance_db: f64) {
+    let w = BAND_HALF;
+    let before: Vec<Bar> = bands
+        .iter()
+        .filter_map(|b| {
+            let x = log_f(b.centre_hz)?;
+            b.before_db.is_finite().then(|| {
+                Bar::new(x - w / 2.0, b.before_db)
+                    .width(w)
+                    .fill(BEFORE_COLOR)
+                    .name(format!("{} Hz", format_hz(b.centre_hz)))
+            })
+        })
+        .collect();
+    let after: Vec<Bar> = bands
+        .iter()
+        .filter_map(|b| {
+            let x = log_f(b.centre_hz)?;
+            let ok = b.after_db.abs() <= tolerance_db;
+            b.after_db.is_finite().then(|| {
+                Bar::new(x + w / 2.0, b.after_db)
+                    .width(w)
+                    .fill(if ok { PASS_COLOR } else { FAIL_COLOR })
+                    .name(format!("{} Hz", format_hz(b.centre_hz)))
+            })
+        })
+        .collect();
+    let tol = if tolerance_db.is_finite() && tolerance_db > 0.0 {
+        Some(tolerance_db)
+    } else {
+        None
+    };
+    log_freq_plot(id, "deviation (dB)", 220.0)
+        .include_y(-3.0)
+        .include_y(3.0)
+        .show(ui, |p| {
+            if let Some(t) = tol {
+                p.span(
+                    Span::new(format!("tolerance ±{t} dB"), -t..=t)
+                        .axis(egui_plot::Axis::Y)
+                        .fill(PASS_COLOR.gamma_multiply(0.15)),
+                );
+            }
+            p.bar_chart(BarChart::new("before compensation", before).color(BEFORE_COLOR));
+            p.bar_chart(BarChart::new("after compensation", after).color(PASS_COLOR));
+        });
+}
+
+/// One series of a grouped bar chart: a value per group (mean, optional SD).
+#[derive(Debug, Clone)]
+pub struct BarSeries {
+    /// Legend name (e.g. a condition).
+    pub name: String,
+    /// Colour.
+    pub color: Color32,
+    /// (mean, SD) per group; `None` = no data.
+    pub values: Vec<Option<(f64, Option<f64>)>>,
+    /// Colour of each group's bar (empty: `color` for all).
+    pub group_colors: Vec<Color32>,
+}
+
+/// Top of the highest bar or whisker (mean + SD) of `series`, for the
+/// y range; `None` without finite data.
+pub fn bars_top(series: &[BarSeries]) -> Option<f64> {
+    series
+        .iter()
+        .flat_map(|s| s.values.iter().flatten())
+        .map(|(m, sd)| m + sd.unwrap_or(0.0).max(0.0))
+        .filter(|v| v.is_finite())
+        .reduce(f64::max)
+}
+
+/// Grouped bar chart with SD whiskers (Figs. 11–12): one group per entry of
+/// `groups` (x tick labels), one bar per series within each group.
+pub fn bars_with_whiskers(
+    ui: &mut Ui,
+    id: &str,
+    groups: &[String],
+    series: &[BarSeries],
+    y_label: &str,
+    height: f32,
+) {
+    let n = series.len();
+    let labels = groups.to_vec();
+    let top = bars_top(series).unwrap_or(0.0);
+    Plot::new(id.to_owned())
+        .height(height)
+        .legend(Legend::default().position(Corner::RightTop))
+        .y_axis_label(y_label.to_owned())
+        .include_y(0.0)
+        .include_y(1.08 * top)
+        .x_grid_spacer(move |input: GridInput| {
+            let (lo, hi) = input.bounds;
+            (0..labels.len())
+                .map(|i| i as f64)
+                .filter(|x| *x >= lo - 0.5 && *x <= hi + 0.5)
+                .map(|value| GridMark {
+                    value,
+                    step_size: 1.0,
+                })
+                .collect()
+        })
+        .x_axis_formatter(move |mark: GridMark, _r: &RangeInclusive<f64>| {
+            let i = mark.value.round();
+            if (mark.value - i).abs() < 1e-9 && i >= 0.0 {
+                groups.get(i as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .show(ui, |p| {
+            for (j, s) in series.iter().enumerate() {
+                let mut bars = Vec::new();
+                for (i, v) in s.values.iter().enumerate() {
+                    let Some((mean, sd)) = *v else { continue };
+                    if !mean.is_finite() {
+                        continue;
+                    }
+                    let (x, width) = grouped_x(i, j, n);
+                    let fill = s.group_colors.get(i).copied().unwrap_or(s.color);
+                    bars.push(Bar::new(x, mean).width(width * 0.9).fill(fill));
+                    if let Some(pts) = sd.and_then(|sd| whisker(x, mean, sd, width * 0.2)) {
+                        p.line(
+                            Line::new("", PlotPoints::new(pts.to_vec()))
+                                .color(ui_text_color())
+                                .width(1.2)
+                                .allow_hover(false),
+                        );
+                    }
+                }
+                p.bar_chart(BarChart::new(s.name.clone(), bars).color(s.color));
+            }
+        });
+}
+
+fn ui_text_color() -> Color32 {
+    Color32::from_gray(200)
+}
+
+/// One trajectory of Fig. 10 (positions in µm).
+#[derive(Debug, Clone)]
+pub struct Trace {
+    /// Legend name.
+    pub name: String,
+    /// (x, y) points, µm.
+    pub points: Vec<[f64; 2]>,
+    /// Colour.
+    pub color: Color32,
+}
+
+/// Trajectories in the sample plane with equal axis scales (Fig. 10).
+pub fn trajectories(ui: &mut Ui, id: &str, traces: &[Trace], height: f32) {
+    Plot::new(id.to_owned())
+        .height(height)
+        .data_aspect(1.0)
+        .legend(Legend::default().position(Corner::RightTop))
+        .x_axis_label("x (µm)")
+        .y_axis_label("y (µm)")
+        .show(ui, |p| {
+            for t in traces {
+                p.line(
+                    Line::new(t.name.clone(), PlotPoints::new(t.points.clone()))
+                        .color(t.color)
+                        .width(1.2),
+                );
+            }
+        });
+}
+
+/// Indices of at most `max` samples of a record of `n`, evenly strided, the
+/// last sample always included (a trajectory keeps its end point).
+pub fn decimate_indices(n: usize, max: usize) -> Vec<usize> {
+    if n == 0 || max == 0 {
+        return Vec::new();
+    }
+    if n <= max {
+        return (0..n).collect();
+    }
+    let stride = n.div_ceil(max.saturating_sub(1).max(1));
+    let mut v: Vec<usize> = (0..n).step_by(stride).collect();
+    if v.last() != Some(&(n - 1)) {
+        v.push(n - 1);
+    }
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn values(marks: &[GridMark]) -> Vec<f64> {
+        marks.iter().map(|m| 10f64.powf(m.value)).collect()
+    }
+
+    #[test]
+    fn marks_cover_1_to_9_per_decade_inside_the_bounds() {
+        let (lo, hi) = (20f64.log10(), 2000f64.log10());
+        let marks = log_freq_marks((lo, hi));
+        // 20..90 (8) + 100..900 (9) + 1000, 2000 (2).
+        assert_eq!(marks.len(), 19);
+        for m in &marks {
+            assert!(m.value >= lo && m.value <= hi);
+        }
+        let f = values(&marks);
+        for want in [20.0, 30.0, 90.0, 100.0, 500.0, 1000.0, 2000.0] {
+            assert!(
+                f.iter().any(|v| (v / want - 1.0).abs() < 1e-12),
+                "{want} missing"
+            );
+        }
+        // Importance: decades 1, 2/5 the middle, the rest minor.
+        for m in &marks {
+            let (mant, _) = mantissa_decade(m.value);
+            let want = match mant.round() as u32 {
+                1 => DECADE_STEP,
+                2 | 5 => ONE_TWO_FIVE_STEP,
+                _ => MINOR_STEP,
+            };
+            assert_eq!(m.step_size, want, "mark {}", 10f64.powf(m.value));
+        }
+    }
+
+    #[test]
+    fn marks_handle_reversed_nan_and_extreme_bounds() {
+        let a = log_freq_marks((3.0, 1.0));
+        let b = log_freq_marks((1.0, 3.0));
+        assert_eq!(a, b);
+        assert!(log_freq_marks((f64::NAN, 2.0)).is_empty());
+        assert!(log_freq_marks((0.0, f64::INFINITY)).is_empty());
+        // Far outside the clamp window: nothing, not a huge allocation.
+        assert!(log_freq_marks((100.0, 200.0)).is_empty());
+        let wide = log_freq_marks((-100.0, 100.0));
+        assert_eq!(wide.len(), 9 * ((LOG_F_MAX - LOG_F_MIN) as usize) + 1);
+        // A range inside one decade still gets its integer-mantissa marks.
+        let narrow = log_freq_marks((200f64.log10(), 450f64.log10()));
+        assert_eq!(values(&narrow).len(), 3); // 200, 300, 400
+    }
+
+    #[test]
+    fn labels_are_hz_on_the_1_2_5_series_only() {
+        let cases = [
+            (20.0, "20"),
+            (50.0, "50"),
+            (100.0, "100"),
+            (1000.0, "1k"),
+            (2000.0, "2k"),
+            (5000.0, "5k"),
+            (0.5, "0.5"),
+            (0.01, "0.01"),
+            (2e6, "2M"),
+            (1.0, "1"),
+        ];
+        for (f, want) in cases {
+            assert_eq!(log_freq_label(f64::log10(f)), want, "f = {f}");
+        }
+        for f in [30.0, 70.0, 400.0, 9000.0] {
+            assert_eq!(log_freq_label(f64::log10(f)), "", "f = {f}");
+        }
+        assert_eq!(log_freq_label(f64::NAN), "");
+        // Every labelled mark of a generated grid reads back its frequency.
+        for m in log_freq_marks((-1.0, 4.0)) {
+            let s = log_freq_label(m.value);
+            if s.is_empty() {
+                continue;
+            }
+            let (num, mult) = match s.strip_suffix('k') {
+                Some(n) => (n, 1e3),
+                None => (s.as_str(), 1.0),
+            };
+            let v: f64 = num.parse().unwrap();
+            assert!((v * mult / 10f64.powf(m.value) - 1.0).abs() < 1e-9, "{s}");
+        }
+    }
+
+    #[test]
+    fn format_hz_rounds_to_three_significant_digits() {
+        assert_eq!(format_hz(63.0957), "63.1");
+        assert_eq!(format_hz(1258.9254), "1.26k");
+        assert_eq!(format_hz(999.6), "1000");
+        assert_eq!(format_hz(12.0), "12");
+        assert_eq!(format_hz(0.0), "");
+        assert_eq!(format_hz(-5.0), "");
+        assert_eq!(format_hz(f64::NAN), "");
+    }
+
+    #[test]
+    fn log_mapping_round_trips_and_rejects_bad_input() {
+        for f in [1e-3, 0.37, 1.0, 63.0957, 1000.0, 4999.9] {
+            let x = log_f(f).unwrap();
+            assert!((f_of_log(x) / f - 1.0).abs() < 1e-14);
+        }
+        assert_eq!(log_f(0.0), None);
+        assert_eq!(log_f(-1.0), None);
+        assert_eq!(log_f(f64::NAN), None);
+        assert_eq!(log_f(f64::INFINITY), None);
+        let pts = log_points(
+            &[0.0, 10.0, 100.0, f64::NAN, 1000.0],
+            &[1.0, 2.0, f64::NAN, 4.0, 5.0],
+        );
+        assert_eq!(pts, vec![[1.0, 2.0], [3.0, 5.0]]);
+        assert_eq!(db(10.0), 20.0);
+        assert_eq!(db(-0.1), -20.0);
+    }
+
+    #[test]
+    fn phase_unwrapping_recovers_a_pure_delay() {
+        // e^{-j2πfτ} with τ = 1.3 ms, sampled every 10 Hz up to 2 kHz:
+        // phase steps of 4.68° ≪ 180°, so the unwrapped phase must equal
+        // −360·f·τ degrees exactly (up to rounding).
+        let tau = 1.3e-3;
+        let f: Vec<f64> = (0..=200).map(|k| 10.0 * f64::from(k)).collect();
+        let wrapped: Vec<f64> = f
+            .iter()
+            .map(|&f| {
+                let c = kilotouch_dsp::C64::from_polar(1.0, -2.0 * std::f64::consts::PI * f * tau);
+                c.arg()
+            })
+            .collect();
+        let un = unwrap_phase_deg(&wrapped);
+        for (u, &f) in un.iter().zip(&f) {
+            assert!((u + 360.0 * f * tau).abs() < 1e-9, "f = {f}: {u}");
+        }
+        // A NaN in the middle is passed through and does not break the ramp.
+        let mut w2 = wrapped.clone();
+        w2[50] = f64::NAN;
+        let un2 = unwrap_phase_deg(&w2);
+        assert!(un2[50].is_nan());
+        assert!((un2[120] - un[120]).abs() < 1e-9);
+        // First value wrapped into (−180, 180].
+        assert!((unwrap_phase_deg(&[3.0 * std::f64::consts::PI])[0] - 180.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn mean_and_sample_sd_match_the_textbook_example() {
+        // 2, 4, 4, 4, 5, 5, 7, 9: mean 5, Σ(x − x̄)² = 32, sample SD √(32/7).
+        let (m, sd) = mean_sd(&[2.0, 4.0, 4.0, 4.0, 5.0, 5.0, 7.0, 9.0]).unwrap();
+        assert!((m - 5.0).abs() < 1e-15);
+        assert!((sd.unwrap() - (32.0f64 / 7.0).sqrt()).abs() < 1e-14);
+        assert_eq!(mean_sd(&[3.0]), Some((3.0, None)));
+        assert_eq!(mean_sd(&[]), None);
+        assert_eq!(mean_sd(&[f64::NAN]), None);
+        // Non-finite values are ignored, not propagated.
+        let (m, sd) = mean_sd(&[1.0, f64::INFINITY, 3.0]).unwrap();
+        assert_eq!(m, 2.0);
+        assert!((sd.unwrap() - 2f64.sqrt()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn whisker_spans_mean_plus_minus_sd_with_centred_caps() {
+        let w = whisker(2.0, 10.0, 3.0, 0.1).unwrap();
+        let ys: Vec<f64> = w.iter().map(|p| p[1]).collect();
+        assert_eq!(ys.iter().copied().fold(f64::INFINITY, f64::min), 7.0);
+        assert_eq!(ys.iter().copied().fold(f64::NEG_INFINITY, f64::max), 13.0);
+        // Caps: symmetric about x, half-width 0.1, at the two ends.
+        assert_eq!(w[0], [1.9, 7.0]);
+        assert_eq!(w[1], [2.1, 7.0]);
+        assert_eq!(w[4], [1.9, 13.0]);
+        assert_eq!(w[5], [2.1, 13.0]);
+        // Stem on x.
+        assert_eq!(w[2], [2.0, 7.0]);
+        assert_eq!(w[3], [2.0, 13.0]);
+        assert!(whisker(0.0, 1.0, -1.0, 0.1).is_none());
+        assert!(whisker(0.0, f64::NAN, 1.0, 0.1).is_none());
+        // Zero SD: a flat whisker at the mean (still drawable).
+        assert!(
+            whisker(0.0, 1.0, 0.0, 0.1)
+                .unwrap()
+                .iter()
+                .all(|p| p[1] == 1.0)
+        );
+    }
+
+    #[test]
+    fn bars_top_includes_the_whisker() {
+        let s = |values| BarSeries {
+            name: String::new(),
+            color: Color32::WHITE,
+            values,
+            group_colors: Vec::new(),
+        };
+        let a = s(vec![Some((3.0, Some(2.0))), None, Some((4.5, None))]);
+        let b = s(vec![Some((f64::NAN, None)), Some((1.0, Some(0.5)))]);
+        assert_eq!(bars_top(&[a.clone(), b.clone()]), Some(5.0));
+        assert_eq!(bars_top(&[b]), Some(1.5));
+        assert_eq!(bars_top(&[s(vec![None])]), None);
+        assert_eq!(bars_top(&[]), None);
+    }
+
+    #[test]
+    fn grouped_bars_tile_each_group_without_overlap() {
+        for n in 1..=5 {
+            let mut prev_right = f64::NEG_INFINITY;
+            for j in 0..n {
+                let (x, w) = grouped_x(3, j, n);
+                assert!((w - 0.8 / n as f64).abs() < 1e-15);
+                assert!(x - w / 2.0 >= prev_right - 1e-12);
+                prev_right = x + w / 2.0;
+                assert!(x > 2.5 && x < 3.5);
+            }
+            // Symmetric about the group centre.
+            let (first, _) = grouped_x(3, 0, n);
+            let (last, _) = grouped_x(3, n - 1, n);
+            assert!((first + last - 6.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn decimation_keeps_ends_and_bounds_the_count() {
+        assert!(decimate_indices(0, 10).is_empty());
+        assert_eq!(decimate_indices(5, 10), vec![0, 1, 2, 3, 4]);
+        for (n, max) in [(100_000, 2000), (2001, 2000), (10, 3), (7, 2)] {
+            let idx = decimate_indices(n, max);
+            assert!(idx.len() <= max, "{n} {max}: {}", idx.len());
+            assert_eq!(idx[0], 0);
+            assert_eq!(*idx.last().unwrap(), n - 1);
+            assert!(idx.windows(2).all(|w| w[0] < w[1]));
+        }
+    }
+}
