@@ -62,6 +62,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             report(part, n, t0);
         }
+        "seeds" => {
+            // The tweezer validations of tests/tweezer.rs on more seeds (the
+            // normal generator changed): equipartition within 3 %, f_c within
+            // 5 %, D within 8 %, free and near a wall (Faxén).
+            use kilotouch_rig::tweezer::{TweezerSimArgs, simulate_tweezer};
+            for wall in [None, Some(3.0)] {
+                for seed in 1..=8 {
+                    let r = simulate_tweezer(&TweezerSimArgs {
+                        duration_s: 100.0,
+                        seed,
+                        wall_distance_um: wall,
+                        ..TweezerSimArgs::default()
+                    })?;
+                    let d_th = r.d_theory_m2_s;
+                    println!(
+                        "wall {wall:?} seed {seed}: var x {:.4} y {:.4}  fc {:.4}  D {:.4}",
+                        r.var_x_m2 / r.var_theory_m2,
+                        r.var_y_m2 / r.var_theory_m2,
+                        r.fc_fit_hz / r.fc_theory_hz,
+                        r.d_fit_m2_s / d_th
+                    );
+                }
+            }
+        }
         "accel" => {
             let mut a = Accelerometer::new(&cfg.accelerometer, fs)?;
             let t0 = thread_cpu_ns();

@@ -410,6 +410,8 @@ pub struct AxisSim<const N: usize> {
     z: A16<[L2; LANES]>,
     cur: usize,
     slow: SlowInputs,
+    // The drive input has no effect in any regime (y axis): skip it.
+    drive_free: bool,
 }
 
 /// Largest state dimension with a modal fast path (lanes of 2 states).
@@ -552,6 +554,48 @@ fn modal_outputs<const N: usize>(w: &[[L2; 2]; MODAL_MAX_STATES], z: &[L2; LANES
     let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
     let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
     [am[0], am[1], ts[0], ts[1]]
+}
+
+/// One modal update z ← Λz + γ_f f (+ γ_v u_v when `DRIVE`) + bias and the
+/// outputs (ẍ_h without feed-through, x_1, x_h, r) of the new state, in one
+/// pass over the lanes (fused so that LLVM keeps the output accumulators
+/// packed; outputs as in [`modal_outputs`]). `DRIVE = false` skips the
+/// drive column where it is identically zero (the y axis).
+#[inline(always)]
+fn modal_pass<const N: usize, const DRIVE: bool>(
+    m: &ModalRegime<N>,
+    z: &[L2; LANES],
+    bias: &[L2; LANES],
+    f: f64,
+    v: f64,
+) -> (A16<[L2; LANES]>, [f64; 4]) {
+    let (gf, gv) = (&m.gam.0[IN_FORCE], &m.gam.0[IN_DRIVE]);
+    let (ra, rb) = (&m.ra.0, &m.rb.0);
+    let w = &m.outw.0;
+    let mut zn = A16([[0.0; 2]; LANES]);
+    let mut p = [[0.0f64; 2]; 4];
+    for k in 0..lanes(N) {
+        let zk = z[k];
+        let rot = l2_mul_add([ra[k][0] * zk[0], ra[k][1] * zk[1]], rb[k], [zk[1], zk[0]]);
+        let inp = if DRIVE {
+            l2_mul_add([gf[k][0] * f, gf[k][1] * f], gv[k], [v, v])
+        } else {
+            [gf[k][0] * f, gf[k][1] * f]
+        };
+        let y = [
+            (rot[0] + inp[0]) + bias[k][0],
+            (rot[1] + inp[1]) + bias[k][1],
+        ];
+        zn.0[k] = y;
+        let (lo, hi) = ([y[0], y[0]], [y[1], y[1]]);
+        p[0] = l2_mul_add(p[0], w[2 * k][0], lo);
+        p[2] = l2_mul_add(p[2], w[2 * k][1], lo);
+        p[1] = l2_mul_add(p[1], w[2 * k + 1][0], hi);
+        p[3] = l2_mul_add(p[3], w[2 * k + 1][1], hi);
+    }
+    let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
+    let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
+    (zn, [am[0], am[1], ts[0], ts[1]])
 }
 
 /// Column-major matrix–vector product y = M x (M given by its columns).
@@ -760,6 +804,12 @@ impl<const N: usize> AxisSim<N> {
                 }
             }
         }
+        let drive_free = modal.as_deref().is_some_and(|regs| {
+            regs.iter().all(|r| {
+                r.acc_d[IN_DRIVE] == 0.0
+                    && r.gam.0[IN_DRIVE].iter().all(|l| l[0] == 0.0 && l[1] == 0.0)
+            })
+        });
         Ok(Self {
             phi_cols,
             gamma_cols,
@@ -777,6 +827,7 @@ impl<const N: usize> AxisSim<N> {
             stop_steps: 0,
             resets: 0,
             modal,
+            drive_free,
             z: A16([[0.0; 2]; LANES]),
             cur: 0,
             slow: SlowInputs::new(),
@@ -852,40 +903,19 @@ impl<const N: usize> AxisSim<N> {
     /// detected through the acceleration dot product (0·∞ = NaN, so it is
     /// non-finite as soon as any state is); the reset and the rare end-stop
     /// regime switch run out of line.
-    #[inline(never)]
+    #[inline]
     fn step_modal(&mut self, u: &[f64; NU]) -> Option<AxisOutput> {
-        let nl = lanes(N);
         let regs = self.modal.as_deref()?;
         let r0 = self.cur;
         let m = &regs[r0];
         let (bias, bias_acc) = self.slow.get(m, r0, u);
         let z = &self.z.0;
         let (f, v) = (u[IN_FORCE], u[IN_DRIVE]);
-        let (gf, gv) = (&m.gam.0[IN_FORCE], &m.gam.0[IN_DRIVE]);
-        let (ra, rb) = (&m.ra.0, &m.rb.0);
-        // Update and outputs in one pass (fused so that LLVM keeps the
-        // output accumulators packed).
-        let w = &m.outw.0;
-        let mut zn = A16([[0.0; 2]; LANES]);
-        let mut p = [[0.0f64; 2]; 4];
-        for k in 0..nl {
-            let zk = z[k];
-            let rot = l2_mul_add([ra[k][0] * zk[0], ra[k][1] * zk[1]], rb[k], [zk[1], zk[0]]);
-            let inp = l2_mul_add([gf[k][0] * f, gf[k][1] * f], gv[k], [v, v]);
-            let y = [
-                (rot[0] + inp[0]) + bias[k][0],
-                (rot[1] + inp[1]) + bias[k][1],
-            ];
-            zn.0[k] = y;
-            let (lo, hi) = ([y[0], y[0]], [y[1], y[1]]);
-            p[0] = l2_mul_add(p[0], w[2 * k][0], lo);
-            p[2] = l2_mul_add(p[2], w[2 * k][1], lo);
-            p[1] = l2_mul_add(p[1], w[2 * k + 1][0], hi);
-            p[3] = l2_mul_add(p[3], w[2 * k + 1][1], hi);
-        }
-        let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
-        let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
-        let [acc_z, motor, tip, stroke] = [am[0], am[1], ts[0], ts[1]];
+        let (zn, [acc_z, motor, tip, stroke]) = if self.drive_free {
+            modal_pass::<N, false>(m, z, bias, f, v)
+        } else {
+            modal_pass::<N, true>(m, z, bias, f, v)
+        };
         let r1 = self.regime_of_stroke(stroke);
         if r1 != r0 || !acc_z.is_finite() {
             return Some(self.finish_modal_slow(from_lanes(&zn.0), u));
