@@ -132,10 +132,10 @@ fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
     {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(1);
-        let t = ns_per_call(n, |_| rng.sample::<f64, _>(rand_distr::StandardNormal));
+        let t = ns_per_call(20 * n, |_| rng.sample::<f64, _>(rand_distr::StandardNormal));
         println!("| N(0,1) variate, rand_distr ziggurat on xoshiro256++ | {t:.1} |");
         let mut ns = kilotouch_rig::normal::NormalStream::new(1);
-        let t = ns_per_call(n, |_| ns.sample());
+        let t = ns_per_call(20 * n, |_| ns.sample());
         println!("| N(0,1) variate, `NormalStream` (256-layer ziggurat, blocks of 64) | {t:.1} |");
     }
     let pressed = TweezerParams {
