@@ -135,6 +135,45 @@ fn bench_tweezer(c: &mut Criterion) {
             black_box(acc)
         })
     });
+    // The same with the exact near-obstacle coefficients (table bypassed).
+    let mut t = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4).expect("tweezer");
+    t.set_drag_table(false);
+    g.bench_function("default_scene_exact_coefficients", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for k in 0..N {
+                acc += t.step([1e-9 * drive(k), 0.0]).force_n[0];
+            }
+            black_box(acc)
+        })
+    });
+    g.finish();
+}
+
+fn bench_normal(c: &mut Criterion) {
+    use rand::{RngExt, SeedableRng};
+    let mut g = c.benchmark_group("normal");
+    g.throughput(Throughput::Elements(N as u64));
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(1);
+    g.bench_function("rand_distr_ziggurat", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for _ in 0..N {
+                acc += rng.sample::<f64, _>(rand_distr::StandardNormal);
+            }
+            black_box(acc)
+        })
+    });
+    let mut s = kilotouch_rig::normal::NormalStream::new(1);
+    g.bench_function("normal_stream", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for _ in 0..N {
+                acc += s.sample();
+            }
+            black_box(acc)
+        })
+    });
     g.finish();
 }
 
@@ -222,6 +261,7 @@ criterion_group!(
     benches,
     bench_plant,
     bench_tweezer,
+    bench_normal,
     bench_accel,
     bench_closed_loop,
     bench_safety

@@ -1,7 +1,8 @@
 //! Accuracy and stability tables for `docs/PERFORMANCE.md`.
 //!
 //! `cargo run --release -p kilotouch-rig --example rig_tables`
-//! (timings come from `cargo bench -p kilotouch-rig`).
+//! (`-- --timings`: thread-CPU cost per step; criterion: `cargo bench -p
+//! kilotouch-rig`).
 
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
@@ -123,6 +124,19 @@ fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
         let mut tw = SimTweezer::new(params, 1e4)?;
         let t = ns_per_call(n, |k| tw.step([1e-9 * drive(k), 0.0]).force_n[0]);
         println!("| {name} | {t:.1} |");
+    }
+    let mut tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4)?;
+    tw.set_drag_table(false);
+    let t = ns_per_call(n, |k| tw.step([1e-9 * drive(k), 0.0]).force_n[0]);
+    println!("| tweezer, default scene, exact coefficients (table bypassed) | {t:.1} |");
+    {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(1);
+        let t = ns_per_call(20 * n, |_| rng.sample::<f64, _>(rand_distr::StandardNormal));
+        println!("| N(0,1) variate, rand_distr ziggurat on xoshiro256++ | {t:.1} |");
+        let mut ns = kilotouch_rig::normal::NormalStream::new(1);
+        let t = ns_per_call(20 * n, |_| ns.sample());
+        println!("| N(0,1) variate, `NormalStream` (256-layer ziggurat, blocks of 64) | {t:.1} |");
     }
     let pressed = TweezerParams {
         obstacles: vec![Obstacle {

@@ -19,10 +19,8 @@
 
 use crate::config::AccelerometerConfig;
 use crate::error::RigError;
+use crate::normal::NormalStream;
 use num_complex::Complex64 as C64;
-use rand::{RngExt, SeedableRng};
-use rand_distr::StandardNormal;
-use rand_xoshiro::Xoshiro256PlusPlus;
 use std::f64::consts::PI;
 
 /// Standard gravity, m/s².
@@ -49,7 +47,7 @@ pub struct Accelerometer {
     range: f64,
     lsb: f64,
     offset: [f64; 3],
-    rng: Xoshiro256PlusPlus,
+    noise: NormalStream,
     seed: u64,
     clipped: u64,
     nonfinite: u64,
@@ -109,7 +107,7 @@ impl Accelerometer {
             range: cfg.range_g * STANDARD_GRAVITY,
             lsb: cfg.lsb_m_s2,
             offset,
-            rng: Xoshiro256PlusPlus::seed_from_u64(cfg.seed),
+            noise: NormalStream::new(cfg.seed),
             seed: cfg.seed,
             clipped: 0,
             nonfinite: 0,
@@ -154,7 +152,7 @@ impl Accelerometer {
     /// Reset the filter to the static acceleration and re-seed the noise.
     pub fn reset(&mut self) {
         self.state = self.offset;
-        self.rng = Xoshiro256PlusPlus::seed_from_u64(self.seed);
+        self.noise = NormalStream::new(self.seed);
         self.clipped = 0;
         self.nonfinite = 0;
     }
@@ -185,17 +183,20 @@ impl Accelerometer {
     /// the previous state.
     #[inline]
     pub fn sample(&mut self, a_true: [f64; 3]) -> AccelReading {
+        // Noise first (x, y, z: the order of the draws), from the buffered
+        // generator.
+        let mut w = [0.0; 3];
+        if self.noise_sigma > 0.0 {
+            for wi in w.iter_mut() {
+                *wi = self.noise_sigma * self.noise.sample();
+            }
+        }
         let mut out = [0.0; 3];
         let mut clipped = false;
         for i in 0..3 {
-            let w = if self.noise_sigma > 0.0 {
-                self.noise_sigma * self.rng.sample::<f64, _>(StandardNormal)
-            } else {
-                0.0
-            };
             let a = a_true[i];
             if a.is_finite() {
-                let x = a + self.offset[i] + w;
+                let x = a + self.offset[i] + w[i];
                 self.state[i] = self.alpha[i] * self.state[i] + (1.0 - self.alpha[i]) * x;
             } else {
                 self.nonfinite += 1;

@@ -21,6 +21,7 @@ pub mod error;
 pub mod live;
 pub mod lorentzian;
 pub mod lti;
+pub mod normal;
 pub mod plant;
 pub mod rig;
 pub mod safety;
@@ -35,22 +36,22 @@ pub use rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
 pub use sim::{FrfReport, simulate_frf};
 pub use tweezer::{SimTweezer, Tweezer, TweezerParams};
 
-/// `x.round()` (half away from zero), bit for bit, without the libm call
-/// (baseline x86-64 has no rounding instruction). Falls back to
-/// [`f64::round`] for |x| ≥ 2⁵² (already integral) and non-finite x.
-#[inline]
+/// `x.round()` (half away from zero), bit for bit, without a libm call or
+/// an integer round trip (baseline x86-64 has no rounding instruction):
+/// for |x| < 2⁵², (|x| + 2⁵²) − 2⁵² rounds |x| to the nearest integer with
+/// ties to even (exactly, in the default rounding mode), and a tie that went
+/// down (|x| − r = 0.5, an exact difference) goes up instead. Larger |x| are
+/// already integral (or ±∞, NaN) and returned unchanged.
+#[inline(always)]
 pub(crate) fn round_half_away(x: f64) -> f64 {
-    if x.abs() < 4_503_599_627_370_496.0 {
-        // Truncation is exact here, and so is the fractional part x − t.
-        let t = x as i64 as f64;
-        let r = if (x - t).abs() >= 0.5 {
-            t + 1.0_f64.copysign(x)
-        } else {
-            t
-        };
+    const TWO52: f64 = 4_503_599_627_370_496.0;
+    let a = x.abs();
+    if a < TWO52 {
+        let r = (a + TWO52) - TWO52;
+        let r = if a - r == 0.5 { r + 1.0 } else { r };
         r.copysign(x)
     } else {
-        x.round()
+        x
     }
 }
 
@@ -80,6 +81,9 @@ mod round_tests {
             f64::NEG_INFINITY,
             f64::MIN_POSITIVE,
             -f64::MIN_POSITIVE,
+            f64::NAN,
+            5e-324,
+            9007199254740993.0,
             0.3,
             -0.3,
             0.7,
@@ -93,6 +97,7 @@ mod round_tests {
             let u = (s >> 11) as f64 / (1u64 << 53) as f64;
             v.push((u - 0.5) * 10_000.0);
             v.push(((u - 0.5) * 8192.0).round() + 0.5);
+            v.push(((u - 0.5) * 1e15).round() + 0.5);
             v.push(f64::from_bits(s));
         }
         for x in v {

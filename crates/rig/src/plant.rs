@@ -407,37 +407,195 @@ pub struct AxisSim<const N: usize> {
     resets: u64,
     // Modal form of the ZOH maps (None: dense update).
     modal: Option<Box<[ModalRegime<N>; 3]>>,
-    z: [f64; N],
+    z: A16<[L2; LANES]>,
     cur: usize,
+    slow: SlowInputs,
+    // The drive input has no effect in any regime (y axis): skip it.
+    drive_free: bool,
+}
+
+/// Largest state dimension with a modal fast path (lanes of 2 states).
+const MODAL_MAX_STATES: usize = 14;
+/// Lanes of the modal state.
+const LANES: usize = MODAL_MAX_STATES / 2;
+/// Two adjacent states, processed together (packed SSE2 on baseline x86-64).
+type L2 = [f64; 2];
+
+#[inline(always)]
+fn l2_mul_add(acc: L2, a: L2, b: L2) -> L2 {
+    [acc[0] + a[0] * b[0], acc[1] + a[1] * b[1]]
+}
+
+/// 16-byte aligned wrapper: packed SSE2 arithmetic can then read lane
+/// arrays straight from memory (no separate unaligned loads).
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(16))]
+struct A16<T>(T);
+
+/// Number of lanes in use for `n` states.
+#[inline(always)]
+const fn lanes(n: usize) -> usize {
+    n.div_ceil(2)
+}
+
+/// Flat state ↔ lanes (unused padding lanes are zero).
+fn to_lanes<const N: usize>(x: &[f64; N]) -> [L2; LANES] {
+    let mut l = [[0.0; 2]; LANES];
+    for (i, v) in x.iter().enumerate().take(MODAL_MAX_STATES) {
+        l[i / 2][i % 2] = *v;
+    }
+    l
+}
+
+fn from_lanes<const N: usize>(l: &[L2; LANES]) -> [f64; N] {
+    let mut x = [0.0; N];
+    for (i, v) in x.iter_mut().enumerate().take(MODAL_MAX_STATES) {
+        *v = l[i / 2][i % 2];
+    }
+    x
 }
 
 /// The ZOH map of one regime in real modal coordinates x = T z:
 /// z ← Λ z + T⁻¹Γ u with Λ block-diagonal (2×2 blocks [[a, b], [−b, a]] for
 /// the eigenvalue pairs a ± jb of Φ, then the real eigenvalues).
+///
+/// Everything the step reads is stored as lanes of two adjacent states
+/// ([`L2`]): Λ as (ra, rb) with (Λz)_j = ra_j z_j + rb_j z_{j^1), i.e.
+/// (ra, rb) = ((a, a), (b, −b)) on a pair and ((λ, λ'), (0, 0)) on two real
+/// eigenvalues, so one lane update is two packed multiplies, a swap and
+/// adds; padding lanes are zero.
 #[derive(Debug, Clone)]
 struct ModalRegime<const N: usize> {
-    n_pairs: usize,
-    a: [f64; N],
-    b: [f64; N],
-    lr: [f64; N],
-    gam: [[f64; N]; NU],
-    acc: [f64; N],
+    ra: A16<[L2; LANES]>,
+    rb: A16<[L2; LANES]>,
+    gam: A16<[[L2; LANES]; NU]>,
+    /// Output weights of state j: [(ẍ_h, x_1), (x_h, r)] rows of C T.
+    outw: A16<[[L2; 2]; MODAL_MAX_STATES]>,
     acc_d: [f64; NU],
-    tip: [f64; N],
-    motor: [f64; N],
-    stroke: [f64; N],
     t: [[f64; N]; N],
     tinv: [[f64; N]; N],
 }
 
-/// Dot product with four partial sums (breaks the add-latency chain).
-#[inline]
-fn dot<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
-    let mut s = [0.0; 4];
-    for i in 0..N {
-        s[i % 4] += a[i] * b[i];
+/// Contribution of the slowly varying inputs (hand position, hand velocity,
+/// constant 1) to the modal update and to the acceleration feed-through,
+/// cached while those inputs and the regime stay the same (they are constant
+/// over a block, or for ever when nobody moves the hand). Bit-identical to
+/// computing them every step.
+#[derive(Debug, Clone)]
+struct SlowInputs {
+    key: [u64; 4],
+    bias: A16<[L2; LANES]>,
+    acc: f64,
+}
+
+impl SlowInputs {
+    fn new() -> Self {
+        Self {
+            // Regime u64::MAX never occurs: the first step refreshes.
+            key: [u64::MAX; 4],
+            bias: A16([[0.0; 2]; LANES]),
+            acc: 0.0,
+        }
     }
-    (s[0] + s[1]) + (s[2] + s[3])
+
+    #[inline(always)]
+    fn get<const N: usize>(
+        &mut self,
+        m: &ModalRegime<N>,
+        regime: usize,
+        u: &[f64; NU],
+    ) -> (&[L2; LANES], f64) {
+        let key = [
+            u[IN_HAND_POS].to_bits(),
+            u[IN_HAND_VEL].to_bits(),
+            u[IN_ONE].to_bits(),
+            regime as u64,
+        ];
+        if key != self.key {
+            self.refresh(m, key, u);
+        }
+        (&self.bias.0, self.acc)
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, key: [u64; 4], u: &[f64; NU]) {
+        for k in 0..LANES {
+            for i in 0..2 {
+                let g = &m.gam.0;
+                self.bias.0[k][i] = (g[IN_HAND_POS][k][i] * u[IN_HAND_POS]
+                    + g[IN_HAND_VEL][k][i] * u[IN_HAND_VEL])
+                    + g[IN_ONE][k][i] * u[IN_ONE];
+            }
+        }
+        self.acc = (m.acc_d[IN_HAND_POS] * u[IN_HAND_POS] + m.acc_d[IN_HAND_VEL] * u[IN_HAND_VEL])
+            + m.acc_d[IN_ONE] * u[IN_ONE];
+        self.key = key;
+    }
+}
+
+/// Outputs (ẍ_h, x_1, x_h, r) of the modal state `z` (first `n_lanes`
+/// lanes): Σ_j w_j z_j with each state broadcast to a lane pair, so every
+/// product and sum is vertical (packed), with even and odd states in
+/// separate accumulators to halve the add chain.
+#[inline(always)]
+fn modal_outputs<const N: usize>(w: &[[L2; 2]; MODAL_MAX_STATES], z: &[L2; LANES]) -> [f64; 4] {
+    let n_lanes = lanes(N);
+    let mut p = [[0.0f64; 2]; 4];
+    for k in 0..n_lanes {
+        let lo = [z[k][0], z[k][0]];
+        let hi = [z[k][1], z[k][1]];
+        let (w0, w1) = (w[2 * k], w[2 * k + 1]);
+        p[0] = l2_mul_add(p[0], w0[0], lo);
+        p[2] = l2_mul_add(p[2], w0[1], lo);
+        p[1] = l2_mul_add(p[1], w1[0], hi);
+        p[3] = l2_mul_add(p[3], w1[1], hi);
+    }
+    let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
+    let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
+    [am[0], am[1], ts[0], ts[1]]
+}
+
+/// One modal update z ← Λz + γ_f f (+ γ_v u_v when `DRIVE`) + bias and the
+/// outputs (ẍ_h without feed-through, x_1, x_h, r) of the new state, in one
+/// pass over the lanes (fused so that LLVM keeps the output accumulators
+/// packed; outputs as in [`modal_outputs`]). `DRIVE = false` skips the
+/// drive column where it is identically zero (the y axis).
+#[inline(always)]
+fn modal_pass<const N: usize, const DRIVE: bool>(
+    m: &ModalRegime<N>,
+    z: &[L2; LANES],
+    bias: &[L2; LANES],
+    f: f64,
+    v: f64,
+) -> (A16<[L2; LANES]>, [f64; 4]) {
+    let (gf, gv) = (&m.gam.0[IN_FORCE], &m.gam.0[IN_DRIVE]);
+    let (ra, rb) = (&m.ra.0, &m.rb.0);
+    let w = &m.outw.0;
+    let mut zn = A16([[0.0; 2]; LANES]);
+    let mut p = [[0.0f64; 2]; 4];
+    for k in 0..lanes(N) {
+        let zk = z[k];
+        let rot = l2_mul_add([ra[k][0] * zk[0], ra[k][1] * zk[1]], rb[k], [zk[1], zk[0]]);
+        let inp = if DRIVE {
+            l2_mul_add([gf[k][0] * f, gf[k][1] * f], gv[k], [v, v])
+        } else {
+            [gf[k][0] * f, gf[k][1] * f]
+        };
+        let y = [
+            (rot[0] + inp[0]) + bias[k][0],
+            (rot[1] + inp[1]) + bias[k][1],
+        ];
+        zn.0[k] = y;
+        let (lo, hi) = ([y[0], y[0]], [y[1], y[1]]);
+        p[0] = l2_mul_add(p[0], w[2 * k][0], lo);
+        p[2] = l2_mul_add(p[2], w[2 * k][1], lo);
+        p[1] = l2_mul_add(p[1], w[2 * k + 1][0], hi);
+        p[3] = l2_mul_add(p[3], w[2 * k + 1][1], hi);
+    }
+    let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
+    let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
+    (zn, [am[0], am[1], ts[0], ts[1]])
 }
 
 /// Column-major matrix–vector product y = M x (M given by its columns).
@@ -463,7 +621,7 @@ fn modal_regime<const N: usize>(
 ) -> Option<ModalRegime<N>> {
     use num_complex::Complex64 as C;
     let n = phi.nrows();
-    if n != N {
+    if n != N || N > MODAL_MAX_STATES {
         return None;
     }
     let ev = lti::eigenvalues(phi);
@@ -548,39 +706,41 @@ fn modal_regime<const N: usize>(
     }
     let g = &tinv * gamma;
     let ct = c * &t;
+    let mut ra = [0.0; N];
+    let mut rb = [0.0; N];
+    for (k, p) in pairs.iter().enumerate() {
+        ra[2 * k] = p.re;
+        ra[2 * k + 1] = p.re;
+        rb[2 * k] = p.im;
+        rb[2 * k + 1] = -p.im;
+    }
+    for (k, &r) in reals.iter().enumerate() {
+        ra[2 * np + k] = r;
+    }
+    let (h, m1, v) = picks;
+    let row = |f: &dyn Fn(usize) -> f64| -> [L2; LANES] {
+        let x: [f64; N] = std::array::from_fn(f);
+        to_lanes(&x)
+    };
     let mut m = ModalRegime::<N> {
-        n_pairs: np,
-        a: [0.0; N],
-        b: [0.0; N],
-        lr: [0.0; N],
-        gam: [[0.0; N]; NU],
-        acc: [0.0; N],
-        acc_d: [0.0; NU],
-        tip: [0.0; N],
-        motor: [0.0; N],
-        stroke: [0.0; N],
+        ra: A16(to_lanes(&ra)),
+        rb: A16(to_lanes(&rb)),
+        gam: A16(std::array::from_fn(|j| row(&|i| g[(i, j)]))),
+        outw: A16(std::array::from_fn(|i| {
+            if i < N {
+                [
+                    [ct[(OUT_ACCEL, i)], t[(m1, i)]],
+                    [t[(h, i)], v.map_or(0.0, |v| t[(v, i)] - t[(h, i)])],
+                ]
+            } else {
+                [[0.0; 2]; 2]
+            }
+        })),
+        acc_d: std::array::from_fn(|j| d[(OUT_ACCEL, j)]),
         t: [[0.0; N]; N],
         tinv: [[0.0; N]; N],
     };
-    for (k, p) in pairs.iter().enumerate() {
-        m.a[k] = p.re;
-        m.b[k] = p.im;
-    }
-    for (k, &r) in reals.iter().enumerate() {
-        m.lr[2 * np + k] = r;
-    }
-    for j in 0..NU {
-        for i in 0..N {
-            m.gam[j][i] = g[(i, j)];
-        }
-        m.acc_d[j] = d[(OUT_ACCEL, j)];
-    }
-    let (h, m1, v) = picks;
     for i in 0..N {
-        m.acc[i] = ct[(OUT_ACCEL, i)];
-        m.tip[i] = t[(h, i)];
-        m.motor[i] = t[(m1, i)];
-        m.stroke[i] = v.map_or(0.0, |v| t[(v, i)] - t[(h, i)]);
         for j in 0..N {
             m.t[j][i] = t[(i, j)];
             m.tinv[j][i] = tinv[(i, j)];
@@ -644,6 +804,12 @@ impl<const N: usize> AxisSim<N> {
                 }
             }
         }
+        let drive_free = modal.as_deref().is_some_and(|regs| {
+            regs.iter().all(|r| {
+                r.acc_d[IN_DRIVE] == 0.0
+                    && r.gam.0[IN_DRIVE].iter().all(|l| l[0] == 0.0 && l[1] == 0.0)
+            })
+        });
         Ok(Self {
             phi_cols,
             gamma_cols,
@@ -661,8 +827,10 @@ impl<const N: usize> AxisSim<N> {
             stop_steps: 0,
             resets: 0,
             modal,
-            z: [0.0; N],
+            drive_free,
+            z: A16([[0.0; 2]; LANES]),
             cur: 0,
+            slow: SlowInputs::new(),
         })
     }
 
@@ -691,7 +859,7 @@ impl<const N: usize> AxisSim<N> {
     /// Current (physical) state.
     pub fn state(&self) -> SVector<f64, N> {
         match &self.modal {
-            Some(m) => SVector::from(colmul(&m[self.cur].t, &self.z)),
+            Some(m) => SVector::from(colmul(&m[self.cur].t, &from_lanes(&self.z.0))),
             None => self.x,
         }
     }
@@ -706,14 +874,14 @@ impl<const N: usize> AxisSim<N> {
         if let Some(m) = &self.modal {
             self.cur = self.regime_of(&self.x);
             let xa: [f64; N] = self.x.into();
-            self.z = colmul(&m[self.cur].tinv, &xa);
+            self.z = A16(to_lanes(&colmul(&m[self.cur].tinv, &xa)));
         }
     }
 
     /// Zero the state and counters.
     pub fn reset(&mut self) {
         self.x = SVector::zeros();
-        self.z = [0.0; N];
+        self.z = A16([[0.0; 2]; LANES]);
         self.cur = 0;
         self.stop_steps = 0;
         self.resets = 0;
@@ -728,59 +896,80 @@ impl<const N: usize> AxisSim<N> {
         }
     }
 
-    /// The modal ZOH step (see [`ModalRegime`]).
+    /// The modal ZOH step (see [`ModalRegime`]); `u` must be finite.
+    ///
+    /// Hot path: one lane-wise update z ← Λz + γ_f f + γ_v u_v + (slow
+    /// inputs, cached), then the output dot products. A non-finite state is
+    /// detected through the acceleration dot product (0·∞ = NaN, so it is
+    /// non-finite as soon as any state is); the reset and the rare end-stop
+    /// regime switch run out of line.
     #[inline]
-    fn step_modal(&mut self, u: &SVector<f64, NU>) -> Option<AxisOutput> {
+    fn step_modal(&mut self, u: &[f64; NU]) -> Option<AxisOutput> {
         let regs = self.modal.as_deref()?;
         let r0 = self.cur;
         let m = &regs[r0];
-        let z = &self.z;
-        let mut zn = [0.0; N];
-        let np = m.n_pairs;
-        for k in 0..np {
-            let (zr, zi) = (z[2 * k], z[2 * k + 1]);
-            zn[2 * k] = m.a[k] * zr + m.b[k] * zi;
-            zn[2 * k + 1] = m.a[k] * zi - m.b[k] * zr;
+        let (bias, bias_acc) = self.slow.get(m, r0, u);
+        let z = &self.z.0;
+        let (f, v) = (u[IN_FORCE], u[IN_DRIVE]);
+        let (zn, [acc_z, motor, tip, stroke]) = if self.drive_free {
+            modal_pass::<N, false>(m, z, bias, f, v)
+        } else {
+            modal_pass::<N, true>(m, z, bias, f, v)
+        };
+        let r1 = self.regime_of_stroke(stroke);
+        if r1 != r0 || !acc_z.is_finite() {
+            return Some(self.finish_modal_slow(from_lanes(&zn.0), u));
         }
-        for j in 2 * np..N {
-            zn[j] = m.lr[j] * z[j];
-        }
-        for (col, &uj) in m.gam.iter().zip(u.iter()) {
-            for (zi, ci) in zn.iter_mut().zip(col) {
-                *zi += ci * uj;
-            }
-        }
-        if !zn.iter().all(|v| v.is_finite()) {
-            zn = [0.0; N];
-            self.resets += 1;
-        }
-        let mut cur = r0;
-        // The stroke (0 without a Haptuator: no end stops, no product).
-        let mut stroke = 0.0;
-        if self.stroke.is_some() {
-            stroke = dot(&m.stroke, &zn);
-            let r1 = self.regime_of_stroke(stroke);
-            if r1 != r0 {
-                let x = colmul(&m.t, &zn);
-                zn = colmul(&regs[r1].tinv, &x);
-                cur = r1;
-                stroke = dot(&regs[r1].stroke, &zn);
-            }
-        }
-        let m = &regs[cur];
-        let ua: [f64; NU] = (*u).into();
         let out = AxisOutput {
-            accel: dot(&m.acc, &zn) + dot(&m.acc_d, &ua),
-            tip: dot(&m.tip, &zn),
-            motor: dot(&m.motor, &zn),
+            accel: acc_z + ((m.acc_d[IN_FORCE] * f + m.acc_d[IN_DRIVE] * v) + bias_acc),
+            tip,
+            motor,
             stroke,
         };
         self.z = zn;
-        self.cur = cur;
         if r0 != 0 {
             self.stop_steps += 1;
         }
         Some(out)
+    }
+
+    /// End of a modal step with a regime switch or a non-finite state
+    /// (reset to zero, counted): change of basis x = T z, z' = T'⁻¹ x.
+    #[cold]
+    #[inline(never)]
+    fn finish_modal_slow(&mut self, mut zn: [f64; N], u: &[f64; NU]) -> AxisOutput {
+        let Some(regs) = self.modal.as_deref() else {
+            return AxisOutput::default();
+        };
+        let r0 = self.cur;
+        if !zn.iter().all(|v| v.is_finite()) {
+            zn = [0.0; N];
+            self.resets += 1;
+        }
+        let mut zl = to_lanes(&zn);
+        let mut cur = r0;
+        let stroke = modal_outputs::<N>(&regs[r0].outw.0, &zl)[3];
+        let r1 = self.regime_of_stroke(stroke);
+        if r1 != r0 {
+            let x = colmul(&regs[r0].t, &zn);
+            zl = to_lanes(&colmul(&regs[r1].tinv, &x));
+            cur = r1;
+        }
+        let m = &regs[cur];
+        let accel_d = m.acc_d.iter().zip(u).fold(0.0, |s, (a, b)| s + a * b);
+        let [acc_z, motor, tip, stroke] = modal_outputs::<N>(&m.outw.0, &zl);
+        let out = AxisOutput {
+            accel: acc_z + accel_d,
+            tip,
+            motor,
+            stroke,
+        };
+        self.z = A16(zl);
+        self.cur = cur;
+        if r0 != 0 {
+            self.stop_steps += 1;
+        }
+        out
     }
 
     /// Number of steps that started with the magnet on an end stop.
@@ -822,17 +1011,23 @@ impl<const N: usize> AxisSim<N> {
     /// is reset to zero and counted.
     #[inline]
     pub fn step(&mut self, u: &SVector<f64, NU>) -> AxisOutput {
-        let mut u = *u;
-        for v in u.iter_mut() {
+        self.step_inputs((*u).into())
+    }
+
+    /// [`Self::step`] with the inputs as an array (no nalgebra on the hot path).
+    #[inline]
+    pub fn step_inputs(&mut self, mut ua: [f64; NU]) -> AxisOutput {
+        for v in ua.iter_mut() {
             if !v.is_finite() {
                 *v = 0.0;
             }
         }
         if self.integrator == Integrator::Zoh
-            && let Some(o) = self.step_modal(&u)
+            && let Some(o) = self.step_modal(&ua)
         {
             return o;
         }
+        let u = SVector::<f64, NU>::from(ua);
         let r0 = self.regime_of(&self.x);
         if r0 != 0 {
             self.stop_steps += 1;
@@ -973,16 +1168,12 @@ impl DualStagePlant {
     /// Advance one sample.
     #[inline]
     pub fn step(&mut self, i: &PlantInput) -> PlantOutput {
-        let ux = SVector::<f64, NU>::from([
-            i.force_n[0],
-            i.drive_v,
-            i.hand_m[0],
-            i.hand_vel_m_s[0],
-            1.0,
-        ]);
-        let uy = SVector::<f64, NU>::from([i.force_n[1], 0.0, i.hand_m[1], i.hand_vel_m_s[1], 1.0]);
-        let ox = self.x.step(&ux);
-        let oy = self.y.step(&uy);
+        let ox = self
+            .x
+            .step_inputs([i.force_n[0], i.drive_v, i.hand_m[0], i.hand_vel_m_s[0], 1.0]);
+        let oy = self
+            .y
+            .step_inputs([i.force_n[1], 0.0, i.hand_m[1], i.hand_vel_m_s[1], 1.0]);
         PlantOutput {
             accel_m_s2: [ox.accel, oy.accel],
             tip_m: [ox.tip, oy.tip],

@@ -554,6 +554,84 @@ impl<C: Clock> SimRig<C> {
         self.anchor_time + Duration::from_secs_f64((seq - self.anchor_seq) as f64 / self.fs)
     }
 
+    /// Simulate one sample: sanitise and limit the command, step the
+    /// plant, read the accelerometer and the encoders. Allocation-free; the
+    /// flags of the frame tell what happened (counted by [`Self::note_flags`]).
+    #[inline(always)]
+    fn frame(&mut self, cmd: &ActuatorFrame, hand: [f64; 2], hv: [f64; 2]) -> SensorFrame {
+        let mut flags = 0u8;
+        let mut f = cmd.force_n;
+        let mut v = cmd.haptuator_v;
+        for x in f.iter_mut() {
+            if !x.is_finite() {
+                *x = 0.0;
+                flags |= FrameFlags::NONFINITE_COMMAND;
+            } else if x.abs() > self.force_max {
+                *x = self.force_max.copysign(*x);
+                flags |= FrameFlags::LIMITED;
+            }
+        }
+        if !v.is_finite() {
+            v = 0.0;
+            flags |= FrameFlags::NONFINITE_COMMAND;
+        } else if v.abs() > self.drive_max {
+            v = self.drive_max.copysign(v);
+            flags |= FrameFlags::LIMITED;
+        }
+        let in_stop_before = self.plant.x.end_stop_steps();
+        let o = self.plant.step(&PlantInput {
+            force_n: f,
+            drive_v: v,
+            hand_m: hand,
+            hand_vel_m_s: hv,
+        });
+        if self.plant.x.end_stop_steps() != in_stop_before {
+            flags |= FrameFlags::END_STOP;
+        }
+        let r = self.accel.sample([o.accel_m_s2[0], o.accel_m_s2[1], 0.0]);
+        if r.clipped {
+            flags |= FrameFlags::CLIPPED;
+        }
+        self.truth = o;
+        SensorFrame {
+            seq: self.seq,
+            handle_m: [self.quantise(o.motor_m[0]), self.quantise(o.motor_m[1])],
+            accel_m_s2: r.m_s2,
+            flags: FrameFlags(flags),
+        }
+    }
+
+    /// Count a frame's flags and queue each kind of fault once per block
+    /// (`noted` collects the kinds already queued in this block).
+    #[cold]
+    #[inline(never)]
+    fn note_flags(&mut self, ff: FrameFlags, noted: &mut u8) {
+        let seq = self.seq;
+        let kinds = [
+            (
+                FrameFlags::NONFINITE_COMMAND,
+                RigFault::NonFiniteCommand { seq },
+            ),
+            (FrameFlags::LIMITED, RigFault::ActuatorLimited { seq }),
+            (FrameFlags::CLIPPED, RigFault::SensorClipped { seq }),
+            (FrameFlags::END_STOP, RigFault::EndStop { seq }),
+        ];
+        for (bit, fault) in kinds {
+            if ff.has(bit) {
+                match bit {
+                    FrameFlags::NONFINITE_COMMAND => self.st.nonfinite_commands += 1,
+                    FrameFlags::LIMITED => self.st.limited_frames += 1,
+                    FrameFlags::CLIPPED => self.st.clipped_frames += 1,
+                    _ => self.st.end_stop_frames += 1,
+                }
+                if *noted & bit == 0 {
+                    self.faults.push(fault);
+                    *noted |= bit;
+                }
+            }
+        }
+    }
+
     fn quantise(&self, x: f64) -> f64 {
         if self.encoder_res > 0.0 {
             crate::round_half_away(x / self.encoder_res) * self.encoder_res
@@ -624,88 +702,23 @@ impl<C: Clock> Rig for SimRig<C> {
                 });
             }
         }
-        let dt = 1.0 / self.fs;
-        let hv = [
-            (self.hand_target[0] - self.hand_prev[0]) / (n as f64 * dt),
-            (self.hand_target[1] - self.hand_prev[1]) / (n as f64 * dt),
+        // The hand moves linearly from its previous target to the new one
+        // over the block: velocity Δ·f_s/n, position after frame i at
+        // prev + (i + 1)/n·Δ.
+        let dh = [
+            self.hand_target[0] - self.hand_prev[0],
+            self.hand_target[1] - self.hand_prev[1],
         ];
-        let (mut nf, mut lim, mut clip, mut stop) = (false, false, false, false);
+        let rate = self.fs / n as f64;
+        let hv = [dh[0] * rate, dh[1] * rate];
+        let inv_n = 1.0 / n as f64;
+        let mut noted = 0u8;
         for (i, (cmd, out)) in commands.iter().zip(sensors.iter_mut()).enumerate() {
-            let mut flags = 0u8;
-            let mut f = cmd.force_n;
-            let mut v = cmd.haptuator_v;
-            for x in f.iter_mut().chain(std::iter::once(&mut v)) {
-                if !x.is_finite() {
-                    *x = 0.0;
-                    flags |= FrameFlags::NONFINITE_COMMAND;
-                }
-            }
-            for x in f.iter_mut() {
-                if x.abs() > self.force_max {
-                    *x = x.signum() * self.force_max;
-                    flags |= FrameFlags::LIMITED;
-                }
-            }
-            if v.abs() > self.drive_max {
-                v = v.signum() * self.drive_max;
-                flags |= FrameFlags::LIMITED;
-            }
-            let a = (i + 1) as f64 / n as f64;
-            let hand = [
-                self.hand_prev[0] + a * (self.hand_target[0] - self.hand_prev[0]),
-                self.hand_prev[1] + a * (self.hand_target[1] - self.hand_prev[1]),
-            ];
-            let in_stop_before = self.plant.x.end_stop_steps();
-            let o = self.plant.step(&PlantInput {
-                force_n: f,
-                drive_v: v,
-                hand_m: hand,
-                hand_vel_m_s: hv,
-            });
-            if self.plant.x.end_stop_steps() != in_stop_before {
-                flags |= FrameFlags::END_STOP;
-            }
-            let r = self.accel.sample([o.accel_m_s2[0], o.accel_m_s2[1], 0.0]);
-            if r.clipped {
-                flags |= FrameFlags::CLIPPED;
-            }
-            self.truth = o;
-            *out = SensorFrame {
-                seq: self.seq,
-                handle_m: [self.quantise(o.motor_m[0]), self.quantise(o.motor_m[1])],
-                accel_m_s2: r.m_s2,
-                flags: FrameFlags(flags),
-            };
-            let ff = FrameFlags(flags);
-            if ff.has(FrameFlags::NONFINITE_COMMAND) {
-                self.st.nonfinite_commands += 1;
-                if !nf {
-                    self.faults
-                        .push(RigFault::NonFiniteCommand { seq: self.seq });
-                    nf = true;
-                }
-            }
-            if ff.has(FrameFlags::LIMITED) {
-                self.st.limited_frames += 1;
-                if !lim {
-                    self.faults
-                        .push(RigFault::ActuatorLimited { seq: self.seq });
-                    lim = true;
-                }
-            }
-            if ff.has(FrameFlags::CLIPPED) {
-                self.st.clipped_frames += 1;
-                if !clip {
-                    self.faults.push(RigFault::SensorClipped { seq: self.seq });
-                    clip = true;
-                }
-            }
-            if ff.has(FrameFlags::END_STOP) {
-                self.st.end_stop_frames += 1;
-                if !stop {
-                    self.faults.push(RigFault::EndStop { seq: self.seq });
-                    stop = true;
-                }
+            let a = (i + 1) as f64 * inv_n;
+            let hand = [self.hand_prev[0] + a * dh[0], self.hand_prev[1] + a * dh[1]];
+            *out = self.frame(cmd, hand, hv);
+            if out.flags.0 != 0 {
+                self.note_flags(out.flags, &mut noted);
             }
             self.seq += 1;
         }

@@ -1,0 +1,122 @@
+//! Profile driver of the closed loop (`docs/PERFORMANCE.md`, closed loop).
+//!
+//! `cargo run --release -p kilotouch-rig --example closed_loop_profile -- [N] [part]`
+//! runs `N` samples (default 1e6) of the default scene's closed loop in D
+//! mode (or only one part: `plant`, `tweezer`, `accel`, `loop`) and prints
+//! the thread CPU time per sample. Under
+//! `valgrind --tool=callgrind` the instruction count per sample is
+//! (Ir of the run with N − Ir of the run with 0) / N: repeatable on a
+//! loaded machine, unlike wall or CPU time.
+
+use kilotouch_rig::accel::Accelerometer;
+use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::coupling::{ClosedLoop, Coupling};
+use kilotouch_rig::plant::{DualStagePlant, PlantInput};
+use kilotouch_rig::rig::SimRig;
+use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
+use kilotouch_rig::{Integrator, Rig};
+use std::hint::black_box;
+
+/// CPU time of this thread (ns), from /proc/thread-self/schedstat.
+fn thread_cpu_ns() -> u64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).map_or(Ok(1_000_000), |s| s.parse())?;
+    let part = args.get(2).map_or("loop", String::as_str);
+    let cfg = RigConfig::default();
+    let fs = cfg.rig.sample_rate_hz;
+    let table: Vec<f64> = (0..4096).map(|k| 0.3 * (k as f64 * 0.0731).sin()).collect();
+    let drive = |k: usize| table[k & 4095];
+    let t0 = thread_cpu_ns();
+    let mut acc = 0.0;
+    match part {
+        "plant" => {
+            let mut p = DualStagePlant::new(&cfg, Integrator::Zoh)?;
+            let t0 = thread_cpu_ns();
+            for k in 0..n {
+                acc += p
+                    .step(&PlantInput {
+                        force_n: [drive(k), -drive(k)],
+                        drive_v: drive(k + 3),
+                        ..Default::default()
+                    })
+                    .accel_m_s2[0];
+            }
+            report(part, n, t0);
+        }
+        "tweezer" => {
+            let mut t = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?;
+            if args.get(3).is_some_and(|a| a == "exact") {
+                t.set_drag_table(false);
+            }
+            eprintln!("drag table error: {:?}", t.drag_table_error());
+            let t0 = thread_cpu_ns();
+            for k in 0..n {
+                acc += t.step([1e-9 * drive(k), 0.0]).force_n[0];
+            }
+            report(part, n, t0);
+        }
+        "seeds" => {
+            // The tweezer validations of tests/tweezer.rs on more seeds (the
+            // normal generator changed): equipartition within 3 %, f_c within
+            // 5 %, D within 8 %, free and near a wall (Faxén).
+            use kilotouch_rig::tweezer::{TweezerSimArgs, simulate_tweezer};
+            for wall in [None, Some(3.0)] {
+                for seed in 1..=8 {
+                    let r = simulate_tweezer(&TweezerSimArgs {
+                        duration_s: 100.0,
+                        seed,
+                        wall_distance_um: wall,
+                        ..TweezerSimArgs::default()
+                    })?;
+                    let d_th = r.d_theory_m2_s;
+                    println!(
+                        "wall {wall:?} seed {seed}: var x {:.4} y {:.4}  fc {:.4}  D {:.4}",
+                        r.var_x_m2 / r.var_theory_m2,
+                        r.var_y_m2 / r.var_theory_m2,
+                        r.fc_fit_hz / r.fc_theory_hz,
+                        r.d_fit_m2_s / d_th
+                    );
+                }
+            }
+        }
+        "accel" => {
+            let mut a = Accelerometer::new(&cfg.accelerometer, fs)?;
+            let t0 = thread_cpu_ns();
+            for k in 0..n {
+                acc += a.sample([drive(k), 0.0, 0.0]).m_s2[0];
+            }
+            report(part, n, t0);
+        }
+        _ => {
+            let mut cl = ClosedLoop::new(
+                SimRig::new(&cfg)?,
+                SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
+                Coupling::from_config(&cfg)?,
+            )?;
+            let t0 = thread_cpu_ns();
+            for _ in 0..n {
+                let (cmd, _) = cl.step()?;
+                acc += cmd.force_n[0];
+            }
+            report("loop", n, t0);
+            black_box(cl.rig.status());
+        }
+    }
+    black_box(acc);
+    let _ = t0;
+    Ok(())
+}
+
+fn report(part: &str, n: usize, t0: u64) {
+    let t = thread_cpu_ns() - t0;
+    if n > 0 {
+        println!("{part}: {:.2} ns/sample (thread CPU)", t as f64 / n as f64);
+    }
+}
