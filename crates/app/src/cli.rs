@@ -14,14 +14,16 @@ use crate::commands;
 #[derive(Debug, Parser)]
 #[command(name = "kilotouch", version, about, long_about = None)]
 pub struct Cli {
-    /// Headless command; without one, kilotouch prints this help.
+    /// Command; without one, kilotouch opens the desktop app on the simulated rig.
     #[command(subcommand)]
     pub command: Option<Command>,
 }
 
-/// The headless commands.
+/// The commands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Open the desktop app (the default without a command).
+    Gui(crate::gui::GuiArgs),
     /// Response of the digital Linkwitz–Riley crossover at given frequencies.
     Crossover(commands::crossover::Args),
     /// Welch power spectral density of one CSV column (scipy.signal.welch conventions).
@@ -64,6 +66,19 @@ pub fn main_entry() -> ExitCode {
             };
         }
     };
+    if let None | Some(Command::Gui(_)) = &cli.command {
+        let args = match cli.command {
+            Some(Command::Gui(a)) => a,
+            _ => crate::gui::GuiArgs::default_args(),
+        };
+        return match crate::gui::run(&args) {
+            Ok(code) => code,
+            Err(e) => {
+                eprintln!("kilotouch: error: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -79,7 +94,7 @@ pub fn main_entry() -> ExitCode {
 /// Run a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        None => {
+        None | Some(Command::Gui(_)) => {
             use clap::CommandFactory;
             Cli::command().print_help()?;
             println!();

@@ -1,9 +1,12 @@
-//! kilotouch application library: the headless command-line interface (and,
-//! in a later milestone, the egui/wgpu GUI).
+//! kilotouch application library: the desktop app (egui/wgpu, [`gui`]), its
+//! real-time engine ([`engine`], GUI-independent) and the headless
+//! command-line interface.
 //!
 //! The binary `kilotouch` is a thin wrapper around [`cli::main_entry`].
 
 pub mod cli;
 pub mod commands;
 pub mod csvio;
+pub mod engine;
+pub mod gui;
 pub mod output;

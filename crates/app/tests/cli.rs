@@ -54,11 +54,12 @@ fn arr(v: &Value, k: &str) -> Vec<f64> {
 }
 
 #[test]
-fn no_arguments_prints_help() {
-    let out = kilotouch(&[]);
+fn help_lists_the_commands() {
+    // Without arguments kilotouch opens the GUI; --help prints the commands.
+    let out = kilotouch(&["--help"]);
     assert!(out.status.success());
     let s = String::from_utf8_lossy(&out.stdout);
-    for cmd in ["crossover", "psd", "frf", "tfest", "bench"] {
+    for cmd in ["crossover", "psd", "frf", "tfest", "bench", "gui"] {
         assert!(s.contains(cmd), "help lacks {cmd}: {s}");
     }
 }

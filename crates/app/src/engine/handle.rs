@@ -1,0 +1,235 @@
+//! The GUI side of the engine: commands in, telemetry and events out.
+
+use super::runner::{EngineCore, Shared};
+use super::splitter::{ChainSwap, SwapOutcome};
+use super::{
+    BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, Health,
+    TelemetrySample,
+};
+use kilotouch_dsp::chain::ChainCoefficients;
+use kilotouch_rig::rig::{Clock, RigIdentity, SystemClock};
+use kilotouch_rig::tweezer::Obstacle;
+use kilotouch_rig::{RigConfig, SimTweezer, TweezerParams};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::thread::JoinHandle;
+
+/// Capacity of the command and event queues.
+const QUEUE: usize = 256;
+
+/// Build an engine core and its handle without starting a thread (tests
+/// step the core themselves; [`EngineHandle::spawn`] moves it to a thread).
+pub fn engine_pair<C: Clock>(
+    cfg: &RigConfig,
+    opts: EngineOptions,
+    clock: C,
+) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
+    if opts.telemetry_capacity == 0 {
+        return Err(EngineError::Option {
+            name: "telemetry_capacity",
+            reason: "must be > 0",
+        });
+    }
+    let (cmd_tx, cmd_rx) = rtrb::RingBuffer::new(QUEUE);
+    let (tel_tx, tel_rx) = rtrb::RingBuffer::new(opts.telemetry_capacity);
+    let (ev_tx, ev_rx) = rtrb::RingBuffer::new(QUEUE);
+    let shared = Arc::new(Shared::default());
+    let core = EngineCore::new(cfg, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
+    let identity = kilotouch_rig::Rig::identity(&core.closed_loop().rig).clone();
+    let handle = EngineHandle {
+        commands: cmd_tx,
+        telemetry: tel_rx,
+        events: ev_rx,
+        shared,
+        thread: None,
+        health: None,
+        identity,
+        config: cfg.clone(),
+        condition: core.condition(),
+        last_swap: None,
+    };
+    Ok((core, handle))
+}
+
+/// The GUI's end of a running engine (module docs of [`crate::engine`]).
+/// Dropping it stops the engine thread.
+#[derive(Debug)]
+pub struct EngineHandle {
+    commands: rtrb::Producer<Command>,
+    telemetry: rtrb::Consumer<TelemetrySample>,
+    events: rtrb::Consumer<EngineEvent>,
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<()>>,
+    health: Option<Health>,
+    identity: RigIdentity,
+    config: RigConfig,
+    condition: Condition,
+    last_swap: Option<SwapOutcome>,
+}
+
+impl EngineHandle {
+    /// Start the engine on its own thread, paced by the system clock.
+    pub fn spawn(cfg: &RigConfig, opts: EngineOptions) -> Result<Self, EngineError> {
+        Self::spawn_with_clock(cfg, opts, SystemClock::default())
+    }
+
+    /// Start the engine on its own thread with a given clock.
+    pub fn spawn_with_clock<C: Clock + 'static>(
+        cfg: &RigConfig,
+        opts: EngineOptions,
+        clock: C,
+    ) -> Result<Self, EngineError> {
+        let (mut core, mut handle) = engine_pair(cfg, opts, clock)?;
+        let t = std::thread::Builder::new()
+            .name("kilotouch-engine".into())
+            .spawn(move || while core.run_block() {})?;
+        handle.thread = Some(t);
+        Ok(handle)
+    }
+
+    /// Identity of the rig.
+    pub fn identity(&self) -> &RigIdentity {
+        &self.identity
+    }
+
+    /// The rig configuration the engine was built from.
+    pub fn config(&self) -> &RigConfig {
+        &self.config
+    }
+
+    /// Sample rate, Hz.
+    pub fn sample_rate_hz(&self) -> f64 {
+        self.identity.sample_rate_hz
+    }
+
+    /// Latest health report, if any arrived.
+    pub fn health(&self) -> Option<&Health> {
+        self.health.as_ref()
+    }
+
+    /// The condition last requested.
+    pub fn condition(&self) -> Condition {
+        self.condition
+    }
+
+    /// Outcome of the last chain swap, if any.
+    pub fn last_swap(&self) -> Option<SwapOutcome> {
+        self.last_swap
+    }
+
+    /// Is the engine thread alive? (`true` for a core stepped by hand.)
+    pub fn is_alive(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| !t.is_finished())
+    }
+
+    /// Send a command; gives it back if the queue is full.
+    pub fn send(&mut self, cmd: Command) -> Result<(), Box<Command>> {
+        if let Command::SetCondition(c) = cmd {
+            self.condition = c;
+        }
+        self.commands
+            .push(cmd)
+            .map_err(|rtrb::PushError::Full(c)| Box::new(c))
+    }
+
+    /// Move the hand (m). `false` if the queue was full (the next call
+    /// carries a newer position anyway).
+    pub fn set_hand(&mut self, hand_m: [f64; 2]) -> bool {
+        self.send(Command::SetHand(hand_m)).is_ok()
+    }
+
+    /// Switch V / P / D.
+    pub fn set_condition(&mut self, c: Condition) -> bool {
+        self.send(Command::SetCondition(c)).is_ok()
+    }
+
+    /// Emergency stop: never blocks, never fails (an atomic counter the
+    /// engine checks at every block, outside the command queue).
+    pub fn emergency_stop(&self) {
+        self.shared.estop_count.fetch_add(1, Ordering::AcqRel);
+    }
+
+    /// Emergency stops requested so far.
+    pub fn estop_count(&self) -> u64 {
+        self.shared.estop_count.load(Ordering::Acquire)
+    }
+
+    /// Release the emergency stop (only if no stop was requested after
+    /// this call). `false` if the queue was full.
+    pub fn reset_emergency_stop(&mut self) -> bool {
+        let ack = self.estop_count();
+        self.send(Command::ResetEmergencyStop { ack }).is_ok()
+    }
+
+    /// Replace the obstacles (builds a new tweezer here; the engine swaps it in).
+    pub fn set_obstacles(&mut self, obstacles: &[Obstacle]) -> Result<(), EngineError> {
+        let mut p = TweezerParams::from_config(&self.config.tweezer);
+        p.obstacles = obstacles.to_vec();
+        let t = SimTweezer::new(p, self.sample_rate_hz())?;
+        self.send(Command::SetTweezer(Box::new(t)))
+            .map_err(|_| EngineError::Option {
+                name: "queue",
+                reason: "command queue full, try again",
+            })
+    }
+
+    /// Swap in a new chain (a calibration).
+    pub fn apply_chain(&mut self, coefficients: ChainCoefficients) -> Result<(), EngineError> {
+        self.send(Command::ApplyChain(ChainSwap::new(coefficients)))
+            .map_err(|_| EngineError::Option {
+                name: "queue",
+                reason: "command queue full, try again",
+            })
+    }
+
+    /// Replace the block driver (e.g. a study session).
+    pub fn set_driver(&mut self, d: Box<dyn BlockDriver>) -> bool {
+        self.send(Command::SetDriver(d)).is_ok()
+    }
+
+    /// Read every telemetry sample waiting; returns how many.
+    pub fn drain_telemetry(&mut self, mut f: impl FnMut(&TelemetrySample)) -> usize {
+        let mut n = 0;
+        while let Ok(s) = self.telemetry.pop() {
+            f(&s);
+            n += 1;
+        }
+        n
+    }
+
+    /// Handle waiting events: keeps the latest health, drops garbage, and
+    /// returns what the user should see (faults, errors, swaps).
+    pub fn poll_events(&mut self) -> Vec<EngineEvent> {
+        let mut out = Vec::new();
+        while let Ok(e) = self.events.pop() {
+            match e {
+                EngineEvent::Health(h) => self.health = Some(h),
+                EngineEvent::Garbage(g) => drop(g),
+                EngineEvent::ChainSwapped(o) => {
+                    self.last_swap = Some(o);
+                    out.push(e);
+                }
+                other => out.push(other),
+            }
+        }
+        out
+    }
+
+    /// Stop the thread and wait for it.
+    pub fn shutdown(mut self) {
+        self.stop_thread();
+    }
+
+    fn stop_thread(&mut self) {
+        self.shared.shutdown.store(true, Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for EngineHandle {
+    fn drop(&mut self) {
+        self.stop_thread();
+    }
+}

@@ -1,0 +1,341 @@
+//! The real-time engine: the closed loop (rig + tweezer + coupling + dsp
+//! chain) on its own thread at the rig rate, independent of any GUI.
+//!
+//! # Architecture
+//!
+//! ```text
+//!  GUI thread                                   engine thread
+//!  ──────────                                   ─────────────
+//!  EngineHandle ── Command (rtrb, 256) ───────▶ EngineCore::run_block
+//!               ◀─ TelemetrySample (rtrb) ────   every sample (drop + count when full)
+//!               ◀─ EngineEvent (rtrb, 256) ───   health every 100 ms, swaps done, faults,
+//!                                                boxes to drop
+//!  estop counter (AtomicU64) ─────────────────▶  checked every block
+//! ```
+//!
+//! The engine runs blocks of `block_len` samples (default 10 = 1 ms at
+//! 10 kHz). Each sample is one step of the rig crate's
+//! [`ClosedLoop`]: sensors → trap (coupling) → tweezer → handle force →
+//! chain → [`gate::OutputGate`] → rig. After a block it sleeps until the
+//! block's deadline ([`pacing`]). It never waits on the GUI: a full
+//! telemetry queue drops the sample and counts it; a command that must hand
+//! a box back waits in its queue until the event queue has room. Nothing in
+//! the loop allocates, frees or locks: coefficient sets and tweezers with
+//! new obstacles are built (boxed) on the GUI thread, swapped in by the
+//! engine, and the old ones travel back to be dropped on the GUI side.
+//!
+//! Pacing is the engine's, with the rig in batch mode: [`ClosedLoop`]
+//! exchanges one sample per `process_block` call (so the force computed
+//! from sample n acts at n + 1), and a wall-clock-paced `SimRig` would sleep
+//! after every sample. A live rig that blocks in `process_block` fits the
+//! same loop: the engine's sleep then returns at once.
+//!
+//! Study sessions later plug in as a [`BlockDriver`] (the default is free
+//! exploration: the hand follows the GUI's mouse).
+
+pub mod gate;
+mod handle;
+pub mod pacing;
+mod runner;
+pub mod splitter;
+
+pub use handle::{EngineHandle, engine_pair};
+pub use runner::EngineCore;
+
+use kilotouch_rig::coupling::CouplingCounters;
+use kilotouch_rig::error::RigError;
+use kilotouch_rig::rig::{RigFault, RigStatus};
+use kilotouch_rig::{ActuatorFrame, SimTweezer};
+use serde::{Deserialize, Serialize};
+use splitter::{ChainSwap, SwapOutcome};
+
+/// Experimental condition (paper §4.2): what the participant gets back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+pub enum Condition {
+    /// V: vision only, no haptic force (outputs zero, loop still running).
+    Vision,
+    /// P: vision + Pantograph only (band-limited low channel).
+    Pantograph,
+    /// D: vision + dual stage (crossover, both compensated channels).
+    #[default]
+    Dual,
+}
+
+impl Condition {
+    /// All, in the paper's order.
+    pub const ALL: [Condition; 3] = [Condition::Vision, Condition::Pantograph, Condition::Dual];
+
+    /// One-letter name (V, P, D).
+    pub fn letter(self) -> &'static str {
+        match self {
+            Condition::Vision => "V",
+            Condition::Pantograph => "P",
+            Condition::Dual => "D",
+        }
+    }
+
+    /// Human-readable description.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Condition::Vision => "vision only (no force)",
+            Condition::Pantograph => "Pantograph only (up to 200 Hz)",
+            Condition::Dual => "dual stage (Pantograph + Haptuator)",
+        }
+    }
+}
+
+/// Bits of [`TelemetrySample::flags`].
+pub mod flags {
+    /// The bead is in an obstacle's contact zone.
+    pub const IN_CONTACT: u16 = 1;
+    /// The bead is held by the trap.
+    pub const TRAPPED: u16 = 2;
+    /// Contact began at this sample.
+    pub const CONTACT_START: u16 = 4;
+    /// Contact ended at this sample.
+    pub const CONTACT_END: u16 = 8;
+    /// The bead escaped at this sample.
+    pub const ESCAPED: u16 = 16;
+    /// The bead was recaptured at this sample.
+    pub const RECAPTURED: u16 = 32;
+    /// The emergency stop is latched (outputs zero).
+    pub const ESTOP: u16 = 64;
+    /// The rig flagged this frame (clipping, limiting, end stop, lost, …).
+    pub const RIG_FLAG: u16 = 128;
+}
+
+/// One sample of the loop, as the plots and the scene need it. SI units.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TelemetrySample {
+    /// Rig sequence number (sample time = seq / f_s).
+    pub seq: u64,
+    /// Hand position driving the rig (after smoothing), m.
+    pub hand_m: [f64; 2],
+    /// Handle position measured by the encoders, m.
+    pub handle_m: [f64; 2],
+    /// Force to render at the handle, before the split: force_scale·κ(bead − trap), N.
+    pub handle_force_n: [f64; 2],
+    /// What was sent to the device (after the gate): Pantograph force (N), Haptuator drive (V).
+    pub output: ActuatorFrame,
+    /// Fingertip acceleration (accelerometer, x y z), m/s².
+    pub accel_m_s2: [f64; 3],
+    /// Trap centre, m.
+    pub trap_m: [f64; 2],
+    /// Bead centre, m.
+    pub bead_m: [f64; 2],
+    /// Optical force on the bead, N.
+    pub bead_force_n: [f64; 2],
+    /// Surface gap to the nearest obstacle, m (∞ without obstacles).
+    pub gap_m: f64,
+    /// Bit set of [`flags`].
+    pub flags: u16,
+}
+
+impl TelemetrySample {
+    /// Is `bit` set?
+    pub fn has(&self, bit: u16) -> bool {
+        self.flags & bit != 0
+    }
+}
+
+/// What the output gate is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SafetyState {
+    /// Rig stopped (not exchanging frames); outputs zero.
+    Idle,
+    /// Running, haptic outputs off (condition V) or ramping.
+    OutputsOff,
+    /// Running with haptic outputs on.
+    Armed,
+    /// Emergency stop latched: outputs exactly zero until reset.
+    EmergencyStop,
+    /// The rig failed (error or disconnect); outputs zero, loop stopped.
+    Fault,
+}
+
+impl SafetyState {
+    /// Short label for the status bar.
+    pub fn label(self) -> &'static str {
+        match self {
+            SafetyState::Idle => "idle",
+            SafetyState::OutputsOff => "outputs off",
+            SafetyState::Armed => "armed",
+            SafetyState::EmergencyStop => "EMERGENCY STOP",
+            SafetyState::Fault => "FAULT",
+        }
+    }
+}
+
+/// Engine health, sent every `health_interval_blocks` blocks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Health {
+    /// Next rig sequence number.
+    pub seq: u64,
+    /// Samples per wall second over the last window, Hz.
+    pub loop_rate_hz: f64,
+    /// Busy time / wall time over the last window (0–1).
+    pub load: f64,
+    /// Blocks that missed their deadline since start ([`pacing`] defines it).
+    pub deadline_misses: u64,
+    /// Re-anchors after stalls longer than the tolerated lag.
+    pub overruns: u64,
+    /// Worst lateness (end − deadline) over the last window, s.
+    pub worst_lateness_s: f64,
+    /// Worst lateness since start, s.
+    pub worst_lateness_total_s: f64,
+    /// Blocks run since start.
+    pub blocks: u64,
+    /// Telemetry samples dropped because the GUI did not drain the queue.
+    pub telemetry_dropped: u64,
+    /// Health/notice events dropped (event queue full).
+    pub events_dropped: u64,
+    /// Output gate state.
+    pub safety: SafetyState,
+    /// Current condition.
+    pub condition: Condition,
+    /// Exchanging frames.
+    pub running: bool,
+    /// Rig counters.
+    pub rig: RigStatus,
+    /// Coupling safety-net counters.
+    pub coupling: CouplingCounters,
+    /// Frames forced to zero by the emergency stop.
+    pub estop_zeroed_frames: u64,
+    /// The bead is in the trap.
+    pub trapped: bool,
+}
+
+/// Replaces free exploration for a block-driven activity (a study session):
+/// it decides where the hand goes and sees every sample.
+/// Implementations must not allocate, lock or block in these methods.
+pub trait BlockDriver: Send + std::fmt::Debug {
+    /// Start of a block (first sample `first_seq`): the GUI's hand request
+    /// (m) in, the hand position to drive the rig toward during the block out.
+    fn hand_target(&mut self, gui_hand_m: [f64; 2], first_seq: u64) -> [f64; 2];
+    /// Every sample after it ran.
+    fn observe(&mut self, sample: &TelemetrySample);
+}
+
+/// The default driver: the hand follows the GUI (mouse or real handle).
+#[derive(Debug, Default, Clone, Copy)]
+pub struct FreeExploration;
+
+impl BlockDriver for FreeExploration {
+    fn hand_target(&mut self, gui_hand_m: [f64; 2], _first_seq: u64) -> [f64; 2] {
+        gui_hand_m
+    }
+    fn observe(&mut self, _sample: &TelemetrySample) {}
+}
+
+/// GUI → engine.
+#[derive(Debug)]
+pub enum Command {
+    /// Move the hand to this position (m); the engine smooths it.
+    SetHand([f64; 2]),
+    /// Switch condition V / P / D at once (outputs ramp).
+    SetCondition(Condition),
+    /// Replace the tweezer (new obstacles); the bead and trap carry over.
+    SetTweezer(Box<SimTweezer>),
+    /// Swap in a new chain (calibration).
+    ApplyChain(Box<ChainSwap>),
+    /// Release the emergency stop, if `ack` equals the number of stops
+    /// requested so far (a stop pressed after the reset wins).
+    ResetEmergencyStop {
+        /// [`EngineHandle::estop_count`] when the user confirmed the reset.
+        ack: u64,
+    },
+    /// Put the bead back into the trap.
+    ResetBead,
+    /// Start exchanging frames.
+    Start,
+    /// Stop (actuators zero).
+    Stop,
+    /// Replace the block driver (returns the old one).
+    SetDriver(Box<dyn BlockDriver>),
+    /// End the engine thread.
+    Shutdown,
+}
+
+/// Boxes handed back to the GUI thread to be dropped there.
+#[derive(Debug)]
+pub enum Garbage {
+    /// An old tweezer.
+    Tweezer(Box<SimTweezer>),
+    /// A swapped chain.
+    Chain(Box<ChainSwap>),
+    /// An old driver.
+    Driver(Box<dyn BlockDriver>),
+}
+
+/// Engine → GUI (rare; the per-sample data go through the telemetry queue).
+#[derive(Debug)]
+pub enum EngineEvent {
+    /// Periodic health.
+    Health(Health),
+    /// A chain swap finished.
+    ChainSwapped(SwapOutcome),
+    /// A fault reported by the rig.
+    RigFault(RigFault),
+    /// The rig returned an error; the loop stopped (outputs zero).
+    RigError(RigError),
+    /// Something to drop on the GUI side.
+    Garbage(Garbage),
+}
+
+/// Options of the engine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EngineOptions {
+    /// Samples per block (1–[`gate::GATE_CHUNK`] typical 10 = 1 ms at 10 kHz).
+    pub block_len: usize,
+    /// Sleep to the wall clock (`false`: as fast as possible, tests).
+    pub paced: bool,
+    /// Tolerated latency for the deadline-miss count, s.
+    pub tolerance_s: f64,
+    /// Stall beyond which the schedule re-anchors instead of catching up, s.
+    pub max_lag_s: f64,
+    /// Ramp-on time of the outputs, s.
+    pub ramp_s: f64,
+    /// Time constant of the hand smoothing (mouse steps → smooth motion), s.
+    pub hand_smoothing_s: f64,
+    /// Capacity of the telemetry queue, samples.
+    pub telemetry_capacity: usize,
+    /// Health event every this many blocks.
+    pub health_interval_blocks: u64,
+    /// Start exchanging frames at once.
+    pub start: bool,
+}
+
+impl Default for EngineOptions {
+    fn default() -> Self {
+        Self {
+            block_len: 10,
+            paced: true,
+            tolerance_s: 2e-3,
+            max_lag_s: 0.1,
+            ramp_s: 0.1,
+            hand_smoothing_s: 0.01,
+            telemetry_capacity: 1 << 15,
+            health_interval_blocks: 100,
+            start: true,
+        }
+    }
+}
+
+/// Why the engine could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    /// The rig, tweezer or coupling refused the configuration.
+    #[error(transparent)]
+    Rig(#[from] RigError),
+    /// The options are unusable.
+    #[error("invalid engine option `{name}`: {reason}")]
+    Option {
+        /// Option name.
+        name: &'static str,
+        /// Why.
+        reason: &'static str,
+    },
+    /// The thread could not be spawned.
+    #[error("cannot start the engine thread: {0}")]
+    Thread(#[from] std::io::Error),
+}

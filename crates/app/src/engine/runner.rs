@@ -1,0 +1,470 @@
+//! The engine's loop body: one block per call (see the module docs of
+//! [`crate::engine`]). No allocation, freeing or locking after construction.
+
+use super::gate::{GatedRig, OutputGate};
+use super::pacing::Pacer;
+use super::splitter::{SwapPort, SwappableChain};
+use super::{
+    BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, FreeExploration,
+    Garbage, Health, SafetyState, TelemetrySample, flags,
+};
+use kilotouch_dsp::chain::{Chain, ChainCoefficients};
+use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode, model_chain_design};
+use kilotouch_rig::rig::Clock;
+use kilotouch_rig::{Rig, RigConfig, SimRig, SimTweezer, Tweezer, TweezerParams};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+/// State shared lock-free between the handle and the engine.
+#[derive(Debug, Default)]
+pub(crate) struct Shared {
+    /// Emergency stops requested so far (the GUI increments; never blocks).
+    pub estop_count: AtomicU64,
+    /// Ask the engine thread to end.
+    pub shutdown: AtomicBool,
+}
+
+/// The closed loop the engine runs.
+pub type EngineLoop = ClosedLoop<GatedRig<SimRig>, SimTweezer, SwappableChain>;
+
+/// Idle period while the rig is stopped, s.
+const IDLE_SLEEP_S: f64 = 5e-3;
+
+/// The engine's state and loop body; [`EngineCore::run_block`] runs one
+/// block. Run it on a thread ([`super::EngineHandle::spawn`]) or step it
+/// directly in tests.
+#[derive(Debug)]
+pub struct EngineCore<C: Clock> {
+    lp: EngineLoop,
+    swap_port: SwapPort,
+    pacer: Pacer<C>,
+    driver: Box<dyn BlockDriver>,
+    commands: rtrb::Consumer<Command>,
+    telemetry: rtrb::Producer<TelemetrySample>,
+    events: rtrb::Producer<EngineEvent>,
+    shared: Arc<Shared>,
+    opts: EngineOptions,
+    fs: f64,
+    condition: Condition,
+    running: bool,
+    faulted: bool,
+    stopped: bool,
+    gui_hand: [f64; 2],
+    hand: [f64; 2],
+    hand_alpha: f64,
+    estop_seen: u64,
+    last_trap: [f64; 2],
+    trapped: bool,
+    telemetry_dropped: u64,
+    events_dropped: u64,
+    blocks: u64,
+    window_start: Duration,
+    window_samples: u64,
+    window_busy_s: f64,
+    window_worst_s: f64,
+    idle_ticks: u64,
+}
+
+impl<C: Clock> EngineCore<C> {
+    /// Build the loop for `cfg` (called by [`super::engine_pair`]).
+    pub(crate) fn new(
+        cfg: &RigConfig,
+        opts: EngineOptions,
+        clock: C,
+        commands: rtrb::Consumer<Command>,
+        telemetry: rtrb::Producer<TelemetrySample>,
+        events: rtrb::Producer<EngineEvent>,
+        shared: Arc<Shared>,
+    ) -> Result<Self, EngineError> {
+        if !(1..=super::gate::GATE_CHUNK).contains(&opts.block_len) {
+            return Err(EngineError::Option {
+                name: "block_len",
+                reason: "must be 1–64 samples",
+            });
+        }
+        for (name, v) in [
+            ("tolerance_s", opts.tolerance_s),
+            ("max_lag_s", opts.max_lag_s),
+            ("ramp_s", opts.ramp_s),
+            ("hand_smoothing_s", opts.hand_smoothing_s),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(EngineError::Option {
+                    name,
+                    reason: "must be finite and ≥ 0",
+                });
+            }
+        }
+        let fs = cfg.rig.sample_rate_hz;
+        let rig = SimRig::new(cfg)?;
+        let ramp = (opts.ramp_s * fs).round().clamp(0.0, u32::MAX as f64) as u32;
+        let gated = GatedRig::new(rig, OutputGate::new(ramp));
+        let tweezer = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?;
+        let coeffs = ChainCoefficients::design(&model_chain_design(cfg)?)
+            .map_err(kilotouch_rig::RigError::from)?;
+        let (splitter, swap_port) = SwappableChain::new(Chain::new(&coeffs));
+        let coupling = Coupling::with_splitter(cfg, splitter)?;
+        let condition = match coupling.mode() {
+            CouplingMode::Pantograph => Condition::Pantograph,
+            CouplingMode::Dual => Condition::Dual,
+        };
+        let mut lp = ClosedLoop::new(gated, tweezer, coupling)?;
+        let trap0 = lp.coupling.trap_target([0.0, 0.0]);
+        lp.tweezer.reset(trap0);
+        let hand_alpha = if opts.hand_smoothing_s > 0.0 {
+            1.0 - (-1.0 / (fs * opts.hand_smoothing_s)).exp()
+        } else {
+            1.0
+        };
+        let period = opts.block_len as f64 / fs;
+        let pacer = Pacer::new(clock, period, opts.tolerance_s, opts.max_lag_s, opts.paced);
+        let window_start = pacer.clock().now();
+        let mut core = Self {
+            lp,
+            swap_port,
+            pacer,
+            driver: Box::new(FreeExploration),
+            commands,
+            telemetry,
+            events,
+            shared,
+            opts,
+            fs,
+            condition,
+            running: true,
+            faulted: false,
+            stopped: false,
+            gui_hand: [0.0; 2],
+            hand: [0.0; 2],
+            hand_alpha,
+            estop_seen: 0,
+            last_trap: trap0,
+            trapped: true,
+            telemetry_dropped: 0,
+            events_dropped: 0,
+            blocks: 0,
+            window_start,
+            window_samples: 0,
+            window_busy_s: 0.0,
+            window_worst_s: f64::NEG_INFINITY,
+            idle_ticks: 0,
+        };
+        core.lp.rig.gate.set_enabled(condition != Condition::Vision);
+        if !opts.start {
+            core.stop_rig();
+        }
+        Ok(core)
+    }
+
+    /// The closed loop (inspection in tests).
+    pub fn closed_loop(&self) -> &EngineLoop {
+        &self.lp
+    }
+
+    /// Current condition.
+    pub fn condition(&self) -> Condition {
+        self.condition
+    }
+
+    /// Exchanging frames?
+    pub fn is_running(&self) -> bool {
+        self.running
+    }
+
+    /// Rig sample rate, Hz.
+    pub fn sample_rate_hz(&self) -> f64 {
+        self.fs
+    }
+
+    /// Has a shutdown been requested?
+    pub fn is_shut_down(&self) -> bool {
+        self.stopped
+    }
+
+    fn safety(&self) -> SafetyState {
+        if self.faulted {
+            SafetyState::Fault
+        } else if self.lp.rig.gate.is_estopped() {
+            SafetyState::EmergencyStop
+        } else if !self.running {
+            SafetyState::Idle
+        } else if self.lp.rig.gate.enabled() && self.lp.rig.gate.gain() > 0.0 {
+            SafetyState::Armed
+        } else {
+            SafetyState::OutputsOff
+        }
+    }
+
+    fn push_event(&mut self, e: EngineEvent) {
+        // Garbage must never be dropped here (that would free on this
+        // thread): commands producing garbage wait until there is room.
+        if let Err(rtrb::PushError::Full(e)) = self.events.push(e) {
+            self.events_dropped += 1;
+            if let EngineEvent::Garbage(_) = e {
+                // Unreachable by construction; leak rather than free here.
+                std::mem::forget(e);
+            }
+        }
+    }
+
+    /// Push a droppable event only if room remains for garbage.
+    fn push_notice(&mut self, e: EngineEvent) {
+        if self.events.slots() > 4 {
+            self.push_event(e);
+        } else {
+            self.events_dropped += 1;
+        }
+    }
+
+    fn check_estop(&mut self) {
+        let c = self.shared.estop_count.load(Ordering::Acquire);
+        if c != self.estop_seen {
+            self.estop_seen = c;
+            self.lp.rig.gate.emergency_stop();
+        }
+    }
+
+    fn stop_rig(&mut self) {
+        let _ = self.lp.rig.stop();
+        self.lp.rig.gate.cut();
+        self.running = false;
+    }
+
+    fn handle_commands(&mut self) {
+        loop {
+            let needs_room = match self.commands.peek() {
+                Ok(Command::SetTweezer(_)) | Ok(Command::SetDriver(_)) => 2,
+                Ok(Command::ApplyChain(_)) => {
+                    if self.swap_port.to_chain.is_full() {
+                        return;
+                    }
+                    0
+                }
+                Ok(_) => 0,
+                Err(_) => return,
+            };
+            if self.events.slots() < needs_room {
+                return;
+            }
+            let Ok(cmd) = self.commands.pop() else {
+                return;
+            };
+            self.apply(cmd);
+        }
+    }
+
+    fn apply(&mut self, cmd: Command) {
+        match cmd {
+            Command::SetHand(h) => {
+                if h.iter().all(|v| v.is_finite()) {
+                    self.gui_hand = h;
+                }
+            }
+            Command::SetCondition(c) => {
+                self.condition = c;
+                match c {
+                    Condition::Vision => {}
+                    Condition::Pantograph => self.lp.coupling.set_mode(CouplingMode::Pantograph),
+                    Condition::Dual => self.lp.coupling.set_mode(CouplingMode::Dual),
+                }
+                self.lp.rig.gate.set_enabled(c != Condition::Vision);
+            }
+            Command::SetTweezer(mut t) => {
+                let bead = self.lp.tweezer.bead();
+                t.reset(self.last_trap);
+                t.set_bead(bead);
+                std::mem::swap(&mut *t, &mut self.lp.tweezer);
+                self.push_event(EngineEvent::Garbage(Garbage::Tweezer(t)));
+            }
+            Command::ApplyChain(swap) => {
+                // Room checked in handle_commands.
+                if let Err(rtrb::PushError::Full(b)) = self.swap_port.to_chain.push(swap) {
+                    std::mem::forget(b);
+                }
+            }
+            Command::ResetEmergencyStop { ack } => {
+                if ack == self.shared.estop_count.load(Ordering::Acquire) {
+                    self.estop_seen = ack;
+                    self.lp.rig.gate.reset_emergency_stop();
+                }
+            }
+            Command::ResetBead => self.lp.tweezer.reset(self.last_trap),
+            Command::Start => {
+                if !self.running && self.lp.rig.start().is_ok() {
+                    self.running = true;
+                    self.faulted = false;
+                    self.pacer.reanchor();
+                }
+            }
+            Command::Stop => self.stop_rig(),
+            Command::SetDriver(mut d) => {
+                std::mem::swap(&mut d, &mut self.driver);
+                self.push_event(EngineEvent::Garbage(Garbage::Driver(d)));
+            }
+            Command::Shutdown => self.stopped = true,
+        }
+    }
+
+    fn health(&self, loop_rate_hz: f64, load: f64, worst: f64) -> Health {
+        Health {
+            seq: self.lp.rig.inner.seq(),
+            loop_rate_hz,
+            load,
+            deadline_misses: self.pacer.misses,
+            overruns: self.pacer.overruns,
+            worst_lateness_s: worst,
+            worst_lateness_total_s: self.pacer.worst_lateness_s,
+            blocks: self.blocks,
+            telemetry_dropped: self.telemetry_dropped,
+            events_dropped: self.events_dropped,
+            safety: self.safety(),
+            condition: self.condition,
+            running: self.running,
+            rig: self.lp.rig.status(),
+            coupling: self.lp.coupling.counters(),
+            estop_zeroed_frames: self.lp.rig.gate.zeroed_frames(),
+            trapped: self.trapped,
+        }
+    }
+
+    fn emit_health(&mut self) {
+        let now = self.pacer.clock().now();
+        let wall = now.saturating_sub(self.window_start).as_secs_f64();
+        let (rate, load) = if wall > 0.0 {
+            (self.window_samples as f64 / wall, self.window_busy_s / wall)
+        } else {
+            (0.0, 0.0)
+        };
+        let worst = if self.window_worst_s.is_finite() {
+            self.window_worst_s
+        } else {
+            0.0
+        };
+        let h = self.health(rate, load, worst);
+        self.push_notice(EngineEvent::Health(h));
+        self.window_start = now;
+        self.window_samples = 0;
+        self.window_busy_s = 0.0;
+        self.window_worst_s = f64::NEG_INFINITY;
+    }
+
+    fn forward_swaps_and_faults(&mut self) {
+        while self.events.slots() >= 2 {
+            let Ok(done) = self.swap_port.from_chain.pop() else {
+                break;
+            };
+            self.push_event(EngineEvent::ChainSwapped(done.outcome));
+            self.push_event(EngineEvent::Garbage(Garbage::Chain(done.garbage)));
+        }
+        while let Some(f) = self.lp.rig.pop_fault() {
+            self.push_notice(EngineEvent::RigFault(f));
+        }
+    }
+
+    /// Run one block: commands, emergency stop, `block_len` samples,
+    /// telemetry, pacing. Returns `false` once shut down.
+    pub fn run_block(&mut self) -> bool {
+        if self.stopped || self.shared.shutdown.load(Ordering::Acquire) {
+            self.stop_rig();
+            self.stopped = true;
+            return false;
+        }
+        self.check_estop();
+        self.handle_commands();
+        self.check_estop();
+        if !self.running {
+            let now = self.pacer.clock().now();
+            self.pacer
+                .clock()
+                .sleep_until(now + Duration::from_secs_f64(IDLE_SLEEP_S));
+            self.idle_ticks += 1;
+            let every = ((self.opts.health_interval_blocks as f64 * self.opts.block_len as f64
+                / self.fs
+                / IDLE_SLEEP_S)
+                .round() as u64)
+                .max(1);
+            if self.idle_ticks.is_multiple_of(every) {
+                self.emit_health();
+            }
+            return !self.stopped;
+        }
+        self.pacer.begin_block();
+        let first_seq = self.lp.rig.inner.seq();
+        let target = self.driver.hand_target(self.gui_hand, first_seq);
+        let target = if target.iter().all(|v| v.is_finite()) {
+            target
+        } else {
+            self.hand
+        };
+        let n = self.opts.block_len;
+        let estop_flag = if self.lp.rig.gate.is_estopped() {
+            flags::ESTOP
+        } else {
+            0
+        };
+        for _ in 0..n {
+            self.hand[0] += self.hand_alpha * (target[0] - self.hand[0]);
+            self.hand[1] += self.hand_alpha * (target[1] - self.hand[1]);
+            self.lp.rig.inner.set_hand(self.hand);
+            match self.lp.step() {
+                Ok((_, s)) => {
+                    self.last_trap = s.trap_m;
+                    self.trapped = s.trapped;
+                    let sensors = *self.lp.sensors();
+                    let e = s.events;
+                    let mut fl = estop_flag;
+                    for (on, bit) in [
+                        (s.in_contact, flags::IN_CONTACT),
+                        (s.trapped, flags::TRAPPED),
+                        (e.contact_start, flags::CONTACT_START),
+                        (e.contact_end, flags::CONTACT_END),
+                        (e.escaped, flags::ESCAPED),
+                        (e.recaptured, flags::RECAPTURED),
+                        (sensors.flags.0 != 0, flags::RIG_FLAG),
+                    ] {
+                        if on {
+                            fl |= bit;
+                        }
+                    }
+                    let t = TelemetrySample {
+                        seq: sensors.seq,
+                        hand_m: self.hand,
+                        handle_m: sensors.handle_m,
+                        handle_force_n: self.lp.coupling.handle_force(&s),
+                        output: self.lp.rig.last_output(),
+                        accel_m_s2: sensors.accel_m_s2,
+                        trap_m: s.trap_m,
+                        bead_m: s.bead_m,
+                        bead_force_n: s.force_n,
+                        gap_m: s.gap_m,
+                        flags: fl,
+                    };
+                    self.driver.observe(&t);
+                    if self.telemetry.push(t).is_err() {
+                        self.telemetry_dropped += 1;
+                    }
+                    self.window_samples += 1;
+                }
+                Err(e) => {
+                    self.stop_rig();
+                    self.faulted = true;
+                    self.push_notice(EngineEvent::RigError(e));
+                    break;
+                }
+            }
+        }
+        self.forward_swaps_and_faults();
+        let timing = self.pacer.end_block();
+        self.blocks += 1;
+        self.window_busy_s += timing.busy_s;
+        self.window_worst_s = self.window_worst_s.max(timing.lateness_s);
+        if self
+            .blocks
+            .is_multiple_of(self.opts.health_interval_blocks.max(1))
+        {
+            self.emit_health();
+        }
+        !self.stopped
+    }
+}

@@ -1,0 +1,617 @@
+//! The shell: tabs, the always-visible emergency stop, the status bar with
+//! the engine's health, messages, settings, and the rig/engine life cycle.
+//!
+//! **Emergency stop.** The red button at the top right of every page, or the
+//! **Esc** key (anywhere, also while typing in a field), zeroes all outputs
+//! at the engine's next block (≤ 1 ms) and latches. Releasing it takes two
+//! deliberate steps in a dialog (tick "the rig is safe", then click
+//! "Re-enable outputs"); no key does it, and a stop pressed meanwhile wins.
+
+use super::env::{PageEnv, ShellRequest};
+use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
+use super::settings::{Page, Settings};
+use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
+use egui::{Color32, RichText};
+use kilotouch_rig::RigConfig;
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicI32, Ordering};
+use std::sync::mpsc;
+use std::time::Instant;
+
+/// Options from the command line.
+#[derive(Debug, Clone)]
+pub struct AppOptions {
+    /// Page to open (else the one shown last).
+    pub page: Option<Page>,
+    /// Rig file (else the one used last, else the built-in default).
+    pub rig_config: Option<PathBuf>,
+    /// Ignore the persisted settings (screenshots, tests).
+    pub fresh_settings: bool,
+    /// Connect the simulated rig at start.
+    pub connect: bool,
+    /// Engine options.
+    pub engine: EngineOptions,
+}
+
+impl Default for AppOptions {
+    fn default() -> Self {
+        Self {
+            page: None,
+            rig_config: None,
+            fresh_settings: false,
+            connect: true,
+            engine: EngineOptions::default(),
+        }
+    }
+}
+
+/// A message shown in the status line (errors stay until dismissed).
+#[derive(Debug, Clone)]
+struct Notice {
+    text: String,
+    error: bool,
+    at: Instant,
+}
+
+/// Screenshot-and-quit plan (`kilotouch gui --screenshot FILE --quit-after S`).
+#[derive(Debug)]
+pub struct ScreenshotPlan {
+    /// Where to save the PNG (`None`: just quit).
+    pub path: Option<PathBuf>,
+    /// Seconds after start.
+    pub after_s: f64,
+    /// Exit code for `main` (0 ok, 1 blank or unwritable image).
+    pub exit_code: Arc<AtomicI32>,
+    start: Instant,
+    requested: bool,
+    tx: mpsc::Sender<Arc<egui::ColorImage>>,
+    rx: mpsc::Receiver<Arc<egui::ColorImage>>,
+}
+
+impl ScreenshotPlan {
+    /// New plan.
+    pub fn new(path: Option<PathBuf>, after_s: f64, exit_code: Arc<AtomicI32>) -> Self {
+        let (tx, rx) = mpsc::channel();
+        Self {
+            path,
+            after_s,
+            exit_code,
+            start: Instant::now(),
+            requested: false,
+            tx,
+            rx,
+        }
+    }
+}
+
+/// The app.
+#[derive(Debug)]
+pub struct KilotouchApp {
+    /// Persisted settings.
+    pub settings: Settings,
+    /// Rig configuration in use.
+    pub rig_config: RigConfig,
+    rig_config_path: Option<PathBuf>,
+    config_error: Option<String>,
+    /// The engine (None = disconnected).
+    pub engine: Option<EngineHandle>,
+    engine_opts: EngineOptions,
+    /// Current page.
+    pub page: Page,
+    rig_page: RigPage,
+    calibration: CalibrationPage,
+    /// Explore page.
+    pub explore: ExplorePage,
+    study: StudyPage,
+    results: ResultsPage,
+    requests: Vec<ShellRequest>,
+    notices: VecDeque<Notice>,
+    reset_dialog: Option<bool>,
+    /// Screenshot plan, if any.
+    pub screenshot: Option<ScreenshotPlan>,
+    gpu_status: String,
+    fresh: bool,
+}
+
+impl KilotouchApp {
+    /// Build the app. `wgpu`: eframe's render state (None: painter fallback).
+    pub fn new(
+        opts: AppOptions,
+        storage: Option<&dyn eframe::Storage>,
+        wgpu: Option<&eframe::egui_wgpu::RenderState>,
+    ) -> Self {
+        let mut settings = if opts.fresh_settings {
+            Settings::default()
+        } else {
+            Settings::load(storage)
+        };
+        if let Some(p) = opts.page {
+            settings.page = p;
+        }
+        let mut notices = VecDeque::new();
+        let path = opts
+            .rig_config
+            .clone()
+            .or_else(|| settings.rig_file.clone());
+        let (rig_config, rig_config_path, config_error) = match &path {
+            None => (RigConfig::default(), None, None),
+            Some(p) => match RigConfig::load(p) {
+                Ok(c) => (c, Some(p.clone()), None),
+                Err(e) => (RigConfig::default(), None, Some(e.to_string())),
+            },
+        };
+        if let Some(e) = &config_error {
+            notices.push_back(Notice {
+                text: format!("rig file not loaded, using the built-in default: {e}"),
+                error: true,
+                at: Instant::now(),
+            });
+        }
+        let (gpu, gpu_status) = match wgpu {
+            None => (false, "egui painter (no wgpu render state)".to_owned()),
+            Some(rs) => match super::scene_wgpu::install(rs) {
+                Ok(()) => (true, "wgpu".to_owned()),
+                Err(e) => {
+                    notices.push_back(Notice {
+                        text: format!("microscope scene falls back to the egui painter: {e}"),
+                        error: false,
+                        at: Instant::now(),
+                    });
+                    (false, format!("egui painter ({e})"))
+                }
+            },
+        };
+        let mut explore = ExplorePage::new(&rig_config, settings.camera);
+        explore.gpu = gpu;
+        explore.trace_seconds = settings.trace_seconds;
+        let mut rig_page = RigPage::new();
+        rig_page.path_text = rig_config_path
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default();
+        let mut app = Self {
+            page: settings.page,
+            settings,
+            rig_config,
+            rig_config_path,
+            config_error,
+            engine: None,
+            engine_opts: opts.engine,
+            rig_page,
+            calibration: CalibrationPage::new(),
+            explore,
+            study: StudyPage::new(),
+            results: ResultsPage::new(),
+            requests: Vec::new(),
+            notices,
+            reset_dialog: None,
+            screenshot: None,
+            gpu_status,
+            fresh: opts.fresh_settings,
+        };
+        if opts.connect {
+            app.connect();
+        }
+        app
+    }
+
+    fn notify(&mut self, text: impl Into<String>, error: bool) {
+        self.notices.push_back(Notice {
+            text: text.into(),
+            error,
+            at: Instant::now(),
+        });
+        while self.notices.len() > 20 {
+            self.notices.pop_front();
+        }
+    }
+
+    /// Start the engine on the current rig configuration.
+    pub fn connect(&mut self) {
+        self.engine = None;
+        match EngineHandle::spawn(&self.rig_config, self.engine_opts) {
+            Ok(mut h) => {
+                h.set_condition(self.settings.condition);
+                self.explore.reset(&self.rig_config);
+                self.engine = Some(h);
+            }
+            Err(e) => self.notify(format!("cannot start the engine: {e}"), true),
+        }
+    }
+
+    /// THE emergency stop of the GUI (button and Esc): never blocks.
+    pub fn emergency_stop(&mut self) {
+        match &self.engine {
+            Some(e) => e.emergency_stop(),
+            None => self.notify(
+                "emergency stop: no rig connected (outputs already off)",
+                false,
+            ),
+        }
+        self.reset_dialog = None;
+    }
+
+    /// Is the engine's emergency stop latched (per the last health report)?
+    pub fn estop_latched(&self) -> bool {
+        self.engine.as_ref().is_some_and(|e| {
+            e.health()
+                .is_some_and(|h| h.safety == SafetyState::EmergencyStop)
+                || e.estop_count() > 0 && e.health().is_none()
+        })
+    }
+
+    fn rig_action(&mut self, a: RigAction) {
+        match a {
+            RigAction::LoadConfig(p) => {
+                let path = PathBuf::from(&p);
+                match RigConfig::load(&path) {
+                    Ok(c) => {
+                        self.rig_config = c;
+                        self.rig_config_path = Some(path.clone());
+                        self.settings.rig_file = Some(path);
+                        self.config_error = None;
+                        let was = self.engine.is_some();
+                        self.engine = None;
+                        self.explore.reset(&self.rig_config);
+                        if was {
+                            self.connect();
+                        }
+                        self.notify(format!("rig file loaded: {p}"), false);
+                    }
+                    Err(e) => self.config_error = Some(e.to_string()),
+                }
+            }
+            RigAction::UseDefault => {
+                self.rig_config = RigConfig::default();
+                self.rig_config_path = None;
+                self.settings.rig_file = None;
+                self.config_error = None;
+                let was = self.engine.is_some();
+                self.engine = None;
+                self.explore.reset(&self.rig_config);
+                if was {
+                    self.connect();
+                }
+            }
+            RigAction::Connect => self.connect(),
+            RigAction::Disconnect => {
+                if let Some(e) = self.engine.take() {
+                    e.shutdown();
+                }
+            }
+            RigAction::Start => {
+                if let Some(e) = &mut self.engine {
+                    let _ = e.send(crate::engine::Command::Start);
+                }
+            }
+            RigAction::Stop => {
+                if let Some(e) = &mut self.engine {
+                    let _ = e.send(crate::engine::Command::Stop);
+                }
+            }
+        }
+    }
+
+    fn handle_requests(&mut self) {
+        for r in std::mem::take(&mut self.requests) {
+            match r {
+                ShellRequest::Notify(s) => self.notify(s, false),
+                ShellRequest::SetOutputDir(p) => self.settings.output_dir = Some(p),
+                ShellRequest::ApplyCalibration(f) => {
+                    let fs = self.rig_config.rig.sample_rate_hz;
+                    let res = f
+                        .chain_coefficients()
+                        .map_err(|e| e.to_string())
+                        .and_then(|c| {
+                            if c.fs() != fs {
+                                Err(format!(
+                                    "calibration is for {} Hz, the rig runs at {fs} Hz",
+                                    c.fs()
+                                ))
+                            } else {
+                                Ok(c)
+                            }
+                        });
+                    match (res, &mut self.engine) {
+                        (Err(e), _) => self.notify(format!("calibration not applied: {e}"), true),
+                        (Ok(_), None) => {
+                            self.notify("calibration not applied: no rig connected", true)
+                        }
+                        (Ok(c), Some(h)) => {
+                            if let Err(e) = h.apply_chain(c) {
+                                self.notify(format!("calibration not applied: {e}"), true);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn poll_engine(&mut self) {
+        let Some(e) = &mut self.engine else {
+            return;
+        };
+        self.explore.ingest(e);
+        let mut msgs = Vec::new();
+        for ev in e.poll_events() {
+            match ev {
+                EngineEvent::ChainSwapped(o) => {
+                    msgs.push((format!("calibration applied to the engine ({o:?})"), false))
+                }
+                EngineEvent::RigError(err) => msgs.push((format!("rig stopped: {err}"), true)),
+                EngineEvent::RigFault(f) => msgs.push((format!("rig: {f:?}"), false)),
+                EngineEvent::Health(_) | EngineEvent::Garbage(_) => {}
+            }
+        }
+        let dead = !e.is_alive();
+        for (m, err) in msgs {
+            self.notify(m, err);
+        }
+        if dead {
+            self.engine = None;
+            self.notify(
+                "the engine thread ended unexpectedly; reconnect on the Rig page",
+                true,
+            );
+        }
+    }
+
+    fn top_bar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            ui.label(RichText::new("kilotouch").strong().size(18.0));
+            ui.separator();
+            for p in Page::ALL {
+                let r = ui.selectable_label(self.page == p, RichText::new(p.title()).size(15.0));
+                if r.clicked() {
+                    self.page = p;
+                }
+            }
+            ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+                let stop = egui::Button::new(
+                    RichText::new("EMERGENCY STOP  [Esc]")
+                        .size(17.0)
+                        .strong()
+                        .color(Color32::WHITE),
+                )
+                .fill(Color32::from_rgb(200, 20, 20))
+                .min_size(egui::vec2(250.0, 34.0));
+                if ui
+                    .add(stop)
+                    .on_hover_text("zero all outputs now (key: Esc)")
+                    .clicked()
+                {
+                    self.emergency_stop();
+                }
+                if self.estop_latched() {
+                    if ui
+                        .add(
+                            egui::Button::new("Reset emergency stop…")
+                                .min_size(egui::vec2(0.0, 34.0)),
+                        )
+                        .clicked()
+                    {
+                        self.reset_dialog = Some(false);
+                    }
+                    ui.label(
+                        RichText::new("OUTPUTS HELD AT ZERO")
+                            .color(Color32::RED)
+                            .strong(),
+                    );
+                }
+            });
+        });
+    }
+
+    fn status_bar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            match &self.engine {
+                None => {
+                    ui.colored_label(Color32::GRAY, "disconnected");
+                }
+                Some(e) => match e.health() {
+                    None => {
+                        ui.label(format!("{}: starting…", e.identity().name));
+                    }
+                    Some(h) => {
+                        let col = match h.safety {
+                            SafetyState::EmergencyStop | SafetyState::Fault => Color32::RED,
+                            SafetyState::Armed => Color32::from_rgb(60, 200, 90),
+                            _ => Color32::from_rgb(230, 180, 40),
+                        };
+                        ui.colored_label(col, h.safety.label().to_owned());
+                        ui.separator();
+                        ui.label(format!("{} · {}", h.condition.letter(), if h.running { "running" } else { "paused" }));
+                        ui.separator();
+                        ui.label(format!("loop {:.0} Hz", h.loop_rate_hz));
+                        ui.label(format!("load {:.1} %", 100.0 * h.load));
+                        let miss_col = if h.deadline_misses > 0 { Color32::from_rgb(230, 150, 40) } else { ui.visuals().text_color() };
+                        ui.colored_label(miss_col, format!("deadline misses {}", h.deadline_misses))
+                            .on_hover_text("blocks finished more than the tolerated latency after their deadline");
+                        ui.label(format!("worst {:.2} ms", 1e3 * h.worst_lateness_s));
+                        if h.telemetry_dropped > 0 {
+                            ui.label(format!("telemetry dropped {}", h.telemetry_dropped));
+                        }
+                    }
+                },
+            }
+            ui.separator();
+            ui.weak(format!("scene: {}", self.gpu_status));
+        });
+        // Messages: errors stay until dismissed, others fade after 8 s.
+        let now = Instant::now();
+        self.notices
+            .retain(|n| n.error || now.duration_since(n.at).as_secs_f64() < 8.0);
+        let mut dismiss = None;
+        for (i, n) in self.notices.iter().enumerate().rev().take(3) {
+            ui.horizontal(|ui| {
+                if n.error {
+                    ui.colored_label(Color32::from_rgb(235, 80, 70), n.text.clone());
+                    if ui.small_button("dismiss").clicked() {
+                        dismiss = Some(i);
+                    }
+                } else {
+                    ui.label(&n.text);
+                }
+            });
+        }
+        if let Some(i) = dismiss {
+            self.notices.remove(i);
+        }
+    }
+
+    fn reset_dialog_ui(&mut self, ctx: &egui::Context) {
+        let Some(mut confirmed) = self.reset_dialog else {
+            return;
+        };
+        let mut close = false;
+        let mut release = false;
+        egui::Modal::new(egui::Id::unique("estop-reset")).show(ctx, |ui| {
+            ui.heading("Reset emergency stop");
+            ui.label("All outputs are held at zero. Before re-enabling them:");
+            ui.label("• the handle is free or held by the operator,\n• nothing touches the moving parts,\n• the cause of the stop is understood.");
+            ui.checkbox(&mut confirmed, "I have checked that the rig is safe");
+            ui.horizontal(|ui| {
+                if ui
+                    .add_enabled(confirmed, egui::Button::new("Re-enable outputs (ramped)"))
+                    .clicked()
+                {
+                    release = true;
+                }
+                if ui.button("Cancel").clicked() {
+                    close = true;
+                }
+            });
+        });
+        self.reset_dialog = Some(confirmed);
+        if release {
+            if let Some(e) = &mut self.engine
+                && !e.reset_emergency_stop()
+            {
+                self.notify("reset not sent (command queue full), try again", true);
+            }
+            close = true;
+        }
+        if close {
+            self.reset_dialog = None;
+        }
+    }
+
+    /// The whole UI (also used by the tests without eframe).
+    pub fn ui_root(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        if ctx.input_mut(|i| i.consume_key(egui::Modifiers::NONE, egui::Key::Escape)) {
+            self.emergency_stop();
+        }
+        self.poll_engine();
+        egui::Panel::top("kilotouch-top").show(ui, |ui| self.top_bar(ui));
+        egui::Panel::bottom("kilotouch-status").show(ui, |ui| self.status_bar(ui));
+        egui::CentralPanel::default().show(ui, |ui| {
+            let mut env = PageEnv {
+                rig_config: &self.rig_config,
+                rig_config_path: self.rig_config_path.as_deref(),
+                output_dir: self.settings.output_dir.as_deref(),
+                requests: &mut self.requests,
+            };
+            match self.page {
+                Page::Rig => {
+                    let actions = self.rig_page.ui(
+                        ui,
+                        &mut env,
+                        self.engine.as_ref(),
+                        self.config_error.as_deref(),
+                    );
+                    for a in actions {
+                        self.rig_action(a);
+                    }
+                }
+                Page::Calibration => self.calibration.ui(ui, &mut env),
+                Page::Explore => self.explore.ui(ui, &mut env, self.engine.as_mut()),
+                Page::Study => self.study.ui(ui, &mut env),
+                Page::Results => self.results.ui(ui, &mut env),
+            }
+        });
+        self.handle_requests();
+        self.reset_dialog_ui(&ctx);
+        self.settings.page = self.page;
+        self.settings.camera = self.explore.camera.model;
+        self.settings.trace_seconds = self.explore.trace_seconds;
+        if let Some(e) = &self.engine {
+            self.settings.condition = e.condition();
+        }
+        // Live pages repaint continuously; others often enough to drain telemetry.
+        if self.page == Page::Explore || self.page == Page::Rig {
+            ctx.request_repaint();
+        } else {
+            ctx.request_repaint_after(std::time::Duration::from_millis(100));
+        }
+    }
+
+    fn screenshot_step(&mut self, ctx: &egui::Context) {
+        let Some(plan) = &mut self.screenshot else {
+            return;
+        };
+        ctx.request_repaint();
+        if !plan.requested && plan.start.elapsed().as_secs_f64() >= plan.after_s {
+            plan.requested = true;
+            match &plan.path {
+                None => ctx.send_viewport_cmd(egui::ViewportCommand::Close),
+                Some(_) => {
+                    let tx = plan.tx.clone();
+                    ctx.request_screenshot(move |img| {
+                        let _ = tx.send(img);
+                    });
+                }
+            }
+        }
+        if let Ok(img) = plan.rx.try_recv() {
+            let code = match &plan.path {
+                Some(p) => match super::save_png(&img, p) {
+                    Ok(()) if super::image_is_blank(&img) => {
+                        eprintln!("kilotouch: screenshot {} is blank", p.display());
+                        1
+                    }
+                    Ok(()) => {
+                        eprintln!(
+                            "kilotouch: screenshot saved to {} ({}×{})",
+                            p.display(),
+                            img.width(),
+                            img.height()
+                        );
+                        0
+                    }
+                    Err(e) => {
+                        eprintln!("kilotouch: cannot save screenshot {}: {e}", p.display());
+                        1
+                    }
+                },
+                None => 0,
+            };
+            plan.exit_code.store(code, Ordering::SeqCst);
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+    }
+}
+
+impl eframe::App for KilotouchApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        self.screenshot_step(&ctx);
+        self.ui_root(ui);
+    }
+
+    fn save(&mut self, storage: &mut dyn eframe::Storage) {
+        if !self.fresh {
+            self.settings.save(storage);
+        }
+    }
+
+    fn on_exit(&mut self) {
+        if let Some(e) = self.engine.take() {
+            e.emergency_stop();
+            e.shutdown();
+        }
+    }
+}

@@ -1,0 +1,27 @@
+//! What the GUI shell hands every page each frame (contract between the shell and the pages).
+
+use std::path::{Path, PathBuf};
+
+/// Per-frame context given by the shell to a page's `ui` method.
+#[derive(Debug)]
+pub struct PageEnv<'a> {
+    /// The rig file currently selected on the Rig page, parsed (the built-in default when none is chosen).
+    pub rig_config: &'a kilotouch_rig::RigConfig,
+    /// Path of that rig file (`None` = built-in default).
+    pub rig_config_path: Option<&'a Path>,
+    /// The study output folder last used (Study and Results pages), if any.
+    pub output_dir: Option<&'a Path>,
+    /// Requests from the page to the shell, handled by the shell after the frame.
+    pub requests: &'a mut Vec<ShellRequest>,
+}
+
+/// A page's request to the shell.
+#[derive(Debug)]
+pub enum ShellRequest {
+    /// Load this calibration (a finished wizard run or a loaded file) into the real-time engine's chain.
+    ApplyCalibration(Box<kilotouch_rig::calibration::CalibrationFile>),
+    /// Remember this folder as the study output folder (persisted in the settings).
+    SetOutputDir(PathBuf),
+    /// Show a short message to the user (status line / toast).
+    Notify(String),
+}

@@ -1,0 +1,221 @@
+//! The desktop app (eframe + wgpu): shell, pages, microscope scene, live
+//! plots. The real-time engine it drives is [`crate::engine`], which does
+//! not depend on egui.
+//!
+//! `kilotouch` (no arguments) and `kilotouch gui` open it on the simulated
+//! rig; `kilotouch gui --screenshot FILE.png --quit-after S` renders the
+//! window for S seconds, saves a PNG and exits (non-zero if the image is
+//! blank) — how CI checks the app and how the README images are made.
+
+pub mod app;
+pub mod env;
+pub mod pages;
+pub mod plot;
+pub mod scene;
+pub mod scene_wgpu;
+pub mod settings;
+
+pub use app::{AppOptions, KilotouchApp};
+pub use settings::Page;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicI32;
+
+/// `kilotouch gui` arguments.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct GuiArgs {
+    /// Page to open.
+    #[arg(long, value_enum)]
+    pub page: Option<Page>,
+    /// Rig file (TOML); default: the one used last, else the built-in rig.
+    #[arg(long, value_name = "FILE")]
+    pub rig_config: Option<PathBuf>,
+    /// Save a PNG of the window after --quit-after seconds, then exit
+    /// (exit status 1 if the image is blank). Uses fresh settings.
+    #[arg(long, value_name = "FILE.png", requires = "quit_after")]
+    pub screenshot: Option<PathBuf>,
+    /// Quit after this many seconds.
+    #[arg(long, value_name = "SECONDS")]
+    pub quit_after: Option<f64>,
+    /// Window size in points, WxH (default 1100x700).
+    #[arg(long, value_name = "WxH", default_value = "1100x700")]
+    pub size: String,
+}
+
+impl GuiArgs {
+    /// The arguments of a plain `kilotouch` (no command).
+    pub fn default_args() -> Self {
+        Self {
+            size: "1100x700".into(),
+            ..Default::default()
+        }
+    }
+}
+
+fn parse_size(s: &str) -> anyhow::Result<[f32; 2]> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| anyhow::anyhow!("--size must be WxH, e.g. 1100x700, got `{s}`"))?;
+    let w: f32 = w
+        .trim()
+        .parse()
+        .map_err(|_| anyhow::anyhow!("bad width in --size `{s}`"))?;
+    let h: f32 = h
+        .trim()
+        .parse()
+        .map_err(|_| anyhow::anyhow!("bad height in --size `{s}`"))?;
+    if !(w.is_finite()
+        && h.is_finite()
+        && (200.0..=8000.0).contains(&w)
+        && (150.0..=8000.0).contains(&h))
+    {
+        anyhow::bail!("--size `{s}` out of range (200–8000 × 150–8000)");
+    }
+    Ok([w, h])
+}
+
+/// Open the app; returns the process exit code.
+pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
+    let size = parse_size(&args.size)?;
+    if let Some(q) = args.quit_after
+        && !(q.is_finite() && q >= 0.0)
+    {
+        anyhow::bail!("--quit-after must be a finite number of seconds ≥ 0, got {q}");
+    }
+    let exit_code = Arc::new(AtomicI32::new(0));
+    let shot = args.screenshot.is_some();
+    let opts = AppOptions {
+        page: args.page,
+        rig_config: args.rig_config.clone(),
+        fresh_settings: shot,
+        ..Default::default()
+    };
+    let native = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title("kilotouch")
+            .with_inner_size(size)
+            .with_min_inner_size([640.0, 420.0]),
+        persist_window: !shot,
+        ..Default::default()
+    };
+    let plan = args
+        .quit_after
+        .map(|q| (args.screenshot.clone(), q, exit_code.clone()));
+    eframe::run_native(
+        "kilotouch",
+        native,
+        Box::new(move |cc| {
+            let mut app = KilotouchApp::new(opts, cc.storage, cc.wgpu_render_state.as_ref());
+            if let Some((path, q, code)) = plan {
+                app.screenshot = Some(app::ScreenshotPlan::new(path, q, code));
+            }
+            Ok(Box::new(app))
+        }),
+    )
+    .map_err(|e| {
+        anyhow::anyhow!(
+            "cannot open the GUI: {e}\n(no display? the headless commands work without one: kilotouch --help)"
+        )
+    })?;
+    let code = exit_code.load(std::sync::atomic::Ordering::SeqCst);
+    Ok(if code == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(u8::try_from(code).unwrap_or(1))
+    })
+}
+
+/// Save an egui image as PNG.
+pub fn save_png(img: &egui::ColorImage, path: &Path) -> anyhow::Result<()> {
+    let [w, h] = img.size;
+    let mut rgba = Vec::with_capacity(w * h * 4);
+    for p in &img.pixels {
+        rgba.extend_from_slice(&p.to_srgba_unmultiplied());
+    }
+    image::save_buffer_with_format(
+        path,
+        &rgba,
+        u32::try_from(w)?,
+        u32::try_from(h)?,
+        image::ColorType::Rgba8,
+        image::ImageFormat::Png,
+    )?;
+    Ok(())
+}
+
+/// A screenshot is *blank* when it is (nearly) uniform: fewer than 16
+/// distinct colours, or a luminance standard deviation below 2 (of 255).
+pub fn image_is_blank(img: &egui::ColorImage) -> bool {
+    let n = img.pixels.len();
+    if n == 0 {
+        return true;
+    }
+    let mut seen = std::collections::HashSet::new();
+    let (mut s, mut s2) = (0f64, 0f64);
+    for p in &img.pixels {
+        if seen.len() < 64 {
+            seen.insert(p.to_array());
+        }
+        let y = 0.2126 * f64::from(p.r()) + 0.7152 * f64::from(p.g()) + 0.0722 * f64::from(p.b());
+        s += y;
+        s2 += y * y;
+    }
+    let mean = s / n as f64;
+    let var = (s2 / n as f64 - mean * mean).max(0.0);
+    seen.len() < 16 || var.sqrt() < 2.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use egui::{Color32, ColorImage};
+
+    #[test]
+    fn blank_detection() {
+        let blank = ColorImage::new([64, 48], vec![Color32::from_gray(30); 64 * 48]);
+        assert!(image_is_blank(&blank));
+        let mut px = vec![Color32::from_gray(30); 64 * 48];
+        for (i, p) in px.iter_mut().enumerate() {
+            if i % 7 == 0 {
+                *p = Color32::from_rgb((i % 251) as u8, (i % 13) as u8 * 19, 200);
+            }
+        }
+        let busy = ColorImage::new([64, 48], px);
+        assert!(!image_is_blank(&busy));
+        // A few stray pixels on a uniform image are still blank.
+        let mut px = vec![Color32::from_gray(30); 64 * 48];
+        px[5] = Color32::WHITE;
+        assert!(image_is_blank(&ColorImage::new([64, 48], px)));
+    }
+
+    #[test]
+    fn png_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.png");
+        let px: Vec<Color32> = (0..20 * 10)
+            .map(|i| Color32::from_rgb(i as u8, 255 - i as u8, 7))
+            .collect();
+        save_png(&ColorImage::new([20, 10], px.clone()), &p).unwrap();
+        let back = image::open(&p).unwrap().to_rgba8();
+        assert_eq!(back.dimensions(), (20, 10));
+        // pixel (x 3, y 2) is index 2·20 + 3 = 43 → (43, 255 − 43, 7)
+        assert_eq!(back.get_pixel(3, 2).0, [43, 212, 7, 255]);
+        assert!(
+            save_png(
+                &ColorImage::new([1, 1], vec![Color32::RED]),
+                Path::new("/nonexistent/dir/x.png")
+            )
+            .is_err()
+        );
+    }
+
+    #[test]
+    fn size_parsing() {
+        assert_eq!(parse_size("1100x700").unwrap(), [1100.0, 700.0]);
+        assert!(parse_size("1100").is_err());
+        assert!(parse_size("10x10").is_err());
+        assert!(parse_size("nanxnan").is_err());
+    }
+}

@@ -1,0 +1,513 @@
+//! Explore page: free manipulation of the bead in the microscope scene,
+//! V/P/D switched live, obstacles, and the live plots (handle force and tip
+//! acceleration traces, the acceleration histogram of the paper's Fig. 9 e/g,
+//! the acceleration spectrum).
+//!
+//! Dragging in the scene does what the real handle would: the pointer sets
+//! the *hand* position h = o_h + (p − o_t)/s (the coupling's inverse: p the
+//! pointed trap position, o_t the trap offset, o_h the handle origin, s the
+//! position scale); the simulated hand drags the finger and handle through
+//! the plant, and the coupling moves the trap from the measured handle.
+
+use crate::engine::{Condition, EngineHandle, TelemetrySample, flags};
+use crate::gui::env::PageEnv;
+use crate::gui::plot::{self, LiveTraces, Trace};
+use crate::gui::scene::{self, Camera, CameraModel, SceneFrame, Snapshot, View};
+use crate::gui::scene_wgpu::SceneCallback;
+use egui::{Color32, RichText, Sense};
+use kilotouch_dsp::spectral::Spectrum;
+use kilotouch_rig::RigConfig;
+use kilotouch_rig::tweezer::Obstacle;
+
+/// What a primary click/drag in the scene does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tool {
+    /// Drag the trap (through the hand and the handle).
+    Drag,
+    /// Click to place an obstacle.
+    Place,
+    /// Click an obstacle to remove it.
+    Remove,
+}
+
+/// Half width of the scene, µm.
+const VIEW_HALF_UM: f64 = 24.0;
+
+/// The Explore page.
+#[derive(Debug)]
+pub struct ExplorePage {
+    /// Live traces.
+    pub traces: LiveTraces,
+    /// The camera.
+    pub camera: Camera,
+    /// Latest telemetry sample.
+    pub last: Option<TelemetrySample>,
+    /// Obstacles as the user arranged them.
+    pub obstacles: Vec<Obstacle>,
+    /// Click tool.
+    pub tool: Tool,
+    /// Radius of new obstacles, µm.
+    pub obstacle_radius_um: f64,
+    /// Defocus blur, µm.
+    pub blur_um: f64,
+    /// Camera noise amplitude.
+    pub noise: f64,
+    /// Length of the traces, s.
+    pub trace_seconds: f64,
+    /// Use the wgpu renderer for the scene (false: painter fallback).
+    pub gpu: bool,
+    /// Last view (pointer ↔ specimen).
+    pub view: Option<View>,
+    /// Hand position last sent, m.
+    pub hand_m: [f64; 2],
+    spectrum: Option<Spectrum>,
+    spectrum_age: f64,
+    hist_range: f32,
+    escapes: u64,
+    contacts: u64,
+    message: Option<String>,
+    fs: f64,
+}
+
+impl ExplorePage {
+    /// New page for a rig at `fs` Hz with these obstacles.
+    pub fn new(cfg: &RigConfig, camera: CameraModel) -> Self {
+        let fs = cfg.rig.sample_rate_hz;
+        Self {
+            traces: LiveTraces::new(fs, 10.0),
+            camera: Camera::new(camera),
+            last: None,
+            obstacles: config_obstacles(cfg),
+            tool: Tool::Drag,
+            obstacle_radius_um: 5.0,
+            blur_um: 0.25,
+            noise: 0.06,
+            trace_seconds: 2.0,
+            gpu: false,
+            view: None,
+            hand_m: cfg.coupling.handle_origin_m,
+            spectrum: None,
+            spectrum_age: f64::INFINITY,
+            hist_range: 1.0,
+            escapes: 0,
+            contacts: 0,
+            message: None,
+            fs,
+        }
+    }
+
+    /// Reset for a new engine/rig.
+    pub fn reset(&mut self, cfg: &RigConfig) {
+        let fs = cfg.rig.sample_rate_hz;
+        self.traces = LiveTraces::new(fs, 10.0);
+        self.camera.reset();
+        self.last = None;
+        self.obstacles = config_obstacles(cfg);
+        self.hand_m = cfg.coupling.handle_origin_m;
+        self.spectrum = None;
+        self.fs = fs;
+    }
+
+    /// Read all waiting telemetry (called by the shell every frame, whatever
+    /// page is shown, so that the queue never fills).
+    pub fn ingest(&mut self, engine: &mut EngineHandle) -> usize {
+        let fs = self.fs;
+        let traces = &mut self.traces;
+        let camera = &mut self.camera;
+        let last = &mut self.last;
+        let (esc, con) = (&mut self.escapes, &mut self.contacts);
+        engine.drain_telemetry(|s| {
+            traces.push(s);
+            camera.observe(Snapshot {
+                t_s: s.seq as f64 / fs,
+                bead_m: s.bead_m,
+                trap_m: s.trap_m,
+                trapped: s.has(flags::TRAPPED),
+                in_contact: s.has(flags::IN_CONTACT),
+            });
+            if s.has(flags::ESCAPED) {
+                *esc += 1;
+            }
+            if s.has(flags::CONTACT_START) {
+                *con += 1;
+            }
+            *last = Some(*s);
+        })
+    }
+
+    /// Hand position (m) that puts the trap at `trap_m` (inverse coupling).
+    pub fn hand_for_trap(cfg: &RigConfig, trap_m: [f64; 2]) -> [f64; 2] {
+        let c = &cfg.coupling;
+        [
+            c.handle_origin_m[0] + (trap_m[0] - c.trap_offset_m[0]) / c.position_scale,
+            c.handle_origin_m[1] + (trap_m[1] - c.trap_offset_m[1]) / c.position_scale,
+        ]
+    }
+
+    fn place_obstacle(&mut self, at: [f64; 2], cfg: &RigConfig) -> Result<(), String> {
+        if self.obstacles.len() >= scene::MAX_BEADS - 1 {
+            return Err(format!("at most {} obstacles", scene::MAX_BEADS - 1));
+        }
+        let r = self.obstacle_radius_um * 1e-6;
+        if !(r.is_finite() && r > 0.0) {
+            return Err("obstacle radius must be > 0".into());
+        }
+        let bead_r = cfg.tweezer.radius_m;
+        let clear = |c: [f64; 2], rr: f64| {
+            ((at[0] - c[0]).powi(2) + (at[1] - c[1]).powi(2)).sqrt() > r + rr
+        };
+        if let Some(s) = &self.last
+            && (!clear(s.bead_m, bead_r + 0.5e-6) || !clear(s.trap_m, bead_r + 0.5e-6))
+        {
+            return Err("too close to the bead: place obstacles away from it".into());
+        }
+        if self
+            .obstacles
+            .iter()
+            .any(|o| !clear(o.centre_m, o.radius_m))
+        {
+            return Err("overlaps another obstacle".into());
+        }
+        self.obstacles.push(Obstacle {
+            centre_m: at,
+            radius_m: r,
+        });
+        Ok(())
+    }
+
+    fn remove_obstacle(&mut self, at: [f64; 2]) -> bool {
+        let hit = self.obstacles.iter().position(|o| {
+            ((at[0] - o.centre_m[0]).powi(2) + (at[1] - o.centre_m[1]).powi(2)).sqrt() <= o.radius_m
+        });
+        if let Some(i) = hit {
+            self.obstacles.remove(i);
+        }
+        hit.is_some()
+    }
+
+    fn push_obstacles(&mut self, engine: Option<&mut EngineHandle>) {
+        if let Some(e) = engine
+            && let Err(err) = e.set_obstacles(&self.obstacles)
+        {
+            self.message = Some(format!("obstacles not applied: {err}"));
+        }
+    }
+
+    /// Draw the page.
+    pub fn ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        env: &mut PageEnv<'_>,
+        mut engine: Option<&mut EngineHandle>,
+    ) {
+        let cfg = env.rig_config;
+        // ---------------------------------------------------------- controls
+        ui.horizontal_wrapped(|ui| {
+            ui.label(RichText::new("Condition").strong());
+            let current = engine.as_ref().map(|e| e.condition());
+            for c in Condition::ALL {
+                let b = ui
+                    .add(egui::Button::selectable(
+                        current == Some(c),
+                        RichText::new(c.letter()).strong().size(16.0),
+                    ))
+                    .on_hover_text(c.describe());
+                if b.clicked()
+                    && let Some(e) = engine.as_deref_mut()
+                {
+                    e.set_condition(c);
+                }
+            }
+            if let Some(c) = current {
+                ui.label(c.describe());
+            }
+            ui.separator();
+            ui.label(RichText::new("Tool").strong());
+            ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
+            ui.selectable_value(&mut self.tool, Tool::Place, "place obstacle")
+                .on_hover_text("or Shift+click in the scene");
+            ui.selectable_value(&mut self.tool, Tool::Remove, "remove obstacle")
+                .on_hover_text("or Ctrl+click / right-click an obstacle");
+            ui.add(
+                egui::DragValue::new(&mut self.obstacle_radius_um)
+                    .range(0.5..=10.0)
+                    .speed(0.1)
+                    .suffix(" µm"),
+            )
+            .on_hover_text("radius of new obstacles");
+            if ui.button("Clear obstacles").clicked() {
+                self.obstacles.clear();
+                self.push_obstacles(engine.as_deref_mut());
+            }
+            if ui.button("Rig-file obstacles").clicked() {
+                self.obstacles = config_obstacles(cfg);
+                self.push_obstacles(engine.as_deref_mut());
+            }
+            if ui.button("Reset bead").clicked()
+                && let Some(e) = engine.as_deref_mut()
+            {
+                let _ = e.send(crate::engine::Command::ResetBead);
+            }
+        });
+        ui.horizontal_wrapped(|ui| {
+            ui.label(RichText::new("Camera").strong());
+            ui.checkbox(&mut self.camera.model.enabled, "frame rate + latency");
+            ui.add(
+                egui::DragValue::new(&mut self.camera.model.fps)
+                    .range(1.0..=1000.0)
+                    .suffix(" fps"),
+            );
+            let mut lat_ms = self.camera.model.latency_s * 1e3;
+            if ui
+                .add(
+                    egui::DragValue::new(&mut lat_ms)
+                        .range(0.0..=500.0)
+                        .suffix(" ms latency"),
+                )
+                .changed()
+            {
+                self.camera.model.latency_s = lat_ms * 1e-3;
+            }
+            ui.add(
+                egui::DragValue::new(&mut self.blur_um)
+                    .range(0.0..=3.0)
+                    .speed(0.02)
+                    .suffix(" µm blur"),
+            );
+            ui.add(
+                egui::DragValue::new(&mut self.noise)
+                    .range(0.0..=0.5)
+                    .speed(0.005)
+                    .prefix("noise "),
+            );
+            ui.separator();
+            ui.add(
+                egui::DragValue::new(&mut self.trace_seconds)
+                    .range(0.1..=10.0)
+                    .speed(0.05)
+                    .suffix(" s traces"),
+            );
+            ui.label(format!(
+                "contacts {} · escapes {}",
+                self.contacts, self.escapes
+            ));
+        });
+        if let Some(m) = &self.message {
+            let mut clear = false;
+            ui.horizontal(|ui| {
+                ui.colored_label(Color32::from_rgb(230, 150, 40), m);
+                clear = ui.small_button("dismiss").clicked();
+            });
+            if clear {
+                self.message = None;
+            }
+        }
+        ui.separator();
+        // ------------------------------------------------- scene + plots
+        let avail = ui.available_size();
+        let scene_side = (avail.x * 0.48).min(avail.y).max(120.0);
+        ui.horizontal_top(|ui| {
+            ui.vertical(|ui| {
+                self.scene_ui(ui, cfg, scene_side, engine.as_deref_mut());
+            });
+            ui.vertical(|ui| {
+                self.plots_ui(ui, avail.y);
+            });
+        });
+    }
+
+    fn scene_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        cfg: &RigConfig,
+        side: f32,
+        mut engine: Option<&mut EngineHandle>,
+    ) {
+        let (rect, resp) = ui.allocate_exact_size(egui::vec2(side, side), Sense::click_and_drag());
+        let view = View::fit(rect, [0.0, 0.0], VIEW_HALF_UM);
+        self.view = Some(view);
+        // Interaction.
+        let mods = ui.input(|i| i.modifiers);
+        if let Some(p) = resp.interact_pointer_pos() {
+            let at = view.to_specimen(p);
+            let place = resp.clicked() && (self.tool == Tool::Place || mods.shift);
+            let remove = (resp.clicked() && (self.tool == Tool::Remove || mods.command))
+                || resp.secondary_clicked();
+            if place {
+                match self.place_obstacle(at, cfg) {
+                    Ok(()) => self.push_obstacles(engine.as_deref_mut()),
+                    Err(e) => self.message = Some(e),
+                }
+            } else if remove {
+                if self.remove_obstacle(at) {
+                    self.push_obstacles(engine.as_deref_mut());
+                }
+            } else if self.tool == Tool::Drag
+                && !mods.shift
+                && !mods.command
+                && (resp.dragged() || resp.is_pointer_button_down_on())
+            {
+                let hand = Self::hand_for_trap(cfg, at);
+                self.hand_m = hand;
+                if let Some(e) = engine.as_deref_mut() {
+                    e.set_hand(hand);
+                }
+            }
+        }
+        // Picture.
+        let estop = engine
+            .as_ref()
+            .and_then(|e| e.health())
+            .is_some_and(|h| h.safety == crate::engine::SafetyState::EmergencyStop);
+        let shown = self.camera.visible();
+        let painter = ui.painter_at(rect);
+        let Some(snap) = shown else {
+            painter.rect_filled(rect, 0.0, Color32::from_gray(40));
+            painter.text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                if engine.is_some() {
+                    "waiting for the camera…"
+                } else {
+                    "rig disconnected"
+                },
+                egui::FontId::proportional(16.0),
+                Color32::LIGHT_GRAY,
+            );
+            return;
+        };
+        let frame = SceneFrame {
+            view,
+            bead_m: snap.bead_m,
+            bead_radius_m: cfg.tweezer.radius_m,
+            trap_m: snap.trap_m,
+            obstacles: self.obstacles.clone(),
+            blur_um: self.blur_um,
+            noise: self.noise,
+            frame: self.camera.frame_index(),
+            estop,
+        };
+        if self.gpu {
+            painter.add(SceneCallback::paint_callback(&frame));
+        } else {
+            scene::paint_fallback(&painter, &frame);
+        }
+        // Overlays: scale bar, state.
+        let bar_um = 10.0;
+        let y = rect.bottom() - 14.0;
+        let x0 = rect.left() + 14.0;
+        let x1 = x0 + view.len_pt(bar_um * 1e-6);
+        painter.line_segment(
+            [egui::pos2(x0, y), egui::pos2(x1, y)],
+            egui::Stroke::new(3.0, Color32::BLACK),
+        );
+        painter.text(
+            egui::pos2(x0, y - 4.0),
+            egui::Align2::LEFT_BOTTOM,
+            "10 µm",
+            egui::FontId::proportional(12.0),
+            Color32::BLACK,
+        );
+        let mut status = Vec::new();
+        if !snap.trapped {
+            status.push("BEAD LOST — move the trap back over it or Reset bead");
+        }
+        if snap.in_contact {
+            status.push("contact");
+        }
+        if estop {
+            status.push("EMERGENCY STOP");
+        }
+        if !status.is_empty() {
+            painter.text(
+                rect.left_top() + egui::vec2(8.0, 8.0),
+                egui::Align2::LEFT_TOP,
+                status.join(" · "),
+                egui::FontId::proportional(14.0),
+                Color32::from_rgb(200, 30, 30),
+            );
+        }
+        let cam = if self.camera.model.enabled {
+            format!(
+                "camera {:.0} fps, {:.0} ms",
+                self.camera.model.fps,
+                1e3 * self.camera.model.latency_s
+            )
+        } else {
+            "ideal camera".to_owned()
+        };
+        painter.text(
+            rect.right_bottom() - egui::vec2(8.0, 6.0),
+            egui::Align2::RIGHT_BOTTOM,
+            cam,
+            egui::FontId::proportional(11.0),
+            Color32::from_gray(30),
+        );
+        resp.on_hover_text(
+            "drag: move the trap · Shift+click: place obstacle · Ctrl+click or right-click: remove",
+        );
+    }
+
+    fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
+        let fs = self.traces.fs();
+        let secs = self.trace_seconds;
+        let h = ((height - 40.0) / 3.0).max(80.0);
+        let fx = self.traces.last(Trace::ForceX, secs).to_vec();
+        let fy = self.traces.last(Trace::ForceY, secs).to_vec();
+        plot::trace_plot(
+            ui,
+            "force",
+            h,
+            "handle force (N)",
+            &[
+                ("x", Color32::from_rgb(90, 170, 255), &fx),
+                ("y", Color32::from_rgb(255, 150, 60), &fy),
+            ],
+            fs,
+        );
+        let ax = self.traces.last(Trace::AccelX, secs).to_vec();
+        plot::trace_plot(
+            ui,
+            "accel",
+            h,
+            "tip accel. x (m/s²)",
+            &[("x", Color32::from_rgb(120, 220, 120), &ax)],
+            fs,
+        );
+        // Histogram of the last second; spectrum of the last ~1.6 s (5 Hz refresh).
+        let hist = self.traces.last(Trace::AccelX, 1.0).to_vec();
+        let peak = hist
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0f32, |m, v| m.max(v.abs()));
+        let want = plot::nice_range(peak);
+        // Hysteresis: widen at once, narrow only when 2.5× too wide.
+        if want > self.hist_range || want * 2.5 < self.hist_range {
+            self.hist_range = want;
+        }
+        let dt = f64::from(ui.input(|i| i.stable_dt));
+        self.spectrum_age += dt;
+        if self.spectrum_age > 0.2 {
+            let n = 16_384.min(self.traces.len());
+            let x = self.traces.last(Trace::AccelX, n as f64 / fs).to_vec();
+            self.spectrum = plot::spectrum(&x, fs, 1024);
+            self.spectrum_age = 0.0;
+        }
+        ui.columns(2, |c| {
+            plot::histogram_plot(&mut c[0], "hist", h, &hist, self.hist_range);
+            plot::spectrum_plot(&mut c[1], "spectrum", h, self.spectrum.as_ref());
+        });
+    }
+}
+
+/// The obstacles of a rig file.
+pub fn config_obstacles(cfg: &RigConfig) -> Vec<Obstacle> {
+    cfg.tweezer
+        .obstacles
+        .iter()
+        .map(|o| Obstacle {
+            centre_m: [o.x_m, o.y_m],
+            radius_m: o.radius_m,
+        })
+        .collect()
+}

@@ -1,0 +1,15 @@
+//! The pages of the app. Each page is a struct with `new()` and
+//! `ui(&mut self, ui, env)` (see [`super::env::PageEnv`]); the Rig and
+//! Explore pages also get the engine handle.
+
+pub mod calibration;
+pub mod explore;
+pub mod results;
+pub mod rig;
+pub mod study;
+
+pub use calibration::CalibrationPage;
+pub use explore::ExplorePage;
+pub use results::ResultsPage;
+pub use rig::{RigAction, RigPage};
+pub use study::StudyPage;

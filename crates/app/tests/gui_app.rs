@@ -1,0 +1,185 @@
+//! UI tests with egui_kittest, driving the app on the simulated rig (the real
+//! engine on its own thread). CPU only: nothing here renders, so no GPU
+//! adapter is needed (the scene uses the egui-painter fallback without a
+//! wgpu render state, which these tests also check).
+
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use kilotouch::engine::{SafetyState, flags};
+use kilotouch::gui::{AppOptions, KilotouchApp, Page};
+use std::time::{Duration, Instant};
+
+fn app() -> KilotouchApp {
+    KilotouchApp::new(
+        AppOptions {
+            fresh_settings: true,
+            ..Default::default()
+        },
+        None,
+        None,
+    )
+}
+
+fn harness(app: KilotouchApp) -> Harness<'static, KilotouchApp> {
+    Harness::builder()
+        .with_size(egui::vec2(1100.0, 700.0))
+        .with_max_steps(16)
+        .build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app)
+}
+
+/// Step the UI until `done` or the timeout (the engine runs in real time).
+fn step_until(
+    h: &mut Harness<'_, KilotouchApp>,
+    secs: f64,
+    mut done: impl FnMut(&KilotouchApp) -> bool,
+) -> bool {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        h.step();
+        if done(h.state()) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    false
+}
+
+#[test]
+fn every_page_opens() {
+    let mut h = harness(app());
+    let marks = [
+        (Page::Rig, "Identity"),
+        (Page::Calibration, "Calibration"),
+        (Page::Explore, "Condition"),
+        (Page::Study, "Study"),
+        (Page::Results, "Results"),
+    ];
+    assert!(step_until(&mut h, 5.0, |a| a
+        .engine
+        .as_ref()
+        .is_some_and(|e| e.health().is_some())));
+    for (page, mark) in marks {
+        h.get_by_label(page.title()).click();
+        h.step();
+        h.step();
+        assert_eq!(h.state().page, page);
+        assert!(
+            h.query_all_by_label_contains(mark).next().is_some(),
+            "page {page:?} lacks `{mark}`"
+        );
+    }
+    // The scene runs on the painter fallback here (no wgpu render state).
+    assert!(!h.state().explore.gpu);
+    assert!(h.query_by_label_contains("egui painter").is_some());
+}
+
+fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
+    assert!(
+        step_until(h, 5.0, |a| a
+            .engine
+            .as_ref()
+            .and_then(|e| e.health())
+            .is_some_and(|x| x.safety == SafetyState::EmergencyStop)),
+        "engine did not report the emergency stop"
+    );
+    // Every sample the GUI receives from now on has all outputs at zero.
+    let mut seen = 0;
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(300) {
+        h.step();
+        let a = h.state();
+        if let Some(s) = a.explore.last {
+            assert_eq!(
+                s.output,
+                Default::default(),
+                "output not zero: {:?}",
+                s.output
+            );
+            assert!(s.has(flags::ESTOP));
+            seen += 1;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(seen > 5);
+    assert!(h.state().estop_latched());
+    assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
+}
+
+fn armed(h: &mut Harness<'_, KilotouchApp>) {
+    assert!(
+        step_until(h, 5.0, |a| a
+            .engine
+            .as_ref()
+            .and_then(|e| e.health())
+            .is_some_and(|x| x.safety == SafetyState::Armed)
+            && a.explore.last.is_some_and(|s| s.output.force_n[0] != 0.0)),
+        "engine never armed"
+    );
+}
+
+#[test]
+fn emergency_stop_button_zeroes_outputs_and_reset_needs_two_steps() {
+    let mut h = harness(app());
+    armed(&mut h);
+    h.get_by_label_contains("EMERGENCY STOP").click();
+    outputs_zeroed_after_stop(&mut h);
+    // Reset: the dialog's button is disabled until the box is ticked.
+    h.get_by_label("Reset emergency stop…").click();
+    h.step();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    step_until(&mut h, 0.3, |_| false);
+    assert!(
+        h.state().estop_latched(),
+        "released without the confirmation"
+    );
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    h.step();
+    armed(&mut h);
+}
+
+#[test]
+fn escape_key_is_the_emergency_stop_shortcut() {
+    let mut h = harness(app());
+    armed(&mut h);
+    h.key_press(egui::Key::Escape);
+    h.step();
+    outputs_zeroed_after_stop(&mut h);
+}
+
+#[test]
+fn dragging_in_the_scene_moves_the_trap() {
+    let mut a = app();
+    a.page = Page::Explore;
+    let mut h = harness(a);
+    // Wait for the camera's first frame so that the scene is laid out.
+    assert!(step_until(&mut h, 5.0, |a| a.explore.view.is_some()
+        && a.explore.camera.visible().is_some()));
+    let view = h.state().explore.view.unwrap();
+    let start = h.state().explore.last.unwrap().trap_m;
+    // Drag from the centre to a point 6 µm right, 4 µm up.
+    let target = [6e-6, 4e-6];
+    let p0 = view.to_screen([0.0, 0.0]);
+    let p1 = view.to_screen(target);
+    h.hover_at(p0);
+    h.step();
+    h.drag_at(p0);
+    h.step();
+    for k in 1..=10 {
+        h.hover_at(p0 + (p1 - p0) * (k as f32 / 10.0));
+        h.step();
+    }
+    // Hold the button down at the target while the rig moves.
+    let ok = step_until(&mut h, 5.0, |a| {
+        a.explore.last.is_some_and(|s| {
+            ((s.trap_m[0] - target[0]).powi(2) + (s.trap_m[1] - target[1]).powi(2)).sqrt() < 0.5e-6
+        })
+    });
+    h.drop_at(p1);
+    h.step();
+    let end = h.state().explore.last.unwrap().trap_m;
+    assert!(ok, "trap went from {start:?} to {end:?}, target {target:?}");
+}
