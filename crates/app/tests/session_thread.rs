@@ -8,6 +8,8 @@
 //! function of its key, so the rows written through the session thread must
 //! equal the headless rows in every column but `started_utc`.
 
+#![allow(clippy::unwrap_used)]
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 

@@ -438,10 +438,12 @@ impl StudyPage {
             ui.radio_value(&mut self.source, ProtocolSource::Blind, "blind (built-in)");
             ui.radio_value(&mut self.source, ProtocolSource::File, "file");
             if self.source == ProtocolSource::File {
+                let l = ui.label("Protocol file:");
                 ui.add(
                     egui::TextEdit::singleline(&mut self.protocol_file)
                         .hint_text("path/to/protocol.toml"),
-                );
+                )
+                .labelled_by(l.id);
                 if ui.button("Reload").clicked() {
                     self.loaded_source = None;
                 }
@@ -466,8 +468,9 @@ impl StudyPage {
             ));
         }
         ui.horizontal(|ui| {
-            ui.label("Participant ID:");
-            ui.add(egui::TextEdit::singleline(&mut self.participant_text).hint_text("P01"));
+            let l = ui.label("Participant ID:");
+            ui.add(egui::TextEdit::singleline(&mut self.participant_text).hint_text("P01"))
+                .labelled_by(l.id);
         });
         let pid = self
             .table
@@ -485,7 +488,7 @@ impl StudyPage {
                         "{}: order {} (row {} of the square) — training block ({} practice trials \
                          per condition), then sessions {}",
                         id.id,
-                        order.join(" → "),
+                        order.join(" > "),
                         row.row + 1,
                         self.protocol
                             .as_ref()
@@ -511,8 +514,10 @@ impl StudyPage {
             _ => {}
         }
         ui.horizontal(|ui| {
-            ui.label("Output folder:");
-            let r = ui.add(egui::TextEdit::singleline(&mut self.out_text).desired_width(380.0));
+            let l = ui.label("Output folder:");
+            let r = ui
+                .add(egui::TextEdit::singleline(&mut self.out_text).desired_width(380.0))
+                .labelled_by(l.id);
             if r.lost_focus() && !self.out_text.trim().is_empty() {
                 env.requests.push(ShellRequest::SetOutputDir(PathBuf::from(
                     self.out_text.trim(),
@@ -663,11 +668,13 @@ impl StudyPage {
             }
         });
         ui.horizontal(|ui| {
+            let l = ui.label("Note:");
             ui.add(
                 egui::TextEdit::singleline(&mut self.note_text)
                     .hint_text("experimenter note")
                     .desired_width(380.0),
-            );
+            )
+            .labelled_by(l.id);
             if ui.button("Add note").clicked() && !self.note_text.trim().is_empty() {
                 let n = std::mem::take(&mut self.note_text);
                 self.send(SessionCommand::Note(n));
