@@ -10,3 +10,4 @@ pub mod csvio;
 pub mod engine;
 pub mod gui;
 pub mod output;
+pub mod session;

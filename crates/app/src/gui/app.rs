@@ -8,6 +8,7 @@
 //! "Re-enable outputs"); no key does it, and a stop pressed meanwhile wins.
 
 use super::env::{PageEnv, ShellRequest};
+use super::pages::study::EngineTransition;
 use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
 use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
@@ -107,7 +108,8 @@ pub struct KilotouchApp {
     calibration: CalibrationPage,
     /// Explore page.
     pub explore: ExplorePage,
-    study: StudyPage,
+    /// Study page (its session owns the rig while it runs).
+    pub study: StudyPage,
     results: ResultsPage,
     requests: Vec<ShellRequest>,
     notices: VecDeque<Notice>,
@@ -185,7 +187,7 @@ impl KilotouchApp {
             rig_page,
             calibration: CalibrationPage::new(),
             explore,
-            study: StudyPage::new(),
+            study: StudyPage::with_gpu(gpu),
             results: ResultsPage::new(),
             requests: Vec::new(),
             notices,
@@ -226,6 +228,7 @@ impl KilotouchApp {
 
     /// THE emergency stop of the GUI (button and Esc): never blocks.
     pub fn emergency_stop(&mut self) {
+        self.study.emergency_stop();
         match &self.engine {
             Some(e) => e.emergency_stop(),
             None => self.notify(
@@ -538,6 +541,17 @@ impl KilotouchApp {
             }
         });
         self.handle_requests();
+        // Study sessions: drain events, participant window; one rig at a time.
+        self.study.background(&ctx);
+        match self.study.engine_transition(self.engine.is_some()) {
+            EngineTransition::Stop => {
+                if let Some(e) = self.engine.take() {
+                    e.shutdown();
+                }
+            }
+            EngineTransition::Restart => self.connect(),
+            EngineTransition::Keep => {}
+        }
         self.reset_dialog_ui(&ctx);
         self.settings.page = self.page;
         self.settings.camera = self.explore.camera.model;

@@ -1,27 +1,822 @@
-//! Study page (placeholder: the session runner plugs into the engine as a
-//! [`crate::engine::BlockDriver`] in a later step).
+//! Study page: load a protocol, enter a pseudonymous participant ID, see the
+//! counterbalanced order, run the training block and the sessions on the
+//! session thread ([`crate::session`]), with an experimenter view (state,
+//! trial controls, live metrics, finished rows) and a participant view (the
+//! microscope scene through the simulated camera, or a dark screen for the
+//! blind task) in a separate viewport or inline.
+//!
+//! The page never blocks: commands and the hand position go to the session
+//! thread through lock-free queues; events come back the same way and are
+//! drained every frame by [`StudyPage::background`] (called by the shell
+//! whatever page is shown, so the participant window keeps running).
 
-use crate::gui::env::PageEnv;
+use std::path::PathBuf;
+
+use egui::{Color32, RichText, Sense};
+use kilotouch_rig::tweezer::Obstacle;
+use kilotouch_study::export::TrialRow;
+use kilotouch_study::protocol::{AssignmentTable, Protocol};
+use kilotouch_study::runner::RunnerState;
+use kilotouch_study::seeds::TrialKey;
+use kilotouch_study::task::Scene;
+use kilotouch_study::task::station::HandMapping;
+
+use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::scene::{self, SceneFrame, View};
+use crate::gui::scene_wgpu::SceneCallback;
+use crate::session::{
+    FinishReason, FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionEvent,
+    SessionHandle, SessionHealth, SessionOptions, Speed, Telemetry, inspect_folder,
+    validate_participant_id,
+};
+
+/// Where the protocol comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProtocolSource {
+    /// Built-in `paper` (circling, V/P/D).
+    Paper,
+    /// Built-in `blind` (blind navigation).
+    Blind,
+    /// A TOML file.
+    File,
+}
+
+/// What the shell should do with the Explore engine (one rig at a time).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EngineTransition {
+    /// Nothing to do.
+    Keep,
+    /// A session needs the rig: stop the engine.
+    Stop,
+    /// The session ended: start the engine again.
+    Restart,
+}
 
 /// Study sessions.
-#[derive(Debug, Default)]
-pub struct StudyPage;
+#[derive(Debug)]
+pub struct StudyPage {
+    /// Protocol source.
+    pub source: ProtocolSource,
+    /// Protocol file path (for [`ProtocolSource::File`]).
+    pub protocol_file: String,
+    /// Participant ID as typed.
+    pub participant_text: String,
+    /// Output folder as typed (initialised from the settings).
+    pub out_text: String,
+    /// Person at the mouse or simulated participant.
+    pub kind: ParticipantKind,
+    /// Pacing (as fast as possible: simulated participant only).
+    pub speed: Speed,
+    /// Participant view in a separate window (else inline on this page;
+    /// inline is what the UI tests use).
+    pub separate_window: bool,
+    /// Draw the scene with wgpu (set by the shell when installed).
+    pub gpu: bool,
+    protocol: Option<Protocol>,
+    table: Option<AssignmentTable>,
+    protocol_error: Option<String>,
+    loaded_source: Option<(ProtocolSource, String)>,
+    out_seeded: bool,
+    folder: Option<(PathBuf, FolderStatus)>,
+    session: Option<SessionHandle>,
+    sitting_id: Option<ParticipantId>,
+    mapping: HandMapping,
+    state: Option<RunnerState>,
+    current: Option<(TrialKey, Scene)>,
+    telemetry: Option<Telemetry>,
+    health: SessionHealth,
+    rows: Vec<TrialRow>,
+    committed: usize,
+    planned: usize,
+    note_text: String,
+    log: Vec<String>,
+    error: Option<String>,
+    finished: Option<FinishReason>,
+    recovery_text: Option<String>,
+    trap_target_m: [f64; 2],
+    engine_parked: bool,
+}
+
+impl Default for StudyPage {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 impl StudyPage {
     /// New page.
     pub fn new() -> Self {
-        Self
+        Self {
+            source: ProtocolSource::Paper,
+            protocol_file: String::new(),
+            participant_text: String::new(),
+            out_text: String::new(),
+            kind: ParticipantKind::Mouse,
+            speed: Speed::RealTime,
+            separate_window: true,
+            gpu: false,
+            protocol: None,
+            table: None,
+            protocol_error: None,
+            loaded_source: None,
+            out_seeded: false,
+            folder: None,
+            session: None,
+            sitting_id: None,
+            mapping: HandMapping {
+                scale: 1.0,
+                handle_origin_m: [0.0; 2],
+                trap_offset_m: [0.0; 2],
+            },
+            state: None,
+            current: None,
+            telemetry: None,
+            health: SessionHealth::default(),
+            rows: Vec::new(),
+            committed: 0,
+            planned: 0,
+            note_text: String::new(),
+            log: Vec::new(),
+            error: None,
+            finished: None,
+            recovery_text: None,
+            trap_target_m: [0.0; 2],
+            engine_parked: false,
+        }
+    }
+
+    /// New page drawing the scene with wgpu when `gpu` (the shell installed
+    /// the scene renderer).
+    pub fn with_gpu(gpu: bool) -> Self {
+        Self { gpu, ..Self::new() }
+    }
+
+    /// A session is open (the rig belongs to it).
+    pub fn is_running(&self) -> bool {
+        self.session.is_some()
+    }
+
+    /// Rows shown in the table (this participant's, from `trials.csv` and
+    /// the rows committed in this sitting).
+    pub fn rows(&self) -> &[TrialRow] {
+        &self.rows
+    }
+
+    /// The runner state last reported.
+    pub fn runner_state(&self) -> Option<RunnerState> {
+        self.state
+    }
+
+    /// How the last sitting ended.
+    pub fn finished(&self) -> Option<&FinishReason> {
+        self.finished.as_ref()
+    }
+
+    /// The last error shown.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// Tells the shell what to do with the Explore engine; call every frame
+    /// with whether the engine is running.
+    pub fn engine_transition(&mut self, engine_running: bool) -> EngineTransition {
+        if self.session.is_some() {
+            if engine_running {
+                self.engine_parked = true;
+                return EngineTransition::Stop;
+            }
+        } else if self.engine_parked {
+            self.engine_parked = false;
+            return EngineTransition::Restart;
+        }
+        EngineTransition::Keep
+    }
+
+    /// The shell's emergency stop: abort the running trial and pause.
+    pub fn emergency_stop(&mut self) {
+        if let Some(s) = &mut self.session
+            && !s.send(SessionCommand::EmergencyStop)
+        {
+            // The queue is full only if the thread is gone or stuck: end it.
+            self.session = None;
+            self.error = Some("emergency stop: session ended".into());
+        }
+    }
+
+    /// Drains the session's events and shows the participant window (when
+    /// separate). Call every frame, whatever page is shown.
+    pub fn background(&mut self, ctx: &egui::Context) {
+        self.poll();
+        if self.session.is_some() {
+            ctx.request_repaint();
+            if self.separate_window {
+                let id = egui::ViewportId::from_hash_of("kilotouch-participant");
+                let builder = egui::ViewportBuilder::default()
+                    .with_title("kilotouch — participant")
+                    .with_inner_size([720.0, 720.0]);
+                ctx.show_viewport_immediate(id, builder, |ui, _class| {
+                    egui::CentralPanel::default()
+                        .frame(egui::Frame::NONE.fill(Color32::BLACK))
+                        .show(ui, |ui| self.participant_view(ui, true));
+                });
+            }
+        }
+    }
+
+    fn poll(&mut self) {
+        let Some(s) = &mut self.session else {
+            return;
+        };
+        let events = s.poll();
+        let mut end = None;
+        for e in events {
+            match e {
+                SessionEvent::State(st) => self.state = Some(st),
+                SessionEvent::TrialStarted { key, scene } => {
+                    self.current = Some((key, scene));
+                    self.telemetry = None;
+                    self.trap_target_m = scene.start_m;
+                    let hand = self.mapping.to_hand(scene.start_m);
+                    if let Some(s) = &mut self.session {
+                        s.set_hand(hand);
+                    }
+                    self.log.push(format!("started {key}"));
+                }
+                SessionEvent::TrialEnded(k, e) => self.log.push(format!("ended {k}: {e:?}")),
+                SessionEvent::Committed(row) => {
+                    self.committed += 1;
+                    self.rows.push(*row);
+                }
+                SessionEvent::Telemetry(t) => self.telemetry = Some(t),
+                SessionEvent::Health(h) => self.health = h,
+                SessionEvent::Noted(n) => self.log.push(format!("note: {n}")),
+                SessionEvent::Error(m) => {
+                    self.log.push(format!("error: {m}"));
+                    self.error = Some(m);
+                }
+                SessionEvent::Finished(r) => end = Some(r),
+            }
+        }
+        if self.log.len() > 200 {
+            let cut = self.log.len() - 200;
+            self.log.drain(..cut);
+        }
+        if let Some(r) = end {
+            if let FinishReason::Failed(m) = &r {
+                self.error = Some(m.clone());
+            }
+            self.finished = Some(r);
+            self.session = None;
+            self.current = None;
+            self.folder = None;
+        }
+    }
+
+    fn load_protocol(&mut self) {
+        let key = (self.source, self.protocol_file.trim().to_owned());
+        if self.loaded_source.as_ref() == Some(&key) {
+            return;
+        }
+        self.loaded_source = Some(key.clone());
+        let r = match self.source {
+            ProtocolSource::Paper => Protocol::builtin("paper"),
+            ProtocolSource::Blind => Protocol::builtin("blind"),
+            ProtocolSource::File if key.1.is_empty() => {
+                self.protocol = None;
+                self.table = None;
+                self.protocol_error = Some("enter the path of a protocol file (TOML)".into());
+                return;
+            }
+            ProtocolSource::File => Protocol::load(std::path::Path::new(&key.1)),
+        };
+        match r.and_then(|p| p.assignment().map(|t| (p, t))) {
+            Ok((p, t)) => {
+                self.protocol = Some(p);
+                self.table = Some(t);
+                self.protocol_error = None;
+            }
+            Err(e) => {
+                self.protocol = None;
+                self.table = None;
+                self.protocol_error = Some(e.to_string());
+            }
+        }
+    }
+
+    fn folder_status(&mut self) -> Option<&FolderStatus> {
+        let t = self.out_text.trim();
+        if t.is_empty() {
+            return None;
+        }
+        let p = PathBuf::from(t);
+        if self.folder.as_ref().is_none_or(|(q, _)| *q != p) {
+            let st = inspect_folder(&p);
+            self.folder = Some((p, st));
+        }
+        self.folder.as_ref().map(|(_, s)| s)
+    }
+
+    fn open_session(&mut self, env: &mut PageEnv<'_>, resume: bool) {
+        self.error = None;
+        self.finished = None;
+        let out = PathBuf::from(self.out_text.trim());
+        if self.out_text.trim().is_empty() {
+            self.error = Some("choose an output folder".into());
+            return;
+        }
+        let (protocol, pid) = if resume {
+            let next = match self.folder_status() {
+                Some(FolderStatus::Study { next: Some(n), .. }) => n.clone(),
+                _ => {
+                    self.error = Some("nothing to resume in this folder".into());
+                    return;
+                }
+            };
+            (
+                None,
+                ParticipantId {
+                    id: next.participant.clone(),
+                    index: next.key.participant,
+                },
+            )
+        } else {
+            let (Some(p), Some(t)) = (&self.protocol, &self.table) else {
+                self.error = Some("load a valid protocol first".into());
+                return;
+            };
+            match validate_participant_id(&self.participant_text, t) {
+                Ok(id) => (Some(p.clone()), id),
+                Err(e) => {
+                    self.error = Some(e);
+                    return;
+                }
+            }
+        };
+        let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
+        opts.participant = self.kind;
+        opts.speed = if self.kind == ParticipantKind::Simulated {
+            self.speed
+        } else {
+            Speed::RealTime
+        };
+        opts.only_participant = Some(pid.index);
+        match SessionHandle::spawn(opts) {
+            Ok(mut h) => {
+                let info = h.info().clone();
+                self.mapping = info.mapping;
+                self.rows = info
+                    .rows
+                    .iter()
+                    .filter(|r| r.participant == pid.id)
+                    .cloned()
+                    .collect();
+                self.committed = info.completed;
+                self.planned = info.planned;
+                self.recovery_text = Some(info.recovery_text.clone());
+                if let Ok(t) = info.protocol.assignment() {
+                    self.table = Some(t);
+                }
+                self.protocol = Some(info.protocol);
+                self.participant_text = pid.id.clone();
+                self.sitting_id = Some(pid);
+                self.state = Some(RunnerState::Idle);
+                self.log.clear();
+                self.health = SessionHealth::default();
+                if resume {
+                    h.send(SessionCommand::Note("resumed from the Study page".into()));
+                }
+                self.session = Some(h);
+                env.requests.push(ShellRequest::SetOutputDir(out));
+            }
+            Err(e) => self.error = Some(e.to_string()),
+        }
+    }
+
+    fn send(&mut self, cmd: SessionCommand) {
+        if let Some(s) = &mut self.session
+            && !s.send(cmd)
+        {
+            self.error = Some("command not sent (queue full); try again".into());
+        }
     }
 
     /// Draw the page.
     pub fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
-        ui.heading("Study");
-        ui.label(
-            "Running sessions from the app is not in this build yet; \
-             `kilotouch study simulate` runs the protocol headless with the simulated participant.",
-        );
-        if let Some(d) = env.output_dir {
-            ui.label(format!("Output folder: {}", d.display()));
+        if !self.out_seeded {
+            self.out_seeded = true;
+            if self.out_text.is_empty()
+                && let Some(d) = env.output_dir
+            {
+                self.out_text = d.display().to_string();
+            }
         }
+        self.poll();
+        ui.heading("Study");
+        egui::ScrollArea::vertical()
+            .id_salt("study-scroll")
+            .show(ui, |ui| {
+                if self.session.is_none() {
+                    self.setup_ui(ui, env);
+                } else {
+                    self.running_ui(ui);
+                }
+                if self.session.is_some() && !self.separate_window {
+                    ui.separator();
+                    ui.label(RichText::new("Participant view (inline)").strong());
+                    let side = ui.available_width().min(420.0);
+                    ui.allocate_ui(egui::vec2(side, side), |ui| self.participant_view(ui, true));
+                }
+                ui.separator();
+                self.rows_ui(ui);
+            });
+    }
+
+    fn setup_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        ui.horizontal(|ui| {
+            ui.label("Protocol:");
+            ui.radio_value(&mut self.source, ProtocolSource::Paper, "paper (built-in)");
+            ui.radio_value(&mut self.source, ProtocolSource::Blind, "blind (built-in)");
+            ui.radio_value(&mut self.source, ProtocolSource::File, "file");
+            if self.source == ProtocolSource::File {
+                let l = ui.label("Protocol file:");
+                ui.add(
+                    egui::TextEdit::singleline(&mut self.protocol_file)
+                        .hint_text("path/to/protocol.toml"),
+                )
+                .labelled_by(l.id);
+                if ui.button("Reload").clicked() {
+                    self.loaded_source = None;
+                }
+            }
+        });
+        self.load_protocol();
+        if let Some(e) = &self.protocol_error {
+            ui.colored_label(
+                Color32::from_rgb(235, 80, 70),
+                format!("protocol error: {e}"),
+            );
+        }
+        if let Some(p) = &self.protocol {
+            ui.label(format!(
+                "{} — {} participants × {} sessions × {} trials, {} practice trials per condition; task: {}",
+                p.name,
+                p.participants,
+                p.sessions(),
+                p.trials_per_session,
+                p.training.practice_trials,
+                p.task.kind()
+            ));
+        }
+        ui.horizontal(|ui| {
+            let l = ui.label("Participant ID:");
+            ui.add(egui::TextEdit::singleline(&mut self.participant_text).hint_text("P01"))
+                .labelled_by(l.id);
+        });
+        let pid = self
+            .table
+            .as_ref()
+            .map(|t| validate_participant_id(&self.participant_text, t));
+        match (&pid, &self.table) {
+            (Some(Ok(id)), Some(t)) => {
+                if let Some(row) = t
+                    .participants
+                    .iter()
+                    .find(|r| r.participant as u32 == id.index)
+                {
+                    let order: Vec<&str> = row.sessions.iter().map(|c| c.code()).collect();
+                    ui.label(format!(
+                        "{}: order {} (row {} of the square) — training block ({} practice trials \
+                         per condition), then sessions {}",
+                        id.id,
+                        order.join(" > "),
+                        row.row + 1,
+                        self.protocol
+                            .as_ref()
+                            .map(|p| p.training.practice_trials)
+                            .unwrap_or(0),
+                        order.join(", ")
+                    ));
+                    if !t.report.balanced {
+                        ui.weak(format!("counterbalancing: {}", t.summary));
+                    }
+                    if let Some(u) = t.report.repeated.iter().find(|u| u.row == row.row) {
+                        ui.weak(format!(
+                            "this order is used by {} participants (Williams rows repeat when the \
+                             participant count is not a multiple of the rows)",
+                            u.count
+                        ));
+                    }
+                }
+            }
+            (Some(Err(e)), _) if !self.participant_text.trim().is_empty() => {
+                ui.colored_label(Color32::from_rgb(235, 80, 70), e);
+            }
+            _ => {}
+        }
+        ui.horizontal(|ui| {
+            let l = ui.label("Output folder:");
+            let r = ui
+                .add(egui::TextEdit::singleline(&mut self.out_text).desired_width(380.0))
+                .labelled_by(l.id);
+            if r.lost_focus() && !self.out_text.trim().is_empty() {
+                env.requests.push(ShellRequest::SetOutputDir(PathBuf::from(
+                    self.out_text.trim(),
+                )));
+            }
+        });
+        let status = self.folder_status().cloned();
+        let mut resume = false;
+        match &status {
+            Some(FolderStatus::Empty) => {
+                ui.weak("new study folder (created when the session opens)");
+            }
+            Some(FolderStatus::Study {
+                protocol,
+                completed,
+                planned,
+                next,
+            }) => {
+                ui.label(format!(
+                    "this folder holds `{protocol}`: {completed} of {planned} trials done"
+                ));
+                if let Some(n) = next
+                    && ui
+                        .button(format!("Resume at trial {} ({})", n.key, n.participant))
+                        .on_hover_text("reopen the folder (crash-safe: an interrupted trial runs again from its seeds)")
+                        .clicked()
+                {
+                    resume = true;
+                }
+            }
+            Some(FolderStatus::Unreadable(e)) => {
+                ui.colored_label(Color32::from_rgb(235, 80, 70), format!("folder: {e}"));
+            }
+            None => {}
+        }
+        ui.horizontal(|ui| {
+            ui.label("At the handle:");
+            ui.radio_value(&mut self.kind, ParticipantKind::Mouse, "person (mouse)");
+            ui.radio_value(
+                &mut self.kind,
+                ParticipantKind::Simulated,
+                "simulated participant",
+            );
+            if self.kind == ParticipantKind::Simulated {
+                ui.separator();
+                ui.radio_value(&mut self.speed, Speed::RealTime, "real time");
+                ui.radio_value(&mut self.speed, Speed::Fast, "as fast as possible");
+            }
+        });
+        ui.checkbox(
+            &mut self.separate_window,
+            "participant view in a separate window",
+        );
+        ui.horizontal(|ui| {
+            let can = self.protocol.is_some() && matches!(pid, Some(Ok(_)));
+            if ui
+                .add_enabled(can, egui::Button::new("Open session"))
+                .on_hover_text(
+                    "open the output folder and wait for Start (stops the Explore engine)",
+                )
+                .clicked()
+            {
+                self.open_session(env, false);
+            }
+        });
+        if resume {
+            self.open_session(env, true);
+        }
+        self.messages_ui(ui);
+    }
+
+    fn messages_ui(&mut self, ui: &mut egui::Ui) {
+        if let Some(e) = &self.error {
+            ui.colored_label(Color32::from_rgb(235, 80, 70), e.clone());
+        }
+        if let Some(f) = &self.finished {
+            let text = match f {
+                FinishReason::StudyDone => {
+                    "study complete: every trial has its row; summaries written".to_owned()
+                }
+                FinishReason::ParticipantDone(id) => format!(
+                    "participant {id} finished (session ended paused; the next participant resumes the folder)"
+                ),
+                FinishReason::Stopped => {
+                    "sitting stopped (a trial in progress runs again on resume)".to_owned()
+                }
+                FinishReason::Failed(m) => format!("session failed: {m}"),
+            };
+            ui.label(RichText::new(text).strong());
+        }
+    }
+
+    fn running_ui(&mut self, ui: &mut egui::Ui) {
+        let id = self
+            .sitting_id
+            .as_ref()
+            .map(|p| p.id.clone())
+            .unwrap_or_default();
+        let state = self.state.unwrap_or(RunnerState::Idle);
+        ui.horizontal(|ui| {
+            ui.label(RichText::new(format!("{id} · {state}")).strong().size(16.0));
+            ui.separator();
+            ui.label(format!(
+                "committed {} of {} trials (study)",
+                self.committed, self.planned
+            ));
+        });
+        if let Some(r) = &self.recovery_text {
+            ui.weak(format!("folder: {r}"));
+        }
+        ui.horizontal(|ui| {
+            let idle = state == RunnerState::Idle;
+            let running = matches!(state, RunnerState::Training(_) | RunnerState::Trial(_));
+            let paused = matches!(state, RunnerState::Paused(_));
+            if ui.add_enabled(idle, egui::Button::new("Start")).clicked() {
+                self.send(SessionCommand::Start);
+            }
+            if ui
+                .add_enabled(running, egui::Button::new("Pause"))
+                .clicked()
+            {
+                self.send(SessionCommand::Pause);
+            }
+            if ui
+                .add_enabled(paused, egui::Button::new("Resume"))
+                .clicked()
+            {
+                self.send(SessionCommand::Resume);
+            }
+            if ui
+                .add_enabled(
+                    running || matches!(state, RunnerState::Paused(Some(_))),
+                    egui::Button::new("Abort trial"),
+                )
+                .on_hover_text("end the trial now; its row is kept with reject reason `aborted`")
+                .clicked()
+            {
+                self.send(SessionCommand::AbortTrial);
+            }
+            if ui
+                .button("Stop sitting")
+                .on_hover_text(
+                    "end the sitting; a trial in progress is not recorded and runs again on resume",
+                )
+                .clicked()
+            {
+                self.send(SessionCommand::Stop);
+            }
+        });
+        ui.horizontal(|ui| {
+            let l = ui.label("Note:");
+            ui.add(
+                egui::TextEdit::singleline(&mut self.note_text)
+                    .hint_text("experimenter note")
+                    .desired_width(380.0),
+            )
+            .labelled_by(l.id);
+            if ui.button("Add note").clicked() && !self.note_text.trim().is_empty() {
+                let n = std::mem::take(&mut self.note_text);
+                self.send(SessionCommand::Note(n));
+            }
+        });
+        if let Some((key, _)) = &self.current {
+            ui.label(format!(
+                "current: {key} ({} — {})",
+                key.condition.code(),
+                key.condition.description()
+            ));
+        }
+        if let Some(t) = &self.telemetry {
+            let l = t.live;
+            let f = |v: Option<f64>, d: usize| {
+                v.map(|x| format!("{x:.d$}")).unwrap_or_else(|| "—".into())
+            };
+            ui.label(format!(
+                "time {:.1} s · contact fraction {} · mean force {} N (peak {:.3}) · disp. error {} µm",
+                l.t_s,
+                f(l.contact_fraction, 2),
+                f(l.force_mean_n, 3),
+                l.force_peak_n,
+                f(l.disp_err_mean_um, 2)
+            ))
+            .on_hover_text("live estimates from the camera frames and the handle force; the row holds the exact values");
+        }
+        let h = self.health;
+        ui.weak(format!(
+            "session thread: load {:.1} % · deadline misses {} · overruns {} · telemetry dropped {} · simulated {:.1} s",
+            100.0 * h.load,
+            h.deadline_misses,
+            h.overruns,
+            h.telemetry_dropped,
+            h.simulated_s
+        ));
+        self.messages_ui(ui);
+        egui::CollapsingHeader::new("Event log")
+            .id_salt("study-log")
+            .show(ui, |ui| {
+                for l in self.log.iter().rev().take(30) {
+                    ui.monospace(l);
+                }
+            });
+    }
+
+    fn rows_ui(&mut self, ui: &mut egui::Ui) {
+        ui.label(RichText::new(format!("Finished trials: {}", self.rows.len())).strong());
+        egui::Grid::new("study-rows").striped(true).show(ui, |ui| {
+            for h in [
+                "participant",
+                "phase",
+                "cond.",
+                "trial",
+                "success",
+                "reject",
+                "time s",
+                "contact",
+                "force pN",
+                "disp. µm",
+            ] {
+                ui.label(RichText::new(h).strong());
+            }
+            ui.end_row();
+            let f = |v: Option<f64>, d: usize| v.map(|x| format!("{x:.d$}")).unwrap_or_default();
+            for r in self.rows.iter().rev().take(200) {
+                ui.label(&r.participant);
+                ui.label(r.phase.to_string());
+                ui.label(r.condition.code());
+                ui.label(r.trial.to_string());
+                ui.label(if r.success { "yes" } else { "no" });
+                ui.label(&r.reject_reason);
+                ui.label(f(r.time_s, 2));
+                ui.label(f(r.contact_fraction, 2));
+                ui.label(f(r.force_mean_pn, 2));
+                ui.label(f(r.disp_err_mean_um, 2));
+                ui.end_row();
+            }
+        });
+    }
+
+    /// The participant's view: the scene as the camera shows it (vision
+    /// conditions) or a dark screen (blind task); dragging moves the hand.
+    fn participant_view(&mut self, ui: &mut egui::Ui, interactive: bool) {
+        let rect = ui.available_rect_before_wrap();
+        let sense = if interactive {
+            Sense::drag()
+        } else {
+            Sense::hover()
+        };
+        let resp = ui.allocate_rect(rect, sense);
+        let painter = ui.painter_at(rect);
+        painter.rect_filled(rect, 0.0, Color32::from_gray(8));
+        let Some((_, scene)) = self.current else {
+            painter.text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                "please wait",
+                egui::FontId::proportional(18.0),
+                Color32::from_gray(90),
+            );
+            return;
+        };
+        let g = scene.geometry;
+        let half_um = (3.0 * (g.obstacle_radius_m + g.bead_radius_m) * 1e6).max(10.0);
+        let view = View::fit(
+            rect,
+            [g.obstacle_m[0] * 1e6, g.obstacle_m[1] * 1e6],
+            half_um,
+        );
+        if resp.dragged() {
+            let d = resp.drag_delta();
+            let k = view.um_per_pt * 1e-6;
+            self.trap_target_m[0] += f64::from(d.x) * k;
+            self.trap_target_m[1] -= f64::from(d.y) * k;
+            let hand = self.mapping.to_hand(self.trap_target_m);
+            if let Some(s) = &mut self.session {
+                s.set_hand(hand);
+            }
+        }
+        let frame = self.telemetry.and_then(|t| t.frame);
+        if let Some(f) = frame {
+            let sf = SceneFrame {
+                view,
+                bead_m: f.bead_m,
+                bead_radius_m: f.bead_radius_m,
+                trap_m: f.trap_m,
+                obstacles: vec![Obstacle {
+                    centre_m: f.obstacle_m,
+                    radius_m: f.obstacle_radius_m,
+                }],
+                blur_um: 0.3,
+                noise: 0.05,
+                frame: f.seq,
+                estop: false,
+            };
+            if self.gpu {
+                painter.add(SceneCallback::paint_callback(&sf));
+            } else {
+                scene::paint_fallback(&painter, &sf);
+            }
+        }
+        // Blind task (or before the first frame): the screen stays dark.
     }
 }
