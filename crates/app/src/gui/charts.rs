@@ -148,6 +148,10 @@ pub fn format_hz(f_hz: f64) -> String {
     let e = value.log10().floor() as i32;
     let scale = 10f64.powi(2 - e);
     let rounded = (value * scale).round() / scale;
+    if !rounded.is_finite() {
+        // Subnormal input: the scale overflows.
+        return format!("{f_hz:.2e}");
+    }
     let decimals = usize::try_from((2 - e).max(0)).unwrap_or(0);
     let mut s = format!("{rounded:.decimals$}");
     if s.contains('.') {
@@ -665,6 +669,8 @@ mod tests {
         assert_eq!(format_hz(0.0), "");
         assert_eq!(format_hz(-5.0), "");
         assert_eq!(format_hz(f64::NAN), "");
+        // Far below the axis clamp (hover over a zoomed-out plot).
+        assert_eq!(format_hz(1e-310), "1.00e-310");
     }
 
     #[test]
