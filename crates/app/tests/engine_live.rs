@@ -197,6 +197,15 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
         health.loop_rate_hz
     );
     assert!((rate - fs).abs() < 0.1 * fs, "rate {rate} Hz");
+    eprintln!(
+        "live serial loop: {:.0} Hz (health), {rate:.0} Hz (telemetry), load {:.1} %, \
+         deadline misses {}, worst lateness {:.2} ms",
+        health.loop_rate_hz,
+        100.0 * health.load,
+        health.deadline_misses,
+        1e3 * health.worst_lateness_total_s
+    );
+    assert!(health.load < 0.5, "load {} (computation only)", health.load);
     assert_eq!(health.rig.lost_frames, 0);
     assert_eq!(health.rig.state, RigState::Running);
     assert_eq!(health.safety, SafetyState::Armed);

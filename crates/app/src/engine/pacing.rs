@@ -218,6 +218,28 @@ mod tests {
     }
 
     #[test]
+    fn device_paced_measures_like_paced_but_never_sleeps() {
+        let clock = ManualClock::default();
+        let mut p = Pacer::new(clock.clone(), 1e-3, 2e-3, 50e-3, true);
+        p.set_device_paced();
+        assert!(!p.sleeps());
+        // Early block (the device returned before the deadline): no sleep.
+        p.begin_block();
+        clock.advance(Duration::from_micros(300));
+        let t = p.end_block();
+        assert!((t.lateness_s + 0.7e-3).abs() < 1e-9 && !t.missed, "{t:?}");
+        assert_eq!(clock.sleeps(), 0);
+        assert_eq!(clock.now(), Duration::from_micros(300));
+        // The device stalled 5 ms: deadline 2 ms, late by 3.3 ms > 2 ms → a miss.
+        p.begin_block();
+        clock.advance(Duration::from_millis(5));
+        let t = p.end_block();
+        assert!(t.missed && !t.overrun, "{t:?}");
+        assert!((p.worst_lateness_s - 3.3e-3).abs() < 1e-9);
+        assert_eq!((p.misses, clock.sleeps()), (1, 0));
+    }
+
+    #[test]
     fn batch_never_sleeps_nor_misses() {
         let clock = ManualClock::default();
         let mut p = Pacer::new(clock.clone(), 1e-3, 2e-3, 50e-3, false);

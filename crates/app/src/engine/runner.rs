@@ -84,6 +84,8 @@ pub struct EngineCore<C: Clock> {
     live_tw: [TweezerSample; GATE_CHUNK],
     /// Live: the previous exchange lost frames, skipped or ran late.
     missed: bool,
+    /// Live: time spent waiting for the device in this block, s (not load).
+    wait_s: f64,
 }
 
 impl<C: Clock> EngineCore<C> {
@@ -184,6 +186,7 @@ impl<C: Clock> EngineCore<C> {
             live_cmd: [ActuatorFrame::default(); GATE_CHUNK],
             live_tw: [TweezerSample::default(); GATE_CHUNK],
             missed: false,
+            wait_s: 0.0,
         };
         core.lp.rig.gate.set_enabled(condition != Condition::Vision);
         if !opts.start {
@@ -567,11 +570,13 @@ impl<C: Clock> EngineCore<C> {
             self.live_tw[i] = s;
         }
         let mut got = [SensorFrame::default(); GATE_CHUNK];
-        match self
+        let t0 = self.pacer.clock().now();
+        let res = self
             .lp
             .rig
-            .process_block(&self.live_cmd[..n], &mut got[..n])
-        {
+            .process_block(&self.live_cmd[..n], &mut got[..n]);
+        self.wait_s = self.pacer.clock().now().saturating_sub(t0).as_secs_f64();
+        match res {
             Ok(r) => {
                 self.missed =
                     r.lost_frames > 0 || r.skipped_samples > 0 || r.lag_s * self.fs > n as f64;
@@ -640,7 +645,9 @@ impl<C: Clock> EngineCore<C> {
         self.forward_swaps_and_faults();
         let timing = self.pacer.end_block();
         self.blocks += 1;
-        self.window_busy_s += timing.busy_s;
+        // Load counts computation only, not the wait for a live device.
+        self.window_busy_s += (timing.busy_s - self.wait_s).max(0.0);
+        self.wait_s = 0.0;
         self.window_worst_s = self.window_worst_s.max(timing.lateness_s);
         if self
             .blocks

@@ -108,12 +108,14 @@ impl RigPage {
                     }
                 });
                 ui.horizontal(|ui| {
-                    ui.label("Rig:");
-                    let edit = ui.add(
-                        egui::TextEdit::singleline(&mut self.rig_text)
-                            .hint_text("sim")
-                            .desired_width(360.0),
-                    );
+                    let label = ui.label("Rig:");
+                    let edit = ui
+                        .add(
+                            egui::TextEdit::singleline(&mut self.rig_text)
+                                .hint_text("sim")
+                                .desired_width(360.0),
+                        )
+                        .labelled_by(label.id);
                     let enter = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
                     let ok = self.spec().is_ok();
                     let label = if engine.is_some() {
