@@ -121,6 +121,8 @@ pub struct GatedRig<R: Rig> {
     /// The gate.
     pub gate: OutputGate,
     last: ActuatorFrame,
+    outputs: [ActuatorFrame; GATE_CHUNK],
+    n_outputs: usize,
 }
 
 impl<R: Rig> GatedRig<R> {
@@ -130,12 +132,20 @@ impl<R: Rig> GatedRig<R> {
             inner,
             gate,
             last: ActuatorFrame::default(),
+            outputs: [ActuatorFrame::default(); GATE_CHUNK],
+            n_outputs: 0,
         }
     }
 
     /// The last frame actually sent to the device.
     pub fn last_output(&self) -> ActuatorFrame {
         self.last
+    }
+
+    /// The frames actually sent by the last inner `process_block` call (the
+    /// last chunk of at most [`GATE_CHUNK`] frames), in order.
+    pub fn last_outputs(&self) -> &[ActuatorFrame] {
+        &self.outputs[..self.n_outputs]
     }
 }
 
@@ -150,6 +160,7 @@ impl<R: Rig> Rig for GatedRig<R> {
 
     fn stop(&mut self) -> Result<(), RigError> {
         self.last = ActuatorFrame::default();
+        self.n_outputs = 0;
         self.inner.stop()
     }
 
@@ -169,15 +180,15 @@ impl<R: Rig> Rig for GatedRig<R> {
             .chunks(GATE_CHUNK)
             .zip(sensors.chunks_mut(GATE_CHUNK))
         {
-            let mut buf = [ActuatorFrame::default(); GATE_CHUNK];
-            for (b, c) in buf.iter_mut().zip(cmds) {
+            for (b, c) in self.outputs.iter_mut().zip(cmds) {
                 *b = self.gate.apply(*c);
             }
             let n = cmds.len();
+            self.n_outputs = n;
             if n > 0 {
-                self.last = buf[n - 1];
+                self.last = self.outputs[n - 1];
             }
-            let r = self.inner.process_block(&buf[..n], sens)?;
+            let r = self.inner.process_block(&self.outputs[..n], sens)?;
             if first {
                 total.first_seq = r.first_seq;
                 first = false;

@@ -1,5 +1,6 @@
 //! The GUI side of the engine: commands in, telemetry and events out.
 
+use super::backend::EngineRig;
 use super::runner::{EngineCore, Shared};
 use super::splitter::{ChainSwap, SwapOutcome};
 use super::{
@@ -7,6 +8,7 @@ use super::{
     TelemetrySample,
 };
 use kilotouch_dsp::chain::ChainCoefficients;
+use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::{Clock, RigIdentity, SystemClock};
 use kilotouch_rig::tweezer::Obstacle;
 use kilotouch_rig::{RigConfig, SimTweezer, TweezerParams};
@@ -24,6 +26,17 @@ pub fn engine_pair<C: Clock>(
     opts: EngineOptions,
     clock: C,
 ) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
+    engine_pair_with_rig(cfg, EngineRig::sim(cfg)?, opts, clock)
+}
+
+/// [`engine_pair`] on a given rig (simulated or live, see
+/// [`EngineRig::open`]).
+pub fn engine_pair_with_rig<C: Clock>(
+    cfg: &RigConfig,
+    rig: EngineRig,
+    opts: EngineOptions,
+    clock: C,
+) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
     if opts.telemetry_capacity == 0 {
         return Err(EngineError::Option {
             name: "telemetry_capacity",
@@ -34,8 +47,10 @@ pub fn engine_pair<C: Clock>(
     let (tel_tx, tel_rx) = rtrb::RingBuffer::new(opts.telemetry_capacity);
     let (ev_tx, ev_rx) = rtrb::RingBuffer::new(QUEUE);
     let shared = Arc::new(Shared::default());
-    let core = EngineCore::new(cfg, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
+    let spec = rig.spec().clone();
+    let core = EngineCore::new(cfg, rig, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
     let identity = kilotouch_rig::Rig::identity(&core.closed_loop().rig).clone();
+    let config = core.config().clone();
     let handle = EngineHandle {
         commands: cmd_tx,
         telemetry: tel_rx,
@@ -44,7 +59,9 @@ pub fn engine_pair<C: Clock>(
         thread: None,
         health: None,
         identity,
-        config: cfg.clone(),
+        config,
+        spec,
+        last_error: None,
         condition: core.condition(),
         last_swap: None,
     };
@@ -63,6 +80,8 @@ pub struct EngineHandle {
     health: Option<Health>,
     identity: RigIdentity,
     config: RigConfig,
+    spec: RigSpec,
+    last_error: Option<String>,
     condition: Condition,
     last_swap: Option<SwapOutcome>,
 }
@@ -71,6 +90,25 @@ impl EngineHandle {
     /// Start the engine on its own thread, paced by the system clock.
     pub fn spawn(cfg: &RigConfig, opts: EngineOptions) -> Result<Self, EngineError> {
         Self::spawn_with_clock(cfg, opts, SystemClock::default())
+    }
+
+    /// Start the engine on the rig `spec` names (`sim`, `serial:PATH…`,
+    /// `audio[:DEVICE]`), paced by the system clock (the simulated rig) or
+    /// by the device (live rigs). Opening a serial rig handshakes first: this
+    /// call blocks up to the handshake timeout (2 s) when a device does not
+    /// answer.
+    pub fn spawn_spec(
+        cfg: &RigConfig,
+        spec: &RigSpec,
+        opts: EngineOptions,
+    ) -> Result<Self, EngineError> {
+        let rig = EngineRig::open(spec, cfg)?;
+        let (mut core, mut handle) = engine_pair_with_rig(cfg, rig, opts, SystemClock::default())?;
+        let t = std::thread::Builder::new()
+            .name("kilotouch-engine".into())
+            .spawn(move || while core.run_block() {})?;
+        handle.thread = Some(t);
+        Ok(handle)
     }
 
     /// Start the engine on its own thread with a given clock.
@@ -95,6 +133,34 @@ impl EngineHandle {
     /// The rig configuration the engine was built from.
     pub fn config(&self) -> &RigConfig {
         &self.config
+    }
+
+    /// The rig specification the engine was started with (after a
+    /// reconnect to another device: that one).
+    pub fn spec(&self) -> &RigSpec {
+        &self.spec
+    }
+
+    /// A live rig? (The hand is then the real handle: [`Self::set_hand`]
+    /// has no effect.)
+    pub fn is_live(&self) -> bool {
+        super::backend::is_live_kind(self.identity.kind)
+    }
+
+    /// The last rig error reported (cleared by a successful reconnect).
+    pub fn last_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    /// Reopen the rig after a disconnect and resume (`None`: the same
+    /// device; `Some(spec)`: that device instead). `false` if the queue was
+    /// full. The outcome arrives as [`EngineEvent::Reconnected`] or
+    /// [`EngineEvent::RigError`].
+    pub fn reconnect(&mut self, spec: Option<RigSpec>) -> bool {
+        if let Some(s) = &spec {
+            self.spec = s.clone();
+        }
+        self.send(Command::Reconnect(spec.map(Box::new))).is_ok()
     }
 
     /// Sample rate, Hz.
@@ -208,6 +274,15 @@ impl EngineHandle {
                 EngineEvent::ChainSwapped(o) => {
                     self.last_swap = Some(o);
                     out.push(e);
+                }
+                EngineEvent::RigError(err) => {
+                    self.last_error = Some(err.to_string());
+                    out.push(EngineEvent::RigError(err));
+                }
+                EngineEvent::Reconnected(id) => {
+                    self.identity = (*id).clone();
+                    self.last_error = None;
+                    out.push(EngineEvent::Reconnected(id));
                 }
                 other => out.push(other),
             }

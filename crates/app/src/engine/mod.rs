@@ -27,24 +27,57 @@
 //! Pacing is the engine's, with the rig in batch mode: [`ClosedLoop`]
 //! exchanges one sample per `process_block` call (so the force computed
 //! from sample n acts at n + 1), and a wall-clock-paced `SimRig` would sleep
-//! after every sample. A live rig that blocks in `process_block` fits the
-//! same loop: the engine's sleep then returns at once.
+//! after every sample.
+//!
+//! # Live rigs
+//!
+//! The rig is any [`backend::EngineRig`]: simulated (default), a serial DAQ
+//! (`serial:PATH`, or the emulator on a pty) or, with the `audio` feature,
+//! an audio interface, chosen with the `--rig` syntax
+//! ([`kilotouch_rig::live::RigSpec`]). A live rig differs in three ways:
+//!
+//! * **Block exchange.** One round trip per sample would cost a serial
+//!   link's latency 10 000 times a second; the engine exchanges one block of
+//!   `block_len` frames per call instead. The commands of block b are
+//!   computed sample by sample (coupling, tweezer, safety layer) from the
+//!   sensor frames of block b − 1, so the loop delay is `block_len` samples
+//!   (1 ms at the default 10 samples and 10 kHz) instead of one sample. The
+//!   delay is uniform across the block (no stair-stepped trap motion that
+//!   would put a 1 kHz component into the Haptuator drive).
+//! * **The device paces.** `process_block` blocks until the device has
+//!   played the block; the engine's [`pacing::Pacer`] never sleeps then but
+//!   still measures lateness and deadline misses.
+//! * **The hand is the real handle** (encoder positions); hand requests
+//!   from the GUI are ignored.
+//!
+//! When the device vanishes or stalls, the rig returns an error (a serial
+//! rig after its timeout, 100 ms by default, or at once on end of file):
+//! the safety layer trips, outputs go to zero (the rig sends STOP where the
+//! device still listens; the device's own watchdog zeroes them otherwise),
+//! the loop stops ([`SafetyState::Fault`]) and an
+//! [`EngineEvent::RigError`] reaches the GUI. [`Command::Reconnect`] reopens
+//! the device (or opens another, e.g. a restarted emulator on a new pty)
+//! on the engine thread and resumes; forces come back through the safety
+//! layer's arming and ramp.
 //!
 //! Study sessions later plug in as a [`BlockDriver`] (the default is free
 //! exploration: the hand follows the GUI's mouse).
 
+pub mod backend;
 pub mod gate;
 mod handle;
 pub mod pacing;
 mod runner;
 pub mod splitter;
 
-pub use handle::{EngineHandle, engine_pair};
+pub use backend::EngineRig;
+pub use handle::{EngineHandle, engine_pair, engine_pair_with_rig};
 pub use runner::EngineCore;
 
 use kilotouch_rig::coupling::CouplingCounters;
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::rig::{RigFault, RigStatus};
+use kilotouch_rig::live::RigSpec;
+use kilotouch_rig::rig::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::{ActuatorFrame, SimTweezer};
 use serde::{Deserialize, Serialize};
 use splitter::{ChainSwap, SwapOutcome};
@@ -250,6 +283,10 @@ pub enum Command {
     Start,
     /// Stop (actuators zero).
     Stop,
+    /// Reopen the rig after a disconnect and resume (`None`: the same
+    /// device; `Some`: open this one instead, same sample rate). Blocks the
+    /// engine thread for the handshake; the loop is stopped meanwhile.
+    Reconnect(Option<Box<RigSpec>>),
     /// Replace the block driver (returns the old one).
     SetDriver(Box<dyn BlockDriver>),
     /// End the engine thread.
@@ -278,6 +315,8 @@ pub enum EngineEvent {
     RigFault(RigFault),
     /// The rig returned an error; the loop stopped (outputs zero).
     RigError(RigError),
+    /// A reconnect succeeded; the loop runs again on this device.
+    Reconnected(Box<RigIdentity>),
     /// Something to drop on the GUI side.
     Garbage(Garbage),
 }

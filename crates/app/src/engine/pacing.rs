@@ -17,6 +17,11 @@
 //! re-anchors at the present (the simulated time then lags the wall clock by
 //! the stall) and counts an *overrun*.
 //!
+//! **Device-paced** ([`Pacer::set_device_paced`], live rigs): the rig
+//! blocks in `process_block` until the device has played the block, so the
+//! pacer never sleeps; deadlines, misses and stalls are measured as above
+//! (the device's clock and the host's run at the same nominal rate).
+//!
 //! **Load** = busy time / wall time over a health window, busy time being
 //! the time from the start of a block's computation to its end (sleep
 //! excluded).
@@ -45,6 +50,7 @@ pub struct Pacer<C: Clock> {
     tolerance_s: f64,
     max_lag_s: f64,
     paced: bool,
+    sleeps: bool,
     anchor: Duration,
     blocks: u64,
     block_start: Duration,
@@ -67,6 +73,7 @@ impl<C: Clock> Pacer<C> {
             tolerance_s,
             max_lag_s,
             paced,
+            sleeps: paced,
             anchor: now,
             blocks: 0,
             block_start: now,
@@ -89,6 +96,18 @@ impl<C: Clock> Pacer<C> {
     /// Tolerated latency, s.
     pub fn tolerance_s(&self) -> f64 {
         self.tolerance_s
+    }
+
+    /// Device-paced from now on (module docs): measure as a paced pacer
+    /// but never sleep.
+    pub fn set_device_paced(&mut self) {
+        self.paced = true;
+        self.sleeps = false;
+    }
+
+    /// Does the pacer sleep to the deadlines?
+    pub fn sleeps(&self) -> bool {
+        self.sleeps
     }
 
     /// Restart the schedule at the present (after a pause).
@@ -133,7 +152,7 @@ impl<C: Clock> Pacer<C> {
             self.blocks = 0;
         } else {
             self.blocks += 1;
-            if self.paced && lateness_s < 0.0 {
+            if self.sleeps && lateness_s < 0.0 {
                 self.clock.sleep_until(deadline);
             }
         }
@@ -196,6 +215,28 @@ mod tests {
         let t = p.end_block();
         assert!(!t.missed && t.lateness_s < 0.0);
         assert_eq!(clock.now(), t_re + Duration::from_millis(1));
+    }
+
+    #[test]
+    fn device_paced_measures_like_paced_but_never_sleeps() {
+        let clock = ManualClock::default();
+        let mut p = Pacer::new(clock.clone(), 1e-3, 2e-3, 50e-3, true);
+        p.set_device_paced();
+        assert!(!p.sleeps());
+        // Early block (the device returned before the deadline): no sleep.
+        p.begin_block();
+        clock.advance(Duration::from_micros(300));
+        let t = p.end_block();
+        assert!((t.lateness_s + 0.7e-3).abs() < 1e-9 && !t.missed, "{t:?}");
+        assert_eq!(clock.sleeps(), 0);
+        assert_eq!(clock.now(), Duration::from_micros(300));
+        // The device stalled 5 ms: deadline 2 ms, late by 3.3 ms > 2 ms → a miss.
+        p.begin_block();
+        clock.advance(Duration::from_millis(5));
+        let t = p.end_block();
+        assert!(t.missed && !t.overrun, "{t:?}");
+        assert!((p.worst_lateness_s - 3.3e-3).abs() < 1e-9);
+        assert_eq!((p.misses, clock.sleeps()), (1, 0));
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! The engine's loop body: one block per call (see the module docs of
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
-use super::gate::{GatedRig, OutputGate};
+use super::backend::EngineRig;
+use super::gate::{GATE_CHUNK, GatedRig, OutputGate};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
@@ -9,9 +10,16 @@ use super::{
     Garbage, Health, SafetyState, TelemetrySample, flags,
 };
 use kilotouch_dsp::chain::{Chain, ChainCoefficients};
+use kilotouch_rig::config::SafetyConfig;
 use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode, model_chain_design};
+use kilotouch_rig::error::RigError;
+use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::Clock;
-use kilotouch_rig::{Rig, RigConfig, SimRig, SimTweezer, Tweezer, TweezerParams};
+use kilotouch_rig::safety::{SafetyLayer, TripReason};
+use kilotouch_rig::tweezer::TweezerSample;
+use kilotouch_rig::{
+    ActuatorFrame, Rig, RigConfig, SensorFrame, SimTweezer, Tweezer, TweezerParams,
+};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -26,7 +34,7 @@ pub(crate) struct Shared {
 }
 
 /// The closed loop the engine runs.
-pub type EngineLoop = ClosedLoop<GatedRig<SimRig>, SimTweezer, SwappableChain>;
+pub type EngineLoop = ClosedLoop<GatedRig<EngineRig>, SimTweezer, SwappableChain>;
 
 /// Idle period while the rig is stopped, s.
 const IDLE_SLEEP_S: f64 = 5e-3;
@@ -64,12 +72,28 @@ pub struct EngineCore<C: Clock> {
     window_busy_s: f64,
     window_worst_s: f64,
     idle_ticks: u64,
+    /// Configuration the loop was built from (sample rate = the rig's).
+    cfg: RigConfig,
+    /// Live rig: block exchange (module docs of [`crate::engine`]).
+    live: bool,
+    /// Live: sensor frames of the previous block (the controller's input).
+    live_sens: [SensorFrame; GATE_CHUNK],
+    /// Live: commands of the block being sent.
+    live_cmd: [ActuatorFrame; GATE_CHUNK],
+    /// Live: tweezer samples computed for the block being sent.
+    live_tw: [TweezerSample; GATE_CHUNK],
+    /// Live: the previous exchange lost frames, skipped or ran late.
+    missed: bool,
+    /// Live: time spent waiting for the device in this block, s (not load).
+    wait_s: f64,
 }
 
 impl<C: Clock> EngineCore<C> {
     /// Build the loop for `cfg` (called by [`super::engine_pair`]).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         cfg: &RigConfig,
+        rig: EngineRig,
         opts: EngineOptions,
         clock: C,
         commands: rtrb::Consumer<Command>,
@@ -96,8 +120,12 @@ impl<C: Clock> EngineCore<C> {
                 });
             }
         }
+        // The loop runs at the rig's rate (a live device announces its own).
+        let mut cfg = cfg.clone();
+        cfg.rig.sample_rate_hz = rig.identity().sample_rate_hz;
+        let cfg = &cfg;
         let fs = cfg.rig.sample_rate_hz;
-        let rig = SimRig::new(cfg)?;
+        let live = rig.is_live();
         let ramp = (opts.ramp_s * fs).round().clamp(0.0, u32::MAX as f64) as u32;
         let gated = GatedRig::new(rig, OutputGate::new(ramp));
         let tweezer = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?;
@@ -118,7 +146,10 @@ impl<C: Clock> EngineCore<C> {
             1.0
         };
         let period = opts.block_len as f64 / fs;
-        let pacer = Pacer::new(clock, period, opts.tolerance_s, opts.max_lag_s, opts.paced);
+        let mut pacer = Pacer::new(clock, period, opts.tolerance_s, opts.max_lag_s, opts.paced);
+        if live {
+            pacer.set_device_paced();
+        }
         let window_start = pacer.clock().now();
         let mut core = Self {
             lp,
@@ -149,6 +180,13 @@ impl<C: Clock> EngineCore<C> {
             window_busy_s: 0.0,
             window_worst_s: f64::NEG_INFINITY,
             idle_ticks: 0,
+            cfg: cfg.clone(),
+            live,
+            live_sens: [SensorFrame::default(); GATE_CHUNK],
+            live_cmd: [ActuatorFrame::default(); GATE_CHUNK],
+            live_tw: [TweezerSample::default(); GATE_CHUNK],
+            missed: false,
+            wait_s: 0.0,
         };
         core.lp.rig.gate.set_enabled(condition != Condition::Vision);
         if !opts.start {
@@ -170,6 +208,16 @@ impl<C: Clock> EngineCore<C> {
     /// Exchanging frames?
     pub fn is_running(&self) -> bool {
         self.running
+    }
+
+    /// A live rig (block exchange, the hand is the real handle)?
+    pub fn is_live(&self) -> bool {
+        self.live
+    }
+
+    /// The configuration the loop runs (its sample rate is the rig's).
+    pub fn config(&self) -> &RigConfig {
+        &self.cfg
     }
 
     /// Rig sample rate, Hz.
@@ -291,12 +339,14 @@ impl<C: Clock> EngineCore<C> {
             }
             Command::ResetBead => self.lp.tweezer.reset(self.last_trap),
             Command::Start => {
-                if !self.running && self.lp.rig.start().is_ok() {
-                    self.running = true;
-                    self.faulted = false;
-                    self.pacer.reanchor();
+                if !self.running {
+                    match self.lp.rig.start() {
+                        Ok(()) => self.resume(),
+                        Err(e) => self.push_notice(EngineEvent::RigError(e)),
+                    }
                 }
             }
+            Command::Reconnect(spec) => self.reconnect(spec.as_deref()),
             Command::Stop => self.stop_rig(),
             Command::SetDriver(mut d) => {
                 std::mem::swap(&mut d, &mut self.driver);
@@ -306,9 +356,83 @@ impl<C: Clock> EngineCore<C> {
         }
     }
 
+    /// Back to running after `start` succeeded: a trip caused by the rig
+    /// error is cleared (the layer re-arms: forces return only once the
+    /// command is small, through the ramp), the gate ramps from zero.
+    fn resume(&mut self) {
+        if self.faulted {
+            self.lp.safety.reset();
+            let _ = self.lp.safety.arm();
+        }
+        self.lp.rig.gate.cut();
+        self.running = true;
+        self.faulted = false;
+        self.missed = false;
+        self.pacer.reanchor();
+    }
+
+    /// Reopen the device (or open `spec` instead) and resume. Runs on the
+    /// engine thread with the loop stopped: it may block for the device's
+    /// handshake and allocates (a new device, the safety layer for its
+    /// limits), which is acceptable outside the running loop.
+    fn reconnect(&mut self, spec: Option<&RigSpec>) {
+        self.stop_rig();
+        let cfg = self.cfg.clone();
+        if let Err(e) = self.lp.rig.inner.reconnect(spec, &cfg) {
+            self.faulted = true;
+            self.push_notice(EngineEvent::RigError(e));
+            return;
+        }
+        let id = self.lp.rig.identity().clone();
+        if id.sample_rate_hz != self.fs {
+            let _ = self.lp.rig.stop();
+            self.faulted = true;
+            self.push_notice(EngineEvent::RigError(RigError::InvalidInput(format!(
+                "the rig now runs at {} Hz, the engine at {} Hz: disconnect and connect instead",
+                id.sample_rate_hz, self.fs
+            ))));
+            return;
+        }
+        match SafetyLayer::for_rig(&id, &SafetyConfig::default()) {
+            Ok(mut layer) => {
+                if layer.arm_on_start() {
+                    let _ = layer.arm();
+                }
+                self.lp.safety = layer;
+            }
+            Err(e) => {
+                self.faulted = true;
+                self.push_notice(EngineEvent::RigError(e));
+                return;
+            }
+        }
+        match self.lp.rig.start() {
+            Ok(()) => {
+                self.faulted = true; // clears the rig-error trip in resume()
+                self.resume();
+                self.push_notice(EngineEvent::Reconnected(Box::new(id)));
+            }
+            Err(e) => {
+                self.faulted = true;
+                self.push_notice(EngineEvent::RigError(e));
+            }
+        }
+    }
+
+    /// The rig failed: outputs zero (the rig's own stop path commands zero
+    /// where the device still listens), loop stopped, error reported.
+    fn rig_failed(&mut self, e: RigError) {
+        if !self.lp.safety.state().latched() {
+            self.lp.safety.fault(TripReason::RigError);
+        }
+        self.stop_rig();
+        self.faulted = true;
+        self.push_notice(EngineEvent::RigError(e));
+    }
+
     fn health(&self, loop_rate_hz: f64, load: f64, worst: f64) -> Health {
         Health {
-            seq: self.lp.rig.inner.seq(),
+            seq: self.lp.rig.inner.next_seq(),
             loop_rate_hz,
             load,
             deadline_misses: self.pacer.misses,
@@ -362,6 +486,116 @@ impl<C: Clock> EngineCore<C> {
         }
     }
 
+    /// Telemetry of one sample: flags, the driver, the queue.
+    #[inline]
+    fn publish(
+        &mut self,
+        sensors: &SensorFrame,
+        s: &TweezerSample,
+        output: ActuatorFrame,
+        hand: [f64; 2],
+        estop_flag: u16,
+    ) {
+        self.last_trap = s.trap_m;
+        self.trapped = s.trapped;
+        let e = s.events;
+        let mut fl = estop_flag;
+        for (on, bit) in [
+            (s.in_contact, flags::IN_CONTACT),
+            (s.trapped, flags::TRAPPED),
+            (e.contact_start, flags::CONTACT_START),
+            (e.contact_end, flags::CONTACT_END),
+            (e.escaped, flags::ESCAPED),
+            (e.recaptured, flags::RECAPTURED),
+            (sensors.flags.0 != 0, flags::RIG_FLAG),
+        ] {
+            if on {
+                fl |= bit;
+            }
+        }
+        let t = TelemetrySample {
+            seq: sensors.seq,
+            hand_m: hand,
+            handle_m: sensors.handle_m,
+            handle_force_n: self.lp.coupling.handle_force(s),
+            output,
+            accel_m_s2: sensors.accel_m_s2,
+            trap_m: s.trap_m,
+            bead_m: s.bead_m,
+            bead_force_n: s.force_n,
+            gap_m: s.gap_m,
+            flags: fl,
+        };
+        self.driver.observe(&t);
+        if self.telemetry.push(t).is_err() {
+            self.telemetry_dropped += 1;
+        }
+        self.window_samples += 1;
+    }
+
+    /// Simulated rig: one exchange per sample ([`ClosedLoop::step`]: the
+    /// force computed from sample k acts at k + 1); the hand follows
+    /// `target` through the smoothing filter.
+    fn run_sim(&mut self, n: usize, target: [f64; 2], estop_flag: u16) {
+        for _ in 0..n {
+            self.hand[0] += self.hand_alpha * (target[0] - self.hand[0]);
+            self.hand[1] += self.hand_alpha * (target[1] - self.hand[1]);
+            self.lp.rig.inner.set_hand(self.hand);
+            match self.lp.step() {
+                Ok((_, s)) => {
+                    let sensors = *self.lp.sensors();
+                    let out = self.lp.rig.last_output();
+                    self.publish(&sensors, &s, out, self.hand, estop_flag);
+                }
+                Err(e) => {
+                    self.rig_failed(e);
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Live rig: one exchange per block (module docs of [`crate::engine`]).
+    /// The commands of block b are computed, sample by sample, from the
+    /// sensor frames of block b − 1 (coupling, tweezer and safety layer
+    /// step once per sample as in [`ClosedLoop::step`]), so the loop delay
+    /// is `block_len` samples instead of 1. The hand is the real handle.
+    fn run_live(&mut self, n: usize, estop_flag: u16) {
+        let n = n.min(GATE_CHUNK);
+        for i in 0..n {
+            let sens = self.live_sens[i];
+            let (cmd, s) = self.lp.coupling.step(&sens, &mut self.lp.tweezer);
+            let missed = self.missed && i == 0;
+            self.live_cmd[i] = self.lp.safety.apply(cmd, &sens, missed);
+            self.live_tw[i] = s;
+        }
+        let mut got = [SensorFrame::default(); GATE_CHUNK];
+        let t0 = self.pacer.clock().now();
+        let res = self
+            .lp
+            .rig
+            .process_block(&self.live_cmd[..n], &mut got[..n]);
+        self.wait_s = self.pacer.clock().now().saturating_sub(t0).as_secs_f64();
+        match res {
+            Ok(r) => {
+                self.missed =
+                    r.lost_frames > 0 || r.skipped_samples > 0 || r.lag_s * self.fs > n as f64;
+                let mut outs = [ActuatorFrame::default(); GATE_CHUNK];
+                let sent = self.lp.rig.last_outputs();
+                outs[..sent.len()].copy_from_slice(sent);
+                for i in 0..n {
+                    let s = self.live_tw[i];
+                    self.publish(&got[i], &s, outs[i], got[i].handle_m, estop_flag);
+                }
+                self.live_sens[..n].copy_from_slice(&got[..n]);
+                if let Some(last) = got[..n].last() {
+                    self.hand = last.handle_m;
+                }
+            }
+            Err(e) => self.rig_failed(e),
+        }
+    }
+
     /// Run one block: commands, emergency stop, `block_len` samples,
     /// telemetry, pacing. Returns `false` once shut down.
     pub fn run_block(&mut self) -> bool {
@@ -390,7 +624,7 @@ impl<C: Clock> EngineCore<C> {
             return !self.stopped;
         }
         self.pacer.begin_block();
-        let first_seq = self.lp.rig.inner.seq();
+        let first_seq = self.lp.rig.inner.next_seq();
         let target = self.driver.hand_target(self.gui_hand, first_seq);
         let target = if target.iter().all(|v| v.is_finite()) {
             target
@@ -403,61 +637,17 @@ impl<C: Clock> EngineCore<C> {
         } else {
             0
         };
-        for _ in 0..n {
-            self.hand[0] += self.hand_alpha * (target[0] - self.hand[0]);
-            self.hand[1] += self.hand_alpha * (target[1] - self.hand[1]);
-            self.lp.rig.inner.set_hand(self.hand);
-            match self.lp.step() {
-                Ok((_, s)) => {
-                    self.last_trap = s.trap_m;
-                    self.trapped = s.trapped;
-                    let sensors = *self.lp.sensors();
-                    let e = s.events;
-                    let mut fl = estop_flag;
-                    for (on, bit) in [
-                        (s.in_contact, flags::IN_CONTACT),
-                        (s.trapped, flags::TRAPPED),
-                        (e.contact_start, flags::CONTACT_START),
-                        (e.contact_end, flags::CONTACT_END),
-                        (e.escaped, flags::ESCAPED),
-                        (e.recaptured, flags::RECAPTURED),
-                        (sensors.flags.0 != 0, flags::RIG_FLAG),
-                    ] {
-                        if on {
-                            fl |= bit;
-                        }
-                    }
-                    let t = TelemetrySample {
-                        seq: sensors.seq,
-                        hand_m: self.hand,
-                        handle_m: sensors.handle_m,
-                        handle_force_n: self.lp.coupling.handle_force(&s),
-                        output: self.lp.rig.last_output(),
-                        accel_m_s2: sensors.accel_m_s2,
-                        trap_m: s.trap_m,
-                        bead_m: s.bead_m,
-                        bead_force_n: s.force_n,
-                        gap_m: s.gap_m,
-                        flags: fl,
-                    };
-                    self.driver.observe(&t);
-                    if self.telemetry.push(t).is_err() {
-                        self.telemetry_dropped += 1;
-                    }
-                    self.window_samples += 1;
-                }
-                Err(e) => {
-                    self.stop_rig();
-                    self.faulted = true;
-                    self.push_notice(EngineEvent::RigError(e));
-                    break;
-                }
-            }
+        if self.live {
+            self.run_live(n, estop_flag);
+        } else {
+            self.run_sim(n, target, estop_flag);
         }
         self.forward_swaps_and_faults();
         let timing = self.pacer.end_block();
         self.blocks += 1;
-        self.window_busy_s += timing.busy_s;
+        // Load counts computation only, not the wait for a live device.
+        self.window_busy_s += (timing.busy_s - self.wait_s).max(0.0);
+        self.wait_s = 0.0;
         self.window_worst_s = self.window_worst_s.max(timing.lateness_s);
         if self
             .blocks

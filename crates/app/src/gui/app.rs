@@ -216,7 +216,11 @@ impl KilotouchApp {
     /// Start the engine on the current rig configuration.
     pub fn connect(&mut self) {
         self.engine = None;
-        match EngineHandle::spawn(&self.rig_config, self.engine_opts) {
+        let spawned = match self.rig_page.spec() {
+            Ok(spec) => EngineHandle::spawn_spec(&self.rig_config, &spec, self.engine_opts),
+            Err(e) => Err(e.into()),
+        };
+        match spawned {
             Ok(mut h) => {
                 h.set_condition(self.settings.condition);
                 self.explore.reset(&self.rig_config);
@@ -282,6 +286,12 @@ impl KilotouchApp {
                 }
             }
             RigAction::Connect => self.connect(),
+            RigAction::Reconnect => {
+                if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {
+                    let other = (spec != *e.spec()).then_some(spec);
+                    e.reconnect(other);
+                }
+            }
             RigAction::Disconnect => {
                 if let Some(e) = self.engine.take() {
                     e.shutdown();
@@ -348,6 +358,9 @@ impl KilotouchApp {
                     msgs.push((format!("calibration applied to the engine ({o:?})"), false))
                 }
                 EngineEvent::RigError(err) => msgs.push((format!("rig stopped: {err}"), true)),
+                EngineEvent::Reconnected(id) => {
+                    msgs.push((format!("rig reconnected: {}", id.name), false))
+                }
                 EngineEvent::RigFault(f) => msgs.push((format!("rig: {f:?}"), false)),
                 EngineEvent::Health(_) | EngineEvent::Garbage(_) => {}
             }

@@ -1,9 +1,15 @@
-//! Rig page: which rig, which rig file, connect/disconnect, identity,
-//! status and counters.
+//! Rig page: which rig (simulated, serial DAQ, audio interface — the
+//! `--rig` syntax of [`RigSpec`]), which rig file, connect/disconnect,
+//! reconnect after a device fault, identity, status and counters.
 
 use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
 use egui::{Color32, RichText};
+use kilotouch_rig::live::RigSpec;
+
+/// Hint shown under the rig field.
+pub const RIG_HINT: &str = "sim  ·  serial:/dev/ttyACM0[,baud=N][,timeout-ms=N]  ·  audio[:DEVICE]  \
+     (a device emulator: `kilotouch emulate daq --pty` prints its port)";
 
 /// What the user asked the shell to do.
 #[derive(Debug, Clone, PartialEq)]
@@ -12,8 +18,12 @@ pub enum RigAction {
     LoadConfig(String),
     /// Go back to the built-in default rig.
     UseDefault,
-    /// Start the engine (simulated rig).
+    /// Start the engine on the rig of the rig field ([`RigPage::spec`]);
+    /// restarts it when one runs.
     Connect,
+    /// Reopen the device after a fault and resume, without restarting the
+    /// engine (the rig field's device when it names another port).
+    Reconnect,
     /// Stop the engine thread.
     Disconnect,
     /// Resume exchanging frames.
@@ -22,18 +32,11 @@ pub enum RigAction {
     Stop,
 }
 
-/// Kind of rig offered.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Simulated,
-    SerialDaq,
-    Audio,
-}
-
 /// The Rig page.
 #[derive(Debug)]
 pub struct RigPage {
-    kind: Kind,
+    /// Text of the rig field (`sim`, `serial:PATH…`, `audio[:DEVICE]`).
+    pub rig_text: String,
     /// Text of the rig-file field.
     pub path_text: String,
 }
@@ -48,9 +51,24 @@ impl RigPage {
     /// New page.
     pub fn new() -> Self {
         Self {
-            kind: Kind::Simulated,
+            rig_text: "sim".to_owned(),
             path_text: String::new(),
         }
+    }
+
+    /// The rig the rig field names (empty = `sim`).
+    pub fn spec(&self) -> Result<RigSpec, kilotouch_rig::RigError> {
+        let t = self.rig_text.trim();
+        if t.is_empty() {
+            Ok(RigSpec::Sim)
+        } else {
+            t.parse()
+        }
+    }
+
+    /// Is an audio-interface rig available in this build?
+    pub fn audio_built() -> bool {
+        cfg!(feature = "audio")
     }
 
     /// Draw the page; returns the actions requested.
@@ -64,16 +82,75 @@ impl RigPage {
         let mut actions = Vec::new();
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading("Rig");
-            ui.horizontal(|ui| {
-                ui.selectable_value(&mut self.kind, Kind::Simulated, "Simulated rig");
-                for (k, name) in [
-                    (Kind::SerialDaq, "Serial DAQ"),
-                    (Kind::Audio, "Audio interface"),
-                ] {
-                    ui.add_enabled(false, egui::Button::selectable(self.kind == k, name))
-                        .on_disabled_hover_text("not in this build");
+            let spec = self.spec();
+            ui.group(|ui| {
+                ui.label(RichText::new("Device").strong());
+                ui.horizontal(|ui| {
+                    for (label, text) in [
+                        ("Simulated", "sim"),
+                        ("Serial DAQ", "serial:/dev/ttyACM0"),
+                        ("Audio interface", "audio"),
+                    ] {
+                        let on = matches!(
+                            (&spec, text),
+                            (Ok(RigSpec::Sim), "sim")
+                                | (Ok(RigSpec::Serial(_)), "serial:/dev/ttyACM0")
+                                | (Ok(RigSpec::Audio(_)), "audio")
+                        );
+                        let enabled = text != "audio" || Self::audio_built();
+                        let b = ui.add_enabled(enabled, egui::Button::selectable(on, label));
+                        let b = b.on_disabled_hover_text(
+                            "not in this build (cargo feature `audio`, needs libasound2-dev)",
+                        );
+                        if b.clicked() && !on {
+                            self.rig_text = text.to_owned();
+                        }
+                    }
+                });
+                ui.horizontal(|ui| {
+                    let label = ui.label("Rig:");
+                    let edit = ui
+                        .add(
+                            egui::TextEdit::singleline(&mut self.rig_text)
+                                .hint_text("sim")
+                                .desired_width(360.0),
+                        )
+                        .labelled_by(label.id);
+                    let enter = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
+                    let ok = self.spec().is_ok();
+                    let label = if engine.is_some() {
+                        "Connect (restart)"
+                    } else {
+                        "Connect"
+                    };
+                    if ui
+                        .add_enabled(
+                            ok,
+                            egui::Button::new(RichText::new(label).strong())
+                                .min_size(egui::vec2(110.0, 24.0)),
+                        )
+                        .clicked()
+                        || (enter && ok)
+                    {
+                        actions.push(RigAction::Connect);
+                    }
+                });
+                ui.weak(RIG_HINT);
+                match self.spec() {
+                    Err(e) => {
+                        ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_string());
+                    }
+                    Ok(RigSpec::Sim) => {
+                        ui.weak("Simulated rig: the hand follows the mouse on the Explore page.");
+                    }
+                    Ok(_) => {
+                        ui.label(
+                            "Live rig: the hand is the real handle (encoders); mouse input on the \
+                             Explore page is ignored. The engine exchanges blocks of frames with \
+                             the device (loop delay one block, 1 ms by default).",
+                        );
+                    }
                 }
-                ui.weak("(live rigs: not in this build)");
             });
             ui.add_space(6.0);
             ui.group(|ui| {
@@ -108,15 +185,6 @@ impl RigPage {
             ui.add_space(6.0);
             ui.horizontal(|ui| match engine {
                 None => {
-                    if ui
-                        .add(
-                            egui::Button::new(RichText::new("Connect").strong())
-                                .min_size(egui::vec2(110.0, 28.0)),
-                        )
-                        .clicked()
-                    {
-                        actions.push(RigAction::Connect);
-                    }
                     ui.label("Disconnected.");
                 }
                 Some(h) => {
@@ -127,7 +195,23 @@ impl RigPage {
                         actions.push(RigAction::Disconnect);
                     }
                     let running = h.health().is_none_or(|x| x.running);
-                    if running {
+                    let faulted = h.last_error().is_some()
+                        || h.health().is_some_and(|x| x.safety == SafetyState::Fault);
+                    if faulted {
+                        if ui
+                            .add(
+                                egui::Button::new(RichText::new("Reconnect").strong())
+                                    .min_size(egui::vec2(110.0, 28.0)),
+                            )
+                            .on_hover_text(
+                                "reopen the device and resume (outputs ramp on again through \
+                                 the safety layer)",
+                            )
+                            .clicked()
+                        {
+                            actions.push(RigAction::Reconnect);
+                        }
+                    } else if running {
                         if ui.button("Pause").clicked() {
                             actions.push(RigAction::Stop);
                         }
@@ -140,6 +224,20 @@ impl RigPage {
             let Some(h) = engine else {
                 return;
             };
+            if let Some(e) = h.last_error() {
+                ui.group(|ui| {
+                    ui.colored_label(
+                        Color32::from_rgb(235, 80, 70),
+                        RichText::new(format!("Rig error: {e}")).strong(),
+                    );
+                    ui.label(
+                        "Outputs were commanded to zero and the loop stopped. Check the cable \
+                         or the device, then press Reconnect (or edit the rig field and \
+                         Connect).",
+                    );
+                });
+                ui.add_space(6.0);
+            }
             ui.columns(2, |cols| {
                 cols[0].group(|ui| {
                     ui.label(RichText::new("Identity").strong());
@@ -150,6 +248,7 @@ impl RigPage {
                             let rows = [
                                 ("name", id.name.clone()),
                                 ("kind", format!("{:?}", id.kind)),
+                                ("rig", h.spec().describe()),
                                 ("serial", id.serial.clone()),
                                 ("firmware", id.firmware.clone()),
                                 ("sample rate", format!("{:.0} Hz", id.sample_rate_hz)),

@@ -1,0 +1,159 @@
+//! The Rig page on a live rig, through the UI (egui_kittest, no GPU): type a
+//! serial rig into the rig field, connect to the device emulator on its pty,
+//! see the live-rig note and the device's identity; kill the emulator and
+//! see the error, the FAULT state and the Reconnect button; reconnect to a
+//! restarted emulator without restarting the app.
+
+#![allow(clippy::unwrap_used)]
+
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use kilotouch::engine::SafetyState;
+use kilotouch::gui::{AppOptions, KilotouchApp, Page};
+use kilotouch_rig::rig::RigKind;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Emulator {
+    child: Child,
+    path: String,
+}
+
+impl Emulator {
+    fn start() -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
+            .args(["emulate", "daq", "--pty"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut path = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut path)
+            .unwrap();
+        Self {
+            child,
+            path: path.trim().to_owned(),
+        }
+    }
+
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+fn harness() -> Harness<'static, KilotouchApp> {
+    let app = KilotouchApp::new(
+        AppOptions {
+            fresh_settings: true,
+            page: Some(Page::Rig),
+            ..Default::default()
+        },
+        None,
+        None,
+    );
+    Harness::builder()
+        .with_size(egui::vec2(1200.0, 900.0))
+        .with_max_steps(16)
+        .build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app)
+}
+
+fn step_until(
+    h: &mut Harness<'_, KilotouchApp>,
+    secs: f64,
+    mut done: impl FnMut(&KilotouchApp) -> bool,
+) -> bool {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        h.step();
+        if done(h.state()) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    false
+}
+
+/// Replace the rig field's text.
+fn type_rig(h: &mut Harness<'_, KilotouchApp>, text: &str) {
+    let field = h.get_by_label("Rig:");
+    field.focus();
+    h.step();
+    h.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    h.step();
+    h.get_by_label("Rig:").type_text(text);
+    h.step();
+}
+
+fn live_running(a: &KilotouchApp) -> bool {
+    a.engine.as_ref().is_some_and(|e| {
+        e.identity().kind == RigKind::SerialDaq
+            && e.health()
+                .is_some_and(|x| x.running && x.loop_rate_hz > 5000.0)
+    })
+}
+
+#[test]
+fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
+    let mut h = harness();
+    assert!(step_until(&mut h, 5.0, |a| a
+        .engine
+        .as_ref()
+        .is_some_and(|e| e.health().is_some())));
+    assert_eq!(
+        h.state().engine.as_ref().unwrap().identity().kind,
+        RigKind::Simulated
+    );
+    // A malformed rig is refused in place (Connect disabled, message shown).
+    type_rig(&mut h, "serial:");
+    h.get_by_label_contains("missing port path");
+
+    let mut emu = Emulator::start();
+    type_rig(&mut h, &format!("serial:{}", emu.path));
+    h.get_by_label_contains("the hand is the real handle");
+    h.get_by_label("Connect (restart)").click();
+    assert!(
+        step_until(&mut h, 5.0, live_running),
+        "the serial rig did not come up"
+    );
+    assert!(step_until(&mut h, 3.0, |a| a
+        .engine
+        .as_ref()
+        .and_then(|e| e.health())
+        .is_some_and(|x| x.safety == SafetyState::Armed)));
+    h.get_by_label_contains(&format!("serial:{}", emu.path));
+    h.get_by_label("Identity");
+
+    // The device vanishes: error on the page, FAULT in the status bar, the
+    // app keeps running, Reconnect offered.
+    emu.kill();
+    assert!(step_until(&mut h, 3.0, |a| a
+        .engine
+        .as_ref()
+        .and_then(|e| e.health())
+        .is_some_and(|x| x.safety == SafetyState::Fault && !x.running)));
+    h.step();
+    h.get_by_label_contains("Rig error:");
+    h.get_by_label("FAULT");
+    assert!(h.state().engine.as_ref().unwrap().is_alive());
+
+    // A restarted emulator (new pty): type its port, Reconnect.
+    let emu2 = Emulator::start();
+    type_rig(&mut h, &format!("serial:{}", emu2.path));
+    h.get_by_label("Reconnect").click();
+    assert!(
+        step_until(&mut h, 6.0, |a| live_running(a)
+            && a.engine.as_ref().unwrap().last_error().is_none()),
+        "no reconnect"
+    );
+    h.step();
+    assert!(h.query_by_label_contains("Rig error:").is_none());
+}
