@@ -160,26 +160,43 @@ fn dragging_in_the_scene_moves_the_trap() {
     // Wait for the camera's first frame so that the scene is laid out.
     assert!(step_until(&mut h, 5.0, |a| a.explore.view.is_some()
         && a.explore.camera.visible().is_some()));
-    let view = h.state().explore.view.unwrap();
     let start = h.state().explore.last.unwrap().trap_m;
-    // Drag from the centre to a point 6 µm right, 4 µm up.
+    // Drag from the centre to a point 6 µm right, 4 µm up. Screen positions
+    // are recomputed from the scene's current view at every frame: under
+    // load the layout can still change while the drag is in progress.
     let target = [6e-6, 4e-6];
-    let p0 = view.to_screen([0.0, 0.0]);
-    let p1 = view.to_screen(target);
+    let at = |h: &Harness<'_, KilotouchApp>, frac: f32| {
+        let view = h.state().explore.view.unwrap();
+        let p0 = view.to_screen([0.0, 0.0]);
+        let p1 = view.to_screen(target);
+        p0 + (p1 - p0) * frac
+    };
+    let p0 = at(&h, 0.0);
     h.hover_at(p0);
     h.step();
     h.drag_at(p0);
     h.step();
     for k in 1..=10 {
-        h.hover_at(p0 + (p1 - p0) * (k as f32 / 10.0));
+        let p = at(&h, k as f32 / 10.0);
+        h.hover_at(p);
         h.step();
     }
     // Hold the button down at the target while the rig moves.
-    let ok = step_until(&mut h, 5.0, |a| {
-        a.explore.last.is_some_and(|s| {
+    let t0 = Instant::now();
+    let mut ok = false;
+    while t0.elapsed().as_secs_f64() < 10.0 {
+        let p = at(&h, 1.0);
+        h.hover_at(p);
+        h.step();
+        if h.state().explore.last.is_some_and(|s| {
             ((s.trap_m[0] - target[0]).powi(2) + (s.trap_m[1] - target[1]).powi(2)).sqrt() < 0.5e-6
-        })
-    });
+        }) {
+            ok = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let p1 = at(&h, 1.0);
     h.drop_at(p1);
     h.step();
     let end = h.state().explore.last.unwrap().trap_m;
