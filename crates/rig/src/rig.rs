@@ -293,6 +293,23 @@ impl FaultQueue {
     }
 }
 
+/// The block-length contract of [`Rig::process_block`], shared by every
+/// implementation: one sensor frame per command.
+pub fn check_block_lengths(
+    commands: &[ActuatorFrame],
+    sensors: &[SensorFrame],
+) -> Result<(), RigError> {
+    if commands.len() == sensors.len() {
+        Ok(())
+    } else {
+        Err(RigError::InvalidInput(format!(
+            "{} commands but {} sensor frames",
+            commands.len(),
+            sensors.len()
+        )))
+    }
+}
+
 /// A haptic rig, simulated or live (module docs).
 pub trait Rig: Send {
     /// Identity.
@@ -670,13 +687,7 @@ impl<C: Clock> Rig for SimRig<C> {
                 "call start() before process_block()".into(),
             ));
         }
-        if commands.len() != sensors.len() {
-            return Err(RigError::InvalidInput(format!(
-                "{} commands but {} sensor frames",
-                commands.len(),
-                sensors.len()
-            )));
-        }
+        check_block_lengths(commands, sensors)?;
         let n = commands.len();
         let mut report = BlockReport {
             first_seq: self.seq,

@@ -6,7 +6,7 @@ use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::rig::{
     ActuatorFrame, BlockReport, FaultQueue, FrameFlags, Rig, RigFault, RigIdentity, RigKind,
-    RigState, RigStatus, SensorFrame,
+    RigState, RigStatus, SensorFrame, check_block_lengths,
 };
 use crate::safety::{HardLimits, hard_limit};
 use cpal::traits::{DeviceTrait, StreamTrait};
@@ -544,13 +544,7 @@ impl Rig for AudioRig {
                 "call start() before process_block()".into(),
             ));
         }
-        if commands.len() != sensors.len() {
-            return Err(RigError::InvalidInput(format!(
-                "{} commands but {} sensor frames",
-                commands.len(),
-                sensors.len()
-            )));
-        }
+        check_block_lengths(commands, sensors)?;
         if self.shared.failed.load(Ordering::Acquire) {
             return Err(self.fail("the audio host reported a stream error"));
         }

@@ -25,7 +25,7 @@ use super::frame::{
 use crate::error::RigError;
 use crate::rig::{
     ActuatorFrame, BlockReport, FaultQueue, FrameFlags, Rig, RigFault, RigIdentity, RigKind,
-    RigState, RigStatus, SensorFrame,
+    RigState, RigStatus, SensorFrame, check_block_lengths,
 };
 use serialport::{ClearBuffer, SerialPort};
 use std::io::{ErrorKind, Read, Write};
@@ -812,13 +812,7 @@ impl Rig for SerialRig {
                 ));
             }
         }
-        if commands.len() != sensors.len() {
-            return Err(RigError::InvalidInput(format!(
-                "{} commands but {} sensor frames",
-                commands.len(),
-                sensors.len()
-            )));
-        }
+        check_block_lengths(commands, sensors)?;
         let n = commands.len();
         let mut report = BlockReport {
             first_seq: self.next_seq,
