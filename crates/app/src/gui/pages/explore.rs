@@ -67,6 +67,40 @@ pub struct ExplorePage {
     contacts: u64,
     message: Option<String>,
     fs: f64,
+    /// Optional sound (`audio` feature): the Haptuator drive played on an
+    /// output device, so a user without a Haptuator hears the high channel.
+    #[cfg(feature = "audio")]
+    sound: Sound,
+}
+
+/// The high channel on the default audio output (`audio` feature).
+#[cfg(feature = "audio")]
+#[derive(Debug, Default)]
+struct Sound {
+    monitor: Option<kilotouch_rig::audio::AudioMonitor>,
+    /// Haptuator drive samples (V) collected during one `ingest`, pushed to
+    /// the monitor's lock-free ring in one call.
+    buf: Vec<f64>,
+    error: Option<String>,
+}
+
+#[cfg(feature = "audio")]
+impl Sound {
+    /// Full scale of the played signal: ±2 V of Haptuator drive.
+    const FULL_SCALE_V: f64 = 2.0;
+
+    fn set(&mut self, on: bool, fs: f64) {
+        self.error = None;
+        self.monitor = None;
+        if on {
+            let mut cfg = kilotouch_rig::audio::MonitorConfig::new(None, fs);
+            cfg.gain = 1.0 / Self::FULL_SCALE_V;
+            match kilotouch_rig::audio::AudioMonitor::open(&cfg) {
+                Ok(m) => self.monitor = Some(m),
+                Err(e) => self.error = Some(format!("cannot open the audio output: {e}")),
+            }
+        }
+    }
 }
 
 impl ExplorePage {
@@ -93,6 +127,8 @@ impl ExplorePage {
             contacts: 0,
             message: None,
             fs,
+            #[cfg(feature = "audio")]
+            sound: Sound::default(),
         }
     }
 
@@ -116,8 +152,14 @@ impl ExplorePage {
         let camera = &mut self.camera;
         let last = &mut self.last;
         let (esc, con) = (&mut self.escapes, &mut self.contacts);
-        engine.drain_telemetry(|s| {
+        #[cfg(feature = "audio")]
+        let (playing, sound_buf) = (self.sound.monitor.is_some(), &mut self.sound.buf);
+        let n = engine.drain_telemetry(|s| {
             traces.push(s);
+            #[cfg(feature = "audio")]
+            if playing {
+                sound_buf.push(s.output.haptuator_v);
+            }
             camera.observe(Snapshot {
                 t_s: s.seq as f64 / fs,
                 bead_m: s.bead_m,
@@ -132,7 +174,15 @@ impl ExplorePage {
                 *con += 1;
             }
             *last = Some(*s);
-        })
+        });
+        #[cfg(feature = "audio")]
+        if let Some(m) = &mut self.sound.monitor {
+            // Never blocks: what does not fit in the ring is dropped (and
+            // counted by the monitor).
+            m.push(&self.sound.buf);
+            self.sound.buf.clear();
+        }
+        n
     }
 
     /// Hand position (m) that puts the trap at `trap_m` (inverse coupling).
@@ -291,6 +341,23 @@ impl ExplorePage {
                 "contacts {} · escapes {}",
                 self.contacts, self.escapes
             ));
+            #[cfg(feature = "audio")]
+            {
+                ui.separator();
+                let mut on = self.sound.monitor.is_some();
+                if ui
+                    .checkbox(&mut on, "hear the high channel")
+                    .on_hover_text(
+                        "play the Haptuator drive (±2 V = full scale) on the default audio output",
+                    )
+                    .changed()
+                {
+                    self.sound.set(on, self.fs);
+                }
+                if let Some(e) = &self.sound.error {
+                    ui.colored_label(Color32::from_rgb(230, 150, 40), e);
+                }
+            }
         });
         if let Some(m) = &self.message {
             let mut clear = false;
