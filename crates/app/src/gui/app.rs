@@ -9,6 +9,7 @@
 
 use super::env::{PageEnv, ShellRequest};
 use super::pages::study::EngineTransition;
+use super::pages::study::ProtocolSource;
 use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
 use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
@@ -176,6 +177,20 @@ impl KilotouchApp {
             .as_ref()
             .map(|p| p.display().to_string())
             .unwrap_or_default();
+        if let Some(r) = &settings.rig_spec {
+            rig_page.rig_text = r.clone();
+        }
+        let mut study = StudyPage::with_gpu(gpu);
+        match settings.protocol_source.as_deref() {
+            Some("blind") => study.source = ProtocolSource::Blind,
+            Some("file") => {
+                study.source = ProtocolSource::File;
+                if let Some(f) = &settings.protocol_file {
+                    study.protocol_file = f.display().to_string();
+                }
+            }
+            _ => {}
+        }
         let mut app = Self {
             page: settings.page,
             settings,
@@ -187,7 +202,7 @@ impl KilotouchApp {
             rig_page,
             calibration: CalibrationPage::new(),
             explore,
-            study: StudyPage::with_gpu(gpu),
+            study,
             results: ResultsPage::new(),
             requests: Vec::new(),
             notices,
@@ -637,6 +652,18 @@ impl eframe::App for KilotouchApp {
 
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
         if !self.fresh {
+            let rig = self.rig_page.rig_text.trim();
+            self.settings.rig_spec = (!rig.is_empty()).then(|| rig.to_owned());
+            self.settings.protocol_source = Some(
+                match self.study.source {
+                    ProtocolSource::Paper => "paper",
+                    ProtocolSource::Blind => "blind",
+                    ProtocolSource::File => "file",
+                }
+                .to_owned(),
+            );
+            let file = self.study.protocol_file.trim();
+            self.settings.protocol_file = (!file.is_empty()).then(|| PathBuf::from(file));
             self.settings.save(storage);
         }
     }

@@ -56,7 +56,12 @@ pub struct Settings {
     pub page: Page,
     /// Rig file last loaded (`None` = built-in default).
     pub rig_file: Option<PathBuf>,
-    /// Study protocol last used.
+    /// Rig last connected, in `--rig` syntax (`sim`, `serial:PATH[,…]`,
+    /// `audio[:DEVICE]`); `None` = the simulated rig.
+    pub rig_spec: Option<String>,
+    /// Study protocol last used: `paper` / `blind` (built-in) or `file`.
+    pub protocol_source: Option<String>,
+    /// Study protocol file last used (with `protocol_source = "file"`).
     pub protocol_file: Option<PathBuf>,
     /// Study output folder last used.
     pub output_dir: Option<PathBuf>,
@@ -73,6 +78,8 @@ impl Default for Settings {
         Self {
             page: Page::Explore,
             rig_file: None,
+            rig_spec: None,
+            protocol_source: None,
             protocol_file: None,
             output_dir: None,
             camera: CameraModel::default(),
@@ -122,6 +129,9 @@ mod tests {
         let s = Settings {
             page: Page::Results,
             rig_file: Some("/tmp/rig.toml".into()),
+            rig_spec: Some("serial:/dev/ttyACM0".into()),
+            protocol_source: Some("file".into()),
+            protocol_file: Some("/tmp/p.toml".into()),
             output_dir: Some("/tmp/out".into()),
             condition: Condition::Vision,
             ..Default::default()
