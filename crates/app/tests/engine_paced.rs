@@ -1,38 +1,36 @@
 //! The engine keeps its rate while the GUI side is busy: 60 s paced by the
-//! wall clock on the simulated rig, with another thread hammering the
+//! wall clock on the simulated rig, with the test thread hammering the
 //! command queue (hand moves every ~50 µs, condition switches, obstacle
-//! swaps, chain swaps) and draining telemetry and events as fast as it can.
+//! swaps, chain swaps) and draining telemetry and events as fast as it can,
+//! beside an idle reference thread on the same schedule
+//! ([`kilotouch::engine::soak`]; `kilotouch bench --paced 60` runs the same).
 //!
 //! In its own test binary so that it runs alone (cargo runs test binaries
 //! one after another). Duration: `KILOTOUCH_PACED_TEST_S` (default 60):
 //! this test adds that much wall time (mostly sleeping) to `cargo test`.
 //!
-//! What is asserted, and why this is the honest variant:
+//! Asserted:
 //! * every sample of the run is simulated at the rig rate (loop rate 10 kHz,
 //!   simulated time = wall time within 0.5 %), the engine never fell more
 //!   than the re-anchor lag (100 ms) behind — **0 overruns**: no sample was
-//!   ever skipped —, and the GUI thread's hammering never made it drop
-//!   telemetry;
-//! * **zero deadline misses** (a 1 ms block ending more than the tolerated
-//!   latency, 2 ms, after its deadline) only with `KILOTOUCH_STRICT_RT=1`.
-//!   The engine's own computation takes a few % of each block (load in the
-//!   report), so what makes a block late is the OS waking the thread late.
-//!   Under a normal (non-real-time) scheduling policy on a 2-core box that is
-//!   also compiling, wake-ups later than 2 ms do happen: measured while
-//!   developing this test, load average 6–13 from five other builds:
-//!   dev build 3 593 late blocks of 60 200, worst 53 ms; test profile
-//!   (opt-level 2, engine load 0.4 % of each block) 1 125 of 60 200, worst
-//!   36 ms; both with 0 overruns, rate 10 kHz, 0 telemetry dropped. On a quiet machine, or with the engine
-//!   thread under SCHED_FIFO, run with `KILOTOUCH_STRICT_RT=1` to require 0.
-//!   The test always prints the counts.
+//!   ever skipped —, and the hammering never made it drop telemetry;
+//! * **deadline misses** (a 1 ms block ending more than the tolerated
+//!   latency, 2 ms, after its deadline): no more than the machine's floor,
+//!   i.e. than an idle thread running the same pacer misses at the same
+//!   time (within the scatter of [`kilotouch::engine::soak::FLOOR_FACTOR`]).
+//!   Zero is the result on a machine that runs a ready thread within 3 ms;
+//!   the 2-vCPU virtual machine this project is developed on does not (an
+//!   idle thread sleeping to 1 ms deadlines there wakes more than 3 ms late
+//!   ≈ 40 times a minute, up to 35 ms, and a thread that never sleeps sees
+//!   gaps up to 27 ms: docs/PERFORMANCE.md). With `KILOTOUCH_STRICT_RT=1`
+//!   the test requires 0 misses (for a quiet, non-virtualised machine or a
+//!   real-time kernel).
 
 #![allow(clippy::unwrap_used)]
 
-use kilotouch::engine::{Condition, EngineHandle, EngineOptions};
-use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
+use kilotouch::engine::EngineOptions;
+use kilotouch::engine::soak::{SoakVerdict, run_soak};
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::tweezer::Obstacle;
-use std::time::{Duration, Instant};
 
 #[test]
 fn sixty_seconds_paced_with_a_hammering_gui_thread() {
@@ -44,67 +42,24 @@ fn sixty_seconds_paced_with_a_hammering_gui_thread() {
     let strict = std::env::var("KILOTOUCH_STRICT_RT").is_ok_and(|v| v == "1");
     let cfg = RigConfig::default();
     let fs = cfg.rig.sample_rate_hz;
-    let h = EngineHandle::spawn(&cfg, EngineOptions::default()).unwrap();
-    let hammer = std::thread::spawn(move || {
-        let mut h = h;
-        let t0 = Instant::now();
-        let (mut cmds, mut rejected, mut samples, mut k) = (0u64, 0u64, 0u64, 0u64);
-        let conds = [Condition::Pantograph, Condition::Dual, Condition::Vision];
-        let chain = ChainCoefficients::design(&ChainDesign::paper()).unwrap();
-        while t0.elapsed().as_secs_f64() < secs {
-            let t = t0.elapsed().as_secs_f64();
-            let hand = [0.01 * (3.0 * t).sin(), 0.01 * (2.0 * t).cos()];
-            if h.set_hand(hand) {
-                cmds += 1;
-            } else {
-                rejected += 1;
-            }
-            k += 1;
-            if k.is_multiple_of(5000) {
-                h.set_condition(conds[(k / 5000) as usize % 3]);
-            }
-            if k.is_multiple_of(20_000) {
-                let _ = h.set_obstacles(&[Obstacle {
-                    centre_m: [12e-6, (k % 7) as f64 * 1e-6],
-                    radius_m: 5e-6,
-                }]);
-                let _ = h.apply_chain(chain.clone());
-            }
-            samples += h.drain_telemetry(|_| {}) as u64;
-            h.poll_events();
-            std::thread::sleep(Duration::from_micros(50));
-        }
-        // Let the last health report arrive.
-        std::thread::sleep(Duration::from_millis(250));
-        samples += h.drain_telemetry(|_| {}) as u64;
-        h.poll_events();
-        let health = *h.health().expect("health");
-        h.shutdown();
-        (health, cmds, rejected, samples)
-    });
-    let (x, cmds, rejected, samples) = hammer.join().unwrap();
-    let expected = secs * fs;
-    eprintln!(
-        "paced {secs} s: {} blocks, {samples} samples (expected ≈ {expected}), misses {}, overruns {}, \
-         worst lateness {:.3} ms, last-window load {:.3} %, rate {:.1} Hz, commands {cmds} (+{rejected} rejected), \
-         telemetry dropped {}",
-        x.blocks,
-        x.deadline_misses,
-        x.overruns,
-        1e3 * x.worst_lateness_total_s,
-        100.0 * x.load,
-        x.loop_rate_hz,
-        x.telemetry_dropped
-    );
+    let x = run_soak(&cfg, EngineOptions::default(), secs, &mut |_| {}).unwrap();
+    eprintln!("{}", x.describe());
     assert!(
-        cmds as f64 > secs * 1000.0,
-        "the hammer thread ran ({cmds} commands)"
+        x.commands as f64 > secs * 1000.0,
+        "the hammer thread ran ({} commands)",
+        x.commands
     );
     assert_eq!(x.telemetry_dropped, 0, "the draining GUI thread kept up");
-    let sim = (x.seq as f64) / fs;
+    let ratio = x.real_time_ratio(fs);
     assert!(
-        (sim - secs).abs() < 0.005 * secs + 0.3,
-        "simulated {sim} s in {secs} s of wall time"
+        (ratio - 1.0).abs() < 0.005 + 0.3 / secs,
+        "simulated / wall time {ratio}"
+    );
+    assert!(
+        (x.samples_received as f64) >= 0.99 * x.samples_simulated as f64,
+        "the GUI saw every sample ({} of {})",
+        x.samples_received,
+        x.samples_simulated
     );
     assert!(
         (x.loop_rate_hz - fs).abs() < 0.05 * fs,
@@ -112,6 +67,16 @@ fn sixty_seconds_paced_with_a_hammering_gui_thread() {
         x.loop_rate_hz
     );
     assert_eq!(x.overruns, 0, "no stall beyond the re-anchor lag");
+    assert!(
+        x.reference_blocks as f64 > 0.9 * secs / x.period_s,
+        "the reference thread ran ({} blocks)",
+        x.reference_blocks
+    );
+    assert_ne!(
+        x.verdict(),
+        SoakVerdict::EngineLate,
+        "engine misses beyond the machine's floor"
+    );
     if strict {
         assert_eq!(x.deadline_misses, 0, "deadline misses (strict mode)");
     }

@@ -26,6 +26,15 @@ pub struct Args {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Instead of the speed figures: run the paced engine on the simulated
+    /// rig for this many seconds with a busy GUI thread and report its
+    /// deadline misses next to those of an idle thread on the same schedule
+    /// (does this machine keep the engine on time? 60 is a good choice).
+    #[arg(long, value_name = "SECONDS")]
+    pub paced: Option<f64>,
+    /// Rig file for `--paced` (default: the built-in rig).
+    #[arg(long, value_name = "FILE", requires = "paced")]
+    pub rig_config: Option<std::path::PathBuf>,
 }
 
 /// JSON document.
@@ -103,6 +112,9 @@ pub fn white_noise(n: usize, seed: u64) -> Vec<f64> {
 
 /// Run the command.
 pub fn run(a: &Args) -> anyhow::Result<()> {
+    if let Some(seconds) = a.paced {
+        return run_paced(a, seconds);
+    }
     const N: usize = 1_000_000;
     let x = white_noise(N, 1);
     let coeffs = ChainCoefficients::paper()?;
@@ -254,4 +266,30 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
                 .map_or("n/a".to_string(), |l| format!("{l:.2}"))
         )
     })
+}
+
+/// `kilotouch bench --paced S` ([`crate::engine::soak`]).
+fn run_paced(a: &Args, seconds: f64) -> anyhow::Result<()> {
+    use crate::engine::EngineOptions;
+    use crate::engine::soak::run_soak;
+    use std::io::Write;
+    if !(seconds.is_finite() && seconds >= 1.0) {
+        anyhow::bail!("--paced: give at least 1 second (got {seconds})");
+    }
+    let cfg = match &a.rig_config {
+        Some(p) => RigConfig::load(p)?,
+        None => RigConfig::default(),
+    };
+    let mut err = std::io::stderr();
+    let mut last = -1i64;
+    let report = run_soak(&cfg, EngineOptions::default(), seconds, &mut |f| {
+        let pct = (100.0 * f).floor() as i64;
+        if pct / 5 != last / 5 {
+            last = pct;
+            let _ = write!(err, "\rpaced run: {pct:3} % of {seconds:.0} s");
+            let _ = err.flush();
+        }
+    })?;
+    let _ = writeln!(err);
+    emit(a.json, &report, || report.describe())
 }

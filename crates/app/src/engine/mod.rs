@@ -68,6 +68,7 @@ pub mod gate;
 mod handle;
 pub mod pacing;
 mod runner;
+pub mod soak;
 pub mod splitter;
 
 pub use backend::EngineRig;
