@@ -131,6 +131,13 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
         .is_some_and(|x| x.safety == SafetyState::Armed)));
     h.get_by_label_contains(&format!("serial:{}", emu.path));
     h.get_by_label("Identity");
+    // Explore says that the mouse does not move a live rig's trap.
+    h.state_mut().page = Page::Explore;
+    h.step();
+    h.step();
+    h.get_by_label_contains("the trap follows the real handle");
+    h.state_mut().page = Page::Rig;
+    h.step();
 
     // The device vanishes: error on the page, FAULT in the status bar, the
     // app keeps running, Reconnect offered.
@@ -156,4 +163,53 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     );
     h.step();
     assert!(h.query_by_label_contains("Rig error:").is_none());
+}
+
+#[test]
+fn a_silent_device_does_not_freeze_the_gui_while_connecting() {
+    let mut h = harness();
+    assert!(step_until(&mut h, 5.0, |a| a.engine.is_some()));
+    // An emulator that hangs from the start: the handshake gets no answer.
+    let emu = {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
+            .args(["emulate", "daq", "--pty", "--stall-after-s", "0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut path = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut path)
+            .unwrap();
+        Emulator {
+            child,
+            path: path.trim().to_owned(),
+        }
+    };
+    type_rig(&mut h, &format!("serial:{}", emu.path));
+    let t0 = Instant::now();
+    h.get_by_label("Connect (restart)").click();
+    h.step();
+    h.step();
+    // The frames keep coming while the device is silent.
+    assert!(
+        t0.elapsed() < Duration::from_millis(500),
+        "the click blocked the GUI for {:?}",
+        t0.elapsed()
+    );
+    assert!(h.state().is_connecting() && h.state().engine.is_none());
+    h.get_by_label_contains(&format!("connecting to serial:{}", emu.path));
+    // The handshake times out on the worker thread; the error reaches the page.
+    assert!(
+        step_until(&mut h, 8.0, |a| !a.is_connecting()),
+        "the connect never ended"
+    );
+    h.step();
+    assert!(h.state().engine.is_none());
+    h.get_by_label_contains("cannot start the engine");
+    // And the simulated rig comes back at once.
+    type_rig(&mut h, "sim");
+    h.get_by_label("Connect").click();
+    h.step();
+    assert!(h.state().engine.is_some() && !h.state().is_connecting());
 }

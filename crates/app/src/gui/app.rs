@@ -15,6 +15,7 @@ use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
 use egui::{Color32, RichText};
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::live::RigSpec;
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -119,6 +120,15 @@ pub struct KilotouchApp {
     pub screenshot: Option<ScreenshotPlan>,
     gpu_status: String,
     fresh: bool,
+    connecting: Option<PendingConnect>,
+}
+
+/// A live rig being opened on a worker thread (its handshake may take up to
+/// the device timeout; the GUI keeps drawing meanwhile).
+#[derive(Debug)]
+struct PendingConnect {
+    label: String,
+    rx: mpsc::Receiver<Result<EngineHandle, crate::engine::EngineError>>,
 }
 
 impl KilotouchApp {
@@ -210,6 +220,7 @@ impl KilotouchApp {
             screenshot: None,
             gpu_status,
             fresh: opts.fresh_settings,
+            connecting: None,
         };
         if opts.connect {
             app.connect();
@@ -228,13 +239,47 @@ impl KilotouchApp {
         }
     }
 
-    /// Start the engine on the current rig configuration.
+    /// Start the engine on the current rig configuration. The simulated rig
+    /// starts at once; a live rig is opened on a worker thread (a serial
+    /// handshake may block up to its timeout) and joins when ready
+    /// ([`KilotouchApp::is_connecting`]).
     pub fn connect(&mut self) {
         self.engine = None;
-        let spawned = match self.rig_page.spec() {
-            Ok(spec) => EngineHandle::spawn_spec(&self.rig_config, &spec, self.engine_opts),
-            Err(e) => Err(e.into()),
+        self.connecting = None;
+        let spec = match self.rig_page.spec() {
+            Ok(spec) => spec,
+            Err(e) => {
+                self.notify(format!("cannot start the engine: {e}"), true);
+                return;
+            }
         };
+        if spec == RigSpec::Sim {
+            let spawned = EngineHandle::spawn_spec(&self.rig_config, &spec, self.engine_opts);
+            self.engine_ready(spawned);
+            return;
+        }
+        let (tx, rx) = mpsc::channel();
+        let label = self.rig_page.rig_text.trim().to_owned();
+        let (cfg, opts) = (self.rig_config.clone(), self.engine_opts);
+        let worker = std::thread::Builder::new()
+            .name("kilotouch-connect".into())
+            .spawn(move || {
+                // If the GUI gave up meanwhile, the handle drops here and
+                // its engine stops.
+                let _ = tx.send(EngineHandle::spawn_spec(&cfg, &spec, opts));
+            });
+        match worker {
+            Ok(_) => self.connecting = Some(PendingConnect { label, rx }),
+            Err(e) => self.notify(format!("cannot start the engine: {e}"), true),
+        }
+    }
+
+    /// Is a live rig being opened?
+    pub fn is_connecting(&self) -> bool {
+        self.connecting.is_some()
+    }
+
+    fn engine_ready(&mut self, spawned: Result<EngineHandle, crate::engine::EngineError>) {
         match spawned {
             Ok(mut h) => {
                 h.set_condition(self.settings.condition);
@@ -242,6 +287,28 @@ impl KilotouchApp {
                 self.engine = Some(h);
             }
             Err(e) => self.notify(format!("cannot start the engine: {e}"), true),
+        }
+    }
+
+    /// Collect a finished background connect.
+    fn poll_connect(&mut self) {
+        let Some(p) = &self.connecting else {
+            return;
+        };
+        match p.rx.try_recv() {
+            Ok(spawned) => {
+                self.connecting = None;
+                self.engine_ready(spawned);
+            }
+            Err(mpsc::TryRecvError::Empty) => {}
+            Err(mpsc::TryRecvError::Disconnected) => {
+                let label = p.label.clone();
+                self.connecting = None;
+                self.notify(
+                    format!("cannot start the engine on {label}: the connecting thread ended"),
+                    true,
+                );
+            }
         }
     }
 
@@ -442,9 +509,15 @@ impl KilotouchApp {
     fn status_bar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             match &self.engine {
-                None => {
-                    ui.colored_label(Color32::GRAY, "disconnected");
-                }
+                None => match &self.connecting {
+                    Some(p) => {
+                        ui.spinner();
+                        ui.label(format!("connecting to {}…", p.label));
+                    }
+                    None => {
+                        ui.colored_label(Color32::GRAY, "disconnected");
+                    }
+                },
                 Some(e) => match e.health() {
                     None => {
                         ui.label(format!("{}: starting…", e.identity().name));
@@ -543,6 +616,10 @@ impl KilotouchApp {
         let ctx = ui.ctx().clone();
         if ctx.input_mut(|i| i.consume_key(egui::Modifiers::NONE, egui::Key::Escape)) {
             self.emergency_stop();
+        }
+        self.poll_connect();
+        if self.connecting.is_some() {
+            ctx.request_repaint_after(std::time::Duration::from_millis(50));
         }
         self.poll_engine();
         egui::Panel::top("kilotouch-top").show(ui, |ui| self.top_bar(ui));

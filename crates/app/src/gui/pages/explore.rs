@@ -274,6 +274,15 @@ impl ExplorePage {
             ui.separator();
             ui.label(RichText::new("Tool").strong());
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
+            if engine
+                .as_deref()
+                .is_some_and(|e| e.identity().kind != kilotouch_rig::rig::RigKind::Simulated)
+            {
+                ui.colored_label(
+                    Color32::from_rgb(230, 150, 40),
+                    "live rig: the trap follows the real handle, dragging here does nothing",
+                );
+            }
             ui.selectable_value(&mut self.tool, Tool::Place, "place obstacle")
                 .on_hover_text("or Shift+click in the scene");
             ui.selectable_value(&mut self.tool, Tool::Remove, "remove obstacle")
