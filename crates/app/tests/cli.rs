@@ -2,27 +2,12 @@
 //! the real executable. Expected values come from analytic results and
 //! REFERENCE-VALUES.md, not from earlier runs.
 
+mod common;
+
+use common::{json_ok, kilotouch};
 use serde_json::Value;
 use std::f64::consts::PI;
 use std::io::Write;
-use std::process::{Command, Output};
-
-fn kilotouch(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
-
-fn json_ok(args: &[&str]) -> Value {
-    let out = kilotouch(args);
-    assert!(
-        out.status.success(),
-        "kilotouch {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("stdout is one JSON document")
-}
 
 fn fails_with(args: &[&str], needle: &str) {
     let out = kilotouch(args);

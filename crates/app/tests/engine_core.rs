@@ -7,6 +7,9 @@
 
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::rms;
 use kilotouch::engine::{
     BlockDriver, Command, Condition, EngineCore, EngineEvent, EngineHandle, EngineOptions,
     SafetyState, TelemetrySample, engine_pair, flags, splitter::SwapOutcome,
@@ -42,15 +45,6 @@ fn run(
         h.drain_telemetry(|s| out.push(*s));
     }
     out
-}
-
-fn rms(x: impl Iterator<Item = f64>) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for v in x {
-        s += v * v;
-        n += 1;
-    }
-    (s / n.max(1) as f64).sqrt()
 }
 
 #[test]

@@ -14,55 +14,15 @@
 
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::{Emulator, rms};
 use kilotouch::engine::{
     Condition, EngineEvent, EngineHandle, EngineOptions, SafetyState, TelemetrySample, flags,
 };
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::RigState;
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// A running emulator; killed on drop.
-struct Emulator {
-    child: Child,
-    path: String,
-}
-
-impl Emulator {
-    fn start(extra: &[&str]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-            .args(["emulate", "daq", "--pty"])
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("spawn the emulator");
-        let mut path = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut path)
-            .expect("pty path on the first line");
-        let path = path.trim().to_owned();
-        assert!(path.starts_with("/dev/"), "{path:?}");
-        Self { child, path }
-    }
-
-    fn spec(&self, opts: &str) -> RigSpec {
-        format!("serial:{}{opts}", self.path).parse().unwrap()
-    }
-
-    fn kill(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        self.kill();
-    }
-}
 
 /// Drain telemetry and events for `d`; returns the samples and the events
 /// the user should see.
@@ -114,15 +74,6 @@ fn wait_health(
     None
 }
 
-fn rms(x: impl Iterator<Item = f64>) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for v in x {
-        s += v * v;
-        n += 1;
-    }
-    (s / n.max(1) as f64).sqrt()
-}
-
 /// Largest |normalised correlation| of `y[k]` with `x[k − lag]` over lags
 /// 0..40, `x` first rotated by `shift` samples (a shift of half the record
 /// gives the null level).
@@ -164,7 +115,7 @@ fn opts() -> EngineOptions {
 
 #[test]
 fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
-    let emu = Emulator::start(&["--seed", "7"]);
+    let emu = Emulator::spawn("daq", &["--seed", "7"]);
     // Generous host timeout: a shared machine may deschedule a process for
     // tens of ms; what is tested here is the stream, not fault timing.
     let cfg = RigConfig::default();
@@ -269,7 +220,7 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
 
 #[test]
 fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
-    let mut emu = Emulator::start(&[]);
+    let mut emu = Emulator::start();
     let cfg = RigConfig::default();
     let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(""), opts()).unwrap();
     let (t, ev) = collect(&mut h, Duration::from_millis(300));
@@ -306,7 +257,7 @@ fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
         matches!(e, EngineEvent::RigError(_))
     })
     .expect("reconnect to a dead port reports an error");
-    let emu2 = Emulator::start(&[]);
+    let emu2 = Emulator::start();
     assert!(h.reconnect(Some(emu2.spec(""))));
     wait_event(&mut h, Duration::from_secs(5), |e| {
         matches!(e, EngineEvent::Reconnected(_))
@@ -330,7 +281,7 @@ fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
 #[test]
 fn stalled_device_times_out_and_the_same_port_reconnects() {
     // The device hangs 0.4 s after start, for 0.5 s.
-    let emu = Emulator::start(&["--stall-after-s", "0.4", "--stall-for-s", "0.5"]);
+    let emu = Emulator::spawn("daq", &["--stall-after-s", "0.4", "--stall-for-s", "0.5"]);
     let cfg = RigConfig::default();
     let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(",timeout-ms=100"), opts()).unwrap();
     let t0 = Instant::now();

@@ -5,45 +5,21 @@
 
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::{engine_reporting, step_until};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::engine::{SafetyState, flags};
-use kilotouch::gui::{AppOptions, KilotouchApp, Page};
+use kilotouch::gui::{KilotouchApp, Page};
 use std::time::{Duration, Instant};
 
 fn app() -> KilotouchApp {
-    KilotouchApp::new(
-        AppOptions {
-            fresh_settings: true,
-            ..Default::default()
-        },
-        None,
-        None,
-    )
+    common::fresh_app(None)
 }
 
 fn harness(app: KilotouchApp) -> Harness<'static, KilotouchApp> {
-    Harness::builder()
-        .with_size(egui::vec2(1100.0, 700.0))
-        .with_max_steps(16)
-        .build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app)
-}
-
-/// Step the UI until `done` or the timeout (the engine runs in real time).
-fn step_until(
-    h: &mut Harness<'_, KilotouchApp>,
-    secs: f64,
-    mut done: impl FnMut(&KilotouchApp) -> bool,
-) -> bool {
-    let t0 = Instant::now();
-    while t0.elapsed().as_secs_f64() < secs {
-        h.step();
-        if done(h.state()) {
-            return true;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    false
+    common::app_harness(app, 1100.0, 700.0, Some(16))
 }
 
 #[test]
@@ -56,10 +32,7 @@ fn every_page_opens() {
         (Page::Study, "Study"),
         (Page::Results, "Results"),
     ];
-    assert!(step_until(&mut h, 5.0, |a| a
-        .engine
-        .as_ref()
-        .is_some_and(|e| e.health().is_some())));
+    assert!(step_until(&mut h, 5.0, engine_reporting));
     for (page, mark) in marks {
         h.get_by_label(page.title()).click();
         h.step();

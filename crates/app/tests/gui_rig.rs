@@ -6,80 +6,17 @@
 
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::{Emulator, step_until};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::engine::SafetyState;
-use kilotouch::gui::{AppOptions, KilotouchApp, Page};
+use kilotouch::gui::{KilotouchApp, Page};
 use kilotouch_rig::rig::RigKind;
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
-
-struct Emulator {
-    child: Child,
-    path: String,
-}
-
-impl Emulator {
-    fn start() -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-            .args(["emulate", "daq", "--pty"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let mut path = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut path)
-            .unwrap();
-        Self {
-            child,
-            path: path.trim().to_owned(),
-        }
-    }
-
-    fn kill(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        self.kill();
-    }
-}
 
 fn harness() -> Harness<'static, KilotouchApp> {
-    let app = KilotouchApp::new(
-        AppOptions {
-            fresh_settings: true,
-            page: Some(Page::Rig),
-            ..Default::default()
-        },
-        None,
-        None,
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1200.0, 900.0))
-        .with_max_steps(16)
-        .build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app)
-}
-
-fn step_until(
-    h: &mut Harness<'_, KilotouchApp>,
-    secs: f64,
-    mut done: impl FnMut(&KilotouchApp) -> bool,
-) -> bool {
-    let t0 = Instant::now();
-    while t0.elapsed().as_secs_f64() < secs {
-        h.step();
-        if done(h.state()) {
-            return true;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    false
+    common::app_harness(common::fresh_app(Some(Page::Rig)), 1200.0, 900.0, Some(16))
 }
 
 /// Replace the rig field's text.

@@ -6,13 +6,15 @@
 
 #![allow(clippy::unwrap_used)]
 
-use egui_kittest::Harness;
+mod common;
+
+use common::{engine_reporting, step_until_every};
 use egui_kittest::kittest::Queryable;
+use kilotouch::gui::Page;
 use kilotouch::gui::pages::study::ProtocolSource;
-use kilotouch::gui::{AppOptions, KilotouchApp, Page};
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const TINY: &str = r#"
 name = "tiny-gui"
@@ -43,21 +45,9 @@ permute_labels = false
 study = 5
 "#;
 
-fn step_until(
-    h: &mut Harness<'_, KilotouchApp>,
-    secs: f64,
-    mut done: impl FnMut(&KilotouchApp) -> bool,
-) -> bool {
-    let t0 = Instant::now();
-    while t0.elapsed().as_secs_f64() < secs {
-        h.step();
-        if done(h.state()) {
-            return true;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    false
-}
+/// The pause between UI steps while waiting (the sitting runs as fast as
+/// possible).
+const POLL: Duration = Duration::from_millis(5);
 
 #[test]
 fn study_page_runs_a_simulated_sitting() {
@@ -65,18 +55,8 @@ fn study_page_runs_a_simulated_sitting() {
     let proto = dir.path().join("tiny.toml");
     std::fs::write(&proto, TINY).unwrap();
     let out = dir.path().join("out");
-    let app = KilotouchApp::new(
-        AppOptions {
-            fresh_settings: true,
-            page: Some(Page::Study),
-            ..Default::default()
-        },
-        None,
-        None,
-    );
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1100.0, 900.0))
-        .build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app);
+    let app = common::fresh_app(Some(Page::Study));
+    let mut h = common::app_harness(app, 1100.0, 900.0, None);
     {
         let s = &mut h.state_mut().study;
         s.source = ProtocolSource::File;
@@ -87,10 +67,7 @@ fn study_page_runs_a_simulated_sitting() {
         s.speed = Speed::Fast;
         s.separate_window = false;
     }
-    assert!(step_until(&mut h, 5.0, |a| a
-        .engine
-        .as_ref()
-        .is_some_and(|e| e.health().is_some())));
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
     h.step();
     // An e-mail address is refused as participant ID.
     assert!(h.query_by_label_contains("e-mail").is_some());
@@ -125,7 +102,10 @@ fn study_page_runs_a_simulated_sitting() {
             .is_some()
     );
     h.get_by_label("Start").click();
-    assert!(step_until(&mut h, 20.0, |a| a.study.finished().is_some()));
+    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+        .study
+        .finished()
+        .is_some()));
     assert_eq!(
         h.state().study.finished(),
         Some(&FinishReason::ParticipantDone("P01".into()))
@@ -139,7 +119,7 @@ fn study_page_runs_a_simulated_sitting() {
     assert_eq!(h.state().study.rows(), &rows[..]);
     assert!(rows.iter().all(|r| r.participant == "P01"));
     // The engine is back.
-    assert!(step_until(&mut h, 5.0, |a| a.engine.is_some()));
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| a.engine.is_some()));
     // The folder now offers to resume at P02's first trial.
     h.step();
     assert!(h.query_by_label_contains("Resume at trial P02").is_some());

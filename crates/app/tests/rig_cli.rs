@@ -1,24 +1,8 @@
 //! `kilotouch rig …` and `kilotouch sim …` through the real executable.
 
-use serde_json::Value;
-use std::process::Command;
+mod common;
 
-fn run(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
-
-fn json_ok(args: &[&str]) -> Value {
-    let out = run(args);
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("json")
-}
+use common::{json_ok, kilotouch as run};
 
 #[test]
 fn default_config_round_trips_through_the_loader() {

@@ -3,65 +3,11 @@
 //! calibrate --rig serial:PATH` in another (issue 7 acceptance, except the
 //! 60 s run, which lives in `serial_acceptance.rs`).
 
-use serde_json::Value;
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
+
+use common::{BIN, Emulator, json_ok, kilotouch as run};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
-
-/// A running emulator; killed on drop.
-struct Emulator {
-    child: Child,
-    path: String,
-}
-
-impl Emulator {
-    fn spawn(kind: &str, extra: &[&str]) -> Self {
-        let mut child = Command::new(BIN)
-            .args(["emulate", kind, "--pty"])
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("spawn the emulator");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout"))
-            .read_line(&mut line)
-            .expect("first line");
-        let path = line.trim().to_string();
-        assert!(path.starts_with("/dev/"), "first line: {line:?}");
-        Self { child, path }
-    }
-
-    fn rig(&self) -> String {
-        format!("serial:{}", self.path)
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
-
-fn json_ok(args: &[&str]) -> Value {
-    let out = run(args);
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("json")
-}
 
 #[test]
 fn rig_check_streams_10_khz_without_loss() {

@@ -293,6 +293,100 @@ impl FaultQueue {
     }
 }
 
+/// The counters and the fault queue behind [`Rig::status`] and
+/// [`Rig::pop_fault`], shared by the simulated and the live rigs. Fixed
+/// size: nothing here allocates, locks or panics.
+#[derive(Debug, Clone)]
+pub(crate) struct StatusCounters {
+    /// Counters (frame counts in frames, samples in samples); `state` and
+    /// the `faults_*` fields are filled in by [`Self::status`].
+    pub(crate) counts: RigStatus,
+    /// Faults waiting for [`Rig::pop_fault`].
+    pub(crate) faults: FaultQueue,
+}
+
+impl Default for StatusCounters {
+    fn default() -> Self {
+        Self {
+            counts: RigStatus {
+                state: RigState::Idle,
+                frames: 0,
+                lost_frames: 0,
+                skipped_samples: 0,
+                clipped_frames: 0,
+                limited_frames: 0,
+                end_stop_frames: 0,
+                nonfinite_commands: 0,
+                faults_pending: 0,
+                faults_dropped: 0,
+            },
+            faults: FaultQueue::default(),
+        }
+    }
+}
+
+impl StatusCounters {
+    /// The counters with the rig's `state` and the queue's occupancy.
+    pub(crate) fn status(&self, state: RigState) -> RigStatus {
+        RigStatus {
+            state,
+            faults_pending: self.faults.len(),
+            faults_dropped: self.faults.dropped(),
+            ..self.counts
+        }
+    }
+
+    /// Queue a fault (the oldest is dropped when the queue is full).
+    #[inline]
+    pub(crate) fn push(&mut self, f: RigFault) {
+        self.faults.push(f);
+    }
+
+    /// Oldest queued fault, if any.
+    pub(crate) fn pop_fault(&mut self) -> Option<RigFault> {
+        self.faults.pop()
+    }
+
+    /// Count the command and sensor flags of frame `seq` (non-finite
+    /// command, limited, clipped, end stop) and queue each kind of fault
+    /// once per block: `noted` collects the [`FrameFlags`] bits already
+    /// queued in this block (start each block at 0).
+    #[inline]
+    pub(crate) fn note_flags(&mut self, ff: FrameFlags, seq: u64, noted: &mut u8) {
+        const COUNTED: u8 = FrameFlags::NONFINITE_COMMAND
+            | FrameFlags::LIMITED
+            | FrameFlags::CLIPPED
+            | FrameFlags::END_STOP;
+        if ff.0 & COUNTED == 0 {
+            return;
+        }
+        let kinds = [
+            (
+                FrameFlags::NONFINITE_COMMAND,
+                RigFault::NonFiniteCommand { seq },
+            ),
+            (FrameFlags::LIMITED, RigFault::ActuatorLimited { seq }),
+            (FrameFlags::CLIPPED, RigFault::SensorClipped { seq }),
+            (FrameFlags::END_STOP, RigFault::EndStop { seq }),
+        ];
+        for (bit, fault) in kinds {
+            if ff.has(bit) {
+                let c = &mut self.counts;
+                match bit {
+                    FrameFlags::NONFINITE_COMMAND => c.nonfinite_commands += 1,
+                    FrameFlags::LIMITED => c.limited_frames += 1,
+                    FrameFlags::CLIPPED => c.clipped_frames += 1,
+                    _ => c.end_stop_frames += 1,
+                }
+                if *noted & bit == 0 {
+                    self.faults.push(fault);
+                    *noted |= bit;
+                }
+            }
+        }
+    }
+}
+
 /// The block-length contract of [`Rig::process_block`], shared by every
 /// implementation: one sensor frame per command.
 pub fn check_block_lengths(
@@ -435,8 +529,7 @@ pub struct SimRig<C: Clock = SystemClock> {
     clock: C,
     anchor_time: Duration,
     anchor_seq: u64,
-    faults: FaultQueue,
-    st: RigStatus,
+    counters: StatusCounters,
 }
 
 impl SimRig<SystemClock> {
@@ -487,18 +580,6 @@ impl<C: Clock> SimRig<C> {
             haptuator_max_v: cfg.limits.haptuator_drive_max_v,
             accel_range_m_s2: accel.range_m_s2(),
         };
-        let st = RigStatus {
-            state: RigState::Idle,
-            frames: 0,
-            lost_frames: 0,
-            skipped_samples: 0,
-            clipped_frames: 0,
-            limited_frames: 0,
-            end_stop_frames: 0,
-            nonfinite_commands: 0,
-            faults_pending: 0,
-            faults_dropped: 0,
-        };
         Ok(Self {
             identity,
             fs,
@@ -516,8 +597,7 @@ impl<C: Clock> SimRig<C> {
             clock,
             anchor_time: Duration::ZERO,
             anchor_seq: 0,
-            faults: FaultQueue::default(),
-            st,
+            counters: StatusCounters::default(),
         })
     }
 
@@ -623,30 +703,7 @@ impl<C: Clock> SimRig<C> {
     #[cold]
     #[inline(never)]
     fn note_flags(&mut self, ff: FrameFlags, noted: &mut u8) {
-        let seq = self.seq;
-        let kinds = [
-            (
-                FrameFlags::NONFINITE_COMMAND,
-                RigFault::NonFiniteCommand { seq },
-            ),
-            (FrameFlags::LIMITED, RigFault::ActuatorLimited { seq }),
-            (FrameFlags::CLIPPED, RigFault::SensorClipped { seq }),
-            (FrameFlags::END_STOP, RigFault::EndStop { seq }),
-        ];
-        for (bit, fault) in kinds {
-            if ff.has(bit) {
-                match bit {
-                    FrameFlags::NONFINITE_COMMAND => self.st.nonfinite_commands += 1,
-                    FrameFlags::LIMITED => self.st.limited_frames += 1,
-                    FrameFlags::CLIPPED => self.st.clipped_frames += 1,
-                    _ => self.st.end_stop_frames += 1,
-                }
-                if *noted & bit == 0 {
-                    self.faults.push(fault);
-                    *noted |= bit;
-                }
-            }
-        }
+        self.counters.note_flags(ff, self.seq, noted);
     }
 
     fn quantise(&self, x: f64) -> f64 {
@@ -665,7 +722,6 @@ impl<C: Clock> Rig for SimRig<C> {
 
     fn start(&mut self) -> Result<(), RigError> {
         self.state = RigState::Running;
-        self.st.state = RigState::Running;
         self.anchor_time = self.clock.now();
         self.anchor_seq = self.seq;
         Ok(())
@@ -673,7 +729,6 @@ impl<C: Clock> Rig for SimRig<C> {
 
     fn stop(&mut self) -> Result<(), RigError> {
         self.state = RigState::Idle;
-        self.st.state = RigState::Idle;
         Ok(())
     }
 
@@ -706,8 +761,8 @@ impl<C: Clock> Rig for SimRig<C> {
                 self.anchor_time = now;
                 self.anchor_seq = self.seq;
                 report.skipped_samples = skipped;
-                self.st.skipped_samples += skipped;
-                self.faults.push(RigFault::Overrun {
+                self.counters.counts.skipped_samples += skipped;
+                self.counters.push(RigFault::Overrun {
                     seq: self.seq,
                     skipped,
                 });
@@ -734,7 +789,7 @@ impl<C: Clock> Rig for SimRig<C> {
             self.seq += 1;
         }
         self.hand_prev = self.hand_target;
-        self.st.frames += n as u64;
+        self.counters.counts.frames += n as u64;
         if let Pacing::WallClock { .. } = self.pacing {
             let deadline = self.deadline(self.seq);
             let now = self.clock.now();
@@ -748,15 +803,10 @@ impl<C: Clock> Rig for SimRig<C> {
     }
 
     fn status(&self) -> RigStatus {
-        RigStatus {
-            state: self.state,
-            faults_pending: self.faults.len(),
-            faults_dropped: self.faults.dropped(),
-            ..self.st
-        }
+        self.counters.status(self.state)
     }
 
     fn pop_fault(&mut self) -> Option<RigFault> {
-        self.faults.pop()
+        self.counters.pop_fault()
     }
 }

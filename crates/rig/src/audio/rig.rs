@@ -5,8 +5,8 @@ use super::{POLL_S, cpal_err, f32_config, find_device};
 use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::rig::{
-    ActuatorFrame, BlockReport, FaultQueue, FrameFlags, Rig, RigFault, RigIdentity, RigKind,
-    RigState, RigStatus, SensorFrame, check_block_lengths,
+    ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
+    RigStatus, SensorFrame, StatusCounters, check_block_lengths,
 };
 use crate::safety::{HardLimits, hard_limit};
 use cpal::traits::{DeviceTrait, StreamTrait};
@@ -240,8 +240,7 @@ pub struct AudioRig {
     state: RigState,
     started_at: Instant,
     anchor_seq: u64,
-    faults: FaultQueue,
-    st: RigStatus,
+    counters: StatusCounters,
     seen_underruns: u64,
     seen_overflows: u64,
 }
@@ -331,19 +330,7 @@ impl AudioRig {
             state: RigState::Idle,
             started_at: Instant::now(),
             anchor_seq: 0,
-            faults: FaultQueue::default(),
-            st: RigStatus {
-                state: RigState::Idle,
-                frames: 0,
-                lost_frames: 0,
-                skipped_samples: 0,
-                clipped_frames: 0,
-                limited_frames: 0,
-                end_stop_frames: 0,
-                nonfinite_commands: 0,
-                faults_pending: 0,
-                faults_dropped: 0,
-            },
+            counters: StatusCounters::default(),
             seen_underruns: 0,
             seen_overflows: 0,
         })
@@ -477,7 +464,7 @@ impl AudioRig {
     fn fail(&mut self, msg: &str) -> RigError {
         self.engine = None;
         self.state = RigState::Disconnected;
-        self.faults.push(RigFault::Disconnected);
+        self.counters.push(RigFault::Disconnected);
         RigError::Disconnected(msg.to_string())
     }
 
@@ -564,7 +551,7 @@ impl Rig for AudioRig {
         let Some(engine) = self.engine.as_mut() else {
             return Err(RigError::NotReady("audio streams are not running".into()));
         };
-        let (mut nf, mut lim, mut clip) = (false, false, false);
+        let mut noted = 0u8;
         let mut stalled = false;
         for (cmd, out) in commands.iter().zip(sensors.iter_mut()) {
             let (c, cflags) = hard_limit(*cmd, &self.limits);
@@ -605,32 +592,10 @@ impl Rig for AudioRig {
                 accel_m_s2: [a, 0.0, 0.0],
                 flags: FrameFlags(flags),
             };
-            let ff = FrameFlags(flags);
-            if ff.has(FrameFlags::NONFINITE_COMMAND) {
-                self.st.nonfinite_commands += 1;
-                if !nf {
-                    self.faults
-                        .push(RigFault::NonFiniteCommand { seq: self.seq });
-                    nf = true;
-                }
-            }
-            if ff.has(FrameFlags::LIMITED) {
-                self.st.limited_frames += 1;
-                if !lim {
-                    self.faults
-                        .push(RigFault::ActuatorLimited { seq: self.seq });
-                    lim = true;
-                }
-            }
-            if ff.has(FrameFlags::CLIPPED) {
-                self.st.clipped_frames += 1;
-                if !clip {
-                    self.faults.push(RigFault::SensorClipped { seq: self.seq });
-                    clip = true;
-                }
-            }
+            self.counters
+                .note_flags(FrameFlags(flags), self.seq, &mut noted);
             self.seq += 1;
-            self.st.frames += 1;
+            self.counters.counts.frames += 1;
         }
         if stalled {
             return Err(if shared.failed.load(Ordering::Acquire) {
@@ -651,8 +616,8 @@ impl Rig for AudioRig {
         self.seen_overflows = c.overflow_frames;
         if under > 0 {
             report.skipped_samples = under;
-            self.st.skipped_samples += under;
-            self.faults.push(RigFault::Overrun {
+            self.counters.counts.skipped_samples += under;
+            self.counters.push(RigFault::Overrun {
                 seq: report.first_seq,
                 skipped: under,
             });
@@ -660,8 +625,8 @@ impl Rig for AudioRig {
         if over > 0 {
             let count = u32::try_from(over).unwrap_or(u32::MAX);
             report.lost_frames = count;
-            self.st.lost_frames += over;
-            self.faults.push(RigFault::LostFrames {
+            self.counters.counts.lost_frames += over;
+            self.counters.push(RigFault::LostFrames {
                 first_seq: report.first_seq,
                 count,
             });
@@ -681,15 +646,10 @@ impl Rig for AudioRig {
     }
 
     fn status(&self) -> RigStatus {
-        RigStatus {
-            state: self.state,
-            faults_pending: self.faults.len(),
-            faults_dropped: self.faults.dropped(),
-            ..self.st
-        }
+        self.counters.status(self.state)
     }
 
     fn pop_fault(&mut self) -> Option<RigFault> {
-        self.faults.pop()
+        self.counters.pop_fault()
     }
 }

@@ -24,8 +24,8 @@ use super::frame::{
 };
 use crate::error::RigError;
 use crate::rig::{
-    ActuatorFrame, BlockReport, FaultQueue, FrameFlags, Rig, RigFault, RigIdentity, RigKind,
-    RigState, RigStatus, SensorFrame, check_block_lengths,
+    ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
+    RigStatus, SensorFrame, StatusCounters, check_block_lengths,
 };
 use serialport::{ClearBuffer, SerialPort};
 use std::io::{ErrorKind, Read, Write};
@@ -598,8 +598,7 @@ pub struct SerialRig {
     caps: DaqCaps,
     state: RigState,
     next_seq: u64,
-    faults: FaultQueue,
-    st: RigStatus,
+    counters: StatusCounters,
     last: SensorFrame,
     cmd_codes: [DaqCommand; Self::FRAME_COMMANDS],
 }
@@ -618,19 +617,7 @@ impl SerialRig {
             caps,
             state: RigState::Idle,
             next_seq: 0,
-            faults: FaultQueue::default(),
-            st: RigStatus {
-                state: RigState::Idle,
-                frames: 0,
-                lost_frames: 0,
-                skipped_samples: 0,
-                clipped_frames: 0,
-                limited_frames: 0,
-                end_stop_frames: 0,
-                nonfinite_commands: 0,
-                faults_pending: 0,
-                faults_dropped: 0,
-            },
+            counters: StatusCounters::default(),
             last: SensorFrame::default(),
             cmd_codes: [DaqCommand::default(); Self::FRAME_COMMANDS],
         })
@@ -724,12 +711,12 @@ impl SerialRig {
         match e {
             LinkErr::Watchdog { seq, .. } => {
                 self.state = RigState::Faulted;
-                self.faults.push(RigFault::WatchdogTripped { seq });
+                self.counters.push(RigFault::WatchdogTripped { seq });
             }
             LinkErr::Stalled | LinkErr::Io(_) => {
                 self.link.stop();
                 self.state = RigState::Disconnected;
-                self.faults.push(RigFault::Disconnected);
+                self.counters.push(RigFault::Disconnected);
             }
         }
         self.link.map_err(e)
@@ -858,7 +845,7 @@ impl Rig for SerialRig {
                 });
             self.link.stats.late_commands += late;
             if late > 0 {
-                self.faults.push(RigFault::Overrun {
+                self.counters.push(RigFault::Overrun {
                     seq: s,
                     skipped: late,
                 });
@@ -869,7 +856,7 @@ impl Rig for SerialRig {
                     received: false, ..
                 }) if self.link.config().rearm_after_idle_trip && !retried => {
                     retried = true;
-                    self.faults.push(RigFault::WatchdogTripped { seq: s });
+                    self.counters.push(RigFault::WatchdogTripped { seq: s });
                     self.next_seq = self
                         .link
                         .start()
@@ -881,60 +868,27 @@ impl Rig for SerialRig {
         self.next_seq = report.first_seq + n as u64;
         report.lost_frames = ex.lost;
         if let Some(first_seq) = ex.first_lost {
-            self.faults.push(RigFault::LostFrames {
+            self.counters.push(RigFault::LostFrames {
                 first_seq,
                 count: ex.lost,
             });
         }
         // Counters and first-of-kind faults, as the simulated rig reports them.
-        let (mut nf, mut lim, mut clip, mut stop) = (false, false, false, false);
+        let mut noted = 0u8;
         for f in sensors.iter() {
-            let fl = f.flags;
-            if fl.has(FrameFlags::NONFINITE_COMMAND) {
-                self.st.nonfinite_commands += 1;
-                if !nf {
-                    self.faults.push(RigFault::NonFiniteCommand { seq: f.seq });
-                    nf = true;
-                }
-            }
-            if fl.has(FrameFlags::LIMITED) {
-                self.st.limited_frames += 1;
-                if !lim {
-                    self.faults.push(RigFault::ActuatorLimited { seq: f.seq });
-                    lim = true;
-                }
-            }
-            if fl.has(FrameFlags::CLIPPED) {
-                self.st.clipped_frames += 1;
-                if !clip {
-                    self.faults.push(RigFault::SensorClipped { seq: f.seq });
-                    clip = true;
-                }
-            }
-            if fl.has(FrameFlags::END_STOP) {
-                self.st.end_stop_frames += 1;
-                if !stop {
-                    self.faults.push(RigFault::EndStop { seq: f.seq });
-                    stop = true;
-                }
-            }
+            self.counters.note_flags(f.flags, f.seq, &mut noted);
         }
-        self.st.frames += n as u64;
-        self.st.lost_frames += u64::from(ex.lost);
+        self.counters.counts.frames += n as u64;
+        self.counters.counts.lost_frames += u64::from(ex.lost);
         Ok(report)
     }
 
     fn status(&self) -> RigStatus {
-        RigStatus {
-            state: self.state,
-            faults_pending: self.faults.len(),
-            faults_dropped: self.faults.dropped(),
-            ..self.st
-        }
+        self.counters.status(self.state)
     }
 
     fn pop_fault(&mut self) -> Option<RigFault> {
-        self.faults.pop()
+        self.counters.pop_fault()
     }
 }
 

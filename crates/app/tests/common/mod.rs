@@ -1,0 +1,180 @@
+//! Helpers shared by the app's integration tests (`mod common;` in each test
+//! file): the app under egui_kittest, stepping it until a condition holds,
+//! the device emulator on a pty, running the executable.
+//!
+//! Each test file is its own crate and uses only some of these, hence the
+//! `#[allow(dead_code)]`s.
+
+use egui_kittest::Harness;
+use kilotouch::gui::{AppOptions, KilotouchApp, Page};
+use kilotouch_rig::live::RigSpec;
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// The executable under test.
+#[allow(dead_code)]
+pub const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
+
+/// The app with fresh settings (nothing remembered from earlier runs),
+/// opening on `page` (the app's default page with `None`).
+#[allow(dead_code)]
+pub fn fresh_app(page: Option<Page>) -> KilotouchApp {
+    KilotouchApp::new(
+        AppOptions {
+            fresh_settings: true,
+            page,
+            ..Default::default()
+        },
+        None,
+        None,
+    )
+}
+
+/// A kittest harness of `width` × `height` points around the app's root UI;
+/// `max_steps` overrides the harness's limit of steps per `run` (kittest's
+/// default with `None`).
+#[allow(dead_code)]
+pub fn app_harness(
+    app: KilotouchApp,
+    width: f32,
+    height: f32,
+    max_steps: Option<u64>,
+) -> Harness<'static, KilotouchApp> {
+    let mut builder = Harness::builder().with_size(egui::vec2(width, height));
+    if let Some(n) = max_steps {
+        builder = builder.with_max_steps(n);
+    }
+    builder.build_ui_state(|ui, app: &mut KilotouchApp| app.ui_root(ui), app)
+}
+
+/// Step the UI until `done` or `secs` seconds have passed (the engine runs
+/// in real time), sleeping 10 ms between steps; whether `done` held.
+#[allow(dead_code)]
+pub fn step_until(
+    h: &mut Harness<'_, KilotouchApp>,
+    secs: f64,
+    done: impl FnMut(&KilotouchApp) -> bool,
+) -> bool {
+    step_until_every(h, Duration::from_millis(10), secs, done)
+}
+
+/// [`step_until`], sleeping `pause` between steps.
+#[allow(dead_code)]
+pub fn step_until_every(
+    h: &mut Harness<'_, KilotouchApp>,
+    pause: Duration,
+    secs: f64,
+    mut done: impl FnMut(&KilotouchApp) -> bool,
+) -> bool {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        h.step();
+        if done(h.state()) {
+            return true;
+        }
+        std::thread::sleep(pause);
+    }
+    false
+}
+
+/// Whether the app's engine is up and has reported its health.
+#[allow(dead_code)]
+pub fn engine_reporting(a: &KilotouchApp) -> bool {
+    a.engine.as_ref().is_some_and(|e| e.health().is_some())
+}
+
+/// Root mean square of `x` (0 for no values).
+#[allow(dead_code)]
+pub fn rms(x: impl Iterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for v in x {
+        s += v * v;
+        n += 1;
+    }
+    (s / n.max(1) as f64).sqrt()
+}
+
+/// A running device emulator (`kilotouch emulate KIND --pty`); killed on
+/// drop.
+#[allow(dead_code)]
+#[derive(Debug)]
+pub struct Emulator {
+    pub child: Child,
+    /// The pty's path (`/dev/pts/N`).
+    pub path: String,
+}
+
+#[allow(dead_code)]
+impl Emulator {
+    /// The DAQ emulator with its default options.
+    pub fn start() -> Self {
+        Self::spawn("daq", &[])
+    }
+
+    /// The `kind` emulator with the `extra` options; waits for the pty path
+    /// it prints on its first line.
+    pub fn spawn(kind: &str, extra: &[&str]) -> Self {
+        let mut child = Command::new(BIN)
+            .args(["emulate", kind, "--pty"])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn the emulator");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("pty path on the first line");
+        let path = line.trim().to_owned();
+        assert!(path.starts_with("/dev/"), "first line: {line:?}");
+        Self { child, path }
+    }
+
+    /// The rig spec `serial:PATH` followed by `opts` (`,key=value…`).
+    pub fn spec(&self, opts: &str) -> RigSpec {
+        format!("serial:{}{opts}", self.path)
+            .parse()
+            .expect("a serial rig spec")
+    }
+
+    /// The `--rig` argument for this emulator: `serial:PATH`.
+    pub fn rig(&self) -> String {
+        format!("serial:{}", self.path)
+    }
+
+    /// Kill the emulator and reap it (errors ignored: it may be gone).
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// Run the executable with `args` and wait for it.
+#[allow(dead_code)]
+pub fn kilotouch(args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .output()
+        .expect("run kilotouch")
+}
+
+/// Run the executable with `args`; it must succeed and print one JSON
+/// document, which is returned.
+#[allow(dead_code)]
+pub fn json_ok(args: &[&str]) -> Value {
+    let out = kilotouch(args);
+    assert!(
+        out.status.success(),
+        "kilotouch {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("stdout is one JSON document")
+}
