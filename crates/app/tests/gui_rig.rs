@@ -14,6 +14,7 @@ use egui_kittest::kittest::Queryable;
 use kilotouch::engine::SafetyState;
 use kilotouch::gui::{KilotouchApp, Page};
 use kilotouch_rig::rig::RigKind;
+use std::time::{Duration, Instant};
 
 fn harness() -> Harness<'static, KilotouchApp> {
     common::app_harness(common::fresh_app(Some(Page::Rig)), 1200.0, 900.0, Some(16))
@@ -107,22 +108,7 @@ fn a_silent_device_does_not_freeze_the_gui_while_connecting() {
     let mut h = harness();
     assert!(step_until(&mut h, 5.0, |a| a.engine.is_some()));
     // An emulator that hangs from the start: the handshake gets no answer.
-    let emu = {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-            .args(["emulate", "daq", "--pty", "--stall-after-s", "0"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let mut path = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut path)
-            .unwrap();
-        Emulator {
-            child,
-            path: path.trim().to_owned(),
-        }
-    };
+    let emu = Emulator::spawn("daq", &["--stall-after-s", "0"]);
     type_rig(&mut h, &format!("serial:{}", emu.path));
     let t0 = Instant::now();
     h.get_by_label("Connect (restart)").click();
