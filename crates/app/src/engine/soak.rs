@@ -101,7 +101,13 @@ impl SoakReport {
     pub fn verdict(&self) -> SoakVerdict {
         if self.deadline_misses == 0 {
             SoakVerdict::OnTime
-        } else if self.deadline_misses <= FLOOR_FACTOR * self.reference_misses + FLOOR_SLACK {
+        } else if (Floor {
+            blocks: self.reference_blocks,
+            misses: self.reference_misses,
+            worst_lateness_s: self.reference_worst_lateness_s,
+        })
+        .explains(self.deadline_misses)
+        {
             SoakVerdict::MachineFloor
         } else {
             SoakVerdict::EngineLate
@@ -176,30 +182,7 @@ pub fn run_soak(
     let chain = ChainCoefficients::design(&ChainDesign::paper()).map_err(RigError::from)?;
     let mut h = EngineHandle::spawn(cfg, opts)?;
 
-    // The reference: the engine's pacer with nothing to compute.
-    let stop = Arc::new(AtomicBool::new(false));
-    let reference = {
-        let stop = stop.clone();
-        std::thread::Builder::new()
-            .name("kilotouch-soak-reference".into())
-            .spawn(move || {
-                let mut p = Pacer::new(
-                    SystemClock::default(),
-                    period_s,
-                    opts.tolerance_s,
-                    opts.max_lag_s,
-                    true,
-                );
-                let mut blocks = 0u64;
-                while !stop.load(Ordering::Acquire) {
-                    p.begin_block();
-                    p.end_block();
-                    blocks += 1;
-                }
-                (blocks, p.misses, p.worst_lateness_s)
-            })?
-    };
-
+    let reference = ReferenceThread::start(period_s, &opts)?;
     let t0 = Instant::now();
     let conds = [Condition::Pantograph, Condition::Dual, Condition::Vision];
     let (mut commands, mut rejected, mut received, mut k) = (0u64, 0u64, 0u64, 0u64);
@@ -247,10 +230,7 @@ pub fn run_soak(
         h.poll_events();
         std::thread::sleep(Duration::from_micros(50));
     }
-    stop.store(true, Ordering::Release);
-    let (reference_blocks, reference_misses, reference_worst) = reference
-        .join()
-        .map_err(|_| std::io::Error::other("the reference thread panicked"))?;
+    let floor = reference.stop()?;
     // Let the last health report arrive.
     std::thread::sleep(Duration::from_millis(250));
     received += h.drain_telemetry(|_| {}) as u64;
@@ -280,10 +260,79 @@ pub fn run_soak(
         telemetry_dropped: x.telemetry_dropped,
         commands,
         commands_rejected: rejected,
-        reference_blocks,
-        reference_misses,
-        reference_worst_lateness_s: reference_worst.max(0.0),
+        reference_blocks: floor.blocks,
+        reference_misses: floor.misses,
+        reference_worst_lateness_s: floor.worst_lateness_s,
     })
+}
+
+/// What the reference thread measured: the machine's floor.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Floor {
+    /// Blocks run.
+    pub blocks: u64,
+    /// Blocks that missed their deadline.
+    pub misses: u64,
+    /// Worst lateness, s (0 if always early).
+    pub worst_lateness_s: f64,
+}
+
+impl Floor {
+    /// Are `engine_misses` within the floor's scatter ([`FLOOR_FACTOR`],
+    /// [`FLOOR_SLACK`])?
+    pub fn explains(&self, engine_misses: u64) -> bool {
+        engine_misses <= FLOOR_FACTOR * self.misses + FLOOR_SLACK
+    }
+}
+
+/// The engine's [`Pacer`] on its own thread with nothing to compute: its
+/// deadline misses are the machine's floor (module docs). Start it beside
+/// the engine, stop it at the end of the run.
+#[derive(Debug)]
+pub struct ReferenceThread {
+    stop: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<Floor>,
+}
+
+impl ReferenceThread {
+    /// Start on the schedule of blocks of `period_s` with the tolerance and
+    /// lag of `opts`.
+    pub fn start(period_s: f64, opts: &EngineOptions) -> Result<Self, EngineError> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tolerance_s, max_lag_s) = (opts.tolerance_s, opts.max_lag_s);
+        let flag = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("kilotouch-reference".into())
+            .spawn(move || {
+                let mut p = Pacer::new(
+                    SystemClock::default(),
+                    period_s,
+                    tolerance_s,
+                    max_lag_s,
+                    true,
+                );
+                let mut blocks = 0u64;
+                while !flag.load(Ordering::Acquire) {
+                    p.begin_block();
+                    p.end_block();
+                    blocks += 1;
+                }
+                Floor {
+                    blocks,
+                    misses: p.misses,
+                    worst_lateness_s: p.worst_lateness_s.max(0.0),
+                }
+            })?;
+        Ok(Self { stop, thread })
+    }
+
+    /// Stop and collect.
+    pub fn stop(self) -> Result<Floor, EngineError> {
+        self.stop.store(true, Ordering::Release);
+        self.thread.join().map_err(|_| {
+            EngineError::Thread(std::io::Error::other("the reference thread panicked"))
+        })
+    }
 }
 
 #[cfg(test)]
