@@ -1143,18 +1143,8 @@ impl Chain {
 mod tests {
     use super::*;
     use crate::filter::Sos;
+    use crate::filter::tests::Noise;
     use std::f64::consts::{PI, SQRT_2};
-
-    struct Noise(u64);
-    impl Noise {
-        fn next(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            let r = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
-            (r >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        }
-    }
 
     #[test]
     fn paper_chain_structure() {

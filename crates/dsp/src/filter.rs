@@ -257,13 +257,93 @@ fn check_coeffs(c: &BiquadCoeffs) -> Result<()> {
     }
 }
 
+/// The guard of [`Biquad`] and [`Sos`] (module docs): non-finite events
+/// counted and the state reset, the state flushed every [`FLUSH_INTERVAL`]
+/// samples. Works on a cascade of TDF-II sections (one for a [`Biquad`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Guard {
+    /// Non-finite events (input, output or state) since construction.
+    nonfinite: u64,
+    /// Samples since the last flush.
+    tick: u32,
+}
+
+impl Guard {
+    /// Filter one sample through the sections `coeffs` with their states
+    /// `state`, first section first: the output, or 0 (state reset, event
+    /// counted) when the input or the output is non-finite.
+    #[inline(always)]
+    fn process(&mut self, coeffs: &[BiquadCoeffs], state: &mut [[f64; 2]], x: f64) -> f64 {
+        if !x.is_finite() {
+            self.on_nonfinite(state);
+            return 0.0;
+        }
+        let mut v = x;
+        for (c, s) in coeffs.iter().zip(state.iter_mut()) {
+            v = tdf2_step(c, s, v);
+        }
+        if !v.is_finite() {
+            self.on_nonfinite(state);
+            return 0.0;
+        }
+        self.tick += 1;
+        if self.tick >= FLUSH_INTERVAL {
+            self.maintain(state);
+        }
+        v
+    }
+
+    /// Zero the state and restart the flush interval (events are kept).
+    #[inline]
+    fn reset(&mut self, state: &mut [[f64; 2]]) {
+        state.fill([0.0; 2]);
+        self.tick = 0;
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn on_nonfinite(&mut self, state: &mut [[f64; 2]]) {
+        self.nonfinite += 1;
+        self.reset(state);
+    }
+
+    /// Flush every section's tiny state values to zero; a non-finite one
+    /// counts as an event and resets the state.
+    #[cold]
+    #[inline(never)]
+    fn maintain(&mut self, state: &mut [[f64; 2]]) {
+        self.tick = 0;
+        let mut finite = true;
+        for s in state.iter_mut() {
+            finite &= flush_state(s);
+        }
+        if !finite {
+            self.on_nonfinite(state);
+        }
+    }
+}
+
+/// Pass `min(input.len(), output.len())` samples of `input` through
+/// `process` into `output`; returns that count.
+#[inline]
+fn process_block_with(
+    input: &[f64],
+    output: &mut [f64],
+    mut process: impl FnMut(f64) -> f64,
+) -> usize {
+    let n = input.len().min(output.len());
+    for (o, &x) in output[..n].iter_mut().zip(&input[..n]) {
+        *o = process(x);
+    }
+    n
+}
+
 /// A single second-order section with its state (transposed direct form II).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Biquad {
     c: BiquadCoeffs,
     s: [f64; 2],
-    nonfinite: u64,
-    tick: u32,
+    guard: Guard,
 }
 
 impl Biquad {
@@ -273,8 +353,7 @@ impl Biquad {
         Ok(Self {
             c,
             s: [0.0; 2],
-            nonfinite: 0,
-            tick: 0,
+            guard: Guard::default(),
         })
     }
 
@@ -298,30 +377,17 @@ impl Biquad {
     /// Filter one sample (guarded: see module docs).
     #[inline]
     pub fn process(&mut self, x: f64) -> f64 {
-        if !x.is_finite() {
-            self.on_nonfinite();
-            return 0.0;
-        }
-        let y = tdf2_step(&self.c, &mut self.s, x);
-        if !y.is_finite() {
-            self.on_nonfinite();
-            return 0.0;
-        }
-        self.tick += 1;
-        if self.tick >= FLUSH_INTERVAL {
-            self.maintain();
-        }
-        y
+        self.guard.process(
+            std::slice::from_ref(&self.c),
+            std::slice::from_mut(&mut self.s),
+            x,
+        )
     }
 
     /// Filter `input` into `output`; processes `min(input.len(), output.len())`
     /// samples and returns that count.
     pub fn process_block(&mut self, input: &[f64], output: &mut [f64]) -> usize {
-        let n = input.len().min(output.len());
-        for (o, &x) in output[..n].iter_mut().zip(&input[..n]) {
-            *o = self.process(x);
-        }
-        n
+        process_block_with(input, output, |x| self.process(x))
     }
 
     /// Filter a buffer in place.
@@ -333,34 +399,17 @@ impl Biquad {
 
     /// Zero the state (the event counter is kept).
     pub fn reset(&mut self) {
-        self.s = [0.0; 2];
-        self.tick = 0;
+        self.guard.reset(std::slice::from_mut(&mut self.s));
     }
 
     /// Number of non-finite events (input or state) since construction.
     pub fn nonfinite_events(&self) -> u64 {
-        self.nonfinite
+        self.guard.nonfinite
     }
 
     /// Frequency response at `f` hertz for sample rate `fs` hertz.
     pub fn response(&self, f: f64, fs: f64) -> C64 {
         self.c.response(f, fs)
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn on_nonfinite(&mut self) {
-        self.nonfinite += 1;
-        self.reset();
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn maintain(&mut self) {
-        self.tick = 0;
-        if !flush_state(&mut self.s) {
-            self.on_nonfinite();
-        }
     }
 }
 
@@ -371,8 +420,7 @@ impl Biquad {
 pub struct Sos {
     coeffs: Vec<BiquadCoeffs>,
     state: Vec<[f64; 2]>,
-    nonfinite: u64,
-    tick: u32,
+    guard: Guard,
 }
 
 impl Sos {
@@ -391,8 +439,7 @@ impl Sos {
         Ok(Self {
             coeffs: sections,
             state: vec![[0.0; 2]; n],
-            nonfinite: 0,
-            tick: 0,
+            guard: Guard::default(),
         })
     }
 
@@ -441,34 +488,14 @@ impl Sos {
     /// Filter one sample through the cascade (guarded: see module docs).
     #[inline]
     pub fn process(&mut self, x: f64) -> f64 {
-        if !x.is_finite() {
-            self.on_nonfinite();
-            return 0.0;
-        }
-        let mut v = x;
-        for (c, s) in self.coeffs.iter().zip(self.state.iter_mut()) {
-            v = tdf2_step(c, s, v);
-        }
-        if !v.is_finite() {
-            self.on_nonfinite();
-            return 0.0;
-        }
-        self.tick += 1;
-        if self.tick >= FLUSH_INTERVAL {
-            self.maintain();
-        }
-        v
+        self.guard.process(&self.coeffs, &mut self.state, x)
     }
 
     /// Filter `input` into `output`; processes `min(input.len(), output.len())`
     /// samples and returns that count. Identical, sample for sample, to
     /// calling [`Sos::process`] in a loop.
     pub fn process_block(&mut self, input: &[f64], output: &mut [f64]) -> usize {
-        let n = input.len().min(output.len());
-        for (o, &x) in output[..n].iter_mut().zip(&input[..n]) {
-            *o = self.process(x);
-        }
-        n
+        process_block_with(input, output, |x| self.process(x))
     }
 
     /// Filter a buffer in place.
@@ -480,41 +507,18 @@ impl Sos {
 
     /// Zero the state (the event counter is kept).
     pub fn reset(&mut self) {
-        for s in &mut self.state {
-            *s = [0.0; 2];
-        }
-        self.tick = 0;
+        self.guard.reset(&mut self.state);
     }
 
     /// Number of non-finite events (input or state) since construction.
     pub fn nonfinite_events(&self) -> u64 {
-        self.nonfinite
+        self.guard.nonfinite
     }
 
     /// Frequency response at `f` hertz for sample rate `fs` hertz: the
     /// product of the section responses.
     pub fn response(&self, f: f64, fs: f64) -> C64 {
         sections_response(&self.coeffs, f, fs)
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn on_nonfinite(&mut self) {
-        self.nonfinite += 1;
-        self.reset();
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn maintain(&mut self) {
-        self.tick = 0;
-        let mut finite = true;
-        for s in &mut self.state {
-            finite &= flush_state(s);
-        }
-        if !finite {
-            self.on_nonfinite();
-        }
     }
 }
 
@@ -547,14 +551,15 @@ pub fn sections_group_delay(sections: &[BiquadCoeffs], f: f64, fs: f64) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::design::{self, FilterKind, Prewarp};
 
-    /// xorshift64* uniform noise in [−1, 1): fast and deterministic.
-    struct Noise(u64);
+    /// xorshift64* uniform noise in [−1, 1): fast and deterministic (also
+    /// used by the chain's tests).
+    pub(crate) struct Noise(pub(crate) u64);
     impl Noise {
-        fn next(&mut self) -> f64 {
+        pub(crate) fn next(&mut self) -> f64 {
             self.0 ^= self.0 >> 12;
             self.0 ^= self.0 << 25;
             self.0 ^= self.0 >> 27;

@@ -22,7 +22,9 @@
 //!   `no_collision`; time-out after contact → `timeout`; retreat angle >
 //!   `success_angle` → `retreat_angle`; abort → `aborted`.
 
-use super::{Geometry, TaskSample, TrialEnd, angle_between, norm};
+use super::{
+    ForceSums, Geometry, TaskSample, TrialEnd, angle_between, bead_escaped, norm, push_until_end,
+};
 
 /// Thresholds of the blind-navigation task (SI, degrees).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -99,8 +101,7 @@ pub struct BlindAccumulator {
     peak_fb: f64,
     angle_deg: Option<f64>,
     n: u64,
-    sum_fb: f64,
-    sum_fh: f64,
+    forces: ForceSums,
     escaped: bool,
 }
 
@@ -118,8 +119,7 @@ impl BlindAccumulator {
             peak_fb: 0.0,
             angle_deg: None,
             n: 0,
-            sum_fb: 0.0,
-            sum_fh: 0.0,
+            forces: ForceSums::default(),
             escaped: false,
         }
     }
@@ -137,17 +137,8 @@ impl BlindAccumulator {
         }
         self.t_last = s.t_s;
         self.n += 1;
-        let fb = norm(s.force_bead_n);
-        if fb.is_finite() {
-            self.sum_fb += fb;
-        }
-        let fh = norm(s.force_hand_n);
-        if fh.is_finite() {
-            self.sum_fh += fh;
-        }
-        let sep = norm([s.bead_m[0] - s.trap_m[0], s.bead_m[1] - s.trap_m[1]]);
-        // NaN separation (non-finite position) counts as an escape.
-        let escaped = !s.trapped || sep.is_nan() || sep > self.p.escape_distance_m;
+        let fb = self.forces.add(s);
+        let escaped = bead_escaped(s, self.p.escape_distance_m);
         let in_contact = self.g.gap_m(s.bead_m) < self.p.contact_gap_m;
         if in_contact {
             if self.first_contact_s.is_none() {
@@ -194,7 +185,7 @@ impl BlindAccumulator {
     /// Metrics so far.
     pub fn metrics(&self) -> BlindMetrics {
         let touched = self.first_contact_s.is_some();
-        let n = self.n as f64;
+        let (force_mean_pn, force_mean_n) = self.forces.means(self.n);
         BlindMetrics {
             end: self.end,
             time_s: self.t_last,
@@ -203,8 +194,8 @@ impl BlindAccumulator {
             retreat_angle_err_deg: self.angle_deg,
             contact_point_m: touched.then_some(self.contact_point),
             normal: touched.then_some(self.normal),
-            force_mean_pn: (self.n > 0).then(|| self.sum_fb / n * 1e12),
-            force_mean_n: (self.n > 0).then(|| self.sum_fh / n),
+            force_mean_pn,
+            force_mean_n,
             escaped: self.escaped,
             success_angle_deg: self.p.success_angle_deg,
         }
@@ -219,10 +210,6 @@ pub fn blind_metrics(
     geometry: Geometry,
 ) -> BlindMetrics {
     let mut acc = BlindAccumulator::new(params, geometry);
-    for s in samples {
-        if acc.push(s).is_some() {
-            break;
-        }
-    }
+    push_until_end(samples, |s| acc.push(s));
     acc.metrics()
 }

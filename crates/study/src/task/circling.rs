@@ -25,7 +25,7 @@
 
 use std::f64::consts::PI;
 
-use super::{Geometry, TaskSample, TrialEnd, norm, wrap_pi};
+use super::{ForceSums, Geometry, TaskSample, TrialEnd, bead_escaped, push_until_end, wrap_pi};
 
 /// Thresholds of the circling task (SI).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -98,8 +98,7 @@ pub struct CirclingAccumulator {
     n_phase: u64,
     n_contact: u64,
     sum_disp: f64,
-    sum_fb: f64,
-    sum_fh: f64,
+    forces: ForceSums,
     escaped: bool,
 }
 
@@ -117,8 +116,7 @@ impl CirclingAccumulator {
             n_phase: 0,
             n_contact: 0,
             sum_disp: 0.0,
-            sum_fb: 0.0,
-            sum_fh: 0.0,
+            forces: ForceSums::default(),
             escaped: false,
         }
     }
@@ -136,10 +134,7 @@ impl CirclingAccumulator {
             return None;
         }
         self.t_last = s.t_s;
-        let off = [s.bead_m[0] - s.trap_m[0], s.bead_m[1] - s.trap_m[1]];
-        let sep = norm(off);
-        // NaN separation (non-finite position) counts as an escape.
-        let escaped = !s.trapped || sep.is_nan() || sep > self.p.escape_distance_m;
+        let escaped = bead_escaped(s, self.p.escape_distance_m);
         let gap = self.g.gap_m(s.bead_m);
         let in_contact = gap < self.p.contact_gap_m;
         let rel = self.g.rel(s.bead_m);
@@ -154,14 +149,7 @@ impl CirclingAccumulator {
             if gap.is_finite() {
                 self.sum_disp += gap.abs();
             }
-            let fb = norm(s.force_bead_n);
-            if fb.is_finite() {
-                self.sum_fb += fb;
-            }
-            let fh = norm(s.force_hand_n);
-            if fh.is_finite() {
-                self.sum_fh += fh;
-            }
+            self.forces.add(s);
             self.turned += wrap_pi(angle - self.prev_angle);
             self.prev_angle = angle;
         }
@@ -189,7 +177,7 @@ impl CirclingAccumulator {
     /// Metrics so far.
     pub fn metrics(&self) -> CirclingMetrics {
         let n = self.n_phase as f64;
-        let mean = |s: f64, scale: f64| (self.n_phase > 0).then(|| s / n * scale);
+        let (force_mean_pn, force_mean_n) = self.forces.means(self.n_phase);
         CirclingMetrics {
             end: self.end,
             time_s: self.t_last,
@@ -199,9 +187,9 @@ impl CirclingAccumulator {
             } else {
                 0.0
             },
-            disp_err_mean_um: mean(self.sum_disp, 1e6),
-            force_mean_pn: mean(self.sum_fb, 1e12),
-            force_mean_n: mean(self.sum_fh, 1.0),
+            disp_err_mean_um: (self.n_phase > 0).then(|| self.sum_disp / n * 1e6),
+            force_mean_pn,
+            force_mean_n,
             escaped: self.escaped,
             turns: self.turned / (2.0 * PI),
             phase_samples: self.n_phase,
@@ -218,10 +206,6 @@ pub fn circling_metrics(
     geometry: Geometry,
 ) -> CirclingMetrics {
     let mut acc = CirclingAccumulator::new(params, geometry);
-    for s in samples {
-        if acc.push(s).is_some() {
-            break;
-        }
-    }
+    push_until_end(samples, |s| acc.push(s));
     acc.metrics()
 }

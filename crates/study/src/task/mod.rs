@@ -389,6 +389,65 @@ impl TaskMetrics {
     }
 }
 
+/// Whether the bead of sample `s` has escaped: the tweezer lost it, its
+/// separation from the trap centre is NaN (non-finite position), or that
+/// separation exceeds `escape_distance_m` (m).
+#[inline]
+pub(crate) fn bead_escaped(s: &TaskSample, escape_distance_m: f64) -> bool {
+    let sep = norm([s.bead_m[0] - s.trap_m[0], s.bead_m[1] - s.trap_m[1]]);
+    !s.trapped || sep.is_nan() || sep > escape_distance_m
+}
+
+/// Running sums of the force magnitudes the tasks average: the optical
+/// force on the bead |κ(trap − bead)| and the force rendered at the hand,
+/// N. Non-finite magnitudes add nothing (they still count as samples).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct ForceSums {
+    bead_n: f64,
+    hand_n: f64,
+}
+
+impl ForceSums {
+    /// Adds the magnitudes of sample `s`; returns the one on the bead, N
+    /// (possibly non-finite).
+    #[inline]
+    pub(crate) fn add(&mut self, s: &TaskSample) -> f64 {
+        let fb = norm(s.force_bead_n);
+        if fb.is_finite() {
+            self.bead_n += fb;
+        }
+        let fh = norm(s.force_hand_n);
+        if fh.is_finite() {
+            self.hand_n += fh;
+        }
+        fb
+    }
+
+    /// Mean magnitudes over `n` samples: (on the bead, pN; at the hand, N);
+    /// `None` for no samples.
+    pub(crate) fn means(&self, n: u64) -> (Option<f64>, Option<f64>) {
+        let k = n as f64;
+        (
+            (n > 0).then(|| self.bead_n / k * 1e12),
+            (n > 0).then(|| self.hand_n / k),
+        )
+    }
+}
+
+/// Pushes `samples` in order through `push` until it reports an end (the
+/// later samples are ignored): the recorded-trial drivers of the tasks'
+/// online accumulators.
+pub(crate) fn push_until_end(
+    samples: &[TaskSample],
+    mut push: impl FnMut(&TaskSample) -> Option<TrialEnd>,
+) {
+    for s in samples {
+        if push(s).is_some() {
+            break;
+        }
+    }
+}
+
 /// Euclidean norm of a 2-vector.
 #[inline]
 pub fn norm(v: [f64; 2]) -> f64 {
