@@ -205,8 +205,11 @@ pub fn run_soak(
         }
         k += 1;
         if k.is_multiple_of(5000) {
-            h.set_condition(conds[(k / 5000) as usize % 3]);
-            commands += 1;
+            if h.set_condition(conds[(k / 5000) as usize % 3]) {
+                commands += 1;
+            } else {
+                rejected += 1;
+            }
         }
         if k.is_multiple_of(20_000) {
             let obstacle = Obstacle {
