@@ -2,38 +2,19 @@
 //! `kilotouch rig check` over the emulator's pty streams 10 kHz for 60 s
 //! with no lost frame.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+mod common;
+
+use common::{Emulator, json_ok};
 
 #[test]
 fn rig_check_streams_10_khz_for_60_s_with_no_lost_frame() {
-    let bin = env!("CARGO_BIN_EXE_kilotouch");
-    let mut emu = Command::new(bin)
-        // Generous watchdog and host timeout: a shared CI machine may
-        // deschedule either process for tens of ms; what is under test is
-        // the stream (rate, lost frames), not the fault timing.
-        .args(["emulate", "daq", "--pty", "--watchdog-ms", "1000"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn the emulator");
-    let mut path = String::new();
-    BufReader::new(emu.stdout.take().expect("stdout"))
-        .read_line(&mut path)
-        .expect("pty path");
-    let rig = format!("serial:{},timeout-ms=1000", path.trim());
-    let out = Command::new(bin)
-        .args(["rig", "check", "--rig", &rig, "--duration", "60", "--json"])
-        .output()
-        .expect("rig check");
-    let _ = emu.kill();
-    let _ = emu.wait();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    // Generous watchdog and host timeout: a shared CI machine may
+    // deschedule either process for tens of ms; what is under test is
+    // the stream (rate, lost frames), not the fault timing.
+    let emu = Emulator::spawn("daq", &["--watchdog-ms", "1000"]);
+    let rig = format!("{},timeout-ms=1000", emu.rig());
+    let v = json_ok(&["rig", "check", "--rig", &rig, "--duration", "60", "--json"]);
+    drop(emu);
     eprintln!("60 s acceptance: {v}");
     assert_eq!(v["lost"].as_u64(), Some(0), "{v}");
     assert_eq!(v["crc_errors"].as_u64(), Some(0), "{v}");
