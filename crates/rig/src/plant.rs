@@ -412,6 +412,10 @@ pub struct AxisSim<const N: usize> {
     slow: SlowInputs,
     // The drive input has no effect in any regime (y axis): skip it.
     drive_free: bool,
+    // Some regime has a feed-through of force or drive to ẍ_h.
+    fast_d: bool,
+    // Every regime takes the drive as (0, 1) in its block groups.
+    drive_unit: bool,
 }
 
 /// Largest state dimension with a modal fast path (lanes of 2 states).
@@ -456,24 +460,55 @@ fn from_lanes<const N: usize>(l: &[L2; LANES]) -> [f64; N] {
 }
 
 /// The ZOH map of one regime in real modal coordinates x = T z:
-/// z ← Λ z + T⁻¹Γ u with Λ block-diagonal (2×2 blocks [[a, b], [−b, a]] for
-/// the eigenvalue pairs a ± jb of Φ, then the real eigenvalues).
+/// z ← Λ z + T⁻¹Γ u with Λ block-diagonal: 2×2 blocks (an eigenvalue pair
+/// a ± jb of Φ, or two real eigenvalues), then at most one single real
+/// eigenvalue.
 ///
-/// Everything the step reads is stored as lanes of two adjacent states
-/// ([`L2`]): Λ as (ra, rb) with (Λz)_j = ra_j z_j + rb_j z_{j^1), i.e.
-/// (ra, rb) = ((a, a), (b, −b)) on a pair and ((λ, λ'), (0, 0)) on two real
-/// eigenvalues, so one lane update is two packed multiplies, a swap and
-/// adds; padding lanes are zero.
+/// Basis. Each 2×2 block's coordinates are scaled so that the force input
+/// enters it as (1, 0): with g = (p, q) the block's part of T⁻¹Γ_f, the
+/// block's basis columns are multiplied by S = [[p, −q], [q, p]] (a
+/// rotation-scaling, condition number 1; on a pair it commutes with the
+/// block, which stays [[a, b], [−b, a]]), so S⁻¹g = (1, 0) and the force
+/// costs one add per lane pair instead of two multiply-adds.
+///
+/// Layout. Everything the step reads is stored as lanes of two states
+/// ([`L2`]) in the *flat* order of the modal state. The first 4·⌊N/4⌋
+/// states are groups of two blocks in structure-of-arrays form: lane 2g
+/// holds the first coordinates of blocks 2g and 2g+1, lane 2g+1 their second
+/// coordinates, so a group update is A' = c_s⊙A + c_p⊙B, B' = c_s⊙B + c_p⊙A
+/// (four packed multiplies, no shuffle) and the force adds [f, f] to A. The
+/// remaining states are "AoS" lanes (a whole block, or a single real and a
+/// zero padding): z' = c_s⊙z + c_p⊙swap(z) + γ_f f + …. Padding is zero.
 #[derive(Debug, Clone)]
 struct ModalRegime<const N: usize> {
-    ra: A16<[L2; LANES]>,
-    rb: A16<[L2; LANES]>,
+    /// Λ entries on the diagonal (c_s) and to the block partner (c_p).
+    cs: A16<[L2; LANES]>,
+    cp: A16<[L2; LANES]>,
     gam: A16<[[L2; LANES]; NU]>,
-    /// Output weights of state j: [(ẍ_h, x_1), (x_h, r)] rows of C T.
+    /// Output weights of flat state j: [(ẍ_h, x_1), (x_h, r)] rows of C T.
     outw: A16<[[L2; 2]; MODAL_MAX_STATES]>,
     acc_d: [f64; NU],
+    /// Every structure-of-arrays block takes the drive as (0, 1).
+    drive_unit: bool,
     t: [[f64; N]; N],
     tinv: [[f64; N]; N],
+}
+
+/// Number of structure-of-arrays block groups (4 states each) for `n` states.
+#[inline(always)]
+const fn groups(n: usize) -> usize {
+    n / 4
+}
+
+/// Natural modal index (blocks in order, 2b and 2b + 1 for block b) of the
+/// flat (lane) index `fl`; see [`ModalRegime`].
+const fn natural_index(fl: usize, n: usize) -> usize {
+    if fl < 4 * groups(n) {
+        let (g, r) = (fl / 4, fl % 4);
+        2 * (2 * g + r % 2) + r / 2
+    } else {
+        fl
+    }
 }
 
 /// Contribution of the slowly varying inputs (hand position, hand velocity,
@@ -498,71 +533,93 @@ impl SlowInputs {
         }
     }
 
+    /// The cached contribution for hand position `hp` (m), hand velocity
+    /// `hv` (m/s) and constant input `one` in `regime`.
     #[inline(always)]
     fn get<const N: usize>(
         &mut self,
         m: &ModalRegime<N>,
         regime: usize,
-        u: &[f64; NU],
+        [hp, hv, one]: [f64; 3],
     ) -> (&[L2; LANES], f64) {
-        let key = [
-            u[IN_HAND_POS].to_bits(),
-            u[IN_HAND_VEL].to_bits(),
-            u[IN_ONE].to_bits(),
-            regime as u64,
-        ];
-        if key != self.key {
-            self.refresh(m, key, u);
+        let key = [hp.to_bits(), hv.to_bits(), one.to_bits(), regime as u64];
+        // One test for the four words (no early exits).
+        let diff = (key[0] ^ self.key[0])
+            | (key[1] ^ self.key[1])
+            | (key[2] ^ self.key[2])
+            | (key[3] ^ self.key[3]);
+        if diff != 0 {
+            self.refresh(m, key, [hp, hv, one]);
         }
         (&self.bias.0, self.acc)
     }
 
     #[cold]
     #[inline(never)]
-    fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, key: [u64; 4], u: &[f64; NU]) {
+    fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, key: [u64; 4], u: [f64; 3]) {
+        let [hp, hv, one] = u;
         for k in 0..LANES {
             for i in 0..2 {
                 let g = &m.gam.0;
-                self.bias.0[k][i] = (g[IN_HAND_POS][k][i] * u[IN_HAND_POS]
-                    + g[IN_HAND_VEL][k][i] * u[IN_HAND_VEL])
-                    + g[IN_ONE][k][i] * u[IN_ONE];
+                self.bias.0[k][i] =
+                    (g[IN_HAND_POS][k][i] * hp + g[IN_HAND_VEL][k][i] * hv) + g[IN_ONE][k][i] * one;
             }
         }
-        self.acc = (m.acc_d[IN_HAND_POS] * u[IN_HAND_POS] + m.acc_d[IN_HAND_VEL] * u[IN_HAND_VEL])
-            + m.acc_d[IN_ONE] * u[IN_ONE];
+        self.acc = (m.acc_d[IN_HAND_POS] * hp + m.acc_d[IN_HAND_VEL] * hv) + m.acc_d[IN_ONE] * one;
         self.key = key;
     }
 }
 
-/// Outputs (ẍ_h, x_1, x_h, r) of the modal state `z` (first `n_lanes`
-/// lanes): Σ_j w_j z_j with each state broadcast to a lane pair, so every
-/// product and sum is vertical (packed), with even and odd states in
-/// separate accumulators to halve the add chain.
+#[inline(always)]
+fn l2_add(a: L2, b: L2) -> L2 {
+    [a[0] + b[0], a[1] + b[1]]
+}
+
+#[inline(always)]
+fn l2_mul(a: L2, b: L2) -> L2 {
+    [a[0] * b[0], a[1] * b[1]]
+}
+
+/// Adds the output contributions of the two states in lane `zk` (weights
+/// `w0`, `w1`, each [(ẍ_h, x_1), (x_h, r)]) to the pair accumulators `p`:
+/// each state is broadcast to a lane pair, so every product and sum is
+/// vertical (packed), with even and odd states in separate accumulators.
+#[inline(always)]
+fn outputs_add(p: &mut [L2; 4], w0: &[L2; 2], w1: &[L2; 2], zk: L2) {
+    let (lo, hi) = ([zk[0], zk[0]], [zk[1], zk[1]]);
+    p[0] = l2_mul_add(p[0], w0[0], lo);
+    p[2] = l2_mul_add(p[2], w0[1], lo);
+    p[1] = l2_mul_add(p[1], w1[0], hi);
+    p[3] = l2_mul_add(p[3], w1[1], hi);
+}
+
+/// Outputs (ẍ_h without feed-through, x_1, x_h, r) of the pair accumulators.
+#[inline(always)]
+fn outputs_sum(p: &[L2; 4]) -> [f64; 4] {
+    let am = l2_add(p[0], p[1]);
+    let ts = l2_add(p[2], p[3]);
+    [am[0], am[1], ts[0], ts[1]]
+}
+
+/// Outputs (ẍ_h without feed-through, x_1, x_h, r) of the modal state `z`:
+/// Σ_j w_j z_j, same order of operations as [`modal_pass`].
 #[inline(always)]
 fn modal_outputs<const N: usize>(w: &[[L2; 2]; MODAL_MAX_STATES], z: &[L2; LANES]) -> [f64; 4] {
-    let n_lanes = lanes(N);
     let mut p = [[0.0f64; 2]; 4];
-    for k in 0..n_lanes {
-        let lo = [z[k][0], z[k][0]];
-        let hi = [z[k][1], z[k][1]];
-        let (w0, w1) = (w[2 * k], w[2 * k + 1]);
-        p[0] = l2_mul_add(p[0], w0[0], lo);
-        p[2] = l2_mul_add(p[2], w0[1], lo);
-        p[1] = l2_mul_add(p[1], w1[0], hi);
-        p[3] = l2_mul_add(p[3], w1[1], hi);
+    for (k, zk) in z.iter().enumerate().take(lanes(N)) {
+        outputs_add(&mut p, &w[2 * k], &w[2 * k + 1], *zk);
     }
-    let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
-    let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
-    [am[0], am[1], ts[0], ts[1]]
+    outputs_sum(&p)
 }
 
 /// One modal update z ← Λz + γ_f f (+ γ_v u_v when `DRIVE`) + bias and the
 /// outputs (ẍ_h without feed-through, x_1, x_h, r) of the new state, in one
-/// pass over the lanes (fused so that LLVM keeps the output accumulators
-/// packed; outputs as in [`modal_outputs`]). `DRIVE = false` skips the
-/// drive column where it is identically zero (the y axis).
+/// pass over the lanes (layout in [`ModalRegime`]; outputs as in
+/// [`modal_outputs`]). `DRIVE = false` skips the drive column where it is
+/// identically zero, `STOPS = false` the stroke output (y axis: no magnet,
+/// r = 0).
 #[inline(always)]
-fn modal_pass<const N: usize, const DRIVE: bool>(
+fn modal_pass<const N: usize, const DRIVE: bool, const DUNIT: bool, const STOPS: bool>(
     m: &ModalRegime<N>,
     z: &[L2; LANES],
     bias: &[L2; LANES],
@@ -570,32 +627,49 @@ fn modal_pass<const N: usize, const DRIVE: bool>(
     v: f64,
 ) -> (A16<[L2; LANES]>, [f64; 4]) {
     let (gf, gv) = (&m.gam.0[IN_FORCE], &m.gam.0[IN_DRIVE]);
-    let (ra, rb) = (&m.ra.0, &m.rb.0);
+    let (cs, cp) = (&m.cs.0, &m.cp.0);
     let w = &m.outw.0;
+    let (ff, vv) = ([f, f], [v, v]);
     let mut zn = A16([[0.0; 2]; LANES]);
     let mut p = [[0.0f64; 2]; 4];
-    for k in 0..lanes(N) {
-        let zk = z[k];
-        let rot = l2_mul_add([ra[k][0] * zk[0], ra[k][1] * zk[1]], rb[k], [zk[1], zk[0]]);
-        let inp = if DRIVE {
-            l2_mul_add([gf[k][0] * f, gf[k][1] * f], gv[k], [v, v])
-        } else {
-            [gf[k][0] * f, gf[k][1] * f]
-        };
-        let y = [
-            (rot[0] + inp[0]) + bias[k][0],
-            (rot[1] + inp[1]) + bias[k][1],
-        ];
-        zn.0[k] = y;
-        let (lo, hi) = ([y[0], y[0]], [y[1], y[1]]);
-        p[0] = l2_mul_add(p[0], w[2 * k][0], lo);
-        p[2] = l2_mul_add(p[2], w[2 * k][1], lo);
-        p[1] = l2_mul_add(p[1], w[2 * k + 1][0], hi);
-        p[3] = l2_mul_add(p[3], w[2 * k + 1][1], hi);
+    for g in 0..groups(N) {
+        let (l, h) = (2 * g, 2 * g + 1);
+        let (a, b) = (z[l], z[h]);
+        // Force input (1, 0) per block: A only.
+        let mut an = l2_add(l2_add(l2_mul(cs[l], a), l2_mul(cp[l], b)), ff);
+        let mut bn = l2_add(l2_mul(cs[h], b), l2_mul(cp[h], a));
+        if DRIVE && DUNIT {
+            // Drive input (0, 1) per block: B only.
+            bn = l2_add(bn, vv);
+        } else if DRIVE {
+            an = l2_mul_add(an, gv[l], vv);
+            bn = l2_mul_add(bn, gv[h], vv);
+        }
+        an = l2_add(an, bias[l]);
+        bn = l2_add(bn, bias[h]);
+        zn.0[l] = an;
+        zn.0[h] = bn;
+        outputs_add(&mut p, &w[2 * l], &w[2 * l + 1], an);
+        outputs_add(&mut p, &w[2 * h], &w[2 * h + 1], bn);
     }
-    let am = [p[0][0] + p[1][0], p[0][1] + p[1][1]];
-    let ts = [p[2][0] + p[3][0], p[2][1] + p[3][1]];
-    (zn, [am[0], am[1], ts[0], ts[1]])
+    for k in 2 * groups(N)..lanes(N) {
+        let zk = z[k];
+        let rot = l2_mul_add(l2_mul(cs[k], zk), cp[k], [zk[1], zk[0]]);
+        let inp = if DRIVE {
+            l2_mul_add(l2_mul(gf[k], ff), gv[k], vv)
+        } else {
+            l2_mul(gf[k], ff)
+        };
+        let y = l2_add(l2_add(rot, inp), bias[k]);
+        zn.0[k] = y;
+        outputs_add(&mut p, &w[2 * k], &w[2 * k + 1], y);
+    }
+    let out = outputs_sum(&p);
+    // Without end stops the stroke weights are zero: r = +0 exactly.
+    (
+        zn,
+        [out[0], out[1], out[2], if STOPS { out[3] } else { 0.0 }],
+    )
 }
 
 /// Column-major matrix–vector product y = M x (M given by its columns).
@@ -704,30 +778,70 @@ fn modal_regime<const N: usize>(
     if !(cond.is_finite() && cond < 1e8 && resid < 1e-11) {
         return None;
     }
-    let g = &tinv * gamma;
+    // Input normalisation of the 2×2 blocks (see `ModalRegime`).
+    let g0 = &tinv * gamma;
+    let gmax = (0..n).map(|i| g0[(i, IN_FORCE)].abs()).fold(0.0, f64::max);
+    let vmax = (0..n).map(|i| g0[(i, IN_DRIVE)].abs()).fold(0.0, f64::max);
+    let mut sm = DMatrix::<f64>::identity(n, n);
+    let mut si = DMatrix::<f64>::identity(n, n);
+    // Per block: 0 = as is, 1 = force (1, 0), 2 = force (1, 0) and drive (0, 1).
+    let mut kind = vec![0u8; n / 2];
+    for (bk, kd) in kind.iter_mut().enumerate() {
+        let (i, j) = (2 * bk, 2 * bk + 1);
+        let (p, q) = (g0[(i, IN_FORCE)], g0[(j, IN_FORCE)]);
+        let (r, w) = (g0[(i, IN_DRIVE)], g0[(j, IN_DRIVE)]);
+        let nn = p * p + q * q;
+        if !(nn.is_finite() && nn > 0.0 && nn.sqrt() > 1e-12 * gmax) {
+            // The structure-of-arrays groups add the force as (1, 0).
+            if bk < 2 * groups(N) {
+                return None;
+            }
+            continue;
+        }
+        // S = [γ_f γ_v] when the two columns are far from parallel
+        // (|sin angle| ≥ 1e-3: round-off grows by at most 1/|sin|).
+        let det = p * w - q * r;
+        let nv = (r * r + w * w).sqrt();
+        if vmax > 0.0 && nv > 1e-12 * vmax && det.abs() >= 1e-3 * nn.sqrt() * nv {
+            (sm[(i, i)], sm[(i, j)], sm[(j, i)], sm[(j, j)]) = (p, r, q, w);
+            (si[(i, i)], si[(i, j)], si[(j, i)], si[(j, j)]) =
+                (w / det, -r / det, -q / det, p / det);
+            *kd = 2;
+        } else {
+            (sm[(i, i)], sm[(i, j)], sm[(j, i)], sm[(j, j)]) = (p, -q, q, p);
+            (si[(i, i)], si[(i, j)], si[(j, i)], si[(j, j)]) = (p / nn, q / nn, -q / nn, p / nn);
+            *kd = 1;
+        }
+    }
+    let t = &t * &sm;
+    let tinv = &si * &tinv;
+    let lam = &si * &lam * &sm;
+    let mut g = &si * &g0;
+    for (bk, &kd) in kind.iter().enumerate() {
+        if kd >= 1 {
+            g[(2 * bk, IN_FORCE)] = 1.0;
+            g[(2 * bk + 1, IN_FORCE)] = 0.0;
+        }
+        if kd == 2 {
+            g[(2 * bk, IN_DRIVE)] = 0.0;
+            g[(2 * bk + 1, IN_DRIVE)] = 1.0;
+        }
+    }
+    let drive_unit = kind[..2 * groups(N)].iter().all(|&k| k == 2);
     let ct = c * &t;
-    let mut ra = [0.0; N];
-    let mut rb = [0.0; N];
-    for (k, p) in pairs.iter().enumerate() {
-        ra[2 * k] = p.re;
-        ra[2 * k + 1] = p.re;
-        rb[2 * k] = p.im;
-        rb[2 * k + 1] = -p.im;
-    }
-    for (k, &r) in reals.iter().enumerate() {
-        ra[2 * np + k] = r;
-    }
     let (h, m1, v) = picks;
-    let row = |f: &dyn Fn(usize) -> f64| -> [L2; LANES] {
-        let x: [f64; N] = std::array::from_fn(f);
+    let nat = |fl: usize| natural_index(fl, N);
+    let flat = |f: &dyn Fn(usize) -> f64| -> [L2; LANES] {
+        let x: [f64; N] = std::array::from_fn(|fl| f(nat(fl)));
         to_lanes(&x)
     };
     let mut m = ModalRegime::<N> {
-        ra: A16(to_lanes(&ra)),
-        rb: A16(to_lanes(&rb)),
-        gam: A16(std::array::from_fn(|j| row(&|i| g[(i, j)]))),
-        outw: A16(std::array::from_fn(|i| {
-            if i < N {
+        cs: A16(flat(&|i| lam[(i, i)])),
+        cp: A16(flat(&|i| if i ^ 1 < n { lam[(i, i ^ 1)] } else { 0.0 })),
+        gam: A16(std::array::from_fn(|j| flat(&|i| g[(i, j)]))),
+        outw: A16(std::array::from_fn(|fl| {
+            if fl < N {
+                let i = nat(fl);
                 [
                     [ct[(OUT_ACCEL, i)], t[(m1, i)]],
                     [t[(h, i)], v.map_or(0.0, |v| t[(v, i)] - t[(h, i)])],
@@ -737,13 +851,14 @@ fn modal_regime<const N: usize>(
             }
         })),
         acc_d: std::array::from_fn(|j| d[(OUT_ACCEL, j)]),
+        drive_unit,
         t: [[0.0; N]; N],
         tinv: [[0.0; N]; N],
     };
     for i in 0..N {
         for j in 0..N {
-            m.t[j][i] = t[(i, j)];
-            m.tinv[j][i] = tinv[(i, j)];
+            m.t[j][i] = t[(i, nat(j))];
+            m.tinv[j][i] = tinv[(nat(i), j)];
         }
     }
     Some(m)
@@ -810,6 +925,13 @@ impl<const N: usize> AxisSim<N> {
                     && r.gam.0[IN_DRIVE].iter().all(|l| l[0] == 0.0 && l[1] == 0.0)
             })
         });
+        let fast_d = modal.as_deref().is_some_and(|regs| {
+            regs.iter()
+                .any(|r| r.acc_d[IN_FORCE] != 0.0 || r.acc_d[IN_DRIVE] != 0.0)
+        });
+        let drive_unit = modal
+            .as_deref()
+            .is_some_and(|regs| regs.iter().all(|r| r.drive_unit));
         Ok(Self {
             phi_cols,
             gamma_cols,
@@ -828,6 +950,8 @@ impl<const N: usize> AxisSim<N> {
             resets: 0,
             modal,
             drive_free,
+            fast_d,
+            drive_unit,
             z: A16([[0.0; 2]; LANES]),
             cur: 0,
             slow: SlowInputs::new(),
@@ -896,32 +1020,53 @@ impl<const N: usize> AxisSim<N> {
         }
     }
 
-    /// The modal ZOH step (see [`ModalRegime`]); `u` must be finite.
+    /// The modal ZOH step (see [`ModalRegime`]).
     ///
     /// Hot path: one lane-wise update z ← Λz + γ_f f + γ_v u_v + (slow
     /// inputs, cached), then the output dot products. A non-finite state is
     /// detected through the acceleration dot product (0·∞ = NaN, so it is
-    /// non-finite as soon as any state is); the reset and the rare end-stop
-    /// regime switch run out of line.
+    /// non-finite as soon as any state is); a non-finite input is caught the
+    /// same way (it makes the new state non-finite). The reset, the input
+    /// sanitising and the rare end-stop regime switch run out of line.
     #[inline]
-    fn step_modal(&mut self, u: &[f64; NU]) -> Option<AxisOutput> {
+    fn step_modal(&mut self, f: f64, drive: f64, slow: [f64; 3]) -> Option<AxisOutput> {
         let regs = self.modal.as_deref()?;
         let r0 = self.cur;
         let m = &regs[r0];
-        let (bias, bias_acc) = self.slow.get(m, r0, u);
+        let (bias, bias_acc) = self.slow.get(m, r0, slow);
         let z = &self.z.0;
-        let (f, v) = (u[IN_FORCE], u[IN_DRIVE]);
-        let (zn, [acc_z, motor, tip, stroke]) = if self.drive_free {
-            modal_pass::<N, false>(m, z, bias, f, v)
+        // Without a drive column (y axis) the drive input is not read at all
+        // (a non-finite value there could not be detected through the state).
+        let (zn, [acc_z, motor, tip, stroke], v) =
+            match (self.drive_free, self.stroke.is_some(), self.drive_unit) {
+                (true, false, _) => {
+                    let (zn, o) = modal_pass::<N, false, false, false>(m, z, bias, f, 0.0);
+                    (zn, o, 0.0)
+                }
+                (false, true, true) => {
+                    let (zn, o) = modal_pass::<N, true, true, true>(m, z, bias, f, drive);
+                    (zn, o, drive)
+                }
+                _ => {
+                    let v = if self.drive_free { 0.0 } else { drive };
+                    let (zn, o) = modal_pass::<N, true, false, true>(m, z, bias, f, v);
+                    (zn, o, v)
+                }
+            };
+        // Feed-through of force and drive to ẍ_h (zero in eq. 1: both act
+        // through other bodies or the drive state).
+        let d_fast = if self.fast_d {
+            m.acc_d[IN_FORCE] * f + m.acc_d[IN_DRIVE] * v
         } else {
-            modal_pass::<N, true>(m, z, bias, f, v)
+            0.0
         };
         let r1 = self.regime_of_stroke(stroke);
         if r1 != r0 || !acc_z.is_finite() {
-            return Some(self.finish_modal_slow(from_lanes(&zn.0), u));
+            let [hp, hv, one] = slow;
+            return Some(self.finish_modal_slow(from_lanes(&zn.0), [f, drive, hp, hv, one]));
         }
         let out = AxisOutput {
-            accel: acc_z + ((m.acc_d[IN_FORCE] * f + m.acc_d[IN_DRIVE] * v) + bias_acc),
+            accel: acc_z + (d_fast + bias_acc),
             tip,
             motor,
             stroke,
@@ -937,7 +1082,20 @@ impl<const N: usize> AxisSim<N> {
     /// (reset to zero, counted): change of basis x = T z, z' = T'⁻¹ x.
     #[cold]
     #[inline(never)]
-    fn finish_modal_slow(&mut self, mut zn: [f64; N], u: &[f64; NU]) -> AxisOutput {
+    fn finish_modal_slow(&mut self, mut zn: [f64; N], u: [f64; NU]) -> AxisOutput {
+        if !u.iter().all(|v| v.is_finite()) {
+            // Nothing was stored yet: redo the step with non-finite inputs
+            // replaced by 0 (the documented input handling of `step`).
+            let mut clean = u;
+            sanitize(&mut clean);
+            return self
+                .step_modal(
+                    clean[IN_FORCE],
+                    clean[IN_DRIVE],
+                    [clean[IN_HAND_POS], clean[IN_HAND_VEL], clean[IN_ONE]],
+                )
+                .unwrap_or_default();
+        }
         let Some(regs) = self.modal.as_deref() else {
             return AxisOutput::default();
         };
@@ -1017,16 +1175,20 @@ impl<const N: usize> AxisSim<N> {
     /// [`Self::step`] with the inputs as an array (no nalgebra on the hot path).
     #[inline]
     pub fn step_inputs(&mut self, mut ua: [f64; NU]) -> AxisOutput {
-        for v in ua.iter_mut() {
-            if !v.is_finite() {
-                *v = 0.0;
-            }
-        }
+        // The modal path takes the inputs unchecked: a non-finite input makes
+        // the new state non-finite (0·∞ = NaN, c·∞ = ±∞), which its cold
+        // path detects before anything is stored and then repeats the step
+        // with the inputs sanitised (same result as sanitising here).
         if self.integrator == Integrator::Zoh
-            && let Some(o) = self.step_modal(&ua)
+            && let Some(o) = self.step_modal(
+                ua[IN_FORCE],
+                ua[IN_DRIVE],
+                [ua[IN_HAND_POS], ua[IN_HAND_VEL], ua[IN_ONE]],
+            )
         {
             return o;
         }
+        sanitize(&mut ua);
         let u = SVector::<f64, NU>::from(ua);
         let r0 = self.regime_of(&self.x);
         if r0 != 0 {
@@ -1097,6 +1259,16 @@ impl<const N: usize> AxisSim<N> {
             tip,
             motor,
             stroke,
+        }
+    }
+}
+
+/// Replace non-finite inputs by 0.
+#[inline]
+fn sanitize(u: &mut [f64; NU]) {
+    for v in u.iter_mut() {
+        if !v.is_finite() {
+            *v = 0.0;
         }
     }
 }
