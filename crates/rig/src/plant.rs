@@ -464,21 +464,28 @@ fn from_lanes<const N: usize>(l: &[L2; LANES]) -> [f64; N] {
 /// a ± jb of Φ, or two real eigenvalues), then at most one single real
 /// eigenvalue.
 ///
-/// Basis. Each 2×2 block's coordinates are scaled so that the force input
-/// enters it as (1, 0): with g = (p, q) the block's part of T⁻¹Γ_f, the
-/// block's basis columns are multiplied by S = [[p, −q], [q, p]] (a
-/// rotation-scaling, condition number 1; on a pair it commutes with the
-/// block, which stays [[a, b], [−b, a]]), so S⁻¹g = (1, 0) and the force
-/// costs one add per lane pair instead of two multiply-adds.
+/// Basis. Each 2×2 block's basis columns are multiplied by a 2×2 matrix S
+/// chosen from the block's part of T⁻¹Γ: with g_f = (p, q) (force) and
+/// g_v = (r, w) (drive), S = [g_f g_v] when the two are far from parallel
+/// (|sin ∠| ≥ 10⁻³, so round-off grows by at most 10³; x axis), else
+/// S = [[p, −q], [q, p]] (a rotation-scaling, condition number 1, which
+/// commutes with a pair's block [[a, b], [−b, a]]; y axis). Then S⁻¹g_f =
+/// (1, 0) (and S⁻¹g_v = (0, 1)): the force costs one add per lane pair
+/// instead of two multiply-adds, the drive another. The block itself becomes
+/// S⁻¹ Λ_b S, a general 2×2 matrix, which the layout below handles at the
+/// same cost. The map is the same exact ZOH map in another basis; only the
+/// round-off differs.
 ///
 /// Layout. Everything the step reads is stored as lanes of two states
 /// ([`L2`]) in the *flat* order of the modal state. The first 4·⌊N/4⌋
 /// states are groups of two blocks in structure-of-arrays form: lane 2g
 /// holds the first coordinates of blocks 2g and 2g+1, lane 2g+1 their second
 /// coordinates, so a group update is A' = c_s⊙A + c_p⊙B, B' = c_s⊙B + c_p⊙A
-/// (four packed multiplies, no shuffle) and the force adds [f, f] to A. The
-/// remaining states are "AoS" lanes (a whole block, or a single real and a
-/// zero padding): z' = c_s⊙z + c_p⊙swap(z) + γ_f f + …. Padding is zero.
+/// (four packed multiplies, no shuffle), the force adds [f, f] to A and,
+/// when every group block takes the drive as (0, 1), the drive [u_v, u_v]
+/// to B. The remaining states are "AoS" lanes (a whole block, or a single
+/// real and a zero padding): z' = c_s⊙z + c_p⊙swap(z) + γ_f f + ….
+/// Padding is zero.
 #[derive(Debug, Clone)]
 struct ModalRegime<const N: usize> {
     /// Λ entries on the diagonal (c_s) and to the block partner (c_p).
@@ -549,15 +556,16 @@ impl SlowInputs {
             | (key[2] ^ self.key[2])
             | (key[3] ^ self.key[3]);
         if diff != 0 {
-            self.refresh(m, key, [hp, hv, one]);
+            self.refresh(m, regime, [hp, hv, one]);
         }
         (&self.bias.0, self.acc)
     }
 
     #[cold]
     #[inline(never)]
-    fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, key: [u64; 4], u: [f64; 3]) {
+    fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, regime: usize, u: [f64; 3]) {
         let [hp, hv, one] = u;
+        let key = [hp.to_bits(), hv.to_bits(), one.to_bits(), regime as u64];
         for k in 0..LANES {
             for i in 0..2 {
                 let g = &m.gam.0;
@@ -617,9 +625,16 @@ fn modal_outputs<const N: usize>(w: &[[L2; 2]; MODAL_MAX_STATES], z: &[L2; LANES
 /// pass over the lanes (layout in [`ModalRegime`]; outputs as in
 /// [`modal_outputs`]). `DRIVE = false` skips the drive column where it is
 /// identically zero, `STOPS = false` the stroke output (y axis: no magnet,
-/// r = 0).
+/// r = 0), `TIP = false` the tip position (returned as 0; ground truth only,
+/// see [`AxisSim::tip_m`]).
 #[inline(always)]
-fn modal_pass<const N: usize, const DRIVE: bool, const DUNIT: bool, const STOPS: bool>(
+fn modal_pass<
+    const N: usize,
+    const DRIVE: bool,
+    const DUNIT: bool,
+    const STOPS: bool,
+    const TIP: bool,
+>(
     m: &ModalRegime<N>,
     z: &[L2; LANES],
     bias: &[L2; LANES],
@@ -668,7 +683,12 @@ fn modal_pass<const N: usize, const DRIVE: bool, const DUNIT: bool, const STOPS:
     // Without end stops the stroke weights are zero: r = +0 exactly.
     (
         zn,
-        [out[0], out[1], out[2], if STOPS { out[3] } else { 0.0 }],
+        [
+            out[0],
+            out[1],
+            if TIP { out[2] } else { 0.0 },
+            if STOPS { out[3] } else { 0.0 },
+        ],
     )
 }
 
@@ -1029,7 +1049,12 @@ impl<const N: usize> AxisSim<N> {
     /// same way (it makes the new state non-finite). The reset, the input
     /// sanitising and the rare end-stop regime switch run out of line.
     #[inline]
-    fn step_modal(&mut self, f: f64, drive: f64, slow: [f64; 3]) -> Option<AxisOutput> {
+    fn step_modal<const TIP: bool>(
+        &mut self,
+        f: f64,
+        drive: f64,
+        slow: [f64; 3],
+    ) -> Option<AxisOutput> {
         let regs = self.modal.as_deref()?;
         let r0 = self.cur;
         let m = &regs[r0];
@@ -1040,16 +1065,16 @@ impl<const N: usize> AxisSim<N> {
         let (zn, [acc_z, motor, tip, stroke], v) =
             match (self.drive_free, self.stroke.is_some(), self.drive_unit) {
                 (true, false, _) => {
-                    let (zn, o) = modal_pass::<N, false, false, false>(m, z, bias, f, 0.0);
+                    let (zn, o) = modal_pass::<N, false, false, false, TIP>(m, z, bias, f, 0.0);
                     (zn, o, 0.0)
                 }
                 (false, true, true) => {
-                    let (zn, o) = modal_pass::<N, true, true, true>(m, z, bias, f, drive);
+                    let (zn, o) = modal_pass::<N, true, true, true, TIP>(m, z, bias, f, drive);
                     (zn, o, drive)
                 }
                 _ => {
                     let v = if self.drive_free { 0.0 } else { drive };
-                    let (zn, o) = modal_pass::<N, true, false, true>(m, z, bias, f, v);
+                    let (zn, o) = modal_pass::<N, true, false, true, TIP>(m, z, bias, f, v);
                     (zn, o, v)
                 }
             };
@@ -1071,7 +1096,8 @@ impl<const N: usize> AxisSim<N> {
             motor,
             stroke,
         };
-        self.z = zn;
+        // Padding lanes stay zero: copy only the lanes in use.
+        self.z.0[..lanes(N)].copy_from_slice(&zn.0[..lanes(N)]);
         if r0 != 0 {
             self.stop_steps += 1;
         }
@@ -1089,7 +1115,7 @@ impl<const N: usize> AxisSim<N> {
             let mut clean = u;
             sanitize(&mut clean);
             return self
-                .step_modal(
+                .step_modal::<true>(
                     clean[IN_FORCE],
                     clean[IN_DRIVE],
                     [clean[IN_HAND_POS], clean[IN_HAND_VEL], clean[IN_ONE]],
@@ -1174,13 +1200,37 @@ impl<const N: usize> AxisSim<N> {
 
     /// [`Self::step`] with the inputs as an array (no nalgebra on the hot path).
     #[inline]
-    pub fn step_inputs(&mut self, mut ua: [f64; NU]) -> AxisOutput {
+    pub fn step_inputs(&mut self, ua: [f64; NU]) -> AxisOutput {
+        self.step_impl::<true>(ua)
+    }
+
+    /// [`Self::step_inputs`] without the tip position (`tip` is not computed
+    /// on the modal path and must not be used; read it with [`Self::tip_m`]
+    /// when needed): the outputs a control loop needs each sample. Same
+    /// state update, counters and non-finite handling; the other outputs are
+    /// bit-identical.
+    #[inline]
+    pub fn step_inputs_fast(&mut self, ua: [f64; NU]) -> AxisOutput {
+        self.step_impl::<false>(ua)
+    }
+
+    /// Tip position x_h (m) of the current state; bit-identical to the `tip`
+    /// output of the step that produced the state.
+    pub fn tip_m(&self) -> f64 {
+        match &self.modal {
+            Some(m) => modal_outputs::<N>(&m[self.cur].outw.0, &self.z.0)[2],
+            None => self.x[self.tip],
+        }
+    }
+
+    #[inline(always)]
+    fn step_impl<const TIP: bool>(&mut self, ua: [f64; NU]) -> AxisOutput {
         // The modal path takes the inputs unchecked: a non-finite input makes
         // the new state non-finite (0·∞ = NaN, c·∞ = ±∞), which its cold
         // path detects before anything is stored and then repeats the step
         // with the inputs sanitised (same result as sanitising here).
         if self.integrator == Integrator::Zoh
-            && let Some(o) = self.step_modal(
+            && let Some(o) = self.step_modal::<TIP>(
                 ua[IN_FORCE],
                 ua[IN_DRIVE],
                 [ua[IN_HAND_POS], ua[IN_HAND_VEL], ua[IN_ONE]],
@@ -1188,6 +1238,12 @@ impl<const N: usize> AxisSim<N> {
         {
             return o;
         }
+        self.step_general(ua)
+    }
+
+    /// The dense ZOH, RK4 and semi-implicit Euler steps.
+    #[inline]
+    fn step_general(&mut self, mut ua: [f64; NU]) -> AxisOutput {
         sanitize(&mut ua);
         let u = SVector::<f64, NU>::from(ua);
         let r0 = self.regime_of(&self.x);
@@ -1299,6 +1355,19 @@ pub struct PlantOutput {
     pub stroke_m: f64,
 }
 
+/// Outputs of the two-axis plant that a control loop needs each sample
+/// ([`DualStagePlant::step_fast`]): [`PlantOutput`] without the tip
+/// position (ground truth, [`DualStagePlant::tip_m`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PlantFastOutput {
+    /// Tip acceleration (x, y), m/s².
+    pub accel_m_s2: [f64; 2],
+    /// Motor-side (encoder) position (x, y), m.
+    pub motor_m: [f64; 2],
+    /// Haptuator magnet stroke, m.
+    pub stroke_m: f64,
+}
+
 /// The two-axis dual-stage plant (x with Haptuator, y without).
 #[derive(Debug, Clone)]
 pub struct DualStagePlant {
@@ -1352,5 +1421,80 @@ impl DualStagePlant {
             motor_m: [ox.motor, oy.motor],
             stroke_m: ox.stroke,
         }
+    }
+
+    /// [`Self::step`] without the tip position: same state, counters and
+    /// (bit-identical) other outputs; the tip of the new state is
+    /// [`Self::tip_m`]. Saves the tip's dot products on the modal path.
+    #[inline]
+    pub fn step_fast(&mut self, i: &PlantInput) -> PlantFastOutput {
+        let ox =
+            self.x
+                .step_inputs_fast([i.force_n[0], i.drive_v, i.hand_m[0], i.hand_vel_m_s[0], 1.0]);
+        let oy = self
+            .y
+            .step_inputs_fast([i.force_n[1], 0.0, i.hand_m[1], i.hand_vel_m_s[1], 1.0]);
+        PlantFastOutput {
+            accel_m_s2: [ox.accel, oy.accel],
+            motor_m: [ox.motor, oy.motor],
+            stroke_m: ox.stroke,
+        }
+    }
+
+    /// Tip position (x, y) of the current state, m (what [`Self::step`]
+    /// returned as `tip_m` for the last step, bit for bit).
+    pub fn tip_m(&self) -> [f64; 2] {
+        [self.x.tip_m(), self.y.tip_m()]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::RigConfig;
+
+    /// `step_fast` + `tip_m` reproduce `step` bit for bit (state, outputs,
+    /// counters), through end-stop episodes, hand motion and non-finite
+    /// inputs.
+    #[test]
+    fn step_fast_and_tip_on_demand_match_step() {
+        let cfg = RigConfig::default();
+        let mut a = DualStagePlant::new(&cfg, Integrator::Zoh).unwrap();
+        let mut b = a.clone();
+        assert!(a.x.is_modal() && a.y.is_modal());
+        // The default rig takes the fast input paths: force and drive as
+        // unit columns on x (all three regimes), no drive column on y.
+        assert!(a.x.drive_unit && !a.x.drive_free && !a.x.fast_d);
+        assert!(a.y.drive_free && !a.y.fast_d);
+        let vmax = cfg.limits.haptuator_drive_max_v;
+        for k in 0..40_000 {
+            let t = k as f64 * 1e-4;
+            let w = 2.0 * PI * t;
+            let mut i = PlantInput {
+                force_n: [0.8 * (37.0 * w).sin(), 0.5 * (23.0 * w).cos()],
+                drive_v: vmax * (55.0 * w).sin(),
+                hand_m: [1e-3 * (3.0 * w).sin(), 0.0],
+                hand_vel_m_s: [6e-3 * PI * (3.0 * w).cos(), 0.0],
+            };
+            if k % 997 == 5 {
+                i.force_n[k % 2] = f64::NAN;
+                i.drive_v = f64::INFINITY;
+            }
+            let o = a.step(&i);
+            let f = b.step_fast(&i);
+            assert_eq!(
+                o.accel_m_s2.map(f64::to_bits),
+                f.accel_m_s2.map(f64::to_bits)
+            );
+            assert_eq!(o.motor_m.map(f64::to_bits), f.motor_m.map(f64::to_bits));
+            assert_eq!(o.stroke_m.to_bits(), f.stroke_m.to_bits());
+            assert_eq!(o.tip_m.map(f64::to_bits), b.tip_m().map(f64::to_bits));
+            assert!(o.accel_m_s2.iter().chain(&o.tip_m).all(|v| v.is_finite()));
+        }
+        assert!(a.x.end_stop_steps() > 100);
+        assert_eq!(a.x.end_stop_steps(), b.x.end_stop_steps());
+        assert_eq!(a.x.nonfinite_resets() + a.y.nonfinite_resets(), 0);
+        assert_eq!(a.x.state(), b.x.state());
+        assert_eq!(a.y.state(), b.y.state());
     }
 }
