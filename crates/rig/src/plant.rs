@@ -416,6 +416,22 @@ pub struct AxisSim<const N: usize> {
     fast_d: bool,
     // Every regime takes the drive as (0, 1) in its block groups.
     drive_unit: bool,
+    // Which step runs (from the flags above; one test per step).
+    path: StepPath,
+}
+
+/// Which step [`AxisSim`] runs, chosen once from its configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StepPath {
+    /// Dense ZOH, RK4 or semi-implicit Euler.
+    Dense,
+    /// Modal, general inputs and feed-through.
+    Modal,
+    /// Modal without drive column, end stops or feed-through (y axis).
+    ModalNoDrive,
+    /// Modal with unit force and drive columns, end stops, no feed-through
+    /// (x axis).
+    ModalDriveUnit,
 }
 
 /// Largest state dimension with a modal fast path (lanes of 2 states).
@@ -952,7 +968,7 @@ impl<const N: usize> AxisSim<N> {
         let drive_unit = modal
             .as_deref()
             .is_some_and(|regs| regs.iter().all(|r| r.drive_unit));
-        Ok(Self {
+        let mut sim = Self {
             phi_cols,
             gamma_cols,
             integrator,
@@ -972,10 +988,28 @@ impl<const N: usize> AxisSim<N> {
             drive_free,
             fast_d,
             drive_unit,
+            path: StepPath::Dense,
             z: A16([[0.0; 2]; LANES]),
             cur: 0,
             slow: SlowInputs::new(),
-        })
+        };
+        sim.path = sim.select_path();
+        Ok(sim)
+    }
+
+    /// The step variant for the current configuration (see [`StepPath`]).
+    fn select_path(&self) -> StepPath {
+        if self.integrator != Integrator::Zoh || self.modal.is_none() {
+            StepPath::Dense
+        } else if self.fast_d {
+            StepPath::Modal
+        } else if self.drive_free && self.stroke.is_none() {
+            StepPath::ModalNoDrive
+        } else if !self.drive_free && self.stroke.is_some() && self.drive_unit {
+            StepPath::ModalDriveUnit
+        } else {
+            StepPath::Modal
+        }
     }
 
     /// True when the ZOH update runs in modal coordinates (fast path).
@@ -987,6 +1021,7 @@ impl<const N: usize> AxisSim<N> {
     pub fn force_dense(&mut self) {
         let x = self.state();
         self.modal = None;
+        self.path = StepPath::Dense;
         self.x = x;
     }
 
@@ -1062,28 +1097,23 @@ impl<const N: usize> AxisSim<N> {
         let z = &self.z.0;
         // Without a drive column (y axis) the drive input is not read at all
         // (a non-finite value there could not be detected through the state).
-        let (zn, [acc_z, motor, tip, stroke], v) =
-            match (self.drive_free, self.stroke.is_some(), self.drive_unit) {
-                (true, false, _) => {
-                    let (zn, o) = modal_pass::<N, false, false, false, TIP>(m, z, bias, f, 0.0);
-                    (zn, o, 0.0)
-                }
-                (false, true, true) => {
-                    let (zn, o) = modal_pass::<N, true, true, true, TIP>(m, z, bias, f, drive);
-                    (zn, o, drive)
-                }
-                _ => {
-                    let v = if self.drive_free { 0.0 } else { drive };
-                    let (zn, o) = modal_pass::<N, true, false, true, TIP>(m, z, bias, f, v);
-                    (zn, o, v)
-                }
-            };
-        // Feed-through of force and drive to ẍ_h (zero in eq. 1: both act
-        // through other bodies or the drive state).
-        let d_fast = if self.fast_d {
-            m.acc_d[IN_FORCE] * f + m.acc_d[IN_DRIVE] * v
-        } else {
-            0.0
+        // The specialised paths have no feed-through of force and drive to
+        // ẍ_h (none in eq. 1: both act through other bodies or the drive
+        // state); the general one adds it.
+        let (zn, [acc_z, motor, tip, stroke], d_fast) = match self.path {
+            StepPath::ModalNoDrive => {
+                let (zn, o) = modal_pass::<N, false, false, false, TIP>(m, z, bias, f, 0.0);
+                (zn, o, 0.0)
+            }
+            StepPath::ModalDriveUnit => {
+                let (zn, o) = modal_pass::<N, true, true, true, TIP>(m, z, bias, f, drive);
+                (zn, o, 0.0)
+            }
+            _ => {
+                let v = if self.drive_free { 0.0 } else { drive };
+                let (zn, o) = modal_pass::<N, true, false, true, TIP>(m, z, bias, f, v);
+                (zn, o, m.acc_d[IN_FORCE] * f + m.acc_d[IN_DRIVE] * v)
+            }
         };
         let r1 = self.regime_of_stroke(stroke);
         if r1 != r0 || !acc_z.is_finite() {
@@ -1229,7 +1259,7 @@ impl<const N: usize> AxisSim<N> {
         // the new state non-finite (0·∞ = NaN, c·∞ = ±∞), which its cold
         // path detects before anything is stored and then repeats the step
         // with the inputs sanitised (same result as sanitising here).
-        if self.integrator == Integrator::Zoh
+        if self.path != StepPath::Dense
             && let Some(o) = self.step_modal::<TIP>(
                 ua[IN_FORCE],
                 ua[IN_DRIVE],
@@ -1466,6 +1496,8 @@ mod tests {
         // unit columns on x (all three regimes), no drive column on y.
         assert!(a.x.drive_unit && !a.x.drive_free && !a.x.fast_d);
         assert!(a.y.drive_free && !a.y.fast_d);
+        assert_eq!(a.x.path, StepPath::ModalDriveUnit);
+        assert_eq!(a.y.path, StepPath::ModalNoDrive);
         let vmax = cfg.limits.haptuator_drive_max_v;
         for k in 0..40_000 {
             let t = k as f64 * 1e-4;
