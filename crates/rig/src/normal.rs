@@ -105,6 +105,19 @@ impl NormalStream {
         v
     }
 
+    /// Next two variates (the same values, in the same order, as two calls
+    /// of [`Self::sample`]), with one buffer test for both.
+    #[inline(always)]
+    pub fn sample2(&mut self) -> [f64; 2] {
+        let p = self.pos;
+        if let Some(&[a, b]) = self.buf.get(p..p + 2) {
+            self.pos = p + 2;
+            [a, b]
+        } else {
+            [self.sample(), self.sample()]
+        }
+    }
+
     /// Fill `out` with the next `out.len()` variates (the same values
     /// `sample` would return).
     pub fn fill(&mut self, out: &mut [f64]) {
