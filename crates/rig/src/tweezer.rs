@@ -923,7 +923,9 @@ impl SimTweezer {
     /// projections of differences). Equal to the centre-relative form up to
     /// round-off (smaller: the bead's nanometre displacement is rounded
     /// instead of its micrometre distance to the obstacle centre). The
-    /// caller runs the move's epilogue.
+    /// caller runs the move's epilogue. Out of line on purpose: inlined,
+    /// LLVM's SLP vectoriser pairs the table's lanes across coefficients
+    /// and the step costs ≈ 13 more instructions.
     #[inline(never)]
     fn near_table_move(&mut self, p0: [f64; 2], p1: [f64; 2], n: [f64; 2], gap: f64) {
         // Same order of draws as the exact path: normal, then tangent.
@@ -970,7 +972,8 @@ impl SimTweezer {
     /// one): the smallest squared centre distance wins, one square root and
     /// one division for the winner only. Same result as [`Self::nearest`]
     /// (gap, normal and index; only exact ties of the rounded distances may
-    /// pick another of the equidistant obstacles).
+    /// pick another of the equidistant obstacles); `None` without obstacles
+    /// or with the bead at an obstacle's centre (no normal).
     #[inline(always)]
     fn nearest_equal_radii(&self, r: [f64; 2]) -> Near {
         let obs = &self.p.obstacles[..];
@@ -991,13 +994,12 @@ impl SimTweezer {
         }
         let dist = bd2.sqrt();
         let gap = dist - self.p.radius_m - first.radius_m;
-        let n = if dist > 0.0 {
-            let inv = 1.0 / dist;
-            [bd[0] * inv, bd[1] * inv]
-        } else {
-            [1.0, 0.0]
-        };
-        Some((bi, n, gap))
+        if !(dist > 0.0) {
+            // At an obstacle's centre: left to the general search.
+            return None;
+        }
+        let inv = 1.0 / dist;
+        Some((bi, [bd[0] * inv, bd[1] * inv], gap))
     }
 
     /// Contact bookkeeping, optical force and the returned sample, for the
@@ -1071,15 +1073,28 @@ impl SimTweezer {
         if !(d[0] * d[0] + d[1] * d[1] <= e * e) {
             ev.escaped = self.nonfinite_or_escape(p1);
         }
-        let mut near = if self.equal_radii {
+        let near = if self.equal_radii {
             self.nearest_equal_radii(self.bead)
         } else {
             self.nearest(self.bead)
         };
+        match near {
+            Some(nr) if nr.2 >= 0.0 => Some(self.finish_sample(p1, Some(nr), ev, 1)),
+            _ => Some(self.finish_rare(p1, ev)),
+        }
+    }
+
+    /// End of a hot-path step whose bead overlaps an obstacle (reflection)
+    /// or sits at an obstacle's centre: the general nearest-obstacle search
+    /// and the reflecting boundary, then the usual epilogue.
+    #[cold]
+    #[inline(never)]
+    fn finish_rare(&mut self, p1: [f64; 2], ev: TweezerEvents) -> TweezerSample {
+        let mut near = self.nearest(self.bead);
         if matches!(near, Some((_, _, g)) if g < 0.0) {
             near = self.reflect(near);
         }
-        Some(self.finish_sample(p1, near, ev, 1))
+        self.finish_sample(p1, near, ev, 1)
     }
 
     /// Every case but the hot path: free space, sub-steps (contact, clamp,
