@@ -984,13 +984,21 @@ impl SimTweezer {
         };
         let (mut bd, mut bd2) = d2(first);
         let mut bi = 0;
-        let mut i = 1;
-        while let Some(o) = obs.get(i) {
-            let (d, q) = d2(o);
+        if let [_, second] = obs {
+            // The common scene (two obstacles), straight-line.
+            let (d, q) = d2(second);
             if q < bd2 {
-                (bi, bd, bd2) = (i, d, q);
+                (bi, bd, bd2) = (1, d, q);
             }
-            i += 1;
+        } else {
+            let mut i = 1;
+            while let Some(o) = obs.get(i) {
+                let (d, q) = d2(o);
+                if q < bd2 {
+                    (bi, bd, bd2) = (i, d, q);
+                }
+                i += 1;
+            }
         }
         let dist = bd2.sqrt();
         let gap = dist - self.p.radius_m - first.radius_m;
