@@ -1002,7 +1002,7 @@ impl SimTweezer {
         }
         let dist = bd2.sqrt();
         let gap = dist - self.p.radius_m - first.radius_m;
-        if !(dist > 0.0) {
+        if dist.is_nan() || dist <= 0.0 {
             // At an obstacle's centre: left to the general search.
             return None;
         }
@@ -1078,7 +1078,8 @@ impl SimTweezer {
         let mut ev = TweezerEvents::default();
         let d = [self.bead[0] - p1[0], self.bead[1] - p1[1]];
         let e = self.p.escape_distance_m;
-        if !(d[0] * d[0] + d[1] * d[1] <= e * e) {
+        let d2 = d[0] * d[0] + d[1] * d[1];
+        if d2.is_nan() || d2 > e * e {
             ev.escaped = self.nonfinite_or_escape(p1);
         }
         let near = if self.equal_radii {
