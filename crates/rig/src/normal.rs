@@ -28,7 +28,7 @@
 //! tail probabilities beyond r and the independence of consecutive draws.
 
 use rand::{Rng, SeedableRng};
-use rand_xoshiro::Xoshiro256PlusPlus;
+use rand_xoshiro::SplitMix64;
 use std::sync::LazyLock;
 
 /// Right edge of the base rectangle (start of the tail), Marsaglia & Tsang.
@@ -70,11 +70,55 @@ const INV_2_53: f64 = 1.0 / 9_007_199_254_740_992.0;
 /// 2⁻⁵²: an i64 shifted right by 11 times this is uniform in [−1, 1).
 const INV_2_52: f64 = 1.0 / 4_503_599_627_370_496.0;
 
+/// xoshiro256++ (Blackman & Vigna 2019), the same generator, seeding and
+/// sequence as `rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64` (tested),
+/// written out so that the refill loop keeps the four state words in
+/// registers (the state is passed by value to the rare paths instead of
+/// by reference).
+#[derive(Debug, Clone, Copy)]
+struct Xoshiro([u64; 4]);
+
+impl Xoshiro {
+    /// The state `Xoshiro256PlusPlus::seed_from_u64(seed)` starts from:
+    /// 32 bytes of SplitMix64(seed), little-endian words (an all-zero seed
+    /// is replaced by SplitMix64(0)'s output, as in rand_xoshiro).
+    fn seed_from_u64(seed: u64) -> Self {
+        let words = |seed: u64| {
+            let mut sm = SplitMix64::seed_from_u64(seed);
+            let mut bytes = [0u8; 32];
+            sm.fill_bytes(&mut bytes);
+            std::array::from_fn(|j| {
+                let mut w = [0u8; 8];
+                w.copy_from_slice(&bytes[8 * j..8 * j + 8]);
+                u64::from_le_bytes(w)
+            })
+        };
+        let s: [u64; 4] = words(seed);
+        Self(if s == [0; 4] { words(0) } else { s })
+    }
+
+    /// Next 64-bit output (xoshiro256++: rotl(s0 + s3, 23) + s0).
+    #[inline(always)]
+    fn next_u64(&mut self) -> u64 {
+        let [s0, s1, s2, s3] = self.0;
+        let out = s0.wrapping_add(s3).rotate_left(23).wrapping_add(s0);
+        let t = s1 << 17;
+        let s2 = s2 ^ s0;
+        let s3 = s3 ^ s1;
+        let s1 = s1 ^ s2;
+        let s0 = s0 ^ s3;
+        let s2 = s2 ^ t;
+        let s3 = s3.rotate_left(45);
+        self.0 = [s0, s1, s2, s3];
+        out
+    }
+}
+
 /// Buffered N(0, 1) generator (module docs). Allocation-free after
 /// construction; deterministic for a seed.
 #[derive(Debug, Clone)]
 pub struct NormalStream {
-    rng: Xoshiro256PlusPlus,
+    rng: Xoshiro,
     buf: [f64; Self::BLOCK],
     pos: usize,
     tab: &'static Tables,
@@ -87,7 +131,7 @@ impl NormalStream {
     /// A stream seeded like `Xoshiro256PlusPlus::seed_from_u64(seed)`.
     pub fn new(seed: u64) -> Self {
         Self {
-            rng: Xoshiro256PlusPlus::seed_from_u64(seed),
+            rng: Xoshiro::seed_from_u64(seed),
             buf: [0.0; Self::BLOCK],
             pos: Self::BLOCK,
             tab: &TABLES,
@@ -105,6 +149,19 @@ impl NormalStream {
         v
     }
 
+    /// Next two variates (the same values, in the same order, as two calls
+    /// of [`Self::sample`]), with one buffer test for both.
+    #[inline(always)]
+    pub fn sample2(&mut self) -> [f64; 2] {
+        let p = self.pos;
+        if let Some(&[a, b]) = self.buf.get(p..p + 2) {
+            self.pos = p + 2;
+            [a, b]
+        } else {
+            [self.sample(), self.sample()]
+        }
+    }
+
     /// Fill `out` with the next `out.len()` variates (the same values
     /// `sample` would return).
     pub fn fill(&mut self, out: &mut [f64]) {
@@ -117,34 +174,36 @@ impl NormalStream {
     #[inline(never)]
     fn refill(&mut self) {
         let tab = self.tab;
-        for k in 0..Self::BLOCK {
-            self.buf[k] = Self::ziggurat(&mut self.rng, tab);
+        // The state lives in a local (registers) for the whole block.
+        let mut rng = self.rng;
+        for v in self.buf.iter_mut() {
+            *v = loop {
+                let b = rng.next_u64();
+                let i = (b & 0xff) as usize;
+                let u = ((b as i64) >> 11) as f64 * INV_2_52;
+                let x = u * tab.x[i];
+                if x.abs() < tab.x[i + 1] {
+                    break x;
+                }
+                // A separate copy for the rare path, so that `rng` itself is
+                // never borrowed (and stays in registers).
+                let mut state = rng;
+                let v = Self::edge(&mut state, tab, i, x);
+                rng = state;
+                if let Some(v) = v {
+                    break v;
+                }
+            };
         }
+        self.rng = rng;
         self.pos = 0;
-    }
-
-    /// One ziggurat variate.
-    #[inline(always)]
-    fn ziggurat(rng: &mut Xoshiro256PlusPlus, tab: &Tables) -> f64 {
-        loop {
-            let b = rng.next_u64();
-            let i = (b & 0xff) as usize;
-            let u = ((b as i64) >> 11) as f64 * INV_2_52;
-            let x = u * tab.x[i];
-            if x.abs() < tab.x[i + 1] {
-                return x;
-            }
-            if let Some(v) = Self::edge(rng, tab, i, x) {
-                return v;
-            }
-        }
     }
 
     /// The rare cases: tail (i = 0) or the wedge of layer i; `None` rejects.
     #[cold]
     #[inline(never)]
-    fn edge(rng: &mut Xoshiro256PlusPlus, tab: &Tables, i: usize, x: f64) -> Option<f64> {
-        let uniform = |rng: &mut Xoshiro256PlusPlus| (rng.next_u64() >> 11) as f64 * INV_2_53;
+    fn edge(rng: &mut Xoshiro, tab: &Tables, i: usize, x: f64) -> Option<f64> {
+        let uniform = |rng: &mut Xoshiro| (rng.next_u64() >> 11) as f64 * INV_2_53;
         if i == 0 {
             // Tail beyond r (Marsaglia 1964): x = −ln(U₁)/r, y = −ln(U₂),
             // accept when 2y > x²; U in (0, 1] so that ln is finite.
@@ -277,5 +336,25 @@ mod tests {
         a.fill(&mut b[7..]);
         assert_eq!(&b[..], &x[..1000]);
         assert_ne!(sample(10, 10), sample(9, 10));
+        // `sample2` gives the same pairs, across block boundaries too.
+        let mut c = NormalStream::new(9);
+        c.sample();
+        for k in 0..200 {
+            assert_eq!(c.sample2(), [x[2 * k + 1], x[2 * k + 2]]);
+        }
+    }
+
+    /// The written-out xoshiro256++ is rand_xoshiro's `Xoshiro256PlusPlus`
+    /// (same seeding from a u64, same outputs), for edge and random seeds.
+    #[test]
+    fn generator_matches_rand_xoshiro() {
+        use rand_xoshiro::Xoshiro256PlusPlus;
+        for seed in [0, 1, 2, 7, 12345, u64::MAX, 0x9E37_79B9_7F4A_7C15] {
+            let mut a = Xoshiro::seed_from_u64(seed);
+            let mut b = Xoshiro256PlusPlus::seed_from_u64(seed);
+            for _ in 0..10_000 {
+                assert_eq!(a.next_u64(), b.next_u64(), "seed {seed}");
+            }
+        }
     }
 }

@@ -375,6 +375,13 @@ pub struct SimTweezer {
     // Tabulated exact-OU coefficients near obstacles (None: exact path only).
     drag: Option<Box<DragTable>>,
     use_drag_table: bool,
+    // `drag` present and `use_drag_table`.
+    table_on: bool,
+    // Smallest gap of the tabulated step: max(δ, 0.1 R) (clamp and contact
+    // zones excluded), m.
+    fast_gap_min: f64,
+    // All obstacles have the same radius (nearest by squared distance).
+    equal_radii: bool,
     reflections: u64,
     nonfinite: u64,
 }
@@ -416,12 +423,24 @@ pub const DRAG_TABLE_PIECES: usize = 512;
 /// construction on a grid 8× finer than the pieces (see
 /// [`SimTweezer::drag_table_error`]; ≈ 1e-13 for the defaults) and the
 /// table is not used if it exceeds 1e-9.
+/// One cubic piece of [`DragTable`]: `[power][pair][lane]`.
+type DragPiece = [[[f64; 2]; 4]; 4];
+
+/// 1.5·2⁵²: (x − 0.5) + this (x ∈ [0, 2⁵⁰]) is 1.5·2⁵² + round(x − 0.5),
+/// in the binade [2⁵², 2⁵³) of unit spacing, i.e. ⌊x⌋ (or ⌊x⌋ − 1 when x
+/// is an odd integer: the tie rounds to even; then t = 1 on the piece
+/// below), so the piece index is in the low bits of the sum — no
+/// saturating float→integer conversion.
+const PIECE_ROUND: f64 = 6_755_399_441_055_744.0;
+
 #[derive(Debug, Clone)]
 struct DragTable {
     inv_ds: f64,
     /// Per piece, the monomial coefficients (t⁰…t³, t ∈ [0, 1] across the
-    /// piece) of the four lane pairs (c, g, σ, drift).
-    coef: Vec<[[[f64; 2]; 4]; 4]>,
+    /// piece) of the four lane pairs (c, g, σ, drift), contiguous (256
+    /// bytes per piece); a fixed-size array so that a masked index needs
+    /// no bounds check.
+    coef: Box<[DragPiece; DRAG_TABLE_PIECES]>,
     max_rel_err: f64,
 }
 
@@ -492,6 +511,7 @@ impl DragTable {
             }
             coef.push(piece);
         }
+        let coef: Box<[DragPiece; DRAG_TABLE_PIECES]> = coef.into_boxed_slice().try_into().ok()?;
         let mut t = Self {
             inv_ds: 1.0 / ds,
             coef,
@@ -523,20 +543,40 @@ impl DragTable {
     /// The four lane pairs (c, g, σ, drift) at s ∈ [0, s_max].
     #[inline(always)]
     fn eval(&self, s: f64) -> [[f64; 2]; 4] {
+        // Piece i = ⌊x⌋ (x ≥ 0; [`PIECE_ROUND`]) and t = x − i ∈ [0, 1]; the
+        // mask and the clamp keep i in the table for any s (out of
+        // [0, s_max] the value is meaningless but nothing panics).
         let x = s * self.inv_ds;
-        let i = (x as usize).min(self.coef.len() - 1);
+        let y = (x - 0.5) + PIECE_ROUND;
+        let i = ((y.to_bits() as usize) & (2 * DRAG_TABLE_PIECES - 1)).min(DRAG_TABLE_PIECES - 1);
         let t = x - i as f64;
-        let Some(c) = self.coef.get(i) else {
-            return [[0.0; 2]; 4];
-        };
+        let c = &self.coef[i];
         std::array::from_fn(|q| {
             let mut v = c[3][q];
             for p in (0..3).rev() {
-                v = [v[0] * t + c[p][q][0], v[1] * t + c[p][q][1]];
+                v = add2(mul2(v, [t; 2]), c[p][q]);
             }
             v
         })
     }
+}
+
+/// Lane-wise a + b.
+#[inline(always)]
+fn add2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] + b[0], a[1] + b[1]]
+}
+
+/// Lane-wise a − b.
+#[inline(always)]
+fn sub2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] - b[0], a[1] - b[1]]
+}
+
+/// Lane-wise a·b.
+#[inline(always)]
+fn mul2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] * b[0], a[1] * b[1]]
 }
 
 fn norm2(v: [f64; 2]) -> f64 {
@@ -575,7 +615,16 @@ impl SimTweezer {
             )
             .map(Box::new)
         };
+        let equal_radii = params
+            .obstacles
+            .iter()
+            .all(|o| o.radius_m == params.obstacles[0].radius_m);
         Ok(Self {
+            table_on: drag.is_some(),
+            fast_gap_min: params
+                .contact_range_m
+                .max(DRAG_CLAMP_GAP_OVER_R * params.radius_m),
+            equal_radii,
             drag,
             use_drag_table: true,
             free_c: c,
@@ -633,6 +682,7 @@ impl SimTweezer {
     /// polynomials: for comparisons).
     pub fn set_drag_table(&mut self, on: bool) {
         self.use_drag_table = on;
+        self.table_on = on && self.drag.is_some();
     }
 
     /// Is the bead held by the trap?
@@ -858,46 +908,305 @@ impl SimTweezer {
         end
     }
 
-    /// One full-sample exact step near obstacle `oi` (unit normal `n`,
-    /// surface gap `gap`) with the coefficients from the [`DragTable`]: the
-    /// same update as [`Self::substep`] with one sub-step, for a trapped bead
-    /// with the clamp and contact zones excluded (`gap` ≥ both). The two
-    /// directions (normal, tangent) run as the lanes of `[f64; 2]`.
-    #[inline]
-    fn near_fast_step(
-        &mut self,
-        p0: [f64; 2],
-        p1: [f64; 2],
-        oi: usize,
-        n: [f64; 2],
-        gap: f64,
-    ) -> Near {
+    /// One full-sample exact step near an obstacle (unit normal `n` from its
+    /// centre to the bead, surface gap `gap`) with the coefficients from the
+    /// [`DragTable`]: the same update as [`Self::substep`] with one sub-step,
+    /// for a trapped bead with the clamp and contact zones excluded (`gap` ≥
+    /// both). The two directions (normal, tangent) run as the lanes of
+    /// `[f64; 2]`.
+    ///
+    /// The OU update is written for the displacement from the trap's end
+    /// position p₁: with u = x₀ − p₀ and v = p₁ − p₀ projected on (n, t),
+    /// x₁ − p₁ = c·u + v_d g − (v f_s) g + σ ξ per direction, i.e.
+    /// e₁ + c (x₀ − e₀) + (v_d − w) g + σ ξ − e₁ of the module docs, with
+    /// the obstacle centre cancelled exactly (x₀ − e₀ and e₁ − e₀ are
+    /// projections of differences). Equal to the centre-relative form up to
+    /// round-off (smaller: the bead's nanometre displacement is rounded
+    /// instead of its micrometre distance to the obstacle centre). The
+    /// caller runs the move's epilogue. Out of line on purpose: inlined,
+    /// LLVM's SLP vectoriser pairs the table's lanes across coefficients
+    /// and the step costs ≈ 13 more instructions.
+    #[inline(never)]
+    fn near_table_move(&mut self, p0: [f64; 2], p1: [f64; 2], n: [f64; 2], gap: f64) {
         // Same order of draws as the exact path: normal, then tangent.
-        let nz = [self.normal(), self.normal()];
-        let (Some(tab), Some(o)) = (self.drag.as_deref(), self.p.obstacles.get(oi)) else {
-            return self.finish_move(p1);
+        let nz = self.rng.sample2();
+        let Some(tab) = self.drag.as_deref() else {
+            return;
         };
         let r = self.p.radius_m;
         let s = r / (r + gap);
         let [c, g, sg, dr] = tab.eval(s);
+        // Every operation below is lane-wise on pairs (normal, tangent) or
+        // (x, y), so that it compiles to packed SSE2 arithmetic.
         let t = [-n[1], n[0]];
-        let oc = o.centre_m;
-        let rel = [self.bead[0] - oc[0], self.bead[1] - oc[1]];
-        let a = [p0[0] - oc[0], p0[1] - oc[1]];
-        let b = [p1[0] - oc[0], p1[1] - oc[1]];
-        let x0 = [rel[0] * n[0] + rel[1] * n[1], rel[0] * t[0] + rel[1] * t[1]];
-        let e0 = [a[0] * n[0] + a[1] * n[1], a[0] * t[0] + a[1] * t[1]];
-        let e1 = [b[0] * n[0] + b[1] * n[1], b[0] * t[0] + b[1] * t[1]];
-        let fs = self.fs;
+        let u = sub2(self.bead, p0);
+        let v = sub2(p1, p0);
+        // Projections on (n, t): a = u_x (n_x, t_x) + u_y (n_y, t_y).
+        let (ntx, nty) = ([n[0], t[0]], [n[1], t[1]]);
+        let a = add2(mul2([u[0]; 2], ntx), mul2([u[1]; 2], nty));
+        let b = add2(mul2([v[0]; 2], ntx), mul2([v[1]; 2], nty));
+        let w = mul2(b, [self.fs; 2]);
+        let dx = add2(add2(mul2(c, a), sub2(dr, mul2(w, g))), mul2(sg, nz));
+        // Back to (x, y): p₁ + dx_n n + dx_t t.
+        self.bead = add2(p1, add2(mul2([dx[0]; 2], n), mul2([dx[1]; 2], t)));
+    }
+
+    /// After a trapped move that ended farther than the escape distance
+    /// from the trap at `tb` (or not finite): a non-finite bead goes back
+    /// into the trap (counted, still trapped), a finite one is lost.
+    /// Returns true on escape.
+    #[cold]
+    #[inline(never)]
+    fn nonfinite_or_escape(&mut self, tb: [f64; 2]) -> bool {
+        if self.bead[0].is_finite() && self.bead[1].is_finite() {
+            self.trapped = false;
+            true
+        } else {
+            self.bead = tb;
+            self.nonfinite += 1;
+            false
+        }
+    }
+
+    /// Nearest obstacle when all obstacles have the same radius (at least
+    /// one): the smallest squared centre distance wins, one square root and
+    /// one division for the winner only. Same result as [`Self::nearest`]
+    /// (gap, normal and index; only exact ties of the rounded distances may
+    /// pick another of the equidistant obstacles); `None` without obstacles
+    /// or with the bead at an obstacle's centre (no normal).
+    #[inline(always)]
+    fn nearest_equal_radii(&self, r: [f64; 2]) -> Near {
+        let obs = &self.p.obstacles[..];
+        let first = obs.first()?;
+        let d2 = |o: &Obstacle| {
+            let d = [r[0] - o.centre_m[0], r[1] - o.centre_m[1]];
+            (d, d[0] * d[0] + d[1] * d[1])
+        };
+        let (mut bd, mut bd2) = d2(first);
+        let mut bi = 0;
+        if let [_, second] = obs {
+            // The common scene (two obstacles), straight-line.
+            let (d, q) = d2(second);
+            if q < bd2 {
+                (bi, bd, bd2) = (1, d, q);
+            }
+        } else {
+            let mut i = 1;
+            while let Some(o) = obs.get(i) {
+                let (d, q) = d2(o);
+                if q < bd2 {
+                    (bi, bd, bd2) = (i, d, q);
+                }
+                i += 1;
+            }
+        }
+        let dist = bd2.sqrt();
+        let gap = dist - self.p.radius_m - first.radius_m;
+        if dist.is_nan() || dist <= 0.0 {
+            // At an obstacle's centre: left to the general search.
+            return None;
+        }
+        let inv = 1.0 / dist;
+        Some((bi, [bd[0] * inv, bd[1] * inv], gap))
+    }
+
+    /// Contact bookkeeping, optical force and the returned sample, for the
+    /// trap at `p1` and the nearest obstacle `near` of the final bead.
+    #[inline(always)]
+    fn finish_sample(
+        &mut self,
+        p1: [f64; 2],
+        near: Near,
+        mut ev: TweezerEvents,
+        n_sub: u32,
+    ) -> TweezerSample {
+        self.trap = p1;
+        self.near_cache = Some(near);
+        let gap = near.map_or(f64::INFINITY, |n| n.2);
+        let delta = self.p.contact_range_m;
+        // Enter the contact zone below δ, leave it above 3δ.
+        let flip = if self.in_contact {
+            gap > 3.0 * delta
+        } else {
+            gap < delta
+        };
+        if flip {
+            self.in_contact = !self.in_contact;
+            ev.contact_start = self.in_contact;
+            ev.contact_end = !self.in_contact;
+        }
+        let force = if self.trapped {
+            let k = self.p.stiffness_n_per_m;
+            [k * (p1[0] - self.bead[0]), k * (p1[1] - self.bead[1])]
+        } else {
+            [0.0; 2]
+        };
+        TweezerSample {
+            bead_m: self.bead,
+            trap_m: p1,
+            force_n: force,
+            gap_m: gap,
+            in_contact: self.in_contact,
+            trapped: self.trapped,
+            events: ev,
+            substeps: n_sub,
+        }
+    }
+
+    /// The hot path of [`Tweezer::step`]: trapped bead near an obstacle,
+    /// outside the clamp and contact zones, far enough that one sub-step
+    /// suffices (the same tests as the general path, on the cached nearest
+    /// obstacle), table on. Returns `None` (nothing changed) otherwise.
+    #[inline(always)]
+    fn step_near_table(&mut self, p0: [f64; 2], p1: [f64; 2]) -> Option<TweezerSample> {
+        let Some(Some((_, n, gap))) = self.near_cache else {
+            return None;
+        };
+        if !(self.table_on && self.trapped && gap >= self.fast_gap_min) {
+            return None;
+        }
+        // n_sub = 1 exactly when the general path finds no sub-stepping
+        // needed (same expression, same rounding).
+        let travel = norm2([p1[0] - p0[0], p1[1] - p0[1]]);
+        let l = travel + self.diff_len;
+        if gap < l + 2.0 * self.p.contact_range_m + self.p.escape_distance_m {
+            return None;
+        }
+        self.near_table_move(p0, p1, n, gap);
+        // One test for both rare cases: a non-finite bead (reset into the
+        // trap, as in `finish_move`) or an escape (|d| > e, squared).
+        let mut ev = TweezerEvents::default();
+        let d = [self.bead[0] - p1[0], self.bead[1] - p1[1]];
+        let e = self.p.escape_distance_m;
+        let d2 = d[0] * d[0] + d[1] * d[1];
+        if d2.is_nan() || d2 > e * e {
+            ev.escaped = self.nonfinite_or_escape(p1);
+        }
+        let near = if self.equal_radii {
+            self.nearest_equal_radii(self.bead)
+        } else {
+            self.nearest(self.bead)
+        };
+        match near {
+            Some(nr) if nr.2 >= 0.0 => Some(self.finish_sample(p1, Some(nr), ev, 1)),
+            _ => Some(self.finish_rare(p1, ev)),
+        }
+    }
+
+    /// End of a hot-path step whose bead overlaps an obstacle (reflection)
+    /// or sits at an obstacle's centre: the general nearest-obstacle search
+    /// and the reflecting boundary, then the usual epilogue.
+    #[cold]
+    #[inline(never)]
+    fn finish_rare(&mut self, p1: [f64; 2], ev: TweezerEvents) -> TweezerSample {
+        let mut near = self.nearest(self.bead);
+        if matches!(near, Some((_, _, g)) if g < 0.0) {
+            near = self.reflect(near);
+        }
+        self.finish_sample(p1, near, ev, 1)
+    }
+
+    /// The free-space path (no obstacles, trapped, exact): one exact OU step
+    /// per axis, the same expressions and order of draws as the general
+    /// path (bit-identical), without its bookkeeping.
+    #[inline(always)]
+    fn step_free(&mut self, p0: [f64; 2], p1: [f64; 2]) -> TweezerSample {
+        let nz = self.rng.sample2();
+        let x0 = self.bead;
+        // Computed as a pair and stored once (two scalar stores followed by
+        // the 16-byte load of the next step stall store forwarding).
         let x1: [f64; 2] = std::array::from_fn(|i| {
-            let w = (e1[i] - e0[i]) * fs;
-            e1[i] + c[i] * (x0[i] - e0[i]) + (dr[i] - w * g[i]) + sg[i] * nz[i]
+            let w = (p1[i] - p0[i]) / self.dt;
+            p1[i] + self.free_c * (x0[i] - p0[i]) - w * self.free_tau_1mc + self.free_sigma * nz[i]
         });
-        self.bead = [
-            oc[0] + x1[0] * n[0] + x1[1] * t[0],
-            oc[1] + x1[0] * n[1] + x1[1] * t[1],
-        ];
-        self.finish_move(p1)
+        self.bead = x1;
+        let mut ev = TweezerEvents::default();
+        if !(x1[0].is_finite() && x1[1].is_finite()) {
+            self.bead = p1;
+            self.nonfinite += 1;
+        }
+        if norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]) > self.p.escape_distance_m {
+            self.trapped = false;
+            ev.escaped = true;
+        }
+        self.finish_sample(p1, None, ev, 1)
+    }
+
+    /// Every case but the hot paths: free space untrapped or Euler, sub-steps (contact, clamp,
+    /// fast trap), lost bead, Euler–Maruyama, table off.
+    #[inline(never)]
+    fn step_general(&mut self, p0: [f64; 2], p1: [f64; 2]) -> TweezerSample {
+        let was_trapped = self.trapped;
+        let mut ev = TweezerEvents::default();
+        let mut near = match self.near_cache.take() {
+            Some(n) => n,
+            None => self.nearest(self.bead),
+        };
+        let n_sub: u32 = match near {
+            None => 1,
+            Some((_, _, gap)) => {
+                let travel = norm2([p1[0] - p0[0], p1[1] - p0[1]]);
+                let l = travel + self.diff_len;
+                let delta = self.p.contact_range_m;
+                if gap < l + 2.0 * delta + self.p.escape_distance_m {
+                    let ell = (0.25 * delta).max(0.1 * gap.max(0.0));
+                    ((l / ell).ceil() as u32).clamp(1, MAX_SUBSTEPS)
+                } else {
+                    1
+                }
+            }
+        };
+        let fast_near = match near {
+            Some((_, n, gap))
+                if n_sub == 1 && self.table_on && self.trapped && gap >= self.fast_gap_min =>
+            {
+                Some((n, gap))
+            }
+            _ => None,
+        };
+        if let Some((n, gap)) = fast_near {
+            self.near_table_move(p0, p1, n, gap);
+            near = self.finish_move(p1);
+        } else if near.is_none() && self.trapped && self.p.integrator == TweezerIntegrator::Exact {
+            // Fast path: free space, one exact step.
+            for i in 0..2 {
+                let w = (p1[i] - p0[i]) / self.dt;
+                let n = self.normal();
+                self.bead[i] = p1[i] + self.free_c * (self.bead[i] - p0[i]) - w * self.free_tau_1mc
+                    + self.free_sigma * n;
+            }
+            if !(self.bead[0].is_finite() && self.bead[1].is_finite()) {
+                self.bead = p1;
+                self.nonfinite += 1;
+            }
+            if norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]) > self.p.escape_distance_m {
+                self.trapped = false;
+            }
+        } else {
+            let h = self.dt / n_sub as f64;
+            let inv_h = n_sub as f64 * self.fs;
+            let inv = 1.0 / n_sub as f64;
+            for k in 0..n_sub {
+                let a = k as f64 * inv;
+                let b = (k + 1) as f64 * inv;
+                let ta = [p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])];
+                let tb = [p0[0] + b * (p1[0] - p0[0]), p0[1] + b * (p1[1] - p0[1])];
+                near = self.substep(ta, tb, h, inv_h, near);
+            }
+        }
+        if was_trapped && !self.trapped {
+            ev.escaped = true;
+        }
+        if !self.trapped && !ev.escaped {
+            let d = norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]);
+            if d < 0.5 * self.p.escape_distance_m {
+                self.trapped = true;
+                ev.recaptured = true;
+            }
+        }
+        // `near` now describes the bead's final position (the sub-steps
+        // return it; the free-space path runs only without obstacles).
+        self.finish_sample(p1, near, ev, n_sub)
     }
 }
 
@@ -930,107 +1239,16 @@ impl Tweezer for SimTweezer {
         } else {
             p0
         };
-        let was_trapped = self.trapped;
-        let mut ev = TweezerEvents::default();
-        let mut near = match self.near_cache.take() {
-            Some(n) => n,
-            None => self.nearest(self.bead),
-        };
-        let n_sub: u32 = match near {
-            None => 1,
-            Some((_, _, gap)) => {
-                let travel = norm2([p1[0] - p0[0], p1[1] - p0[1]]);
-                let l = travel + self.diff_len;
-                let delta = self.p.contact_range_m;
-                if gap < l + 2.0 * delta + self.p.escape_distance_m {
-                    let ell = (0.25 * delta).max(0.1 * gap.max(0.0));
-                    ((l / ell).ceil() as u32).clamp(1, MAX_SUBSTEPS)
-                } else {
-                    1
-                }
-            }
-        };
-        let fast_near = match near {
-            Some((oi, n, gap))
-                if n_sub == 1
-                    && self.use_drag_table
-                    && self.trapped
-                    && self.drag.is_some()
-                    && gap >= self.p.contact_range_m
-                    && gap >= DRAG_CLAMP_GAP_OVER_R * self.p.radius_m =>
-            {
-                Some((oi, n, gap))
-            }
-            _ => None,
-        };
-        if let Some((oi, n, gap)) = fast_near {
-            near = self.near_fast_step(p0, p1, oi, n, gap);
-        } else if near.is_none() && self.trapped && self.p.integrator == TweezerIntegrator::Exact {
-            // Fast path: free space, one exact step.
-            for i in 0..2 {
-                let w = (p1[i] - p0[i]) / self.dt;
-                let n = self.normal();
-                self.bead[i] = p1[i] + self.free_c * (self.bead[i] - p0[i]) - w * self.free_tau_1mc
-                    + self.free_sigma * n;
-            }
-            if !(self.bead[0].is_finite() && self.bead[1].is_finite()) {
-                self.bead = p1;
-                self.nonfinite += 1;
-            }
-            if norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]) > self.p.escape_distance_m {
-                self.trapped = false;
-            }
-        } else {
-            let h = self.dt / n_sub as f64;
-            let inv_h = n_sub as f64 * self.fs;
-            let inv = 1.0 / n_sub as f64;
-            for k in 0..n_sub {
-                let a = k as f64 * inv;
-                let b = (k + 1) as f64 * inv;
-                let ta = [p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])];
-                let tb = [p0[0] + b * (p1[0] - p0[0]), p0[1] + b * (p1[1] - p0[1])];
-                near = self.substep(ta, tb, h, inv_h, near);
-            }
+        if let Some(sample) = self.step_near_table(p0, p1) {
+            return sample;
         }
-        self.trap = p1;
-        if was_trapped && !self.trapped {
-            ev.escaped = true;
+        if matches!(self.near_cache, Some(None))
+            && self.trapped
+            && self.p.integrator == TweezerIntegrator::Exact
+        {
+            return self.step_free(p0, p1);
         }
-        if !self.trapped && !ev.escaped {
-            let d = norm2([self.bead[0] - p1[0], self.bead[1] - p1[1]]);
-            if d < 0.5 * self.p.escape_distance_m {
-                self.trapped = true;
-                ev.recaptured = true;
-            }
-        }
-        // `near` now describes the bead's final position (the sub-steps
-        // return it; the fast path runs only without obstacles).
-        self.near_cache = Some(near);
-        let gap = near.map_or(f64::INFINITY, |n| n.2);
-        let delta = self.p.contact_range_m;
-        if !self.in_contact && gap < delta {
-            self.in_contact = true;
-            ev.contact_start = true;
-        } else if self.in_contact && gap > 3.0 * delta {
-            self.in_contact = false;
-            ev.contact_end = true;
-        }
-        let force = if self.trapped {
-            let k = self.p.stiffness_n_per_m;
-            [k * (p1[0] - self.bead[0]), k * (p1[1] - self.bead[1])]
-        } else {
-            [0.0; 2]
-        };
-        TweezerSample {
-            bead_m: self.bead,
-            trap_m: p1,
-            force_n: force,
-            gap_m: gap,
-            in_contact: self.in_contact,
-            trapped: self.trapped,
-            events: ev,
-            substeps: n_sub,
-        }
+        self.step_general(p0, p1)
     }
 }
 
