@@ -41,11 +41,17 @@ pub struct Accelerometer {
     fs: f64,
     corner_hz: [f64; 3],
     alpha: [f64; 3],
+    /// 1 − α per axis (the same value the update formula computes).
+    beta: [f64; 3],
     state: [f64; 3],
     noise_sigma: f64,
     noise_density: f64,
     range: f64,
     lsb: f64,
+    /// lsb > 0 and range/lsb < 2⁵¹: every unclipped reading divided by the
+    /// step is below 2⁵², so the fast path rounds without the large-value
+    /// test of [`crate::round_half_away`].
+    quant_fast: bool,
     offset: [f64; 3],
     noise: NormalStream,
     seed: u64,
@@ -100,12 +106,15 @@ impl Accelerometer {
             fs,
             corner_hz: cfg.corner_hz,
             alpha,
+            beta: alpha.map(|a| 1.0 - a),
             // Start settled on the static acceleration.
             state: offset,
             noise_sigma: rho * (0.5 * fs).sqrt(),
             noise_density: rho,
             range: cfg.range_g * STANDARD_GRAVITY,
             lsb: cfg.lsb_m_s2,
+            quant_fast: cfg.lsb_m_s2 > 0.0
+                && cfg.range_g * STANDARD_GRAVITY / cfg.lsb_m_s2 < 2_251_799_813_685_248.0,
             offset,
             noise: NormalStream::new(cfg.seed),
             seed: cfg.seed,
@@ -191,13 +200,44 @@ impl Accelerometer {
                 *wi = self.noise_sigma * self.noise.sample();
             }
         }
+        // Common case: finite inputs, no axis at the rails, quantiser step
+        // in the fast range. The new states are computed first and kept only
+        // if all three are within ±range (which implies finite inputs and
+        // states): then nothing is held, reset or clipped, and the result is
+        // the general path's bit for bit.
+        let mut s = [0.0; 3];
+        for i in 0..3 {
+            let x = a_true[i] + self.offset[i] + w[i];
+            s[i] = self.alpha[i] * self.state[i] + self.beta[i] * x;
+        }
+        let r = self.range;
+        if self.quant_fast && s[0].abs() <= r && s[1].abs() <= r && s[2].abs() <= r {
+            self.state = s;
+            let (lsb, q) = (self.lsb, crate::round_half_away_small);
+            return AccelReading {
+                m_s2: [
+                    q(s[0] / lsb) * lsb,
+                    q(s[1] / lsb) * lsb,
+                    q(s[2] / lsb) * lsb,
+                ],
+                clipped: false,
+            };
+        }
+        self.sample_general(a_true, w)
+    }
+
+    /// [`Self::sample`] outside the common case: non-finite inputs or
+    /// states, clipping, no or a tiny quantisation step.
+    #[cold]
+    #[inline(never)]
+    fn sample_general(&mut self, a_true: [f64; 3], w: [f64; 3]) -> AccelReading {
         let mut out = [0.0; 3];
         let mut clipped = false;
         for i in 0..3 {
             let a = a_true[i];
             if a.is_finite() {
                 let x = a + self.offset[i] + w[i];
-                self.state[i] = self.alpha[i] * self.state[i] + (1.0 - self.alpha[i]) * x;
+                self.state[i] = self.alpha[i] * self.state[i] + self.beta[i] * x;
             } else {
                 self.nonfinite += 1;
             }

@@ -424,6 +424,23 @@ pub trait Rig: Send {
         commands: &[ActuatorFrame],
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError>;
+    /// Exchange a block of one frame: exactly
+    /// `process_block(&[*command], &mut [*sensors])` (the default
+    /// implementation), which a rig may override with a cheaper path for the
+    /// sample-by-sample [`ClosedLoop`](crate::coupling::ClosedLoop) (the
+    /// batch [`SimRig`] does). `sensors` is written only on success. Must not
+    /// allocate, lock or panic.
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        let mut out = [*sensors];
+        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
+        *sensors = out[0];
+        Ok(r)
+    }
     /// Current counters and state.
     fn status(&self) -> RigStatus;
     /// Oldest queued fault, if any.
@@ -656,25 +673,15 @@ impl<C: Clock> SimRig<C> {
     /// flags of the frame tell what happened (counted by [`Self::note_flags`]).
     #[inline(always)]
     fn frame(&mut self, cmd: &ActuatorFrame, hand: [f64; 2], hv: [f64; 2]) -> SensorFrame {
-        let mut flags = 0u8;
-        let mut f = cmd.force_n;
-        let mut v = cmd.haptuator_v;
-        for x in f.iter_mut() {
-            if !x.is_finite() {
-                *x = 0.0;
-                flags |= FrameFlags::NONFINITE_COMMAND;
-            } else if x.abs() > self.force_max {
-                *x = self.force_max.copysign(*x);
-                flags |= FrameFlags::LIMITED;
-            }
-        }
-        if !v.is_finite() {
-            v = 0.0;
-            flags |= FrameFlags::NONFINITE_COMMAND;
-        } else if v.abs() > self.drive_max {
-            v = self.drive_max.copysign(v);
-            flags |= FrameFlags::LIMITED;
-        }
+        // Common case: within the limits (hence finite), nothing to change.
+        let (f, v, mut flags) = if cmd.force_n[0].abs() <= self.force_max
+            && cmd.force_n[1].abs() <= self.force_max
+            && cmd.haptuator_v.abs() <= self.drive_max
+        {
+            (cmd.force_n, cmd.haptuator_v, 0u8)
+        } else {
+            self.sanitise(cmd)
+        };
         let in_stop_before = self.plant.x.end_stop_steps();
         let o = self.plant.step(&PlantInput {
             force_n: f,
@@ -698,12 +705,54 @@ impl<C: Clock> SimRig<C> {
         }
     }
 
+    /// A command outside the limits or non-finite: non-finite components
+    /// become 0 ([`FrameFlags::NONFINITE_COMMAND`]), others are clamped to
+    /// the limits ([`FrameFlags::LIMITED`]). Returns (force, drive, flags).
+    #[cold]
+    #[inline(never)]
+    fn sanitise(&self, cmd: &ActuatorFrame) -> ([f64; 2], f64, u8) {
+        let mut flags = 0u8;
+        let mut f = cmd.force_n;
+        let mut v = cmd.haptuator_v;
+        for x in f.iter_mut() {
+            if !x.is_finite() {
+                *x = 0.0;
+                flags |= FrameFlags::NONFINITE_COMMAND;
+            } else if x.abs() > self.force_max {
+                *x = self.force_max.copysign(*x);
+                flags |= FrameFlags::LIMITED;
+            }
+        }
+        if !v.is_finite() {
+            v = 0.0;
+            flags |= FrameFlags::NONFINITE_COMMAND;
+        } else if v.abs() > self.drive_max {
+            v = self.drive_max.copysign(v);
+            flags |= FrameFlags::LIMITED;
+        }
+        (f, v, flags)
+    }
+
     /// Count a frame's flags and queue each kind of fault once per block
     /// (`noted` collects the kinds already queued in this block).
     #[cold]
     #[inline(never)]
     fn note_flags(&mut self, ff: FrameFlags, noted: &mut u8) {
         self.counters.note_flags(ff, self.seq, noted);
+    }
+
+    /// [`Rig::process_frame`] through the block path (paced or not running).
+    #[cold]
+    #[inline(never)]
+    fn process_frame_slow(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        let mut out = [*sensors];
+        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
+        *sensors = out[0];
+        Ok(r)
     }
 
     fn quantise(&self, x: f64) -> f64 {
@@ -800,6 +849,41 @@ impl<C: Clock> Rig for SimRig<C> {
             }
         }
         Ok(report)
+    }
+
+    /// The block of one frame without the block machinery in the batch,
+    /// running case (bit-identical to `process_block` with one frame: the
+    /// hand moves by Δ = target − prev at velocity Δ·f_s); everything else
+    /// (paced, not started) goes through `process_block`.
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        if self.state != RigState::Running || !matches!(self.pacing, Pacing::Batch) {
+            return self.process_frame_slow(command, sensors);
+        }
+        let first_seq = self.seq;
+        let dh = [
+            self.hand_target[0] - self.hand_prev[0],
+            self.hand_target[1] - self.hand_prev[1],
+        ];
+        let hand = [self.hand_prev[0] + dh[0], self.hand_prev[1] + dh[1]];
+        let hv = [dh[0] * self.fs, dh[1] * self.fs];
+        let out = self.frame(command, hand, hv);
+        if out.flags.0 != 0 {
+            self.note_flags(out.flags, &mut 0);
+        }
+        *sensors = out;
+        self.seq += 1;
+        self.hand_prev = self.hand_target;
+        self.counters.counts.frames += 1;
+        Ok(BlockReport {
+            first_seq,
+            frames: 1,
+            ..Default::default()
+        })
     }
 
     fn status(&self) -> RigStatus {
