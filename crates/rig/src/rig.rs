@@ -894,3 +894,118 @@ impl<C: Clock> Rig for SimRig<C> {
         self.counters.pop_fault()
     }
 }
+
+#[cfg(test)]
+mod process_frame_tests {
+    use super::*;
+
+    /// A rig that only has `process_block` (the trait's default
+    /// `process_frame`).
+    struct BlockOnly(SimRig);
+
+    impl Rig for BlockOnly {
+        fn identity(&self) -> &RigIdentity {
+            self.0.identity()
+        }
+        fn start(&mut self) -> Result<(), RigError> {
+            self.0.start()
+        }
+        fn stop(&mut self) -> Result<(), RigError> {
+            self.0.stop()
+        }
+        fn process_block(
+            &mut self,
+            commands: &[ActuatorFrame],
+            sensors: &mut [SensorFrame],
+        ) -> Result<BlockReport, RigError> {
+            self.0.process_block(commands, sensors)
+        }
+        fn status(&self) -> RigStatus {
+            self.0.status()
+        }
+        fn pop_fault(&mut self) -> Option<RigFault> {
+            self.0.pop_fault()
+        }
+    }
+
+    fn bits(s: &SensorFrame) -> (u64, [u64; 2], [u64; 3], u8) {
+        (
+            s.seq,
+            s.handle_m.map(f64::to_bits),
+            s.accel_m_s2.map(f64::to_bits),
+            s.flags.0,
+        )
+    }
+
+    /// `SimRig::process_frame` (its batch fast path) against one-frame
+    /// blocks through `process_block` (the default `process_frame`): the
+    /// same sensor frames, reports, ground truth, counters and faults, bit
+    /// for bit, with a moving hand, commands beyond the limits and
+    /// non-finite commands; before `start` both refuse.
+    #[test]
+    fn frame_path_is_a_one_frame_block() {
+        let cfg = RigConfig::default();
+        let mut a = SimRig::new(&cfg).unwrap();
+        let mut b = BlockOnly(SimRig::new(&cfg).unwrap());
+        let cmd = ActuatorFrame::default();
+        let mut sa = SensorFrame::default();
+        let mut sb = SensorFrame::default();
+        assert!(a.process_frame(&cmd, &mut sa).is_err());
+        assert!(b.process_frame(&cmd, &mut sb).is_err());
+        assert_eq!(sa, SensorFrame::default());
+        a.start().unwrap();
+        b.start().unwrap();
+        let fmax = cfg.limits.pantograph_force_max_n;
+        for k in 0..20_000u64 {
+            let t = k as f64 * 1e-4;
+            if k % 7 == 0 {
+                let hand = [3e-3 * (40.0 * t).sin(), 2e-3 * (25.0 * t).cos()];
+                a.set_hand(hand);
+                b.0.set_hand(hand);
+            }
+            let mut cmd = ActuatorFrame {
+                force_n: [1.5 * fmax * (300.0 * t).sin(), 0.2 * fmax],
+                haptuator_v: 3.0 * (900.0 * t).sin(),
+            };
+            if k % 1001 == 0 {
+                cmd.force_n[(k % 2) as usize] = f64::NAN;
+                cmd.haptuator_v = f64::INFINITY;
+            }
+            let ra = a.process_frame(&cmd, &mut sa).unwrap();
+            let rb = b.process_frame(&cmd, &mut sb).unwrap();
+            assert_eq!(ra, rb);
+            assert_eq!(bits(&sa), bits(&sb), "{k}");
+            assert_eq!(a.truth(), b.0.truth());
+        }
+        assert_eq!(a.status(), b.status());
+        let sa = a.status();
+        assert!(sa.limited_frames > 0 && sa.nonfinite_commands > 0);
+        while let Some(f) = a.pop_fault() {
+            assert_eq!(Some(f), b.pop_fault());
+        }
+        assert_eq!(b.pop_fault(), None);
+    }
+
+    /// A paced rig takes the block path (deadline, lag, skipped samples).
+    #[test]
+    fn paced_frame_path_reports_like_a_block() {
+        let cfg = RigConfig::default();
+        let clock = ManualClock::default();
+        let mut a = SimRig::with_clock(
+            &cfg,
+            Integrator::Zoh,
+            Pacing::WallClock { max_lag_s: 0.01 },
+            clock.clone(),
+        )
+        .unwrap();
+        a.start().unwrap();
+        let mut s = SensorFrame::default();
+        let r = a.process_frame(&ActuatorFrame::default(), &mut s).unwrap();
+        assert_eq!((r.frames, r.skipped_samples), (1, 0));
+        assert_eq!(clock.now(), Duration::from_secs_f64(1e-4));
+        clock.advance(Duration::from_millis(50));
+        let r = a.process_frame(&ActuatorFrame::default(), &mut s).unwrap();
+        assert!(r.skipped_samples > 400, "{r:?}");
+        assert_eq!(s.seq, 1);
+    }
+}

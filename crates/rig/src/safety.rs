@@ -602,18 +602,19 @@ impl SafetyLayer {
         // `bad_run` = 0; no miss now and none in the window, so the watchdog
         // slot being overwritten is already clear; finite command; speed
         // within the limit), and the limits are checked with one combined
-        // test before the general limiting code. The gain is 1 in Enabled
-        // (≤ 1 in any case), so the scaled command is finite exactly when
-        // the command is, and a command within the limits is finite.
+        // test before the general limiting code (a command within the
+        // limits is finite).
         if self.state == SafetyState::Enabled
             && !bad_sensor
             && !deadline_missed
             && self.wd.count == 0
             && speed.is_some_and(|s| s <= self.v_max)
         {
-            let g = self.gain;
-            let f = [g * cmd.force_n[0], g * cmd.force_n[1]];
-            let v = g * cmd.haptuator_v;
+            // g = 1 in Enabled (every way into Enabled sets it, every way
+            // out leaves Enabled): 1·x = x bit for bit, so no multiply.
+            debug_assert!(self.gain == 1.0);
+            let f = cmd.force_n;
+            let v = cmd.haptuator_v;
             let a = self.limits.force_axis_max_n;
             if f[0].abs() <= a
                 && f[1].abs() <= a
