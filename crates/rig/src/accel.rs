@@ -41,11 +41,17 @@ pub struct Accelerometer {
     fs: f64,
     corner_hz: [f64; 3],
     alpha: [f64; 3],
+    /// 1 − α per axis (the same value the update formula computes).
+    beta: [f64; 3],
     state: [f64; 3],
     noise_sigma: f64,
     noise_density: f64,
     range: f64,
     lsb: f64,
+    /// lsb > 0 and range/lsb < 2⁵¹: every unclipped reading divided by the
+    /// step is below 2⁵², so the fast path rounds without the large-value
+    /// test of [`crate::round_half_away`].
+    quant_fast: bool,
     offset: [f64; 3],
     noise: NormalStream,
     seed: u64,
@@ -100,12 +106,15 @@ impl Accelerometer {
             fs,
             corner_hz: cfg.corner_hz,
             alpha,
+            beta: alpha.map(|a| 1.0 - a),
             // Start settled on the static acceleration.
             state: offset,
             noise_sigma: rho * (0.5 * fs).sqrt(),
             noise_density: rho,
             range: cfg.range_g * STANDARD_GRAVITY,
             lsb: cfg.lsb_m_s2,
+            quant_fast: cfg.lsb_m_s2 > 0.0
+                && cfg.range_g * STANDARD_GRAVITY / cfg.lsb_m_s2 < 2_251_799_813_685_248.0,
             offset,
             noise: NormalStream::new(cfg.seed),
             seed: cfg.seed,
@@ -181,7 +190,7 @@ impl Accelerometer {
     /// Read one sample given the true acceleration (x, y, z) in m/s² (the
     /// static part is added here). Allocation-free; non-finite inputs hold
     /// the previous state.
-    #[inline]
+    #[inline(always)]
     pub fn sample(&mut self, a_true: [f64; 3]) -> AccelReading {
         // Noise first (x, y, z: the order of the draws), from the buffered
         // generator.
@@ -191,13 +200,44 @@ impl Accelerometer {
                 *wi = self.noise_sigma * self.noise.sample();
             }
         }
+        // Common case: finite inputs, no axis at the rails, quantiser step
+        // in the fast range. The new states are computed first and kept only
+        // if all three are within ±range (which implies finite inputs and
+        // states): then nothing is held, reset or clipped, and the result is
+        // the general path's bit for bit.
+        let mut s = [0.0; 3];
+        for i in 0..3 {
+            let x = a_true[i] + self.offset[i] + w[i];
+            s[i] = self.alpha[i] * self.state[i] + self.beta[i] * x;
+        }
+        let r = self.range;
+        if self.quant_fast && s[0].abs() <= r && s[1].abs() <= r && s[2].abs() <= r {
+            self.state = s;
+            let (lsb, q) = (self.lsb, crate::round_half_away_small);
+            return AccelReading {
+                m_s2: [
+                    q(s[0] / lsb) * lsb,
+                    q(s[1] / lsb) * lsb,
+                    q(s[2] / lsb) * lsb,
+                ],
+                clipped: false,
+            };
+        }
+        self.sample_general(a_true, w)
+    }
+
+    /// [`Self::sample`] outside the common case: non-finite inputs or
+    /// states, clipping, no or a tiny quantisation step.
+    #[cold]
+    #[inline(never)]
+    fn sample_general(&mut self, a_true: [f64; 3], w: [f64; 3]) -> AccelReading {
         let mut out = [0.0; 3];
         let mut clipped = false;
         for i in 0..3 {
             let a = a_true[i];
             if a.is_finite() {
                 let x = a + self.offset[i] + w[i];
-                self.state[i] = self.alpha[i] * self.state[i] + (1.0 - self.alpha[i]) * x;
+                self.state[i] = self.alpha[i] * self.state[i] + self.beta[i] * x;
             } else {
                 self.nonfinite += 1;
             }
@@ -359,5 +399,56 @@ mod tests {
             )
             .is_err()
         );
+    }
+}
+
+#[cfg(test)]
+mod fast_path_tests {
+    use super::*;
+    use crate::config::RigConfig;
+
+    /// The common-case path of `sample` against the general path on the
+    /// same noise draws: bit-identical readings, states and counters, over
+    /// inputs inside the range, clipping on each axis, and non-finite ones.
+    #[test]
+    fn fast_path_is_the_general_path_bit_for_bit() {
+        let cfg = RigConfig::default().accelerometer;
+        let mut a = Accelerometer::new(&cfg, 10_000.0).unwrap();
+        let mut b = a.clone();
+        assert!(a.quant_fast);
+        let range = a.range_m_s2();
+        let mut s = 0x2545_F491_4F6C_DD1D_u64;
+        let mut fast = 0;
+        for k in 0..200_000 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let u = (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            // Mostly in range, bursts beyond it (clipping), some NaN/∞.
+            let mut x = match (k / 1000) % 8 {
+                3 => [2.0 * range * (1.0 + 0.1 * u), -0.5 * range * u, 0.0],
+                6 => [0.5 * range * u, -3.0 * range * (1.0 + u), 0.0],
+                _ => [range * u, -0.7 * range * u, 0.0],
+            };
+            if k % 9973 == 0 {
+                x[k % 2] = if k % 3 == 0 { f64::NAN } else { f64::INFINITY };
+            }
+            let ra = a.sample(x);
+            let w = [0, 1, 2].map(|_| b.noise_sigma * b.noise.sample());
+            let rb = b.sample_general(x, w);
+            assert_eq!(ra.m_s2.map(f64::to_bits), rb.m_s2.map(f64::to_bits), "{k}");
+            assert_eq!(ra.clipped, rb.clipped);
+            assert_eq!(a.state.map(f64::to_bits), b.state.map(f64::to_bits));
+            fast += usize::from(!ra.clipped);
+        }
+        assert_eq!(a.clipped_samples(), b.clipped_samples());
+        assert_eq!(a.nonfinite_inputs(), b.nonfinite_inputs());
+        assert!(
+            a.clipped_samples() > 10_000 && a.nonfinite_inputs() > 10,
+            "{} {}",
+            a.clipped_samples(),
+            a.nonfinite_inputs()
+        );
+        assert!(fast > 100_000);
     }
 }

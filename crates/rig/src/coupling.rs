@@ -30,7 +30,7 @@ use crate::tweezer::{Tweezer, TweezerSample};
 use kilotouch_dsp::Tf;
 use kilotouch_dsp::chain::{Chain, ChainCoefficients, ChainDesign};
 use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
-use kilotouch_dsp::filter::Sos;
+use kilotouch_dsp::filter::{Biquad, sections_response};
 use serde::{Deserialize, Serialize};
 
 /// Force sample (N) → (Pantograph force N, Haptuator drive V). The minimal
@@ -55,21 +55,30 @@ impl ForceSplitter for Chain {
 /// P-mode splitter: band-limited Pantograph force, no Haptuator drive.
 #[derive(Debug, Clone)]
 pub struct PantographOnly {
-    lp: Sos,
+    /// The single second-order section (a `Biquad` rather than a one-section
+    /// `Sos`: the same guarded step without the loop over sections).
+    lp: Biquad,
 }
 
 impl PantographOnly {
     /// 2nd-order Butterworth low-pass at `band_hz` (prewarped) at rate `fs`.
     pub fn new(band_hz: f64, fs: f64) -> Result<Self, RigError> {
         let sections = butter(2, band_hz, fs, FilterKind::Lowpass, Prewarp::AtCutoff)?;
-        Ok(Self {
-            lp: Sos::new(sections)?,
-        })
+        match sections.as_slice() {
+            [c] => Ok(Self {
+                lp: Biquad::new(*c)?,
+            }),
+            _ => Err(RigError::InvalidParameter {
+                name: "pantograph_band_hz",
+                value: band_hz,
+                reason: format!("expected one section, got {}", sections.len()),
+            }),
+        }
     }
 
     /// Frequency response of the band limit at `f` Hz.
     pub fn response(&self, f: f64, fs: f64) -> num_complex::Complex64 {
-        self.lp.response(f, fs)
+        sections_response(std::slice::from_ref(&self.lp.coefficients()), f, fs)
     }
 }
 
@@ -223,6 +232,28 @@ impl<S: ForceSplitter> Coupling<S> {
     #[inline]
     pub fn trap_target(&mut self, handle_m: [f64; 2]) -> [f64; 2] {
         let c = &self.cfg;
+        let v = [
+            c.trap_offset_m[0] + c.position_scale * (handle_m[0] - c.handle_origin_m[0]),
+            c.trap_offset_m[1] + c.position_scale * (handle_m[1] - c.handle_origin_m[1]),
+        ];
+        // Common case: inside the workspace (hence finite), nothing to
+        // clamp or count (`clamp` would return `v` unchanged).
+        if v[0] >= c.trap_min_m[0]
+            && v[0] <= c.trap_max_m[0]
+            && v[1] >= c.trap_min_m[1]
+            && v[1] <= c.trap_max_m[1]
+        {
+            self.last_trap = v;
+            return v;
+        }
+        self.trap_target_clamped(handle_m)
+    }
+
+    /// [`Self::trap_target`] outside the workspace or non-finite.
+    #[cold]
+    #[inline(never)]
+    fn trap_target_clamped(&mut self, handle_m: [f64; 2]) -> [f64; 2] {
+        let c = &self.cfg;
         let mut t = self.last_trap;
         let mut clamped = false;
         for i in 0..2 {
@@ -252,7 +283,6 @@ impl<S: ForceSplitter> Coupling<S> {
         ]
     }
 
-    #[inline]
     fn safe(&mut self, v: f64, max: f64) -> f64 {
         if !v.is_finite() {
             self.counters.nonfinite += 1;
@@ -286,6 +316,22 @@ impl<S: ForceSplitter> Coupling<S> {
             CouplingMode::Pantograph => (px, 0.0),
             CouplingMode::Dual => (dl, dh),
         };
+        // Common case: all within the limits (hence finite): `safe` would
+        // return each unchanged.
+        if lx.abs() <= self.force_max && py.abs() <= self.force_max && hx.abs() <= self.drive_max {
+            return ActuatorFrame {
+                force_n: [lx, py],
+                haptuator_v: hx,
+            };
+        }
+        self.safe_frame(lx, py, hx)
+    }
+
+    /// [`Self::actuate`]'s clamps when some output is out of range or
+    /// non-finite (counted).
+    #[cold]
+    #[inline(never)]
+    fn safe_frame(&mut self, lx: f64, py: f64, hx: f64) -> ActuatorFrame {
         ActuatorFrame {
             force_n: [self.safe(lx, self.force_max), self.safe(py, self.force_max)],
             haptuator_v: self.safe(hx, self.drive_max),
@@ -381,18 +427,18 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> ClosedLoop<R, T, S> {
     pub fn step(&mut self) -> Result<(ActuatorFrame, TweezerSample), RigError> {
         let (cmd, s) = self.coupling.step(&self.sensors, &mut self.tweezer);
         let cmd = self.safety.apply(cmd, &self.sensors, self.missed);
-        let mut out = [SensorFrame::default()];
-        let report = match self.rig.process_block(&[cmd], &mut out) {
+        let report = match self.rig.process_frame(&cmd, &mut self.sensors) {
             Ok(r) => r,
             Err(e) => {
                 self.safety.fault(TripReason::RigError);
                 return Err(e);
             }
         };
+        // `lag_s > 0` first: the same test (f_s > 0 is finite), but a
+        // constant zero lag (batch rigs) then folds away.
         self.missed = report.lost_frames > 0
             || report.skipped_samples > 0
-            || report.lag_s * self.safety.sample_rate_hz() > 1.0;
-        self.sensors = out[0];
+            || (report.lag_s > 0.0 && report.lag_s * self.safety.sample_rate_hz() > 1.0);
         Ok((cmd, s))
     }
 }

@@ -44,15 +44,26 @@ pub use tweezer::{SimTweezer, Tweezer, TweezerParams};
 /// already integral (or ±∞, NaN) and returned unchanged.
 #[inline(always)]
 pub(crate) fn round_half_away(x: f64) -> f64 {
-    const TWO52: f64 = 4_503_599_627_370_496.0;
-    let a = x.abs();
-    if a < TWO52 {
-        let r = (a + TWO52) - TWO52;
-        let r = if a - r == 0.5 { r + 1.0 } else { r };
-        r.copysign(x)
+    if x.abs() < TWO52 {
+        round_half_away_small(x)
     } else {
         x
     }
+}
+
+/// 2⁵².
+const TWO52: f64 = 4_503_599_627_370_496.0;
+
+/// [`round_half_away`] for |x| < 2⁵² (the caller guarantees it; for
+/// larger or non-finite x the result is wrong). The tie correction is added
+/// as 0 or 1 (r + 0 = r exactly for r ≥ 0) and the sign is or-ed onto the
+/// non-negative r, which is `copysign` here: fewer instructions, same bits.
+#[inline(always)]
+pub(crate) fn round_half_away_small(x: f64) -> f64 {
+    let a = x.abs();
+    let r = (a + TWO52) - TWO52;
+    let r = r + if a - r == 0.5 { 1.0 } else { 0.0 };
+    f64::from_bits(r.to_bits() | (x.to_bits() & (1 << 63)))
 }
 
 #[cfg(test)]
@@ -101,6 +112,10 @@ mod round_tests {
             v.push(f64::from_bits(s));
         }
         for x in v {
+            if x.abs() < 4_503_599_627_370_496.0 {
+                let (a, b) = (super::round_half_away_small(x), x.round());
+                assert_eq!(a.to_bits(), b.to_bits(), "{x:e}: {a:e} vs {b:e}");
+            }
             let (a, b) = (round_half_away(x), x.round());
             assert!(
                 a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),

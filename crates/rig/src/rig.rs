@@ -424,6 +424,23 @@ pub trait Rig: Send {
         commands: &[ActuatorFrame],
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError>;
+    /// Exchange a block of one frame: exactly
+    /// `process_block(&[*command], &mut [*sensors])` (the default
+    /// implementation), which a rig may override with a cheaper path for the
+    /// sample-by-sample [`ClosedLoop`](crate::coupling::ClosedLoop) (the
+    /// batch [`SimRig`] does). `sensors` is written only on success. Must not
+    /// allocate, lock or panic.
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        let mut out = [*sensors];
+        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
+        *sensors = out[0];
+        Ok(r)
+    }
     /// Current counters and state.
     fn status(&self) -> RigStatus;
     /// Oldest queued fault, if any.
@@ -656,25 +673,15 @@ impl<C: Clock> SimRig<C> {
     /// flags of the frame tell what happened (counted by [`Self::note_flags`]).
     #[inline(always)]
     fn frame(&mut self, cmd: &ActuatorFrame, hand: [f64; 2], hv: [f64; 2]) -> SensorFrame {
-        let mut flags = 0u8;
-        let mut f = cmd.force_n;
-        let mut v = cmd.haptuator_v;
-        for x in f.iter_mut() {
-            if !x.is_finite() {
-                *x = 0.0;
-                flags |= FrameFlags::NONFINITE_COMMAND;
-            } else if x.abs() > self.force_max {
-                *x = self.force_max.copysign(*x);
-                flags |= FrameFlags::LIMITED;
-            }
-        }
-        if !v.is_finite() {
-            v = 0.0;
-            flags |= FrameFlags::NONFINITE_COMMAND;
-        } else if v.abs() > self.drive_max {
-            v = self.drive_max.copysign(v);
-            flags |= FrameFlags::LIMITED;
-        }
+        // Common case: within the limits (hence finite), nothing to change.
+        let (f, v, mut flags) = if cmd.force_n[0].abs() <= self.force_max
+            && cmd.force_n[1].abs() <= self.force_max
+            && cmd.haptuator_v.abs() <= self.drive_max
+        {
+            (cmd.force_n, cmd.haptuator_v, 0u8)
+        } else {
+            self.sanitise(cmd)
+        };
         let in_stop_before = self.plant.x.end_stop_steps();
         let o = self.plant.step(&PlantInput {
             force_n: f,
@@ -698,12 +705,54 @@ impl<C: Clock> SimRig<C> {
         }
     }
 
+    /// A command outside the limits or non-finite: non-finite components
+    /// become 0 ([`FrameFlags::NONFINITE_COMMAND`]), others are clamped to
+    /// the limits ([`FrameFlags::LIMITED`]). Returns (force, drive, flags).
+    #[cold]
+    #[inline(never)]
+    fn sanitise(&self, cmd: &ActuatorFrame) -> ([f64; 2], f64, u8) {
+        let mut flags = 0u8;
+        let mut f = cmd.force_n;
+        let mut v = cmd.haptuator_v;
+        for x in f.iter_mut() {
+            if !x.is_finite() {
+                *x = 0.0;
+                flags |= FrameFlags::NONFINITE_COMMAND;
+            } else if x.abs() > self.force_max {
+                *x = self.force_max.copysign(*x);
+                flags |= FrameFlags::LIMITED;
+            }
+        }
+        if !v.is_finite() {
+            v = 0.0;
+            flags |= FrameFlags::NONFINITE_COMMAND;
+        } else if v.abs() > self.drive_max {
+            v = self.drive_max.copysign(v);
+            flags |= FrameFlags::LIMITED;
+        }
+        (f, v, flags)
+    }
+
     /// Count a frame's flags and queue each kind of fault once per block
     /// (`noted` collects the kinds already queued in this block).
     #[cold]
     #[inline(never)]
     fn note_flags(&mut self, ff: FrameFlags, noted: &mut u8) {
         self.counters.note_flags(ff, self.seq, noted);
+    }
+
+    /// [`Rig::process_frame`] through the block path (paced or not running).
+    #[cold]
+    #[inline(never)]
+    fn process_frame_slow(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        let mut out = [*sensors];
+        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
+        *sensors = out[0];
+        Ok(r)
     }
 
     fn quantise(&self, x: f64) -> f64 {
@@ -802,11 +851,161 @@ impl<C: Clock> Rig for SimRig<C> {
         Ok(report)
     }
 
+    /// The block of one frame without the block machinery in the batch,
+    /// running case (bit-identical to `process_block` with one frame: the
+    /// hand moves by Δ = target − prev at velocity Δ·f_s); everything else
+    /// (paced, not started) goes through `process_block`.
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        if self.state != RigState::Running || !matches!(self.pacing, Pacing::Batch) {
+            return self.process_frame_slow(command, sensors);
+        }
+        let first_seq = self.seq;
+        let dh = [
+            self.hand_target[0] - self.hand_prev[0],
+            self.hand_target[1] - self.hand_prev[1],
+        ];
+        let hand = [self.hand_prev[0] + dh[0], self.hand_prev[1] + dh[1]];
+        let hv = [dh[0] * self.fs, dh[1] * self.fs];
+        let out = self.frame(command, hand, hv);
+        if out.flags.0 != 0 {
+            self.note_flags(out.flags, &mut 0);
+        }
+        *sensors = out;
+        self.seq += 1;
+        self.hand_prev = self.hand_target;
+        self.counters.counts.frames += 1;
+        Ok(BlockReport {
+            first_seq,
+            frames: 1,
+            ..Default::default()
+        })
+    }
+
     fn status(&self) -> RigStatus {
         self.counters.status(self.state)
     }
 
     fn pop_fault(&mut self) -> Option<RigFault> {
         self.counters.pop_fault()
+    }
+}
+
+#[cfg(test)]
+mod process_frame_tests {
+    use super::*;
+
+    /// A rig that only has `process_block` (the trait's default
+    /// `process_frame`).
+    struct BlockOnly(SimRig);
+
+    impl Rig for BlockOnly {
+        fn identity(&self) -> &RigIdentity {
+            self.0.identity()
+        }
+        fn start(&mut self) -> Result<(), RigError> {
+            self.0.start()
+        }
+        fn stop(&mut self) -> Result<(), RigError> {
+            self.0.stop()
+        }
+        fn process_block(
+            &mut self,
+            commands: &[ActuatorFrame],
+            sensors: &mut [SensorFrame],
+        ) -> Result<BlockReport, RigError> {
+            self.0.process_block(commands, sensors)
+        }
+        fn status(&self) -> RigStatus {
+            self.0.status()
+        }
+        fn pop_fault(&mut self) -> Option<RigFault> {
+            self.0.pop_fault()
+        }
+    }
+
+    fn bits(s: &SensorFrame) -> (u64, [u64; 2], [u64; 3], u8) {
+        (
+            s.seq,
+            s.handle_m.map(f64::to_bits),
+            s.accel_m_s2.map(f64::to_bits),
+            s.flags.0,
+        )
+    }
+
+    /// `SimRig::process_frame` (its batch fast path) against one-frame
+    /// blocks through `process_block` (the default `process_frame`): the
+    /// same sensor frames, reports, ground truth, counters and faults, bit
+    /// for bit, with a moving hand, commands beyond the limits and
+    /// non-finite commands; before `start` both refuse.
+    #[test]
+    fn frame_path_is_a_one_frame_block() {
+        let cfg = RigConfig::default();
+        let mut a = SimRig::new(&cfg).unwrap();
+        let mut b = BlockOnly(SimRig::new(&cfg).unwrap());
+        let cmd = ActuatorFrame::default();
+        let mut sa = SensorFrame::default();
+        let mut sb = SensorFrame::default();
+        assert!(a.process_frame(&cmd, &mut sa).is_err());
+        assert!(b.process_frame(&cmd, &mut sb).is_err());
+        assert_eq!(sa, SensorFrame::default());
+        a.start().unwrap();
+        b.start().unwrap();
+        let fmax = cfg.limits.pantograph_force_max_n;
+        for k in 0..20_000u64 {
+            let t = k as f64 * 1e-4;
+            if k % 7 == 0 {
+                let hand = [3e-3 * (40.0 * t).sin(), 2e-3 * (25.0 * t).cos()];
+                a.set_hand(hand);
+                b.0.set_hand(hand);
+            }
+            let mut cmd = ActuatorFrame {
+                force_n: [1.5 * fmax * (300.0 * t).sin(), 0.2 * fmax],
+                haptuator_v: 3.0 * (900.0 * t).sin(),
+            };
+            if k % 1001 == 0 {
+                cmd.force_n[(k % 2) as usize] = f64::NAN;
+                cmd.haptuator_v = f64::INFINITY;
+            }
+            let ra = a.process_frame(&cmd, &mut sa).unwrap();
+            let rb = b.process_frame(&cmd, &mut sb).unwrap();
+            assert_eq!(ra, rb);
+            assert_eq!(bits(&sa), bits(&sb), "{k}");
+            assert_eq!(a.truth(), b.0.truth());
+        }
+        assert_eq!(a.status(), b.status());
+        let sa = a.status();
+        assert!(sa.limited_frames > 0 && sa.nonfinite_commands > 0);
+        while let Some(f) = a.pop_fault() {
+            assert_eq!(Some(f), b.pop_fault());
+        }
+        assert_eq!(b.pop_fault(), None);
+    }
+
+    /// A paced rig takes the block path (deadline, lag, skipped samples).
+    #[test]
+    fn paced_frame_path_reports_like_a_block() {
+        let cfg = RigConfig::default();
+        let clock = ManualClock::default();
+        let mut a = SimRig::with_clock(
+            &cfg,
+            Integrator::Zoh,
+            Pacing::WallClock { max_lag_s: 0.01 },
+            clock.clone(),
+        )
+        .unwrap();
+        a.start().unwrap();
+        let mut s = SensorFrame::default();
+        let r = a.process_frame(&ActuatorFrame::default(), &mut s).unwrap();
+        assert_eq!((r.frames, r.skipped_samples), (1, 0));
+        assert_eq!(clock.now(), Duration::from_secs_f64(1e-4));
+        clock.advance(Duration::from_millis(50));
+        let r = a.process_frame(&ActuatorFrame::default(), &mut s).unwrap();
+        assert!(r.skipped_samples > 400, "{r:?}");
+        assert_eq!(s.seq, 1);
     }
 }

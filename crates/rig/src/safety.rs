@@ -329,9 +329,23 @@ struct VelocityEstimator {
     bad_run: u32,
 }
 
+/// Median of three non-NaN values. With plain comparisons (one `minsd` or
+/// `maxsd` each) instead of `f64::min`/`max`, whose NaN handling costs
+/// several instructions per call; the span estimates are never NaN (finite
+/// positions, a finite scale). The result can differ from the
+/// `min`/`max` form only in the sign of a zero, which the speed (a norm)
+/// does not see.
 #[inline]
 fn median3(a: f64, b: f64, c: f64) -> f64 {
-    a.min(b).max(a.max(b).min(c))
+    #[inline(always)]
+    fn lo(a: f64, b: f64) -> f64 {
+        if a < b { a } else { b }
+    }
+    #[inline(always)]
+    fn hi(a: f64, b: f64) -> f64 {
+        if a > b { a } else { b }
+    }
+    hi(lo(a, b), lo(hi(a, b), c))
 }
 
 impl VelocityEstimator {
@@ -353,6 +367,26 @@ impl VelocityEstimator {
     /// Feed one position; returns (speed estimate, was the sample bad).
     #[inline]
     fn update(&mut self, p: [f64; 2]) -> (Option<f64>, bool) {
+        let good = p[0].is_finite() && p[1].is_finite();
+        if good && self.n_est == 3 {
+            // Steady state (the ring holds more than `span` positions, three
+            // estimates exist; `filled` only gates that and stays > span).
+            self.bad_run = 0;
+            self.last_good = p;
+            self.head = (self.head + 1) % RING;
+            self.ring[self.head] = p;
+            let old = self.ring[(self.head + RING - self.span) % RING];
+            let v = [(p[0] - old[0]) * self.scale, (p[1] - old[1]) * self.scale];
+            self.est = [self.est[1], self.est[2], v];
+            return (Some(self.speed()), false);
+        }
+        self.update_general(p)
+    }
+
+    /// [`Self::update`] while warming up or for a bad sample.
+    #[cold]
+    #[inline(never)]
+    fn update_general(&mut self, p: [f64; 2]) -> (Option<f64>, bool) {
         let bad = !(p[0].is_finite() && p[1].is_finite());
         if bad {
             self.bad_run = self.bad_run.saturating_add(1);
@@ -377,12 +411,18 @@ impl VelocityEstimator {
         if self.n_est < 3 {
             return (None, bad);
         }
+        (Some(self.speed()), bad)
+    }
+
+    /// Speed from the three latest span estimates (median per axis, norm).
+    #[inline(always)]
+    fn speed(&self) -> f64 {
         let e = &self.est;
         let vx = median3(e[0][0], e[1][0], e[2][0]);
         let vy = median3(e[0][1], e[1][1], e[2][1]);
         let s = norm2(vx, vy);
         // +∞ only for position differences beyond ~1e150 m: a trip.
-        (Some(if s.is_finite() { s } else { f64::MAX }), bad)
+        if s.is_finite() { s } else { f64::MAX }
     }
 }
 
@@ -426,6 +466,18 @@ impl Watchdog {
             self.pos = 0;
         }
         self.count
+    }
+
+    /// [`Self::record`]`(false)` when the window holds no miss
+    /// (`count` = 0, so the slot being overwritten is already clear): only
+    /// the position advances.
+    #[inline]
+    fn advance_clear(&mut self) {
+        debug_assert_eq!(self.count, 0);
+        self.pos += 1;
+        if self.pos == self.window {
+            self.pos = 0;
+        }
     }
 
     fn clear(&mut self) {
@@ -540,14 +592,107 @@ impl SafetyLayer {
     ) -> ActuatorFrame {
         let sample = self.counters.samples;
         self.counters.samples += 1;
-        let mut flags = 0u8;
-
         if self.estop_flag.load(Ordering::Acquire) && self.state != SafetyState::EStop {
             self.enter_estop(sample);
         }
-
         let (speed, bad_sensor) = self.vel.update(sensors.handle_m);
         self.speed = speed;
+        // The common case, forces on and nothing to count or trip: every
+        // test of the general path below is false (no bad sensor sample, so
+        // `bad_run` = 0; no miss now and none in the window, so the watchdog
+        // slot being overwritten is already clear; finite command; speed
+        // within the limit), and the limits are checked with one combined
+        // test before the general limiting code (a command within the
+        // limits is finite).
+        if self.state == SafetyState::Enabled
+            && !bad_sensor
+            && !deadline_missed
+            && self.wd.count == 0
+            && speed.is_some_and(|s| s <= self.v_max)
+        {
+            // g = 1 in Enabled (every way into Enabled sets it, every way
+            // out leaves Enabled): 1·x = x bit for bit, so no multiply.
+            debug_assert!(self.gain == 1.0);
+            let f = cmd.force_n;
+            let v = cmd.haptuator_v;
+            let a = self.limits.force_axis_max_n;
+            if f[0].abs() <= a
+                && f[1].abs() <= a
+                && v.abs() <= self.limits.drive_max_v
+                && norm2(f[0], f[1]) <= self.limits.force_norm_max_n
+                && norm2(f[0] - self.prev_f[0], f[1] - self.prev_f[1]) <= self.slew_step
+            {
+                self.wd.advance_clear();
+                self.prev_f = f;
+                self.last_flags = FrameFlags::default();
+                return ActuatorFrame {
+                    force_n: f,
+                    haptuator_v: v,
+                };
+            }
+            if cmd.force_n[0].is_finite()
+                && cmd.force_n[1].is_finite()
+                && cmd.haptuator_v.is_finite()
+            {
+                self.wd.advance_clear();
+                return self.limit_on_binding(f, v, 0);
+            }
+        }
+        self.apply_general(cmd, sample, speed, bad_sensor, deadline_missed)
+    }
+
+    /// Forces on, finite command scaled by the gain (`f`, `v`), some limit
+    /// binding (or possibly): the hard limits, then the slew limit, with
+    /// flags and counters.
+    #[cold]
+    #[inline(never)]
+    fn limit_on_binding(&mut self, f: [f64; 2], v: f64, flags: u8) -> ActuatorFrame {
+        let mut flags = flags;
+        let (lim, lf) = hard_limit(
+            ActuatorFrame {
+                force_n: f,
+                haptuator_v: v,
+            },
+            &self.limits,
+        );
+        if lf.has(FrameFlags::LIMITED) {
+            flags |= FrameFlags::LIMITED;
+            self.counters.limited += 1;
+        }
+        let mut f = lim.force_n;
+        let d = [f[0] - self.prev_f[0], f[1] - self.prev_f[1]];
+        let dn = norm2(d[0], d[1]);
+        if dn > self.slew_step {
+            let s = self.slew_step / dn;
+            let a = self.limits.force_axis_max_n;
+            f = [
+                (self.prev_f[0] + d[0] * s).clamp(-a, a),
+                (self.prev_f[1] + d[1] * s).clamp(-a, a),
+            ];
+            flags |= FrameFlags::LIMITED;
+            self.counters.slew_limited += 1;
+        }
+        self.prev_f = f;
+        self.last_flags = FrameFlags(flags);
+        ActuatorFrame {
+            force_n: f,
+            haptuator_v: lim.haptuator_v,
+        }
+    }
+
+    /// [`Self::apply`] outside the common case (any state, counters, trips,
+    /// arming and ramp).
+    #[cold]
+    #[inline(never)]
+    fn apply_general(
+        &mut self,
+        cmd: ActuatorFrame,
+        sample: u64,
+        speed: Option<f64>,
+        bad_sensor: bool,
+        deadline_missed: bool,
+    ) -> ActuatorFrame {
+        let mut flags = 0u8;
         if bad_sensor {
             self.counters.nonfinite_sensors += 1;
         }
@@ -608,48 +753,24 @@ impl SafetyLayer {
             }
         }
 
-        let out = if self.state.forces_on() && finite {
+        if self.state.forces_on() && finite {
             let g = self.gain;
-            let (lim, lf) = hard_limit(
-                ActuatorFrame {
-                    force_n: [g * cmd.force_n[0], g * cmd.force_n[1]],
-                    haptuator_v: g * cmd.haptuator_v,
-                },
-                &self.limits,
+            return self.limit_on_binding(
+                [g * cmd.force_n[0], g * cmd.force_n[1]],
+                g * cmd.haptuator_v,
+                flags,
             );
-            if lf.has(FrameFlags::LIMITED) {
-                flags |= FrameFlags::LIMITED;
-                self.counters.limited += 1;
-            }
-            let mut f = lim.force_n;
-            let d = [f[0] - self.prev_f[0], f[1] - self.prev_f[1]];
-            let dn = norm2(d[0], d[1]);
-            if dn > self.slew_step {
-                let s = self.slew_step / dn;
-                let a = self.limits.force_axis_max_n;
-                f = [
-                    (self.prev_f[0] + d[0] * s).clamp(-a, a),
-                    (self.prev_f[1] + d[1] * s).clamp(-a, a),
-                ];
-                flags |= FrameFlags::LIMITED;
-                self.counters.slew_limited += 1;
-            }
-            self.prev_f = f;
-            ActuatorFrame {
-                force_n: f,
-                haptuator_v: lim.haptuator_v,
-            }
-        } else {
-            if !self.state.forces_on() {
-                self.gain = 0.0;
-            }
-            self.prev_f = [0.0; 2];
-            ActuatorFrame::default()
-        };
+        }
+        if !self.state.forces_on() {
+            self.gain = 0.0;
+        }
+        self.prev_f = [0.0; 2];
         self.last_flags = FrameFlags(flags);
-        out
+        ActuatorFrame::default()
     }
 
+    #[cold]
+    #[inline(never)]
     fn trip(&mut self, reason: TripReason, value: f64, sample: u64) {
         if self.state.latched() {
             return;
@@ -664,6 +785,8 @@ impl SafetyLayer {
         });
     }
 
+    #[cold]
+    #[inline(never)]
     fn enter_estop(&mut self, sample: u64) {
         self.state = SafetyState::EStop;
         self.gain = 0.0;
