@@ -43,7 +43,7 @@ use crate::accel::Accelerometer;
 use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::lti::Integrator;
-use crate::plant::{DualStagePlant, PlantInput, PlantOutput};
+use crate::plant::{DualStagePlant, PlantFastOutput, PlantInput, PlantOutput};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -539,7 +539,7 @@ pub struct SimRig<C: Clock = SystemClock> {
     drive_max: f64,
     hand_prev: [f64; 2],
     hand_target: [f64; 2],
-    truth: PlantOutput,
+    truth: PlantFastOutput,
     seq: u64,
     state: RigState,
     pacing: Pacing,
@@ -607,7 +607,7 @@ impl<C: Clock> SimRig<C> {
             drive_max: cfg.limits.haptuator_drive_max_v,
             hand_prev: [0.0; 2],
             hand_target: [0.0; 2],
-            truth: PlantOutput::default(),
+            truth: PlantFastOutput::default(),
             seq: 0,
             state: RigState::Idle,
             pacing,
@@ -628,8 +628,16 @@ impl<C: Clock> SimRig<C> {
 
     /// True plant outputs of the last sample (tip acceleration without the
     /// sensor, positions, stroke) — the "ground truth" for validation.
-    pub fn truth(&self) -> &PlantOutput {
-        &self.truth
+    /// The tip position is computed on demand from the plant's state
+    /// ([`DualStagePlant::tip_m`], bit-identical to what the step would have
+    /// returned), so the per-sample path skips it.
+    pub fn truth(&self) -> PlantOutput {
+        PlantOutput {
+            accel_m_s2: self.truth.accel_m_s2,
+            tip_m: self.plant.tip_m(),
+            motor_m: self.truth.motor_m,
+            stroke_m: self.truth.stroke_m,
+        }
     }
 
     /// The plant (for inspection).
@@ -683,7 +691,7 @@ impl<C: Clock> SimRig<C> {
             self.sanitise(cmd)
         };
         let in_stop_before = self.plant.x.end_stop_steps();
-        let o = self.plant.step(&PlantInput {
+        let o = self.plant.step_fast(&PlantInput {
             force_n: f,
             drive_v: v,
             hand_m: hand,
