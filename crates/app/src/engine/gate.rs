@@ -201,6 +201,21 @@ impl<R: Rig> Rig for GatedRig<R> {
         Ok(total)
     }
 
+    /// One frame: gated like a one-frame block, sent through the device's
+    /// frame path ([`Rig::process_frame`]).
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        let out = self.gate.apply(*command);
+        self.outputs[0] = out;
+        self.n_outputs = 1;
+        self.last = out;
+        self.inner.process_frame(&out, sensors)
+    }
+
     fn status(&self) -> RigStatus {
         self.inner.status()
     }
