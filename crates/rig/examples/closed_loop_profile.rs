@@ -3,7 +3,11 @@
 //! `cargo run --release -p kilotouch-rig --example closed_loop_profile -- [N] [part]`
 //! runs `N` samples (default 1e6) of the default scene's closed loop in D
 //! mode (or only one part: `plant`, `tweezer`, `accel`, `loop`) and prints
-//! the thread CPU time per sample. Under
+//! the thread CPU time per sample. Diagnostics of what bounds the loop:
+//! `closed` / `open` run the loop written out with the sensor frame fed
+//! back or held (the same work; `open` cuts the mechanical dependency
+//! chain plant → encoder → trap → bead → force → chain → plant), and
+//! `loop2` interleaves two independent loops (time per pair). Under
 //! `valgrind --tool=callgrind` the instruction count per sample is
 //! (Ir of the run with N − Ir of the run with 0) / N: repeatable on a
 //! loaded machine, unlike wall or CPU time.
@@ -93,6 +97,48 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 acc += a.sample([drive(k), 0.0, 0.0]).m_s2[0];
             }
             report(part, n, t0);
+        }
+        "open" | "closed" => {
+            // The loop written out (coupling → safety → rig frame), with the
+            // sensor frame fed back ("closed", as `ClosedLoop::step`) or
+            // held ("open": the mechanical dependency chain plant → encoder
+            // → trap is cut; the same work is done).
+            let mut cl = ClosedLoop::new(
+                SimRig::new(&cfg)?,
+                SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
+                Coupling::from_config(&cfg)?,
+            )?;
+            let feed = part == "closed";
+            let held = *cl.sensors();
+            let mut sensors = held;
+            let mut out = held;
+            let t0 = thread_cpu_ns();
+            for _ in 0..n {
+                let (cmd, _) = cl.coupling.step(&sensors, &mut cl.tweezer);
+                let cmd = cl.safety.apply(cmd, &sensors, false);
+                cl.rig.process_frame(&cmd, &mut out)?;
+                if feed {
+                    sensors = out;
+                }
+                acc += out.handle_m[0];
+            }
+            report(part, n, t0);
+        }
+        "loop2" => {
+            let mk = || -> Result<_, Box<dyn std::error::Error>> {
+                Ok(ClosedLoop::new(
+                    SimRig::new(&cfg)?,
+                    SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
+                    Coupling::from_config(&cfg)?,
+                )?)
+            };
+            let (mut a, mut b) = (mk()?, mk()?);
+            let t0 = thread_cpu_ns();
+            for _ in 0..n {
+                acc += a.step()?.0.force_n[0];
+                acc += b.step()?.0.force_n[0];
+            }
+            report("loop2 (per pair)", n, t0);
         }
         _ => {
             let mut cl = ClosedLoop::new(
