@@ -436,15 +436,27 @@ pub trait Rig: Send {
         command: &ActuatorFrame,
         sensors: &mut SensorFrame,
     ) -> Result<BlockReport, RigError> {
-        let mut out = [*sensors];
-        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
-        *sensors = out[0];
-        Ok(r)
+        frame_as_block(self, command, sensors)
     }
     /// Current counters and state.
     fn status(&self) -> RigStatus;
     /// Oldest queued fault, if any.
     fn pop_fault(&mut self) -> Option<RigFault>;
+}
+
+/// One frame exchanged as a one-frame block: the default
+/// [`Rig::process_frame`], also the fallback of rigs that override it.
+/// `sensors` is written only on success.
+#[inline]
+pub fn frame_as_block<R: Rig + ?Sized>(
+    rig: &mut R,
+    command: &ActuatorFrame,
+    sensors: &mut SensorFrame,
+) -> Result<BlockReport, RigError> {
+    let mut out = [*sensors];
+    let r = rig.process_block(std::slice::from_ref(command), &mut out)?;
+    *sensors = out[0];
+    Ok(r)
 }
 
 /// Time source for paced rigs.
@@ -757,10 +769,7 @@ impl<C: Clock> SimRig<C> {
         command: &ActuatorFrame,
         sensors: &mut SensorFrame,
     ) -> Result<BlockReport, RigError> {
-        let mut out = [*sensors];
-        let r = self.process_block(std::slice::from_ref(command), &mut out)?;
-        *sensors = out[0];
-        Ok(r)
+        frame_as_block(self, command, sensors)
     }
 
     fn quantise(&self, x: f64) -> f64 {
