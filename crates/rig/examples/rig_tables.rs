@@ -2,13 +2,14 @@
 //!
 //! `cargo run --release -p kilotouch-rig --example rig_tables`
 //! (`-- --timings`: thread-CPU cost per step; criterion: `cargo bench -p
-//! kilotouch-rig`).
+//! kilotouch-rig`; `-- --hankel`: Hankel singular values of the plant's
+//! paths).
 
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
 use kilotouch_rig::lti::{self, Integrator};
-use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL};
+use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL, OUT_MOTOR};
 use kilotouch_rig::plant::{AxisSim, DualStagePlant, NU, NX, PlantInput};
 use kilotouch_rig::rig::SimRig;
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer};
@@ -183,6 +184,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if std::env::args().any(|a| a == "--timings") {
         return timings(&cfg0);
     }
+    if std::env::args().any(|a| a == "--hankel") {
+        return hankel(&cfg0);
+    }
     let cfg = RigConfig::default();
     let m = AxisModel::new(&cfg, Axis::X)?;
     let ss = m.active_free();
@@ -302,5 +306,40 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     println!("| ≥ 2 | — | stable, exact | diverges (refused) | ∞ |");
+    Ok(())
+}
+
+/// Hankel singular values σᵢ/σ₁ of the default plant's paths at the rig's
+/// sample rate: how many states each path needs.
+fn hankel(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
+    let dt = 1.0 / cfg.rig.sample_rate_hz;
+    println!(
+        "## Plant: Hankel singular values σᵢ/σ₁ (ZOH at {} Hz)\n",
+        cfg.rig.sample_rate_hz
+    );
+    println!("| axis | path | σᵢ/σ₁ |");
+    println!("|---|---|---|");
+    let x = AxisModel::new(cfg, Axis::X)?;
+    let y = AxisModel::new(cfg, Axis::Y)?;
+    let rows: [(&str, &AxisModel, &str, &[usize], usize); 6] = [
+        (
+            "x",
+            &x,
+            "force, drive → ẍ_h",
+            &[IN_FORCE, IN_DRIVE],
+            OUT_ACCEL,
+        ),
+        ("x", &x, "force → ẍ_h", &[IN_FORCE], OUT_ACCEL),
+        ("x", &x, "drive → ẍ_h", &[IN_DRIVE], OUT_ACCEL),
+        ("x", &x, "force → x_1 (encoder)", &[IN_FORCE], OUT_MOTOR),
+        ("y", &y, "force → ẍ_h", &[IN_FORCE], OUT_ACCEL),
+        ("y", &y, "force → x_1 (encoder)", &[IN_FORCE], OUT_MOTOR),
+    ];
+    for (axis, m, path, inputs, output) in rows {
+        let s = m.hankel_singular_values(inputs, output, dt)?;
+        let r: Vec<String> = s.iter().map(|v| format!("{:.1e}", v / s[0])).collect();
+        println!("| {axis} | {path} | {} |", r.join(" "));
+    }
+    println!();
     Ok(())
 }

@@ -200,6 +200,30 @@ impl AxisModel {
     pub fn poles(&self) -> Vec<C64> {
         self.active_free().poles()
     }
+
+    /// Hankel singular values (decreasing) of the free regime's exact ZOH
+    /// map at step `dt` (s), active states only, from the plant inputs
+    /// `inputs` (indices `IN_*`) to the output `output` (`OUT_*`); see
+    /// [`lti::hankel_singular_values`]. How many of them are far from zero
+    /// is the number of states that path needs (`docs/PERFORMANCE.md`,
+    /// closed-loop speed).
+    pub fn hankel_singular_values(
+        &self,
+        inputs: &[usize],
+        output: usize,
+        dt: f64,
+    ) -> Result<Vec<f64>, RigError> {
+        let ss = self.active_free();
+        if let Some(&bad) = inputs.iter().find(|&&i| i >= ss.b.ncols()) {
+            return Err(RigError::InvalidInput(format!("no plant input {bad}")));
+        }
+        if output >= ss.c.nrows() {
+            return Err(RigError::InvalidInput(format!("no plant output {output}")));
+        }
+        let b = DMatrix::from_fn(ss.b.nrows(), inputs.len(), |i, j| ss.b[(i, inputs[j])]);
+        let (phi, gam) = lti::zoh(&ss.a, &b, dt)?;
+        lti::hankel_singular_values(&phi, &gam, &ss.c.rows(output, 1).into_owned())
+    }
 }
 
 fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisModel, RigError> {

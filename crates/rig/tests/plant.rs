@@ -618,3 +618,44 @@ fn modal_and_dense_zoh_agree() {
             .is_modal()
     );
 }
+
+/// The default plant has no state to spare where the loop reads it: from
+/// the drives (force, and the Haptuator drive on x) to the tip acceleration
+/// every Hankel singular value of the 10 kHz ZOH map is ≥ 1 % of the
+/// largest. Any model with k states differs from it by at least σ_{k+1} in
+/// H∞ norm (Glover 1984), so one state fewer already costs ≥ 1 % of σ₁
+/// (scipy on the same matrices: smallest σ/σ₁ 4.6e-2 on x, 6.6e-2 on y).
+/// The encoder path (force → motor position) needs only the 4.6 Hz mode of
+/// the whole device on the finger: its third σ is < 1e-3 of the first
+/// (scipy: 9.4e-5).
+#[test]
+fn the_default_plant_is_minimal_for_the_tip_acceleration() {
+    let cfg = RigConfig::default();
+    let dt = 1.0 / cfg.rig.sample_rate_hz;
+    let x = AxisModel::new(&cfg, Axis::X).unwrap();
+    let y = AxisModel::new(&cfg, Axis::Y).unwrap();
+    let cases = [
+        (&x, vec![IN_FORCE, IN_DRIVE], NX),
+        (&y, vec![IN_FORCE], NYAX),
+    ];
+    for (m, inputs, n) in cases {
+        let s = m.hankel_singular_values(&inputs, OUT_ACCEL, dt).unwrap();
+        assert_eq!(s.len(), n, "all states are active by default");
+        let min = s[n - 1] / s[0];
+        assert!(min >= 1e-2, "{:?}: smallest σ/σ₁ {min:.2e} ({s:?})", m.axis);
+        let tail3: f64 = s[n - 3..].iter().sum::<f64>() / s[0];
+        assert!(
+            2.0 * tail3 > 0.12,
+            "{:?}: 2·(three smallest)/σ₁ {tail3:.3}",
+            m.axis
+        );
+        let enc = m
+            .hankel_singular_values(&[IN_FORCE], OUT_MOTOR, dt)
+            .unwrap();
+        assert!(
+            enc[1] > 0.5 * enc[0] && enc[2] < 1e-3 * enc[0],
+            "{:?}: {enc:?}",
+            m.axis
+        );
+    }
+}
