@@ -601,17 +601,21 @@ impl SlowInputs {
         (&self.bias.0, self.acc)
     }
 
-    #[cold]
+    // Not `#[cold]`: while the hand moves (study tasks, the GUI's mouse) it
+    // runs every sample.
     #[inline(never)]
     fn refresh<const N: usize>(&mut self, m: &ModalRegime<N>, regime: usize, u: [f64; 3]) {
         let [hp, hv, one] = u;
         let key = [hp.to_bits(), hv.to_bits(), one.to_bits(), regime as u64];
-        for k in 0..LANES {
-            for i in 0..2 {
-                let g = &m.gam.0;
-                self.bias.0[k][i] =
-                    (g[IN_HAND_POS][k][i] * hp + g[IN_HAND_VEL][k][i] * hv) + g[IN_ONE][k][i] * one;
-            }
+        // Lane pairs (packed); per entry (γ_p hp + γ_v hv) + γ_1 one.
+        let g = &m.gam.0;
+        let (hp2, hv2, one2) = ([hp, hp], [hv, hv], [one, one]);
+        let lanes_in = g[IN_HAND_POS].iter().zip(&g[IN_HAND_VEL]).zip(&g[IN_ONE]);
+        for (b, ((gp, gv), g1)) in self.bias.0.iter_mut().zip(lanes_in).take(lanes(N)) {
+            *b = l2_add(
+                l2_add(l2_mul(*gp, hp2), l2_mul(*gv, hv2)),
+                l2_mul(*g1, one2),
+            );
         }
         self.acc = (m.acc_d[IN_HAND_POS] * hp + m.acc_d[IN_HAND_VEL] * hv) + m.acc_d[IN_ONE] * one;
         self.key = key;

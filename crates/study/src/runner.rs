@@ -273,6 +273,10 @@ pub struct TrialEngine<S: Station> {
     force_buf: Vec<[f64; 2]>,
     accel_buf: Vec<[f64; 3]>,
     frames: [Option<(u64, VisualFrame)>; FRAME_RING],
+    // Earliest display time (sample) among `frames` (u64::MAX: none, or
+    // not earlier than a sample not yet reached): the ring is scanned only
+    // from then on, not every sample.
+    next_due: u64,
     frame_seq: u64,
     shown: Option<VisualFrame>,
     trajectory: Vec<[f64; 2]>,
@@ -327,6 +331,7 @@ impl<S: Station> TrialEngine<S> {
             force_buf: Vec::with_capacity(cfg.act_every),
             accel_buf: Vec::with_capacity(cfg.act_every),
             frames: [None; FRAME_RING],
+            next_due: u64::MAX,
             frame_seq: 0,
             shown: None,
             trajectory: Vec::new(),
@@ -391,6 +396,7 @@ impl<S: Station> TrialEngine<S> {
         self.force_buf.clear();
         self.accel_buf.clear();
         self.frames = [None; FRAME_RING];
+        self.next_due = u64::MAX;
         self.frame_seq = 0;
         self.shown = None;
         self.trajectory_cap =
@@ -502,20 +508,27 @@ impl<S: Station> TrialEngine<S> {
                     obstacle_radius_m: geometry.obstacle_radius_m,
                     bead_radius_m: geometry.bead_radius_m,
                 };
-                self.frames[(self.frame_seq as usize) % FRAME_RING] =
-                    Some((self.k + self.latency_samples, f));
+                let due = self.k + self.latency_samples;
+                self.frames[(self.frame_seq as usize) % FRAME_RING] = Some((due, f));
+                self.next_due = self.next_due.min(due);
                 self.frame_seq += 1;
                 ev = event::FRAME;
             }
-            for slot in &mut self.frames {
-                if let Some((due, f)) = *slot
-                    && due <= self.k
-                {
-                    if self.shown.is_none_or(|s| s.seq < f.seq) {
-                        self.shown = Some(f);
+            if self.k >= self.next_due {
+                let mut next = u64::MAX;
+                for slot in &mut self.frames {
+                    match *slot {
+                        Some((due, f)) if due <= self.k => {
+                            if self.shown.is_none_or(|s| s.seq < f.seq) {
+                                self.shown = Some(f);
+                            }
+                            *slot = None;
+                        }
+                        Some((due, _)) => next = next.min(due),
+                        None => {}
                     }
-                    *slot = None;
                 }
+                self.next_due = next;
             }
             if tw.events.contact_start {
                 ev = event::CONTACT_START;

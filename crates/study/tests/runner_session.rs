@@ -227,3 +227,83 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
         assert_eq!(rep.ran, 0);
     }
 }
+
+/// The participant sees, at every sample, the newest camera frame whose
+/// capture is at least the camera latency old (frames every 1/fps): the
+/// runner's frame queue delivers each frame on time, not earlier, and never
+/// holds back a newer one.
+#[test]
+fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
+    use kilotouch_study::operator::{Observation, Participant};
+    use kilotouch_study::protocol::Condition;
+    use kilotouch_study::runner::{NoRaw, TrialEngine};
+    use kilotouch_study::seeds::TrialKey;
+
+    /// Holds the hand still and records what it was shown.
+    struct Watcher(Vec<(f64, Option<(u64, f64)>)>);
+    impl Participant for Watcher {
+        fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+            self.0
+                .push((obs.t_s, obs.frame.map(|f| (f.seq, f.captured_s))));
+            obs.handle_m
+        }
+    }
+    let (fps, latency) = (25.0, 0.013);
+    let cfg = RunnerConfig {
+        act_every: 1,
+        camera_fps: fps,
+        camera_latency_s: latency,
+        raw: None,
+        trajectory_every: 100,
+    };
+    let mut engine =
+        TrialEngine::new(SimStation::new(&RigConfig::default()).unwrap(), cfg).unwrap();
+    let key = TrialKey {
+        participant: 0,
+        phase: Phase::Test,
+        condition: Condition::V,
+        trial: 1,
+    };
+    let setup = engine.setup(&protocol(), key);
+    let mut w = Watcher(Vec::new());
+    // The still hand never completes the task: the trial runs to its
+    // 25 s time-out, ≈ 625 frames.
+    engine.run_trial(&setup, &mut w, &mut NoRaw).unwrap();
+    let dt = 1.0 / engine.sample_rate_hz();
+    let period = 1.0 / fps;
+    let mut shown: Option<u64> = None;
+    for &(t, f) in &w.0 {
+        // Frames are captured on the period grid (the first one a period
+        // after the start). The one shown is the newest with capture +
+        // latency ≤ t, with two samples of slack: the participant acts
+        // before the sample's own capture and display, and t is the time
+        // at the end of the sample.
+        match f {
+            None => assert!(t < period + latency + 2.0 * dt, "no frame shown at {t} s"),
+            Some((seq, cap)) => {
+                let k = cap / period;
+                assert!(
+                    (k - k.round()).abs() < 1e-6,
+                    "frame {seq} captured at {cap} s"
+                );
+                assert!(
+                    cap + latency <= t + 2.0 * dt,
+                    "frame {seq} shown early at {t} s"
+                );
+                assert!(
+                    cap + period + latency > t - 2.0 * dt,
+                    "frame {seq} still shown at {t} s"
+                );
+                if let Some(prev) = shown {
+                    assert!(
+                        seq == prev || seq == prev + 1,
+                        "frame {prev} → {seq} at {t} s"
+                    );
+                }
+                shown = Some(seq);
+            }
+        }
+    }
+    let shown = shown.unwrap_or(0);
+    assert!(shown > 600, "only {shown} frames shown");
+}
