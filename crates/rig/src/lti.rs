@@ -338,11 +338,14 @@ pub fn stability_limit(
 ///
 /// Gramians by Smith's doubling, P ← P + Φ_k P Φ_kᵀ, Φ_k ← Φ_k² (each
 /// round doubles the number of terms of Σ Φᵏ ΓΓᵀ Φᵏᵀ), until two rounds
-/// in a row change no entry p_ij by more than 10⁻¹⁷√(p_ii p_jj). The states are then scaled so that P and Q have equal
-/// diagonals (a similarity, so the σᵢ do not change; the plant mixes
-/// metres, m/s and newtons), and σᵢ² are the eigenvalues of the symmetric
-/// LᵀQL with P = LLᵀ from P's symmetric eigen-decomposition (defined also
-/// when P is singular).
+/// in a row change no entry p_ij by more than 10⁻¹⁷√(p_ii p_jj). The states
+/// are then scaled so that P and Q have equal diagonals (a similarity, so
+/// the σᵢ do not change; the plant mixes metres, m/s and newtons), and σᵢ²
+/// are the eigenvalues of the symmetric LᵀQL with P = LLᵀ from P's
+/// symmetric eigen-decomposition (defined also when P is singular).
+/// Accuracy: relative to σ₁, ≈ 1e-11 on the plant-like test system (against
+/// scipy); a badly conditioned realisation loses more (the gramians'
+/// eigenvalues span many decades), as with any method in f64.
 pub fn hankel_singular_values(
     phi: &DMatrix<f64>,
     gamma: &DMatrix<f64>,

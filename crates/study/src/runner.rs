@@ -273,9 +273,9 @@ pub struct TrialEngine<S: Station> {
     force_buf: Vec<[f64; 2]>,
     accel_buf: Vec<[f64; 3]>,
     frames: [Option<(u64, VisualFrame)>; FRAME_RING],
-    // Earliest display time (sample) among `frames` (u64::MAX: none, or
-    // not earlier than a sample not yet reached): the ring is scanned only
-    // from then on, not every sample.
+    // A lower bound of the earliest display time (sample) among `frames`
+    // (u64::MAX: none pending): the ring is scanned once it is reached,
+    // not every sample.
     next_due: u64,
     frame_seq: u64,
     shown: Option<VisualFrame>,
