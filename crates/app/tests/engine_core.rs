@@ -16,6 +16,8 @@ use kilotouch::engine::{
 };
 use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::coupling::{ChainSource, LoopChain, model_chain_design};
+use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::rig::ManualClock;
 use kilotouch_rig::tweezer::Obstacle;
 use std::time::{Duration, Instant};
@@ -61,16 +63,26 @@ fn conditions_route_the_force_to_the_right_actuators() {
         let expect = -cfg.coupling.force_scale * s.bead_force_n[0];
         assert!((s.handle_force_n[0] - expect).abs() <= 1e-12 * expect.abs().max(1e-9));
     }
-    // P: the Haptuator is silent (exactly), the Pantograph still pushes.
-    assert!(h.set_condition(Condition::Pantograph));
+    // P: after the cross-fade (50 ms = 500 samples) the Haptuator is
+    // silent (exactly), the Pantograph still pushes.
+    let fade = (kilotouch_rig::coupling::CONDITION_FADE_S * 1e4) as usize;
+    assert!(h.set_condition(Condition::P));
     let t = run(&mut core, &mut h, 300);
-    assert!(t[1..].iter().all(|s| s.output.haptuator_v == 0.0));
+    assert!(t[fade + 10..].iter().all(|s| s.output.haptuator_v == 0.0));
+    assert!(
+        t[..fade / 2].iter().any(|s| s.output.haptuator_v != 0.0),
+        "fades, no step"
+    );
     assert!(rms(t[t.len() / 2..].iter().map(|s| s.output.force_n[0])) > 1e-4);
-    // V: after the ramp (10 ms = 100 samples) every output is exactly zero.
-    assert!(h.set_condition(Condition::Vision));
-    let t = run(&mut core, &mut h, 50);
-    assert!(t[110..].iter().all(|s| s.output == Default::default()));
-    assert_eq!(core.condition(), Condition::Vision);
+    // V: after the fade every output is exactly zero.
+    assert!(h.set_condition(Condition::V));
+    let t = run(&mut core, &mut h, 100);
+    assert!(
+        t[fade + 10..]
+            .iter()
+            .all(|s| s.output == Default::default())
+    );
+    assert_eq!(core.condition(), Condition::V);
 }
 
 #[test]
@@ -135,13 +147,24 @@ fn obstacles_reset_bead_and_chain_swaps() {
     assert!(
         ((s.bead_m[0] - s.trap_m[0]).powi(2) + (s.bead_m[1] - s.trap_m[1]).powi(2)).sqrt() < 0.2e-6
     );
-    // A calibration with the same structure cross-fades in.
+    // A (force-normalised) chain with the same structure, cleared by the
+    // stability analysis, cross-fades in.
+    let cfg = RigConfig::default();
     let c = ChainCoefficients::design(&ChainDesign {
         crossover_fc: 250.0,
-        ..ChainDesign::paper()
+        ..model_chain_design(&cfg).unwrap()
     })
     .unwrap();
-    h.apply_chain(c.clone()).unwrap();
+    let chain = LoopChain {
+        coefficients: c.clone(),
+        source: ChainSource::Calibration {
+            path: "test".into(),
+            checksum: "none".into(),
+        },
+    };
+    let clearance = Clearance::check(&cfg, &chain).unwrap();
+    h.apply_chain(&chain, &clearance).unwrap();
+    assert_eq!(h.chain_source(), &chain.source);
     run(&mut core, &mut h, 20);
     let ev = h.poll_events();
     assert!(
@@ -174,7 +197,7 @@ fn emergency_stop_zeroes_every_output_within_one_block_and_latches() {
         assert!(s.has(flags::ESTOP));
     }
     // Latched: condition changes and time do not release it.
-    h.set_condition(Condition::Dual);
+    h.set_condition(Condition::D);
     let t = run(&mut core, &mut h, 200);
     assert!(t.iter().all(|s| s.output == Default::default()));
     // A reset confirmed *before* a second stop does not release it.
@@ -242,19 +265,17 @@ fn threaded_engine_with_a_gui_that_never_reads_keeps_running() {
     let x = *h.health().unwrap();
     assert!(x.blocks >= 2000, "engine stalled at {} blocks", x.blocks);
     assert!(x.telemetry_dropped >= x.blocks * 10 - 128 - 500);
-    assert_eq!(x.safety, SafetyState::Armed);
+    assert_eq!(x.safety, SafetyState::Enabled);
     h.emergency_stop();
     let t0 = Instant::now();
     while t0.elapsed() < Duration::from_secs(5) {
         h.poll_events();
-        if h.health()
-            .is_some_and(|x| x.safety == SafetyState::EmergencyStop)
-        {
+        if h.health().is_some_and(|x| x.safety == SafetyState::EStop) {
             break;
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    assert_eq!(h.health().unwrap().safety, SafetyState::EmergencyStop);
+    assert_eq!(h.health().unwrap().safety, SafetyState::EStop);
     h.shutdown();
 }
 

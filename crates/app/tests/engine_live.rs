@@ -159,7 +159,7 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
     assert!(health.load < 0.5, "load {} (computation only)", health.load);
     assert_eq!(health.rig.lost_frames, 0);
     assert_eq!(health.rig.state, RigState::Running);
-    assert_eq!(health.safety, SafetyState::Armed);
+    assert_eq!(health.safety, SafetyState::Enabled);
     // Outputs finite, within the device's limits.
     for s in &d {
         let o = s.output;
@@ -199,21 +199,21 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
     assert!(h.set_hand([1e-3, 1e-3]));
 
     // V: outputs exactly zero; the hand is still the real handle.
-    assert!(h.set_condition(Condition::Vision));
+    assert!(h.set_condition(Condition::V));
     let (v, _) = collect(&mut h, Duration::from_millis(300));
     let quiet = &v[v.len() / 2..];
     assert!(quiet.iter().all(|s| s.output == Default::default()));
     assert!(quiet.iter().all(|s| s.hand_m == s.handle_m));
 
     // Emergency stop: from the next block on, every output exactly zero.
-    assert!(h.set_condition(Condition::Dual));
+    assert!(h.set_condition(Condition::D));
     let _ = collect(&mut h, Duration::from_millis(200));
     h.emergency_stop();
     let (e, _) = collect(&mut h, Duration::from_millis(300));
     let first = e.iter().position(|s| s.has(flags::ESTOP)).unwrap();
     assert!(first <= 2 * 10, "estop after {first} samples");
     assert!(e[first..].iter().all(|s| s.output == Default::default()));
-    assert_eq!(h.health().unwrap().safety, SafetyState::EmergencyStop);
+    assert_eq!(h.health().unwrap().safety, SafetyState::EStop);
     assert!(h.is_alive());
     h.shutdown();
 }

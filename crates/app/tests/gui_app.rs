@@ -54,7 +54,7 @@ fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
             .engine
             .as_ref()
             .and_then(|e| e.health())
-            .is_some_and(|x| x.safety == SafetyState::EmergencyStop)),
+            .is_some_and(|x| x.safety == SafetyState::EStop)),
         "engine did not report the emergency stop"
     );
     // Every sample the GUI receives from now on has all outputs at zero.
@@ -86,7 +86,7 @@ fn armed(h: &mut Harness<'_, KilotouchApp>) {
             .engine
             .as_ref()
             .and_then(|e| e.health())
-            .is_some_and(|x| x.safety == SafetyState::Armed)
+            .is_some_and(|x| x.safety == SafetyState::Enabled)
             && a.explore.last.is_some_and(|s| s.output.force_n[0] != 0.0)),
         "engine never armed"
     );

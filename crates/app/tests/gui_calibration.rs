@@ -6,9 +6,10 @@
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::gui::env::{PageEnv, ShellRequest};
-use kilotouch::gui::pages::calibration::{CalibrationPage, Status, sim_identity};
+use kilotouch::gui::pages::calibration::{CalibrationPage, Status, sim_record};
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::calibration::{CalibrationFile, Step};
+use kilotouch_rig::coupling::ChainSource;
 use std::time::{Duration, Instant};
 
 struct State {
@@ -27,6 +28,7 @@ fn harness(state: State) -> Harness<'static, State> {
                     rig_config_path: None,
                     output_dir: None,
                     requests: &mut s.requests,
+                    applied: None,
                 };
                 s.page.ui(ui, &mut env);
             },
@@ -125,8 +127,8 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
     h.step();
     h.step();
     assert!(good.is_file(), "{:?}", h.state().page.status());
-    let (id, fs) = sim_identity(&RigConfig::default()).unwrap();
-    let saved = CalibrationFile::load_for(&good, &id, fs).expect("saved file loads for this rig");
+    let id = sim_record(&RigConfig::default()).unwrap();
+    let saved = CalibrationFile::load_for(&good, &id).expect("saved file loads for this rig");
     assert_eq!(saved.checksum, file.checksum);
     assert_eq!(h.state().page.progress().fractions[Step::Save.index()], 1.0);
     assert!(
@@ -140,21 +142,33 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
     h.step();
     assert!(error_text(h.state()).contains("exists"));
 
-    // Apply to engine pushes the calibration to the shell.
+    // The page shows the closed loop's margins with this calibration.
+    h.get_by_label("Closed loop with this calibration");
+    h.get_by_label_contains("largest safe");
+    // Apply to engine pushes the calibration's force chain, cleared by the
+    // stability analysis, to the shell; its source is the saved file.
     h.get_by_label("Apply to engine").click();
     h.step();
-    let applied: Vec<&CalibrationFile> = h
+    let applied: Vec<_> = h
         .state()
         .requests
         .iter()
         .filter_map(|r| match r {
-            ShellRequest::ApplyCalibration(f) => Some(f.as_ref()),
+            ShellRequest::ApplyCalibration(a) => Some(a.as_ref()),
             _ => None,
         })
         .collect();
     assert_eq!(applied.len(), 1);
-    assert_eq!(applied[0].checksum, file.checksum);
-    applied[0].chain_coefficients().expect("a usable chain");
+    let a = applied[0];
+    assert_eq!(a.path.as_deref(), Some(good.as_path()));
+    assert!(a.clearance.report().is_some_and(|r| r.safe));
+    match &a.chain.source {
+        ChainSource::Calibration { checksum, .. } => assert_eq!(checksum, &file.checksum),
+        other => panic!("{other:?}"),
+    }
+    // Force-normalised: C_L = 1, the low path passes a force unchanged at DC.
+    let (l, _) = a.chain.coefficients.response(0.01);
+    assert!((l.norm() - 1.0).abs() < 1e-6, "{l}");
 
     // A corrupted file (K_sys changed by 1 %, checksum kept) is
     // refused with the checksum error, shown on the page.

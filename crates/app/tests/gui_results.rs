@@ -185,6 +185,7 @@ fn harness(state: State) -> Harness<'static, State> {
                     rig_config_path: None,
                     output_dir: s.output_dir.as_deref(),
                     requests: &mut s.requests,
+                    applied: None,
                 };
                 s.page.ui(ui, &mut env);
             },

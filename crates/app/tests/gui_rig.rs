@@ -66,7 +66,7 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
         .engine
         .as_ref()
         .and_then(|e| e.health())
-        .is_some_and(|x| x.safety == SafetyState::Armed)));
+        .is_some_and(|x| x.safety == SafetyState::Enabled)));
     h.get_by_label_contains(&format!("serial:{}", emu.path));
     h.get_by_label("Identity");
     // Explore says that the mouse does not move a live rig's trap.

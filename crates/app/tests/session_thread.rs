@@ -81,6 +81,7 @@ fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
         out: dir.to_path_buf(),
         resume: false,
         rig: RigConfig::default(),
+        calibration: None,
         runner: runner_cfg(raw),
         threads: 2,
     };

@@ -11,12 +11,14 @@
 //!   `safety/apply_disabled`: the safety layer alone, per sample.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use kilotouch_rig::Condition;
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::lti::Integrator;
 use kilotouch_rig::plant::{Axis, AxisModel, AxisSim, DualStagePlant, NU, NX, PlantInput};
-use kilotouch_rig::rig::{ActuatorFrame, SensorFrame, SimRig};
+use kilotouch_rig::rig::{ActuatorFrame, SensorFrame};
 use kilotouch_rig::safety::{SafetyLayer, SafetyState};
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerIntegrator, TweezerParams};
 use nalgebra::SVector;
@@ -198,21 +200,17 @@ fn bench_closed_loop(c: &mut Criterion) {
     let cfg = RigConfig::default();
     let mut g = c.benchmark_group("closed_loop");
     g.throughput(Throughput::Elements(N as u64));
-    for (name, mode) in [
-        ("dual", CouplingMode::Dual),
-        ("pantograph", CouplingMode::Pantograph),
-    ] {
-        let rig = SimRig::new(&cfg).expect("rig");
-        let tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4).expect("tweezer");
-        let mut coupling = Coupling::from_config(&cfg).expect("coupling");
-        coupling.set_mode(mode);
-        let mut cl = ClosedLoop::new(rig, tw, coupling).expect("loop");
+    for (name, condition) in [("dual", Condition::D), ("pantograph", Condition::P)] {
+        let mut c = cfg.clone();
+        c.coupling.mode = condition;
+        let chain = LoopChain::as_designed(&c).expect("chain");
+        let clearance = Clearance::check(&c, &chain).expect("clearance");
+        let mut cl = SimLoop::simulated(&c, &chain, clearance).expect("loop");
         g.bench_function(name, |b| {
             b.iter(|| {
                 let mut acc = 0.0;
                 for _ in 0..N {
-                    let (cmd, _) = cl.step().expect("step");
-                    acc += cmd.force_n[0];
+                    acc += cl.step().expect("step").command.force_n[0];
                 }
                 black_box(acc)
             })

@@ -2,21 +2,17 @@
 //!
 //! `cargo run --release -p kilotouch-rig --example closed_loop_profile -- [N] [part]`
 //! runs `N` samples (default 1e6) of the default scene's closed loop in D
-//! mode (or only one part: `plant`, `tweezer`, `accel`, `loop`) and prints
-//! the thread CPU time per sample. Diagnostics of what bounds the loop:
-//! `closed` / `open` run the loop written out with the sensor frame fed
-//! back or held (the same work; `open` cuts the mechanical dependency
-//! chain plant → encoder → trap → bead → force → chain → plant), and
-//! `loop2` interleaves two independent loops (time per pair). Under
+//! (or only one part: `plant`, `tweezer`, `accel`, `loop`) and prints the
+//! thread CPU time per sample. Under
 //! `valgrind --tool=callgrind` the instruction count per sample is
 //! (Ir of the run with N − Ir of the run with 0) / N: repeatable on a
 //! loaded machine, unlike wall or CPU time.
 
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::coupling::{ClosedLoop, Coupling};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::plant::{DualStagePlant, PlantInput};
-use kilotouch_rig::rig::SimRig;
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
 use kilotouch_rig::{Integrator, Rig};
 use std::hint::black_box;
@@ -66,30 +62,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             report(part, n, t0);
         }
-        "seeds" => {
-            // The tweezer validations of tests/tweezer.rs on more seeds (the
-            // normal generator changed): equipartition within 3 %, f_c within
-            // 5 %, D within 8 %, free and near a wall (Faxén).
-            use kilotouch_rig::tweezer::{TweezerSimArgs, simulate_tweezer};
-            for wall in [None, Some(3.0)] {
-                for seed in 1..=8 {
-                    let r = simulate_tweezer(&TweezerSimArgs {
-                        duration_s: 100.0,
-                        seed,
-                        wall_distance_um: wall,
-                        ..TweezerSimArgs::default()
-                    })?;
-                    let d_th = r.d_theory_m2_s;
-                    println!(
-                        "wall {wall:?} seed {seed}: var x {:.4} y {:.4}  fc {:.4}  D {:.4}",
-                        r.var_x_m2 / r.var_theory_m2,
-                        r.var_y_m2 / r.var_theory_m2,
-                        r.fc_fit_hz / r.fc_theory_hz,
-                        r.d_fit_m2_s / d_th
-                    );
-                }
-            }
-        }
         "accel" => {
             let mut a = Accelerometer::new(&cfg.accelerometer, fs)?;
             let t0 = thread_cpu_ns();
@@ -97,48 +69,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 acc += a.sample([drive(k), 0.0, 0.0]).m_s2[0];
             }
             report(part, n, t0);
-        }
-        "open" | "closed" => {
-            // The loop written out (coupling → safety → rig frame), with the
-            // sensor frame fed back ("closed", as `ClosedLoop::step`) or
-            // held ("open": the mechanical dependency chain plant → encoder
-            // → trap is cut; the same work is done).
-            let mut cl = ClosedLoop::new(
-                SimRig::new(&cfg)?,
-                SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
-                Coupling::from_config(&cfg)?,
-            )?;
-            let feed = part == "closed";
-            let held = *cl.sensors();
-            let mut sensors = held;
-            let mut out = held;
-            let t0 = thread_cpu_ns();
-            for _ in 0..n {
-                let (cmd, _) = cl.coupling.step(&sensors, &mut cl.tweezer);
-                let cmd = cl.safety.apply(cmd, &sensors, false);
-                cl.rig.process_frame(&cmd, &mut out)?;
-                if feed {
-                    sensors = out;
-                }
-                acc += out.handle_m[0];
-            }
-            report(part, n, t0);
-        }
-        "loop2" => {
-            let mk = || -> Result<_, Box<dyn std::error::Error>> {
-                Ok(ClosedLoop::new(
-                    SimRig::new(&cfg)?,
-                    SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
-                    Coupling::from_config(&cfg)?,
-                )?)
-            };
-            let (mut a, mut b) = (mk()?, mk()?);
-            let t0 = thread_cpu_ns();
-            for _ in 0..n {
-                acc += a.step()?.0.force_n[0];
-                acc += b.step()?.0.force_n[0];
-            }
-            report("loop2 (per pair)", n, t0);
         }
         _ => acc += run_loop(&cfg, n)?,
     }
@@ -151,17 +81,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 /// `main` do not change how it is compiled (inlining budgets).
 #[inline(never)]
 fn run_loop(cfg: &RigConfig, n: usize) -> Result<f64, Box<dyn std::error::Error>> {
-    let fs = cfg.rig.sample_rate_hz;
-    let mut cl = ClosedLoop::new(
-        SimRig::new(cfg)?,
-        SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
-        Coupling::from_config(cfg)?,
-    )?;
+    let chain = LoopChain::as_designed(cfg)?;
+    let clearance = Clearance::check(cfg, &chain)?;
+    let mut cl = SimLoop::simulated(cfg, &chain, clearance)?;
     let mut acc = 0.0;
     let t0 = thread_cpu_ns();
     for _ in 0..n {
-        let (cmd, _) = cl.step()?;
-        acc += cmd.force_n[0];
+        acc += cl.step()?.command.force_n[0];
     }
     report("loop", n, t0);
     black_box(cl.rig.status());

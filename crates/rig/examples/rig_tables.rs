@@ -5,13 +5,14 @@
 //! kilotouch-rig`; `-- --hankel`: Hankel singular values of the plant's
 //! paths).
 
+use kilotouch_rig::Condition;
 use kilotouch_rig::accel::Accelerometer;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::lti::{self, Integrator};
 use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL, OUT_MOTOR};
 use kilotouch_rig::plant::{AxisSim, DualStagePlant, NU, NX, PlantInput};
-use kilotouch_rig::rig::SimRig;
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer};
 use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams, TweezerSimArgs, simulate_tweezer};
 use nalgebra::SVector;
@@ -160,19 +161,18 @@ fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
     let mut chain = kilotouch_dsp::chain::Chain::new(&coeffs);
     let t = ns_per_call(n, |k| chain.process(drive(k)).1);
     println!("| dsp chain `process` (one call per sample) | {t:.1} |");
-    for (name, mode) in [
-        (
-            "closed loop, D mode (`closed_loop_ns_per_sample`)",
-            CouplingMode::Dual,
-        ),
-        ("closed loop, P mode", CouplingMode::Pantograph),
+    for (name, condition) in [
+        ("closed loop, D (`closed_loop_ns_per_sample`)", Condition::D),
+        ("closed loop, P", Condition::P),
     ] {
-        let rig = SimRig::new(cfg)?;
-        let tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4)?;
-        let mut c = Coupling::from_config(cfg)?;
-        c.set_mode(mode);
-        let mut cl = ClosedLoop::new(rig, tw, c)?;
-        let t = ns_per_call(n, |_| cl.step().map(|(c, _)| c.force_n[0]).unwrap_or(0.0));
+        let mut c = cfg.clone();
+        c.coupling.mode = condition;
+        let chain = LoopChain::as_designed(&c)?;
+        let clearance = Clearance::check(&c, &chain)?;
+        let mut cl = SimLoop::simulated(&c, &chain, clearance)?;
+        let t = ns_per_call(n, |_| {
+            cl.step().map(|s| s.command.force_n[0]).unwrap_or(0.0)
+        });
         println!("| {name} | {t:.1} |");
     }
     println!();

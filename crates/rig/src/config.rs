@@ -13,6 +13,7 @@
 //! The embedded default, `assets/rigs/default.toml`, is returned verbatim by
 //! [`default_config_text`] (`kilotouch rig default-config`).
 
+use crate::condition::{Condition, PMode};
 use crate::error::RigError;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -43,6 +44,10 @@ pub struct RigConfig {
     /// Safety layer (`crate::safety`); absent = the defaults.
     #[serde(default)]
     pub safety: SafetyConfig,
+    /// Closed-loop stability requirements (`crate::stability`); absent =
+    /// the defaults.
+    #[serde(default)]
+    pub stability: StabilityConfig,
 }
 
 /// `[rig]`: identity and timing.
@@ -184,23 +189,19 @@ pub struct ObstacleConfig {
     pub radius_m: f64,
 }
 
-/// Coupling mode selectable at run time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CouplingModeConfig {
-    /// P: Pantograph only, band-limited.
-    Pantograph,
-    /// D: crossover and both compensated channels.
-    Dual,
-}
-
-/// `[coupling]`: handle ↔ trap mapping.
+/// `[coupling]`: the bilateral coupling between handle and trap
+/// (`crate::coupling`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CouplingConfig {
-    /// Initial mode.
-    pub mode: CouplingModeConfig,
-    /// Trap displacement per handle displacement (m/m).
+    /// Condition the Explore engine starts in (`"V"`, `"P"`, `"D"`; also
+    /// `"vision"`, `"pantograph"`, `"dual"`).
+    pub mode: Condition,
+    /// What the Pantograph receives in condition P (default `"full-band"`;
+    /// `"low-channel"`, or `{ lowpass = { hz = … } }`).
+    #[serde(default)]
+    pub p_mode: PMode,
+    /// Trap displacement per handle displacement (m/m); negative mirrors.
     pub position_scale: f64,
     /// Handle position mapped to the trap offset, m (x, y).
     pub handle_origin_m: [f64; 2],
@@ -212,8 +213,60 @@ pub struct CouplingConfig {
     pub trap_max_m: [f64; 2],
     /// Handle force per optical force (N/N).
     pub force_scale: f64,
-    /// Corner of the band limit applied in P mode, Hz.
-    pub pantograph_band_hz: f64,
+    /// Damping rendered along the contact normal while the bead touches an
+    /// obstacle, N·s/m at the handle: the virtual wall's damper (Colgate &
+    /// Brown 1994). It gives the pressed loop its phase margin
+    /// (`docs/THEORY.md`, closed-loop stability). 0 = none.
+    #[serde(default = "default_contact_damping")]
+    pub contact_damping_n_s_per_m: f64,
+    /// Corner of the 2nd-order Butterworth low-pass on the handle-velocity
+    /// estimate (backward difference of the encoder position), Hz.
+    #[serde(default = "default_velocity_filter")]
+    pub velocity_filter_hz: f64,
+    /// Run the passivity observer/controller (Hannaford & Ryu 2002) on the
+    /// Pantograph forces: a run-time net that adds damping whenever the
+    /// rendering has produced net energy.
+    #[serde(default)]
+    pub passivity_controller: bool,
+    /// Removed: P's band limit is now `p_mode = { lowpass = { hz = … } }`.
+    /// Present only to give a clear error for old rig files.
+    #[serde(default, skip_serializing)]
+    pub pantograph_band_hz: Option<f64>,
+}
+
+fn default_contact_damping() -> f64 {
+    15.0
+}
+
+fn default_velocity_filter() -> f64 {
+    100.0
+}
+
+/// `[stability]`: what the closed-loop analysis assumes and requires
+/// (`crate::stability`). Every key has a default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StabilityConfig {
+    /// Smallest gain margin a loop may be armed with, dB.
+    pub min_gain_margin_db: f64,
+    /// Smallest phase margin a loop may be armed with, degrees.
+    pub min_phase_margin_deg: f64,
+    /// Range of the finger stiffness (tip to hand) the loop must be stable
+    /// for, N/m [low, high]; the plant's `k_f` is the nominal value.
+    pub hand_stiffness_n_per_m: [f64; 2],
+    /// Range of the finger damping, N·s/m [low, high]; `b_f` is nominal.
+    pub hand_damping_n_s_per_m: [f64; 2],
+}
+
+impl Default for StabilityConfig {
+    fn default() -> Self {
+        Self {
+            min_gain_margin_db: 6.0,
+            min_phase_margin_deg: 30.0,
+            hand_stiffness_n_per_m: [200.0, 800.0],
+            hand_damping_n_s_per_m: [2.0, 4.5],
+        }
+    }
 }
 
 /// `[limits]`: actuator limits.
@@ -269,6 +322,39 @@ impl Default for SafetyConfig {
             watchdog_max_missed_fraction: 0.1,
             arm_on_start: true,
         }
+    }
+}
+
+impl StabilityConfig {
+    /// Problems as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        let g = self.min_gain_margin_db;
+        if !(g.is_finite() && (0.0..=60.0).contains(&g)) {
+            v.push((
+                "min_gain_margin_db",
+                format!("must be in [0, 60] dB (got {g})"),
+            ));
+        }
+        let p = self.min_phase_margin_deg;
+        if !(p.is_finite() && (0.0..90.0).contains(&p)) {
+            v.push((
+                "min_phase_margin_deg",
+                format!("must be in [0, 90) degrees (got {p})"),
+            ));
+        }
+        for (key, [lo, hi], upper) in [
+            ("hand_stiffness_n_per_m", self.hand_stiffness_n_per_m, 1e6),
+            ("hand_damping_n_s_per_m", self.hand_damping_n_s_per_m, 1e4),
+        ] {
+            if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi && hi <= upper) {
+                v.push((
+                    key,
+                    format!("must be [low, high] with 0 < low ≤ high ≤ {upper} (got [{lo}, {hi}])"),
+                ));
+            }
+        }
+        v
     }
 }
 
@@ -489,12 +575,6 @@ impl RigConfig {
             "contact stiffness",
         );
         let c = &self.coupling;
-        pos(
-            "coupling",
-            "pantograph_band_hz",
-            c.pantograph_band_hz,
-            "band limit",
-        );
         let l = &self.limits;
         pos(
             "limits",
@@ -593,14 +673,21 @@ impl RigConfig {
                     ));
                 }
             }
-            if c.pantograph_band_hz >= nyq {
+            if let PMode::Lowpass { hz } = c.p_mode
+                && !(hz.is_finite() && hz > 0.0 && hz < nyq)
+            {
                 v.push((
                     "coupling",
-                    "pantograph_band_hz",
-                    format!(
-                        "must be below Nyquist ({nyq} Hz), got {}",
-                        c.pantograph_band_hz
-                    ),
+                    "p_mode",
+                    format!("the low-pass corner must be in (0, {nyq}) Hz, got {hz}"),
+                ));
+            }
+            let fv = c.velocity_filter_hz;
+            if !(fv.is_finite() && fv > 0.0 && fv < nyq) {
+                v.push((
+                    "coupling",
+                    "velocity_filter_hz",
+                    format!("must be in (0, {nyq}) Hz, got {fv}"),
                 ));
             }
         }
@@ -638,6 +725,27 @@ impl RigConfig {
         }
         if !c.force_scale.is_finite() {
             v.push(("coupling", "force_scale", "must be finite".into()));
+        }
+        if let Some(hz) = c.pantograph_band_hz {
+            v.push((
+                "coupling",
+                "pantograph_band_hz",
+                format!(
+                    "was removed: P's signal is now `p_mode` (\"full-band\", \"low-channel\", or \
+                     `p_mode = {{ lowpass = {{ hz = {hz} }} }}` for the old behaviour)"
+                ),
+            ));
+        }
+        let d = c.contact_damping_n_s_per_m;
+        if !(d.is_finite() && (0.0..=1e4).contains(&d)) {
+            v.push((
+                "coupling",
+                "contact_damping_n_s_per_m",
+                format!("must be in [0, 10000] N·s/m (got {d})"),
+            ));
+        }
+        for (key, x) in self.stability.issues() {
+            v.push(("stability", key, x));
         }
         for i in 0..2 {
             if !(c.trap_min_m[i].is_finite()

@@ -59,6 +59,10 @@ pub enum RigError {
     /// The device went away (live rigs: USB unplugged, audio device lost).
     #[error("rig disconnected: {0}")]
     Disconnected(String),
+    /// The closed loop's stability margins are below the configured minimum
+    /// (the message names the margin and the largest safe force scale).
+    #[error("{0}")]
+    LoopNotSafe(String),
     /// The device reported an unrecoverable fault.
     #[error("rig fault: {0}")]
     Device(String),

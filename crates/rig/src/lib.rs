@@ -4,9 +4,9 @@
 //! bandwidth, dual-stage haptic device lets you touch Brownian motion"),
 //! simulated: the lumped plant of §2.2 (eq. 1, Table 2) with exact
 //! zero-order-hold discretisation, the fingertip accelerometer, the optical
-//! tweezer of §4.1 (eqs. 4–6), the [`Rig`] interface that live
-//! rigs will also implement, and the bilateral coupling between handle and
-//! trap.
+//! tweezer of §4.1 (eqs. 4–6), the [`Rig`] interface that the live rigs
+//! implement too, the bilateral coupling between handle and trap, the closed
+//! loop ([`HapticLoop`]) and its stability analysis ([`stability`]).
 //!
 //! Units are SI unless a name says otherwise. Theory and references:
 //! `docs/THEORY.md`; speed and accuracy tables: `docs/PERFORMANCE.md`.
@@ -15,21 +15,27 @@ pub mod accel;
 #[cfg(feature = "audio")]
 pub mod audio;
 pub mod calibration;
+pub mod condition;
 pub mod config;
 pub mod coupling;
 pub mod error;
+pub mod haptic_loop;
 pub mod live;
 pub mod lorentzian;
 pub mod lti;
 pub mod normal;
 pub mod plant;
+pub mod press;
 pub mod rig;
 pub mod safety;
 pub mod sim;
+pub mod stability;
 pub mod tweezer;
 
+pub use condition::{Condition, PMode};
 pub use config::{RigConfig, default_config_text};
 pub use error::RigError;
+pub use haptic_loop::{Clearance, HapticLoop, LoopSample};
 pub use lti::Integrator;
 pub use plant::{Axis, AxisModel, Channel, DualStagePlant};
 pub use rig::{ActuatorFrame, Rig, SensorFrame, SimRig};

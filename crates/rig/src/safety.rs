@@ -1,4 +1,5 @@
-//! The safety layer between any controller and any rig (issue 7).
+//! The safety layer between any controller and any rig: the one place where
+//! commands are limited, ramped and stopped.
 //!
 //! Every sample of a closed-loop run passes through
 //! [`SafetyLayer::apply`], which turns the controller's command into the
@@ -224,6 +225,18 @@ impl SafetyState {
     pub fn latched(self) -> bool {
         matches!(self, Self::Fault | Self::EStop)
     }
+
+    /// Short label for status bars.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Disabled => "outputs off",
+            Self::Arming => "arming",
+            Self::Ramping => "ramping on",
+            Self::Enabled => "armed",
+            Self::Fault => "FAULT",
+            Self::EStop => "EMERGENCY STOP",
+        }
+    }
 }
 
 /// Why the layer tripped.
@@ -277,6 +290,8 @@ pub struct SafetyCounters {
     pub faults: u64,
     /// Emergency stops.
     pub estops: u64,
+    /// Samples output as exactly zero in a latched state (Fault, EStop).
+    pub latched_zeroed: u64,
 }
 
 /// Compact status for GUIs and logs.
@@ -763,6 +778,9 @@ impl SafetyLayer {
         }
         if !self.state.forces_on() {
             self.gain = 0.0;
+        }
+        if self.state.latched() {
+            self.counters.latched_zeroed += 1;
         }
         self.prev_f = [0.0; 2];
         self.last_flags = FrameFlags(flags);

@@ -322,6 +322,9 @@ pub struct TweezerSample {
     pub force_n: [f64; 2],
     /// Surface gap to the nearest obstacle, m (∞ without obstacles).
     pub gap_m: f64,
+    /// Unit normal of the nearest obstacle's surface at the bead (from the
+    /// obstacle's centre toward the bead); zero without obstacles.
+    pub normal: [f64; 2],
     /// Inside an obstacle's contact zone.
     pub in_contact: bool,
     /// Bead held by the trap.
@@ -1022,7 +1025,7 @@ impl SimTweezer {
     ) -> TweezerSample {
         self.trap = p1;
         self.near_cache = Some(near);
-        let gap = near.map_or(f64::INFINITY, |n| n.2);
+        let (normal, gap) = near.map_or(([0.0; 2], f64::INFINITY), |n| (n.1, n.2));
         let delta = self.p.contact_range_m;
         // Enter the contact zone below δ, leave it above 3δ.
         let flip = if self.in_contact {
@@ -1046,6 +1049,7 @@ impl SimTweezer {
             trap_m: p1,
             force_n: force,
             gap_m: gap,
+            normal,
             in_contact: self.in_contact,
             trapped: self.trapped,
             events: ev,

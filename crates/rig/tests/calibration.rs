@@ -489,7 +489,7 @@ fn temp_path(name: &str) -> std::path::PathBuf {
 fn calibration_file_round_trips_and_is_validated() {
     let rc = RigConfig::default();
     let mut rig = sim(&rc);
-    let id = rig.identity();
+    let id = rig.record();
     let path = temp_path("roundtrip");
     let out = calibrate(
         &mut rig,
@@ -499,7 +499,7 @@ fn calibration_file_round_trips_and_is_validated() {
         &AtomicBool::new(false),
     )
     .unwrap();
-    let loaded = CalibrationFile::load_for(&path, &id, 10_000.0).unwrap();
+    let loaded = CalibrationFile::load_for(&path, &id).unwrap();
     assert_eq!(loaded.compensators, out.design);
     assert_eq!(loaded.verification.bands, out.verification.bands);
     assert_eq!(loaded.low.g0, out.low.g0);
@@ -524,22 +524,32 @@ fn calibration_file_round_trips_and_is_validated() {
     assert!(e.to_string().contains("corrupted"), "{e}");
 
     // Another rig, and the same rig with another configuration.
-    let other = RigIdentity {
+    let other = RigRecord {
         serial: "another".into(),
         ..id.clone()
     };
-    let e = loaded.check_rig(&other, 10_000.0, "cal.toml").unwrap_err();
+    let e = loaded.check_rig(&other, "cal.toml").unwrap_err();
     assert!(matches!(e, CalibrationError::WrongRig { .. }), "{e}");
     assert!(e.to_string().contains("another rig"), "{e}");
     let mut rc2 = rc.clone();
     rc2.plant.m_h *= 1.01;
-    let id2 = RigAdapter::sim(&rc2, None).unwrap().identity();
+    let id2 = RigAdapter::sim(&rc2, None).unwrap().record();
     assert_ne!(id2.config_hash, id.config_hash);
-    assert!(loaded.check_rig(&id2, 10_000.0, "cal.toml").is_err());
-    // Another noise seed is the same rig.
-    let id3 = RigAdapter::sim(&rc, Some(99)).unwrap().identity();
+    assert!(loaded.check_rig(&id2, "cal.toml").is_err());
+    // Another noise seed, trap, force scale or safety setting is the same
+    // rig: the calibration measured the device only.
+    let id3 = RigAdapter::sim(&rc, Some(99)).unwrap().record();
     assert_eq!(id3, id);
-    assert!(loaded.check_rig(&id, 20_000.0, "cal.toml").is_err());
+    let mut rc4 = rc.clone();
+    rc4.tweezer.stiffness_n_per_m *= 2.0;
+    rc4.coupling.force_scale *= 0.5;
+    rc4.safety.ramp_time_s = 0.5;
+    assert_eq!(RigAdapter::sim(&rc4, None).unwrap().record(), id);
+    let faster = RigRecord {
+        sample_rate_hz: 20_000.0,
+        ..id.clone()
+    };
+    assert!(loaded.check_rig(&faster, "cal.toml").is_err());
 
     // Missing field.
     let fc_line = text.lines().find(|l| l.starts_with("fc_hz = ")).unwrap();

@@ -4,10 +4,10 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::{RigConfig, SafetyConfig};
-use kilotouch_rig::coupling::{ClosedLoop, Coupling};
-use kilotouch_rig::rig::{ActuatorFrame, FrameFlags, Rig, SensorFrame, SimRig};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
+use kilotouch_rig::rig::{ActuatorFrame, FrameFlags, Rig, SensorFrame};
 use kilotouch_rig::safety::*;
-use kilotouch_rig::tweezer::{SimTweezer, TweezerParams};
 
 const FS: f64 = 1000.0;
 
@@ -442,12 +442,10 @@ fn config_validation_is_located_and_defaults_match_the_file() {
     assert!(HardLimits::new(5.0, 0.0, 1.0).is_err());
 }
 
-fn closed_loop() -> ClosedLoop<SimRig, SimTweezer> {
+fn closed_loop() -> SimLoop {
     let cfg = RigConfig::default();
-    let rig = SimRig::new(&cfg).unwrap();
-    let tw = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), 1e4).unwrap();
-    let safety = SafetyLayer::from_config(&cfg).unwrap();
-    ClosedLoop::with_safety(rig, tw, Coupling::from_config(&cfg).unwrap(), safety).unwrap()
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    SimLoop::simulated(&cfg, &chain, Clearance::check(&cfg, &chain).unwrap()).unwrap()
 }
 
 #[test]
@@ -461,7 +459,7 @@ fn closed_loop_arms_ramps_and_estops() {
     let mut prev_gain = 0.0;
     let n = ramp + 2000;
     for k in 0..n {
-        let (cmd, _) = cl.step().unwrap();
+        let cmd = cl.step().unwrap().command;
         let st = cl.safety_status();
         if ramping_at.is_none() && st.state == SafetyState::Ramping {
             ramping_at = Some(k);
@@ -482,10 +480,11 @@ fn closed_loop_arms_ramps_and_estops() {
     assert_eq!(enabled_at, Some(r + ramp - 1));
     cl.estop();
     for _ in 0..100 {
-        let (cmd, _) = cl.step().unwrap();
+        let cmd = cl.step().unwrap().command;
         assert_eq!(cmd, ActuatorFrame::default());
     }
     assert_eq!(cl.safety_status().state, SafetyState::EStop);
+    assert_eq!(cl.safety_status().counters.latched_zeroed, 100);
     assert_eq!(cl.rig.status().frames, (n + 100) as u64);
 }
 

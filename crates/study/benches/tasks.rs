@@ -12,7 +12,7 @@ use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::rawsig::{Dtype, NpyWriter};
 use kilotouch_study::runner::{NoRaw, RunnerConfig, TrialEngine, raw_layout};
 use kilotouch_study::seeds::{Phase, TrialKey};
-use kilotouch_study::task::station::SimStation;
+use kilotouch_study::task::sim_station::SimStation;
 
 fn bench_trial(c: &mut Criterion) {
     let p = Protocol::paper().expect("built-in protocol");

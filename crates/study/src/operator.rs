@@ -68,8 +68,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::export::TaskKind;
 use crate::seeds::{SplitMix64, splitmix64_mix};
-use crate::task::station::HandMapping;
 use crate::task::{angle_between, norm, unit_uniform};
+use kilotouch_rig::coupling::HandMapping;
 
 /// One camera frame as displayed to the participant (sample plane, m).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -383,6 +383,9 @@ impl SimOperator {
             scale: 1.0,
             handle_origin_m: [0.0; 2],
             trap_offset_m: [0.0; 2],
+            trap_min_m: [f64::NEG_INFINITY; 2],
+            trap_max_m: [f64::INFINITY; 2],
+            force_scale: 1.0,
         };
         Ok(Self {
             p: params,

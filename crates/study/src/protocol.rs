@@ -110,62 +110,9 @@ pub enum ProtocolError {
 
 // ------------------------------------------------------------------ types
 
-/// An experimental condition (paper §4.3).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-pub enum Condition {
-    /// Vision only: camera display of the scene, no haptic force.
-    V,
-    /// Vision + Pantograph channel only (conventional haptic interface, low
-    /// band DC–200 Hz, no Haptuator).
-    P,
-    /// Vision + dual-stage interface (Pantograph + Haptuator through the
-    /// Linkwitz–Riley crossover, flat to 1 kHz).
-    D,
-}
-
-impl Condition {
-    /// All conditions in the paper's order.
-    pub const ALL: [Condition; 3] = [Condition::V, Condition::P, Condition::D];
-
-    /// One-letter code used in files and tables.
-    pub fn code(self) -> &'static str {
-        match self {
-            Condition::V => "V",
-            Condition::P => "P",
-            Condition::D => "D",
-        }
-    }
-
-    /// Human description.
-    pub fn description(self) -> &'static str {
-        match self {
-            Condition::V => "vision only, no haptic force",
-            Condition::P => "vision + Pantograph channel only",
-            Condition::D => "vision + dual-stage interface (Pantograph + Haptuator)",
-        }
-    }
-
-    /// Whether the Pantograph renders force.
-    pub fn pantograph(self) -> bool {
-        matches!(self, Condition::P | Condition::D)
-    }
-
-    /// Whether the Haptuator (high band) is driven.
-    pub fn haptuator(self) -> bool {
-        matches!(self, Condition::D)
-    }
-
-    /// Whether any haptic feedback is given.
-    pub fn haptic(self) -> bool {
-        self.pantograph()
-    }
-}
-
-impl fmt::Display for Condition {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.code())
-    }
-}
+/// An experimental condition (paper §4.3): the rig crate's, the one type
+/// from the protocol file to the actuators.
+pub use kilotouch_rig::condition::Condition;
 
 fn default_conditions() -> Vec<Condition> {
     Condition::ALL.to_vec()

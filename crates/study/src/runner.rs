@@ -206,7 +206,7 @@ impl TrialSetup {
         protocol: &Protocol,
         key: TrialKey,
         start_m: [f64; 2],
-        mapping: crate::task::station::HandMapping,
+        mapping: kilotouch_rig::coupling::HandMapping,
     ) -> Self {
         let seed = protocol.seeds.study;
         let mut task_rng = key.rng(seed, STREAM_TASK);
@@ -379,7 +379,7 @@ impl<S: Station> TrialEngine<S> {
         let mut rng = setup.rig_rng.clone();
         self.station.prepare(
             &setup.scene,
-            setup.feedback,
+            setup.feedback.condition,
             setup.params.escape_distance_m(),
             &mut rng,
         )?;

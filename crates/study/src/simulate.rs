@@ -19,16 +19,18 @@ use std::sync::mpsc;
 use std::time::Instant;
 
 use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::coupling::LoopChain;
 use serde::Serialize;
 
 use crate::export::{
-    PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name, raw_layout_for,
+    CalibrationRef, PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name,
+    raw_layout_for, read_session,
 };
 use crate::operator::SimCohort;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
 use crate::runner::{NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout};
-use crate::task::station::SimStation;
+use crate::task::sim_station::SimStation;
 
 /// Options of [`simulate`].
 #[derive(Debug, Clone)]
@@ -42,6 +44,9 @@ pub struct SimulateOptions {
     pub resume: bool,
     /// Simulated rig.
     pub rig: RigConfig,
+    /// Calibration file whose (force-normalised) chain the D condition runs;
+    /// `None`: the model's as-designed chain, recorded as uncalibrated.
+    pub calibration: Option<PathBuf>,
     /// Runner timing and raw-file dtype (`raw = None`: no raw files).
     pub runner: RunnerConfig,
     /// Worker threads (≥ 1).
@@ -126,6 +131,40 @@ pub fn run_planned(
     Ok((started, outcome))
 }
 
+/// A resumed study must run with the calibration it was started with (or
+/// without one if it started without): two chains in one study would mix
+/// two renderings of D.
+///
+/// # Errors
+/// [`RunError::State`] naming both calibrations.
+pub fn check_same_calibration(out: &Path, now: Option<&CalibrationRef>) -> Result<(), RunError> {
+    let path = out.join(SESSION_FILE);
+    if !path.exists() {
+        return Ok(());
+    }
+    let session = read_session(&path)?;
+    let was = session.calibration.as_ref();
+    let same = match (was, now) {
+        (None, None) => true,
+        (Some(a), Some(b)) => a.sha256 == b.sha256,
+        _ => false,
+    };
+    if same {
+        return Ok(());
+    }
+    let name = |c: Option<&CalibrationRef>| {
+        c.map_or("no calibration (as-designed chain)".to_owned(), |c| {
+            format!("calibration {} (sha256 {})", c.path, c.sha256)
+        })
+    };
+    Err(RunError::State(format!(
+        "{} was started with {}; resuming it with {} would mix two renderings of D: resume with the same calibration",
+        out.display(),
+        name(was),
+        name(now)
+    )))
+}
+
 /// Runs every pending trial of the study in `opts.out` (module docs).
 /// `progress(completed, planned)` is called after each commit.
 ///
@@ -144,7 +183,17 @@ pub fn simulate(
         )));
     }
     let threads = opts.threads.max(1);
-    let meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
+    let mut meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
+    let chain = match &opts.calibration {
+        Some(p) => {
+            meta.calibration = Some(CalibrationRef::from_file(p)?);
+            LoopChain::load(p, &opts.rig)?
+        }
+        None => LoopChain::as_designed(&opts.rig)?,
+    };
+    if opts.resume {
+        check_same_calibration(&opts.out, meta.calibration.as_ref())?;
+    }
     let mut store = StudyStore::open(&opts.out, &opts.protocol, &meta)?;
     let recovery = store.recovery().to_string();
     let planned_total = store.plan().len();
@@ -159,7 +208,10 @@ pub fn simulate(
     // invalid rig is reported before anything runs.
     let mut engines = Vec::with_capacity(threads);
     for _ in 0..threads.min(pending.len().max(1)) {
-        engines.push(TrialEngine::new(SimStation::new(&opts.rig)?, opts.runner)?);
+        engines.push(TrialEngine::new(
+            SimStation::with_chain(&opts.rig, chain.clone())?,
+            opts.runner,
+        )?);
     }
     let result: Result<(), RunError> = std::thread::scope(|scope| {
         let (tx, rx) = mpsc::channel::<(usize, WorkerResult)>();

@@ -4,12 +4,11 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::coupling::CouplingMode;
 use kilotouch_study::operator::{OperatorParams, SimCohort};
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::runner::{NoRaw, RawSink, RunnerConfig, TrialEngine, TrialOutcome};
 use kilotouch_study::seeds::{Phase, TrialKey};
-use kilotouch_study::task::station::SimStation;
+use kilotouch_study::task::sim_station::SimStation;
 use kilotouch_study::task::{Feedback, TaskMetrics};
 
 fn protocol(task: &str) -> Protocol {
@@ -75,11 +74,11 @@ fn swapping_the_label_with_identical_feedback_changes_nothing() {
     // Same label, other feedback: different behaviour (the test can fail).
     for fb in [
         Feedback {
-            haptic: None,
+            condition: Condition::V,
             vision: true,
         },
         Feedback {
-            haptic: Some(CouplingMode::Pantograph),
+            condition: Condition::P,
             vision: true,
         },
     ] {

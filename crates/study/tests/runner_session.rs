@@ -16,7 +16,7 @@ use kilotouch_study::rawsig::{Dtype, read_npy, read_sidecar, sidecar_path};
 use kilotouch_study::runner::{RAW_CHANNELS, RunnerConfig, RunnerState, SessionRunner};
 use kilotouch_study::seeds::Phase;
 use kilotouch_study::simulate::{SimulateOptions, simulate};
-use kilotouch_study::task::station::SimStation;
+use kilotouch_study::task::sim_station::SimStation;
 
 fn protocol() -> Protocol {
     Protocol::from_toml_str(
@@ -206,6 +206,7 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
             out: out.clone(),
             resume: false,
             rig: RigConfig::default(),
+            calibration: None,
             runner: config(false),
             threads,
         };

@@ -7,10 +7,11 @@
 use crate::output::emit;
 use kilotouch_dsp::chain::{Chain, ChainCoefficients};
 use kilotouch_dsp::spectral::{WelchConfig, welch};
-use kilotouch_rig::coupling::{ClosedLoop, Coupling};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::plant::PlantInput;
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
-use kilotouch_rig::{DualStagePlant, Integrator, RigConfig, SimRig};
+use kilotouch_rig::{DualStagePlant, Integrator, RigConfig};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
@@ -194,21 +195,16 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
         black_box(acc);
     });
 
-    let mut closed = ClosedLoop::new(
-        SimRig::new(&cfg)?,
-        SimTweezer::new(
-            TweezerParams::from_config(&cfg.tweezer),
-            cfg.rig.sample_rate_hz,
-        )?,
-        Coupling::from_config(&cfg)?,
-    )?;
+    let chain = LoopChain::as_designed(&cfg)?;
+    let clearance = Clearance::check(&cfg, &chain)?;
+    let mut closed = SimLoop::simulated(&cfg, &chain, clearance)?;
     let mut loop_err = None;
     let cpu0 = thread_cpu_ns();
     let loop_t = best_of(rig_reps, || {
         let mut acc = 0.0;
         for _ in 0..N_RIG {
             match closed.step() {
-                Ok((act, _)) => acc += act.force_n[0],
+                Ok(s) => acc += s.command.force_n[0],
                 Err(e) => {
                     loop_err = Some(e);
                     break;

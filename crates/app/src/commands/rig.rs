@@ -4,8 +4,10 @@ use anyhow::Context;
 use clap::Subcommand;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::config::default_config_text;
+use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::live::{RigSpec, SerialRig};
 use kilotouch_rig::rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+use kilotouch_rig::stability::{StabilityReport, analyse};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -26,6 +28,49 @@ pub enum RigCommand {
     },
     /// Stream zero commands to a rig for a while and report frames, lost frames, CRC errors and the rate.
     Check(CheckArgs),
+    /// Closed-loop stability: gain and phase margins of P and D (worst case over the hand range,
+    /// free and pressed), critical trap stiffness and the largest safe force scale.
+    Margins(MarginsArgs),
+}
+
+/// Arguments of `kilotouch rig margins`.
+#[derive(Debug, clap::Args)]
+pub struct MarginsArgs {
+    /// Rig file (default: the built-in rig).
+    #[arg(long)]
+    pub rig_config: Option<PathBuf>,
+    /// Calibration file whose chain D runs (default: the model's as-designed chain).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `kilotouch rig margins --json`: the stability report and the chain it is for.
+#[derive(Debug, Serialize)]
+pub struct MarginsReport {
+    /// The analysis.
+    #[serde(flatten)]
+    pub report: StabilityReport,
+    /// Where the chain came from.
+    pub chain: ChainSource,
+}
+
+/// The rig file at `path` (or the built-in one) and the chain D runs with it.
+pub fn rig_and_chain(
+    rig_config: Option<&PathBuf>,
+    calibration: Option<&PathBuf>,
+) -> anyhow::Result<(RigConfig, LoopChain)> {
+    let cfg = match rig_config {
+        Some(p) => RigConfig::load(p)?,
+        None => RigConfig::default(),
+    };
+    let chain = match calibration {
+        Some(p) => LoopChain::load(p, &cfg)?,
+        None => LoopChain::as_designed(&cfg)?,
+    };
+    Ok((cfg, chain))
 }
 
 /// Arguments of `kilotouch rig check`.
@@ -191,6 +236,22 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
         RigCommand::Check(a) => {
             let report = check(a).with_context(|| format!("rig check --rig {}", a.rig))?;
             emit(a.json, &report, || report.table())
+        }
+        RigCommand::Margins(a) => {
+            let (cfg, chain) = rig_and_chain(a.rig_config.as_ref(), a.calibration.as_ref())?;
+            let report = analyse(&cfg, &chain.coefficients).context("rig margins")?;
+            let out = MarginsReport {
+                report,
+                chain: chain.source.clone(),
+            };
+            emit(a.json, &out, || {
+                let mut t = format!("chain: {}\n", chain.source.describe());
+                t += &out.report.summary();
+                if let Some(why) = out.report.refusal() {
+                    t += &format!("NOT SAFE: {why}\n");
+                }
+                t
+            })
         }
     }
 }

@@ -16,6 +16,122 @@ pub enum SimCommand {
     Frf(FrfArgs),
     /// Simulate a trapped bead and fit the aliased Lorentzian to its PSD.
     Tweezer(TweezerArgs),
+    /// Simulate the hand pressing the bead against an obstacle in closed loop and judge its
+    /// stability from the signals (oscillation envelope).
+    Press(PressArgs),
+}
+
+/// Arguments of `kilotouch sim press`.
+#[derive(Debug, clap::Args)]
+pub struct PressArgs {
+    /// Rig file (default: the built-in rig).
+    #[arg(long)]
+    pub rig_config: Option<PathBuf>,
+    /// Calibration file whose chain D runs (default: the model's as-designed chain).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Condition: P or D.
+    #[arg(long, default_value = "D", value_parser = ["P", "D"])]
+    pub condition: String,
+    /// Simulated duration, s (approach 0.5 s, settling 0.5 s, then the analysed hold).
+    #[arg(long, default_value_t = 5.0)]
+    pub duration: f64,
+    /// Seed of the noise generators.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// How far past contact the trap is pushed, µm (below the escape distance).
+    #[arg(long, default_value_t = 0.8)]
+    pub depth_um: f64,
+    /// Simulate even when the margins are below the rig file's minimum (the loop is
+    /// simulated, never a live rig).
+    #[arg(long)]
+    pub allow_unstable: bool,
+    /// Write the time series (t, force along the pressing direction, gap, handle) to this CSV.
+    #[arg(long, value_name = "FILE")]
+    pub csv: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `kilotouch sim press --json`: the verdict from the signals, and what the
+/// margin analysis predicted for comparison.
+#[derive(Debug, Serialize)]
+pub struct PressOutput {
+    /// The simulation.
+    #[serde(flatten)]
+    pub report: kilotouch_rig::press::PressReport,
+    /// The analysis' growth of the slowest mode pressed along x with the rig
+    /// file's finger, dB/s (for comparison; not used for `stable`).
+    pub predicted_growth_db_per_s: f64,
+    /// The analysis' verdict for the same case.
+    pub predicted_stable: bool,
+}
+
+fn press(a: &PressArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use kilotouch_rig::haptic_loop::Clearance;
+    use kilotouch_rig::press::{PressOptions, simulate_press};
+    let (cfg, chain) = super::rig::rig_and_chain(a.rig_config.as_ref(), a.calibration.as_ref())?;
+    let condition: kilotouch_rig::Condition = a
+        .condition
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!(e))?;
+    let report = kilotouch_rig::stability::analyse(&cfg, &chain.coefficients)?;
+    let clearance = match Clearance::check(&cfg, &chain) {
+        Ok(c) => c,
+        Err(e) if a.allow_unstable => {
+            eprintln!("warning: {e}; simulating anyway (--allow-unstable)");
+            Clearance::overridden(chain.source.clone())
+        }
+        Err(e) => anyhow::bail!("{e}; pass --allow-unstable to simulate it anyway"),
+    };
+    let opts = PressOptions {
+        condition,
+        duration_s: a.duration,
+        seed: a.seed,
+        depth_m: a.depth_um * 1e-6,
+    };
+    let (r, trace) = simulate_press(&cfg, &chain, clearance, &opts).context("sim press")?;
+    if let Some(path) = &a.csv {
+        let mut w = csv::Writer::from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record(["t_s", "force_n", "gap_m", "handle_m"])?;
+        for i in 0..trace.t_s.len() {
+            w.write_record([
+                trace.t_s[i].to_string(),
+                trace.force_n[i].to_string(),
+                trace.gap_m[i].to_string(),
+                trace.handle_m[i].to_string(),
+            ])?;
+        }
+        w.flush()?;
+    }
+    let predicted = report.condition(condition);
+    let out = PressOutput {
+        predicted_growth_db_per_s: predicted.map_or(f64::NAN, |c| c.nominal_growth_db_per_s),
+        predicted_stable: predicted.is_some_and(|c| c.nominal_stable),
+        report: r,
+    };
+    emit(a.json, &out, || {
+        let r = &out.report;
+        format!(
+            "{} pressed for {} s ({}): {}\n  mean handle force {:.4} N (asked {:.4} N), \
+             oscillation {:.4} N rms, envelope growth {:.2} dB/s (analysis: {:.2} dB/s), \
+             contact {:.0} %, bead {}\n",
+            r.condition,
+            r.duration_s,
+            r.chain,
+            if r.stable { "STABLE" } else { "UNSTABLE" },
+            r.handle_force_mean_n,
+            r.expected_force_n,
+            r.handle_force_osc_rms_n,
+            r.growth_db_per_s,
+            out.predicted_growth_db_per_s,
+            100.0 * r.contact_fraction,
+            if r.escaped { "ESCAPED" } else { "kept" },
+        )
+    })
 }
 
 /// Arguments of `kilotouch sim frf`.
@@ -99,6 +215,7 @@ pub fn load_rig_config(path: Option<&PathBuf>) -> anyhow::Result<RigConfig> {
 /// Run a `sim` subcommand.
 pub fn run(cmd: &SimCommand) -> anyhow::Result<()> {
     match cmd {
+        SimCommand::Press(a) => press(a),
         SimCommand::Frf(a) => {
             let freqs = parse_freqs(&a.freqs)?;
             let cfg = load_rig_config(a.rig_config.as_ref())?;

@@ -47,6 +47,11 @@ pub struct SimulateArgs {
     /// Rig file of the simulated rig (default: the built-in rig).
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
+    /// Calibration file (`kilotouch calibrate --out`) whose chain D runs,
+    /// recorded with its SHA-256 in session.json and the journal. Without
+    /// it, the model's as-designed chain (recorded as uncalibrated).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -168,6 +173,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         out: a.out.clone(),
         resume: a.resume,
         rig,
+        calibration: a.calibration.clone(),
         runner,
         threads,
     };

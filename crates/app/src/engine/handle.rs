@@ -7,9 +7,11 @@ use super::{
     BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, Health,
     TelemetrySample,
 };
-use kilotouch_dsp::chain::ChainCoefficients;
+use kilotouch_rig::coupling::{ChainSource, LoopChain};
+use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::{Clock, RigIdentity, SystemClock};
+use kilotouch_rig::stability::StabilityReport;
 use kilotouch_rig::tweezer::Obstacle;
 use kilotouch_rig::{RigConfig, SimTweezer, TweezerParams};
 use std::sync::Arc;
@@ -51,6 +53,9 @@ pub fn engine_pair_with_rig<C: Clock>(
     let core = EngineCore::new(cfg, rig, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
     let identity = kilotouch_rig::Rig::identity(&core.closed_loop().rig).clone();
     let config = core.config().clone();
+    let clearance = core.closed_loop().clearance();
+    let chain_source = clearance.source().clone();
+    let stability = clearance.report().cloned();
     let handle = EngineHandle {
         commands: cmd_tx,
         telemetry: tel_rx,
@@ -64,6 +69,8 @@ pub fn engine_pair_with_rig<C: Clock>(
         last_error: None,
         condition: core.condition(),
         last_swap: None,
+        chain_source,
+        stability,
     };
     Ok((core, handle))
 }
@@ -84,6 +91,8 @@ pub struct EngineHandle {
     last_error: Option<String>,
     condition: Condition,
     last_swap: Option<SwapOutcome>,
+    chain_source: ChainSource,
+    stability: Option<StabilityReport>,
 }
 
 impl EngineHandle {
@@ -239,13 +248,40 @@ impl EngineHandle {
             })
     }
 
-    /// Swap in a new chain (a calibration).
-    pub fn apply_chain(&mut self, coefficients: ChainCoefficients) -> Result<(), EngineError> {
-        self.send(Command::ApplyChain(ChainSwap::new(coefficients)))
-            .map_err(|_| EngineError::Option {
-                name: "queue",
-                reason: "command queue full, try again",
-            })
+    /// Swap in a new (force-normalised) chain, e.g. a calibration's. The
+    /// loop must have been cleared with it: `clearance` is the analysis of
+    /// this rig file with this chain ([`Clearance::check`]).
+    pub fn apply_chain(
+        &mut self,
+        chain: &LoopChain,
+        clearance: &Clearance,
+    ) -> Result<(), EngineError> {
+        if clearance.source() != &chain.source {
+            return Err(EngineError::Option {
+                name: "clearance",
+                reason: "the clearance is for another chain",
+            });
+        }
+        self.send(Command::ApplyChain(ChainSwap::new(
+            chain.coefficients.clone(),
+        )))
+        .map_err(|_| EngineError::Option {
+            name: "queue",
+            reason: "command queue full, try again",
+        })?;
+        self.chain_source = chain.source.clone();
+        self.stability = clearance.report().cloned();
+        Ok(())
+    }
+
+    /// Where the chain the engine runs came from.
+    pub fn chain_source(&self) -> &ChainSource {
+        &self.chain_source
+    }
+
+    /// The stability analysis the running chain was cleared with.
+    pub fn stability(&self) -> Option<&StabilityReport> {
+        self.stability.as_ref()
     }
 
     /// Replace the block driver (e.g. a study session).

@@ -14,18 +14,18 @@
 //! ```
 //!
 //! The engine runs blocks of `block_len` samples (default 10 = 1 ms at
-//! 10 kHz). Each sample is one step of the rig crate's
-//! [`ClosedLoop`]: sensors → trap (coupling) → tweezer → handle force →
-//! chain → [`gate::OutputGate`] → rig. After a block it sleeps until the
-//! block's deadline ([`pacing`]). It never waits on the GUI: a full
+//! 10 kHz). Each sample is one step of the rig crate's closed loop
+//! ([`kilotouch_rig::HapticLoop`]): sensors → trap (coupling) → tweezer → haptic image →
+//! condition routing and chain → safety layer → rig. After a block it
+//! sleeps until the block's deadline ([`pacing`]). It never waits on the GUI: a full
 //! telemetry queue drops the sample and counts it; a command that must hand
 //! a box back waits in its queue until the event queue has room. Nothing in
 //! the loop allocates, frees or locks: coefficient sets and tweezers with
 //! new obstacles are built (boxed) on the GUI thread, swapped in by the
 //! engine, and the old ones travel back to be dropped on the GUI side.
 //!
-//! Pacing is the engine's, with the rig in batch mode: [`ClosedLoop`]
-//! exchanges one sample per `process_block` call (so the force computed
+//! Pacing is the engine's, with the rig in batch mode: [`kilotouch_rig::HapticLoop`]
+//! exchanges one sample per `process_frame` call (so the force computed
 //! from sample n acts at n + 1), and a wall-clock-paced `SimRig` would sleep
 //! after every sample.
 //!
@@ -54,7 +54,7 @@
 //! rig after its timeout, 100 ms by default, or at once on end of file):
 //! the safety layer trips, outputs go to zero (the rig sends STOP where the
 //! device still listens; the device's own watchdog zeroes them otherwise),
-//! the loop stops ([`SafetyState::Fault`]) and an
+//! the loop stops (the safety layer in [`SafetyState::Fault`]) and an
 //! [`EngineEvent::RigError`] reaches the GUI. [`Command::Reconnect`] reopens
 //! the device (or opens another, e.g. a restarted emulator on a new pty)
 //! on the engine thread and resumes; forces come back through the safety
@@ -64,7 +64,6 @@
 //! exploration: the hand follows the GUI's mouse).
 
 pub mod backend;
-pub mod gate;
 mod handle;
 pub mod pacing;
 mod runner;
@@ -80,43 +79,13 @@ use kilotouch_rig::error::RigError;
 use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::{ActuatorFrame, SimTweezer};
-use serde::{Deserialize, Serialize};
 use splitter::{ChainSwap, SwapOutcome};
 
-/// Experimental condition (paper §4.2): what the participant gets back.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
-pub enum Condition {
-    /// V: vision only, no haptic force (outputs zero, loop still running).
-    Vision,
-    /// P: vision + Pantograph only (band-limited low channel).
-    Pantograph,
-    /// D: vision + dual stage (crossover, both compensated channels).
-    #[default]
-    Dual,
-}
-
-impl Condition {
-    /// All, in the paper's order.
-    pub const ALL: [Condition; 3] = [Condition::Vision, Condition::Pantograph, Condition::Dual];
-
-    /// One-letter name (V, P, D).
-    pub fn letter(self) -> &'static str {
-        match self {
-            Condition::Vision => "V",
-            Condition::Pantograph => "P",
-            Condition::Dual => "D",
-        }
-    }
-
-    /// Human-readable description.
-    pub fn describe(self) -> &'static str {
-        match self {
-            Condition::Vision => "vision only (no force)",
-            Condition::Pantograph => "Pantograph only (up to 200 Hz)",
-            Condition::Dual => "dual stage (Pantograph + Haptuator)",
-        }
-    }
-}
+/// The experimental condition: the rig crate's, one type from the protocol
+/// to the actuators.
+pub use kilotouch_rig::Condition;
+/// The safety layer's state (the engine has no other output gate).
+pub use kilotouch_rig::safety::SafetyState;
 
 /// Bits of [`TelemetrySample::flags`].
 pub mod flags {
@@ -147,9 +116,10 @@ pub struct TelemetrySample {
     pub hand_m: [f64; 2],
     /// Handle position measured by the encoders, m.
     pub handle_m: [f64; 2],
-    /// Force to render at the handle, before the split: force_scale·κ(bead − trap), N.
+    /// Force to render at the handle, before the split: the optical force's
+    /// image g·sign(s)·κ(bead − trap) plus the wall damper in contact, N.
     pub handle_force_n: [f64; 2],
-    /// What was sent to the device (after the gate): Pantograph force (N), Haptuator drive (V).
+    /// What was sent to the device (after the safety layer): Pantograph force (N), Haptuator drive (V).
     pub output: ActuatorFrame,
     /// Fingertip acceleration (accelerometer, x y z), m/s².
     pub accel_m_s2: [f64; 3],
@@ -169,34 +139,6 @@ impl TelemetrySample {
     /// Is `bit` set?
     pub fn has(&self, bit: u16) -> bool {
         self.flags & bit != 0
-    }
-}
-
-/// What the output gate is doing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum SafetyState {
-    /// Rig stopped (not exchanging frames); outputs zero.
-    Idle,
-    /// Running, haptic outputs off (condition V) or ramping.
-    OutputsOff,
-    /// Running with haptic outputs on.
-    Armed,
-    /// Emergency stop latched: outputs exactly zero until reset.
-    EmergencyStop,
-    /// The rig failed (error or disconnect); outputs zero, loop stopped.
-    Fault,
-}
-
-impl SafetyState {
-    /// Short label for the status bar.
-    pub fn label(self) -> &'static str {
-        match self {
-            SafetyState::Idle => "idle",
-            SafetyState::OutputsOff => "outputs off",
-            SafetyState::Armed => "armed",
-            SafetyState::EmergencyStop => "EMERGENCY STOP",
-            SafetyState::Fault => "FAULT",
-        }
     }
 }
 
@@ -223,8 +165,10 @@ pub struct Health {
     pub telemetry_dropped: u64,
     /// Health/notice events dropped (event queue full).
     pub events_dropped: u64,
-    /// Output gate state.
+    /// State of the safety layer (the rig may be stopped: see `running`).
     pub safety: SafetyState,
+    /// The safety layer's latest trip (kept after a reset).
+    pub last_trip: Option<kilotouch_rig::safety::Trip>,
     /// Current condition.
     pub condition: Condition,
     /// Exchanging frames.
@@ -233,10 +177,22 @@ pub struct Health {
     pub rig: RigStatus,
     /// Coupling safety-net counters.
     pub coupling: CouplingCounters,
-    /// Frames forced to zero by the emergency stop.
+    /// Frames forced to zero in a latched state (emergency stop, fault).
     pub estop_zeroed_frames: u64,
     /// The bead is in the trap.
     pub trapped: bool,
+}
+
+impl Health {
+    /// Status-bar label: "idle" while the rig is stopped (and nothing is
+    /// latched), else the safety layer's state.
+    pub fn status_label(&self) -> &'static str {
+        if !self.running && !self.safety.latched() {
+            "idle"
+        } else {
+            self.safety.label()
+        }
+    }
 }
 
 /// Replaces free exploration for a block-driven activity (a study session):
@@ -325,7 +281,7 @@ pub enum EngineEvent {
 /// Options of the engine.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EngineOptions {
-    /// Samples per block (1–[`gate::GATE_CHUNK`] typical 10 = 1 ms at 10 kHz).
+    /// Samples per block (1–[`kilotouch_rig::haptic_loop::MAX_BLOCK`], typical 10 = 1 ms at 10 kHz).
     pub block_len: usize,
     /// Sleep to the wall clock (`false`: as fast as possible, tests).
     pub paced: bool,
@@ -333,7 +289,7 @@ pub struct EngineOptions {
     pub tolerance_s: f64,
     /// Stall beyond which the schedule re-anchors instead of catching up, s.
     pub max_lag_s: f64,
-    /// Ramp-on time of the outputs, s.
+    /// Ramp-on time of the outputs, s (the safety layer's ramp).
     pub ramp_s: f64,
     /// Time constant of the hand smoothing (mouse steps → smooth motion), s.
     pub hand_smoothing_s: f64,

@@ -2,24 +2,20 @@
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
 use super::backend::EngineRig;
-use super::gate::{GATE_CHUNK, GatedRig, OutputGate};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
     BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, FreeExploration,
-    Garbage, Health, SafetyState, TelemetrySample, flags,
+    Garbage, Health, TelemetrySample, flags,
 };
-use kilotouch_dsp::chain::{Chain, ChainCoefficients};
-use kilotouch_rig::config::SafetyConfig;
-use kilotouch_rig::coupling::{ClosedLoop, Coupling, CouplingMode, model_chain_design};
+use kilotouch_dsp::chain::Chain;
+use kilotouch_rig::coupling::{Coupling, LoopChain};
 use kilotouch_rig::error::RigError;
+use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, LoopSample, MAX_BLOCK};
 use kilotouch_rig::live::RigSpec;
 use kilotouch_rig::rig::Clock;
-use kilotouch_rig::safety::{SafetyLayer, TripReason};
-use kilotouch_rig::tweezer::TweezerSample;
-use kilotouch_rig::{
-    ActuatorFrame, Rig, RigConfig, SensorFrame, SimTweezer, Tweezer, TweezerParams,
-};
+use kilotouch_rig::safety::{SafetyLayer, SafetyState, TripReason};
+use kilotouch_rig::{Rig, RigConfig, SimTweezer, Tweezer, TweezerParams};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -34,7 +30,7 @@ pub(crate) struct Shared {
 }
 
 /// The closed loop the engine runs.
-pub type EngineLoop = ClosedLoop<GatedRig<EngineRig>, SimTweezer, SwappableChain>;
+pub type EngineLoop = HapticLoop<EngineRig, SimTweezer, SwappableChain>;
 
 /// Idle period while the rig is stopped, s.
 const IDLE_SLEEP_S: f64 = 5e-3;
@@ -76,14 +72,6 @@ pub struct EngineCore<C: Clock> {
     cfg: RigConfig,
     /// Live rig: block exchange (module docs of [`crate::engine`]).
     live: bool,
-    /// Live: sensor frames of the previous block (the controller's input).
-    live_sens: [SensorFrame; GATE_CHUNK],
-    /// Live: commands of the block being sent.
-    live_cmd: [ActuatorFrame; GATE_CHUNK],
-    /// Live: tweezer samples computed for the block being sent.
-    live_tw: [TweezerSample; GATE_CHUNK],
-    /// Live: the previous exchange lost frames, skipped or ran late.
-    missed: bool,
     /// Live: time spent waiting for the device in this block, s (not load).
     wait_s: f64,
 }
@@ -101,7 +89,7 @@ impl<C: Clock> EngineCore<C> {
         events: rtrb::Producer<EngineEvent>,
         shared: Arc<Shared>,
     ) -> Result<Self, EngineError> {
-        if !(1..=super::gate::GATE_CHUNK).contains(&opts.block_len) {
+        if !(1..=MAX_BLOCK).contains(&opts.block_len) {
             return Err(EngineError::Option {
                 name: "block_len",
                 reason: "must be 1–64 samples",
@@ -123,23 +111,20 @@ impl<C: Clock> EngineCore<C> {
         // The loop runs at the rig's rate (a live device announces its own).
         let mut cfg = cfg.clone();
         cfg.rig.sample_rate_hz = rig.identity().sample_rate_hz;
+        cfg.safety.ramp_time_s = opts.ramp_s;
         let cfg = &cfg;
         let fs = cfg.rig.sample_rate_hz;
         let live = rig.is_live();
-        let ramp = (opts.ramp_s * fs).round().clamp(0.0, u32::MAX as f64) as u32;
-        let gated = GatedRig::new(rig, OutputGate::new(ramp));
         let tweezer = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?;
-        let coeffs = ChainCoefficients::design(&model_chain_design(cfg)?)
-            .map_err(kilotouch_rig::RigError::from)?;
-        let (splitter, swap_port) = SwappableChain::new(Chain::new(&coeffs));
+        // The loop is armed only if its margins meet the rig file's minimum.
+        let chain = LoopChain::as_designed(cfg)?;
+        let clearance = Clearance::check(cfg, &chain)?;
+        let (splitter, swap_port) = SwappableChain::new(Chain::new(&chain.coefficients));
         let coupling = Coupling::with_splitter(cfg, splitter)?;
-        let condition = match coupling.mode() {
-            CouplingMode::Pantograph => Condition::Pantograph,
-            CouplingMode::Dual => Condition::Dual,
-        };
-        let mut lp = ClosedLoop::new(gated, tweezer, coupling)?;
-        let trap0 = lp.coupling.trap_target([0.0, 0.0]);
-        lp.tweezer.reset(trap0);
+        let condition = coupling.condition();
+        let safety = SafetyLayer::for_rig(rig.identity(), &cfg.safety)?;
+        let lp = HapticLoop::new(rig, tweezer, coupling, safety, clearance)?;
+        let trap0 = lp.coupling.mapping().rest_trap_m();
         let hand_alpha = if opts.hand_smoothing_s > 0.0 {
             1.0 - (-1.0 / (fs * opts.hand_smoothing_s)).exp()
         } else {
@@ -182,13 +167,8 @@ impl<C: Clock> EngineCore<C> {
             idle_ticks: 0,
             cfg: cfg.clone(),
             live,
-            live_sens: [SensorFrame::default(); GATE_CHUNK],
-            live_cmd: [ActuatorFrame::default(); GATE_CHUNK],
-            live_tw: [TweezerSample::default(); GATE_CHUNK],
-            missed: false,
             wait_s: 0.0,
         };
-        core.lp.rig.gate.set_enabled(condition != Condition::Vision);
         if !opts.start {
             core.stop_rig();
         }
@@ -230,20 +210,6 @@ impl<C: Clock> EngineCore<C> {
         self.stopped
     }
 
-    fn safety(&self) -> SafetyState {
-        if self.faulted {
-            SafetyState::Fault
-        } else if self.lp.rig.gate.is_estopped() {
-            SafetyState::EmergencyStop
-        } else if !self.running {
-            SafetyState::Idle
-        } else if self.lp.rig.gate.enabled() && self.lp.rig.gate.gain() > 0.0 {
-            SafetyState::Armed
-        } else {
-            SafetyState::OutputsOff
-        }
-    }
-
     fn push_event(&mut self, e: EngineEvent) {
         // Garbage must never be dropped here (that would free on this
         // thread): commands producing garbage wait until there is room.
@@ -269,13 +235,13 @@ impl<C: Clock> EngineCore<C> {
         let c = self.shared.estop_count.load(Ordering::Acquire);
         if c != self.estop_seen {
             self.estop_seen = c;
-            self.lp.rig.gate.emergency_stop();
+            self.lp.safety.estop();
         }
     }
 
     fn stop_rig(&mut self) {
         let _ = self.lp.rig.stop();
-        self.lp.rig.gate.cut();
+        self.lp.safety.disarm();
         self.running = false;
     }
 
@@ -311,12 +277,7 @@ impl<C: Clock> EngineCore<C> {
             }
             Command::SetCondition(c) => {
                 self.condition = c;
-                match c {
-                    Condition::Vision => {}
-                    Condition::Pantograph => self.lp.coupling.set_mode(CouplingMode::Pantograph),
-                    Condition::Dual => self.lp.coupling.set_mode(CouplingMode::Dual),
-                }
-                self.lp.rig.gate.set_enabled(c != Condition::Vision);
+                self.lp.coupling.set_condition(c);
             }
             Command::SetTweezer(mut t) => {
                 let bead = self.lp.tweezer.bead();
@@ -332,9 +293,15 @@ impl<C: Clock> EngineCore<C> {
                 }
             }
             Command::ResetEmergencyStop { ack } => {
-                if ack == self.shared.estop_count.load(Ordering::Acquire) {
+                if ack == self.shared.estop_count.load(Ordering::Acquire)
+                    && self.lp.safety.state() == SafetyState::EStop
+                {
                     self.estop_seen = ack;
-                    self.lp.rig.gate.reset_emergency_stop();
+                    // Forces come back through arming and the ramp.
+                    self.lp.safety.reset();
+                    if self.running {
+                        let _ = self.lp.safety.arm();
+                    }
                 }
             }
             Command::ResetBead => self.lp.tweezer.reset(self.last_trap),
@@ -357,17 +324,16 @@ impl<C: Clock> EngineCore<C> {
     }
 
     /// Back to running after `start` succeeded: a trip caused by the rig
-    /// error is cleared (the layer re-arms: forces return only once the
-    /// command is small, through the ramp), the gate ramps from zero.
+    /// error is cleared and the layer re-arms (forces return only once the
+    /// command is small, through the ramp). A latched emergency stop stays
+    /// latched until the user resets it.
     fn resume(&mut self) {
-        if self.faulted {
+        if self.faulted && self.lp.safety.state() == SafetyState::Fault {
             self.lp.safety.reset();
-            let _ = self.lp.safety.arm();
         }
-        self.lp.rig.gate.cut();
+        let _ = self.lp.safety.arm();
         self.running = true;
         self.faulted = false;
-        self.missed = false;
         self.pacer.reanchor();
     }
 
@@ -378,7 +344,7 @@ impl<C: Clock> EngineCore<C> {
     fn reconnect(&mut self, spec: Option<&RigSpec>) {
         self.stop_rig();
         let cfg = self.cfg.clone();
-        if let Err(e) = self.lp.rig.inner.reconnect(spec, &cfg) {
+        if let Err(e) = self.lp.rig.reconnect(spec, &cfg) {
             self.faulted = true;
             self.push_notice(EngineEvent::RigError(e));
             return;
@@ -393,11 +359,13 @@ impl<C: Clock> EngineCore<C> {
             ))));
             return;
         }
-        match SafetyLayer::for_rig(&id, &SafetyConfig::default()) {
+        match SafetyLayer::for_rig(&id, &self.cfg.safety) {
             Ok(mut layer) => {
                 if layer.arm_on_start() {
                     let _ = layer.arm();
                 }
+                // The old layer's state is dropped here, on the engine
+                // thread, while the loop is stopped (no real-time deadline).
                 self.lp.safety = layer;
             }
             Err(e) => {
@@ -431,8 +399,9 @@ impl<C: Clock> EngineCore<C> {
     }
 
     fn health(&self, loop_rate_hz: f64, load: f64, worst: f64) -> Health {
+        let st = self.lp.safety.status();
         Health {
-            seq: self.lp.rig.inner.next_seq(),
+            seq: self.lp.rig.next_seq(),
             loop_rate_hz,
             load,
             deadline_misses: self.pacer.misses,
@@ -442,12 +411,13 @@ impl<C: Clock> EngineCore<C> {
             blocks: self.blocks,
             telemetry_dropped: self.telemetry_dropped,
             events_dropped: self.events_dropped,
-            safety: self.safety(),
+            safety: st.state,
+            last_trip: st.last_trip,
             condition: self.condition,
             running: self.running,
             rig: self.lp.rig.status(),
             coupling: self.lp.coupling.counters(),
-            estop_zeroed_frames: self.lp.rig.gate.zeroed_frames(),
+            estop_zeroed_frames: st.counters.latched_zeroed,
             trapped: self.trapped,
         }
     }
@@ -488,14 +458,8 @@ impl<C: Clock> EngineCore<C> {
 
     /// Telemetry of one sample: flags, the driver, the queue.
     #[inline]
-    fn publish(
-        &mut self,
-        sensors: &SensorFrame,
-        s: &TweezerSample,
-        output: ActuatorFrame,
-        hand: [f64; 2],
-        estop_flag: u16,
-    ) {
+    fn publish(&mut self, l: &LoopSample, hand: [f64; 2], estop_flag: u16) {
+        let s = &l.tweezer;
         self.last_trap = s.trap_m;
         self.trapped = s.trapped;
         let e = s.events;
@@ -507,19 +471,20 @@ impl<C: Clock> EngineCore<C> {
             (e.contact_end, flags::CONTACT_END),
             (e.escaped, flags::ESCAPED),
             (e.recaptured, flags::RECAPTURED),
-            (sensors.flags.0 != 0, flags::RIG_FLAG),
+            (l.sensors.flags.0 != 0, flags::RIG_FLAG),
         ] {
             if on {
                 fl |= bit;
             }
         }
+        let r = &l.rendered;
         let t = TelemetrySample {
-            seq: sensors.seq,
+            seq: l.sensors.seq,
             hand_m: hand,
-            handle_m: sensors.handle_m,
-            handle_force_n: self.lp.coupling.handle_force(s),
-            output,
-            accel_m_s2: sensors.accel_m_s2,
+            handle_m: l.sensors.handle_m,
+            handle_force_n: [r.image_n[0] + r.damping_n[0], r.image_n[1] + r.damping_n[1]],
+            output: l.command,
+            accel_m_s2: l.sensors.accel_m_s2,
             trap_m: s.trap_m,
             bead_m: s.bead_m,
             bead_force_n: s.force_n,
@@ -533,20 +498,16 @@ impl<C: Clock> EngineCore<C> {
         self.window_samples += 1;
     }
 
-    /// Simulated rig: one exchange per sample ([`ClosedLoop::step`]: the
+    /// Simulated rig: one exchange per sample ([`HapticLoop::step`]: the
     /// force computed from sample k acts at k + 1); the hand follows
     /// `target` through the smoothing filter.
     fn run_sim(&mut self, n: usize, target: [f64; 2], estop_flag: u16) {
         for _ in 0..n {
             self.hand[0] += self.hand_alpha * (target[0] - self.hand[0]);
             self.hand[1] += self.hand_alpha * (target[1] - self.hand[1]);
-            self.lp.rig.inner.set_hand(self.hand);
+            self.lp.rig.set_hand(self.hand);
             match self.lp.step() {
-                Ok((_, s)) => {
-                    let sensors = *self.lp.sensors();
-                    let out = self.lp.rig.last_output();
-                    self.publish(&sensors, &s, out, self.hand, estop_flag);
-                }
+                Ok(l) => self.publish(&l, self.hand, estop_flag),
                 Err(e) => {
                     self.rig_failed(e);
                     break;
@@ -555,41 +516,27 @@ impl<C: Clock> EngineCore<C> {
         }
     }
 
-    /// Live rig: one exchange per block (module docs of [`crate::engine`]).
-    /// The commands of block b are computed, sample by sample, from the
-    /// sensor frames of block b − 1 (coupling, tweezer and safety layer
-    /// step once per sample as in [`ClosedLoop::step`]), so the loop delay
-    /// is `block_len` samples instead of 1. The hand is the real handle.
+    /// Live rig: one exchange per block ([`HapticLoop::step_block`], module
+    /// docs of [`crate::engine`]): the commands of block b are computed,
+    /// sample by sample, from the sensor frames of block b − 1, so the loop
+    /// delay is `block_len` samples instead of 1. The hand is the real
+    /// handle.
     fn run_live(&mut self, n: usize, estop_flag: u16) {
-        let n = n.min(GATE_CHUNK);
-        for i in 0..n {
-            let sens = self.live_sens[i];
-            let (cmd, s) = self.lp.coupling.step(&sens, &mut self.lp.tweezer);
-            let missed = self.missed && i == 0;
-            self.live_cmd[i] = self.lp.safety.apply(cmd, &sens, missed);
-            self.live_tw[i] = s;
-        }
-        let mut got = [SensorFrame::default(); GATE_CHUNK];
+        let n = n.min(MAX_BLOCK);
         let t0 = self.pacer.clock().now();
-        let res = self
-            .lp
-            .rig
-            .process_block(&self.live_cmd[..n], &mut got[..n]);
+        let res = self.lp.step_block(n);
         self.wait_s = self.pacer.clock().now().saturating_sub(t0).as_secs_f64();
         match res {
-            Ok(r) => {
-                self.missed =
-                    r.lost_frames > 0 || r.skipped_samples > 0 || r.lag_s * self.fs > n as f64;
-                let mut outs = [ActuatorFrame::default(); GATE_CHUNK];
-                let sent = self.lp.rig.last_outputs();
-                outs[..sent.len()].copy_from_slice(sent);
-                for i in 0..n {
-                    let s = self.live_tw[i];
-                    self.publish(&got[i], &s, outs[i], got[i].handle_m, estop_flag);
+            Ok(_) => {
+                let mut block = [LoopSample::default(); MAX_BLOCK];
+                let got = self.lp.block();
+                let m = got.len();
+                block[..m].copy_from_slice(got);
+                for l in &block[..m] {
+                    self.publish(l, l.sensors.handle_m, estop_flag);
                 }
-                self.live_sens[..n].copy_from_slice(&got[..n]);
-                if let Some(last) = got[..n].last() {
-                    self.hand = last.handle_m;
+                if let Some(last) = block[..m].last() {
+                    self.hand = last.sensors.handle_m;
                 }
             }
             Err(e) => self.rig_failed(e),
@@ -624,7 +571,7 @@ impl<C: Clock> EngineCore<C> {
             return !self.stopped;
         }
         self.pacer.begin_block();
-        let first_seq = self.lp.rig.inner.next_seq();
+        let first_seq = self.lp.rig.next_seq();
         let target = self.driver.hand_target(self.gui_hand, first_seq);
         let target = if target.iter().all(|v| v.is_finite()) {
             target
@@ -632,7 +579,7 @@ impl<C: Clock> EngineCore<C> {
             self.hand
         };
         let n = self.opts.block_len;
-        let estop_flag = if self.lp.rig.gate.is_estopped() {
+        let estop_flag = if self.lp.safety.state() == SafetyState::EStop {
             flags::ESTOP
         } else {
             0

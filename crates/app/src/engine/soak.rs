@@ -23,9 +23,9 @@
 
 use super::pacing::Pacer;
 use super::{Condition, EngineError, EngineHandle, EngineOptions};
-use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::error::RigError;
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::rig::SystemClock;
 use kilotouch_rig::tweezer::Obstacle;
 use serde::Serialize;
@@ -179,12 +179,15 @@ pub fn run_soak(
     }
     let fs = cfg.rig.sample_rate_hz;
     let period_s = opts.block_len as f64 / fs;
-    let chain = ChainCoefficients::design(&ChainDesign::paper()).map_err(RigError::from)?;
+    // The swaps exercise the lock-free path; the chain is the engine's own
+    // (already cleared) so the loop stays as safe as it started.
+    let chain = LoopChain::as_designed(cfg)?;
+    let clearance = Clearance::check(cfg, &chain)?;
     let mut h = EngineHandle::spawn(cfg, opts)?;
 
     let reference = ReferenceThread::start(period_s, &opts)?;
     let t0 = Instant::now();
-    let conds = [Condition::Pantograph, Condition::Dual, Condition::Vision];
+    let conds = [Condition::P, Condition::D, Condition::V];
     let (mut commands, mut rejected, mut received, mut k) = (0u64, 0u64, 0u64, 0u64);
     let mut next_progress = 0.0;
     let mut build_err = None;
@@ -224,7 +227,7 @@ pub fn run_soak(
                     break;
                 }
             }
-            match h.apply_chain(chain.clone()) {
+            match h.apply_chain(&chain, &clearance) {
                 Ok(()) => commands += 1,
                 Err(_) => rejected += 1,
             }

@@ -7,6 +7,7 @@
 //! deliberate steps in a dialog (tick "the rig is safe", then click
 //! "Re-enable outputs"); no key does it, and a stop pressed meanwhile wins.
 
+use super::env::AppliedCalibration;
 use super::env::{PageEnv, ShellRequest};
 use super::pages::study::EngineTransition;
 use super::pages::study::ProtocolSource;
@@ -114,6 +115,8 @@ pub struct KilotouchApp {
     pub study: StudyPage,
     results: ResultsPage,
     requests: Vec<ShellRequest>,
+    /// The calibration the engine runs (None: the as-designed chain).
+    applied: Option<AppliedCalibration>,
     notices: VecDeque<Notice>,
     reset_dialog: Option<bool>,
     /// Screenshot plan, if any.
@@ -215,6 +218,7 @@ impl KilotouchApp {
             study,
             results: ResultsPage::new(),
             requests: Vec::new(),
+            applied: None,
             notices,
             reset_dialog: None,
             screenshot: None,
@@ -284,6 +288,14 @@ impl KilotouchApp {
             Ok(mut h) => {
                 h.set_condition(self.settings.condition);
                 self.explore.reset(&self.rig_config);
+                // A calibration applied before keeps being used when the
+                // engine restarts (after a study sitting, a reconnect).
+                if let Some(a) = &self.applied
+                    && let Err(e) = h.apply_chain(&a.chain, &a.clearance)
+                {
+                    self.notify(format!("calibration not re-applied: {e}"), true);
+                    self.applied = None;
+                }
                 self.engine = Some(h);
             }
             Err(e) => self.notify(format!("cannot start the engine: {e}"), true),
@@ -328,8 +340,7 @@ impl KilotouchApp {
     /// Is the engine's emergency stop latched (per the last health report)?
     pub fn estop_latched(&self) -> bool {
         self.engine.as_ref().is_some_and(|e| {
-            e.health()
-                .is_some_and(|h| h.safety == SafetyState::EmergencyStop)
+            e.health().is_some_and(|h| h.safety == SafetyState::EStop)
                 || e.estop_count() > 0 && e.health().is_none()
         })
     }
@@ -341,6 +352,8 @@ impl KilotouchApp {
                 match RigConfig::load(&path) {
                     Ok(c) => {
                         self.rig_config = c;
+                        // A calibration belongs to the rig file it was cleared for.
+                        self.applied = None;
                         self.rig_config_path = Some(path.clone());
                         self.settings.rig_file = Some(path);
                         self.config_error = None;
@@ -357,6 +370,7 @@ impl KilotouchApp {
             }
             RigAction::UseDefault => {
                 self.rig_config = RigConfig::default();
+                self.applied = None;
                 self.rig_config_path = None;
                 self.settings.rig_file = None;
                 self.config_error = None;
@@ -397,31 +411,22 @@ impl KilotouchApp {
             match r {
                 ShellRequest::Notify(s) => self.notify(s, false),
                 ShellRequest::SetOutputDir(p) => self.settings.output_dir = Some(p),
-                ShellRequest::ApplyCalibration(f) => {
+                ShellRequest::ApplyCalibration(a) => {
                     let fs = self.rig_config.rig.sample_rate_hz;
-                    let res = f
-                        .chain_coefficients()
-                        .map_err(|e| e.to_string())
-                        .and_then(|c| {
-                            if c.fs() != fs {
-                                Err(format!(
-                                    "calibration is for {} Hz, the rig runs at {fs} Hz",
-                                    c.fs()
-                                ))
-                            } else {
-                                Ok(c)
-                            }
-                        });
-                    match (res, &mut self.engine) {
-                        (Err(e), _) => self.notify(format!("calibration not applied: {e}"), true),
-                        (Ok(_), None) => {
-                            self.notify("calibration not applied: no rig connected", true)
-                        }
-                        (Ok(c), Some(h)) => {
-                            if let Err(e) = h.apply_chain(c) {
-                                self.notify(format!("calibration not applied: {e}"), true);
-                            }
-                        }
+                    let c = &a.chain.coefficients;
+                    match &mut self.engine {
+                        _ if c.fs() != fs => self.notify(
+                            format!(
+                                "calibration not applied: it is for {} Hz, the rig runs at {fs} Hz",
+                                c.fs()
+                            ),
+                            true,
+                        ),
+                        None => self.notify("calibration not applied: no rig connected", true),
+                        Some(h) => match h.apply_chain(&a.chain, &a.clearance) {
+                            Ok(()) => self.applied = Some(*a),
+                            Err(e) => self.notify(format!("calibration not applied: {e}"), true),
+                        },
                     }
                 }
             }
@@ -524,13 +529,13 @@ impl KilotouchApp {
                     }
                     Some(h) => {
                         let col = match h.safety {
-                            SafetyState::EmergencyStop | SafetyState::Fault => Color32::RED,
-                            SafetyState::Armed => Color32::from_rgb(60, 200, 90),
+                            SafetyState::EStop | SafetyState::Fault => Color32::RED,
+                            SafetyState::Enabled => Color32::from_rgb(60, 200, 90),
                             _ => Color32::from_rgb(230, 180, 40),
                         };
-                        ui.colored_label(col, h.safety.label().to_owned());
+                        ui.colored_label(col, h.status_label().to_owned());
                         ui.separator();
-                        ui.label(format!("{} · {}", h.condition.letter(), if h.running { "running" } else { "paused" }));
+                        ui.label(format!("{} · {}", h.condition.code(), if h.running { "running" } else { "paused" }));
                         ui.separator();
                         ui.label(format!("loop {:.0} Hz", h.loop_rate_hz));
                         ui.label(format!("load {:.1} %", 100.0 * h.load));
@@ -630,6 +635,7 @@ impl KilotouchApp {
                 rig_config_path: self.rig_config_path.as_deref(),
                 output_dir: self.settings.output_dir.as_deref(),
                 requests: &mut self.requests,
+                applied: self.applied.as_ref(),
             };
             match self.page {
                 Page::Rig => {

@@ -13,13 +13,29 @@ pub struct PageEnv<'a> {
     pub output_dir: Option<&'a Path>,
     /// Requests from the page to the shell, handled by the shell after the frame.
     pub requests: &'a mut Vec<ShellRequest>,
+    /// The calibration the engine runs, if one was applied (the Study
+    /// page's default).
+    pub applied: Option<&'a AppliedCalibration>,
+}
+
+/// A calibration cleared for the closed loop: its force-normalised chain,
+/// the stability analysis with it, and the file it came from.
+#[derive(Debug, Clone)]
+pub struct AppliedCalibration {
+    /// The chain and its source.
+    pub chain: kilotouch_rig::coupling::LoopChain,
+    /// Proof that the margins meet the rig file's minimum.
+    pub clearance: kilotouch_rig::haptic_loop::Clearance,
+    /// The file, when the calibration was saved or loaded.
+    pub path: Option<PathBuf>,
 }
 
 /// A page's request to the shell.
 #[derive(Debug)]
 pub enum ShellRequest {
-    /// Load this calibration (a finished wizard run or a loaded file) into the real-time engine's chain.
-    ApplyCalibration(Box<kilotouch_rig::calibration::CalibrationFile>),
+    /// Load this calibration (a finished wizard run or a loaded file) into
+    /// the real-time engine's chain (already cleared by the stability analysis).
+    ApplyCalibration(Box<AppliedCalibration>),
     /// Remember this folder as the study output folder (persisted in the settings).
     SetOutputDir(PathBuf),
     /// Show a short message to the user (status line / toast).

@@ -18,7 +18,7 @@ pub mod settings;
 pub mod work;
 
 pub use app::{AppOptions, KilotouchApp};
-pub use env::{PageEnv, ShellRequest};
+pub use env::{AppliedCalibration, PageEnv, ShellRequest};
 pub use settings::Page;
 
 use std::path::{Path, PathBuf};

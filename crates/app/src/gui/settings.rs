@@ -83,7 +83,7 @@ impl Default for Settings {
             protocol_file: None,
             output_dir: None,
             camera: CameraModel::default(),
-            condition: Condition::Dual,
+            condition: Condition::D,
             trace_seconds: 2.0,
         }
     }
@@ -133,7 +133,7 @@ mod tests {
             protocol_source: Some("file".into()),
             protocol_file: Some("/tmp/p.toml".into()),
             output_dir: Some("/tmp/out".into()),
-            condition: Condition::Vision,
+            condition: Condition::V,
             ..Default::default()
         };
         s.save(&mut m);

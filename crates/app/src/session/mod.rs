@@ -72,10 +72,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::rig::SystemClock;
 use kilotouch_study::export::{
-    PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE, TrialRow, plan,
-    read_session, read_trials,
+    CalibrationRef, PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE,
+    TrialRow, plan, read_session, read_trials,
 };
 use kilotouch_study::operator::VisualFrame;
 use kilotouch_study::operator::{
@@ -84,7 +85,9 @@ use kilotouch_study::operator::{
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::{RunError, RunnerConfig, RunnerEvents, RunnerState, SessionRunner};
 use kilotouch_study::seeds::TrialKey;
-use kilotouch_study::task::station::{HandMapping, SimStation, Station};
+use kilotouch_study::simulate::check_same_calibration;
+use kilotouch_study::task::sim_station::SimStation;
+use kilotouch_study::task::station::{HandMapping, Station};
 use kilotouch_study::task::{Scene, TaskParams, TrialEnd};
 use thiserror::Error;
 
@@ -153,6 +156,10 @@ pub struct SessionOptions {
     pub block: usize,
     /// Samples of session time between two telemetry events (≥ 1).
     pub telemetry_every: usize,
+    /// Calibration whose (force-normalised) chain D runs; recorded with its
+    /// SHA-256 in `session.json` and the journal. `None`: the model's
+    /// as-designed chain, recorded as uncalibrated.
+    pub calibration: Option<PathBuf>,
 }
 
 impl SessionOptions {
@@ -170,6 +177,7 @@ impl SessionOptions {
             runner: RunnerConfig::default(),
             block: 10,
             telemetry_every: 20,
+            calibration: None,
         }
     }
 }
@@ -380,7 +388,15 @@ impl SessionHandle {
                 "\"as fast as possible\" is for the simulated participant only".into(),
             ));
         }
-        let meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
+        let mut meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
+        let chain = match &opts.calibration {
+            Some(p) => {
+                meta.calibration = Some(CalibrationRef::from_file(p)?);
+                LoopChain::load(p, &opts.rig).map_err(RunError::from)?
+            }
+            None => LoopChain::as_designed(&opts.rig).map_err(RunError::from)?,
+        };
+        check_same_calibration(&opts.out, meta.calibration.as_ref())?;
         if opts.protocol.is_some() && opts.out.join(SESSION_FILE).exists() {
             // The folder's own protocol decides; a different one is refused by
             // the store (ProtocolMismatch) — say so before touching anything.
@@ -417,7 +433,7 @@ impl SessionHandle {
         }
         let recovery = store.recovery().clone();
         let rows = read_trials(&opts.out.join(TRIALS_FILE))?.rows;
-        let station = SimStation::new(&opts.rig)?;
+        let station = SimStation::with_chain(&opts.rig, chain)?;
         let info = SessionInfo {
             protocol: store.protocol().clone(),
             recovery_text: recovery.to_string(),

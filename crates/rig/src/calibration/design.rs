@@ -96,8 +96,27 @@ impl CompensatorDesign {
         }
     }
 
-    /// Digital coefficients of the compensated chain (errors when a
-    /// compensator would be unstable).
+    /// The chain the closed loop runs, whose input is a force in newtons:
+    /// the same crossover, Ĝ_H and F with K_sys = G0_L, so C_L = 1 N/N and
+    /// C_H = G0_L·F/Ĝ_H V/N. The rendered force at low frequency is then the
+    /// force asked for whatever the calibration (`docs/THEORY.md`, what K_sys
+    /// means for a force input).
+    pub fn force_chain_design(&self) -> ChainDesign {
+        ChainDesign {
+            k_sys: self.g0_l,
+            ..self.chain_design()
+        }
+    }
+
+    /// Digital coefficients of [`Self::force_chain_design`].
+    pub fn force_chain_coefficients(&self) -> Result<ChainCoefficients> {
+        ChainCoefficients::design(&self.force_chain_design())
+            .map_err(|e| CalibrationError::dsp("force chain", e))
+    }
+
+    /// Digital coefficients of the compensated chain for a unit haptic
+    /// signal (K_sys as designed; errors when a compensator would be
+    /// unstable).
     pub fn chain_coefficients(&self) -> Result<ChainCoefficients> {
         ChainCoefficients::design(&self.chain_design())
             .map_err(|e| CalibrationError::dsp("compensated chain", e))

@@ -23,7 +23,7 @@ use super::design::CompensatorDesign;
 use super::error::{CalibrationError, Result};
 use super::hash::content_hash;
 use super::identify::{HighChannelId, LowChannelId};
-use super::interface::RigIdentity;
+use super::interface::RigRecord;
 use super::verify::Verification;
 use kilotouch_dsp::chain::ChainCoefficients;
 use kilotouch_dsp::compensator;
@@ -34,31 +34,6 @@ use std::path::Path;
 pub const FORMAT: &str = "kilotouch-calibration";
 /// Current `format_version`.
 pub const FORMAT_VERSION: u32 = 1;
-
-/// The rig a calibration was made on.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RigRecord {
-    /// Rig name ([`RigIdentity::name`]).
-    pub name: String,
-    /// Serial ([`RigIdentity::serial`]).
-    pub serial: String,
-    /// Configuration hash ([`RigIdentity::config_hash`]).
-    pub config_hash: String,
-    /// Sample rate, Hz.
-    pub sample_rate_hz: f64,
-}
-
-impl RigRecord {
-    /// The identity part.
-    pub fn identity(&self) -> RigIdentity {
-        RigIdentity {
-            name: self.name.clone(),
-            serial: self.serial.clone(),
-            config_hash: self.config_hash.clone(),
-        }
-    }
-}
 
 /// A calibration file. Build one with [`CalibrationFile::new`], write it
 /// with [`CalibrationFile::save`], read it with [`CalibrationFile::load_for`].
@@ -115,12 +90,7 @@ impl CalibrationFile {
             created,
             software: software_version(),
             checksum: String::new(),
-            rig: RigRecord {
-                name: outcome.identity.name.clone(),
-                serial: outcome.identity.serial.clone(),
-                config_hash: outcome.identity.config_hash.clone(),
-                sample_rate_hz: outcome.fs,
-            },
+            rig: outcome.rig.clone(),
             settings: outcome.config.clone(),
             check: outcome.check.clone(),
             low: outcome.low.clone(),
@@ -210,21 +180,20 @@ impl CalibrationFile {
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
-    /// Read and validate `path` for the rig `identity` running at `fs` Hz.
-    pub fn load_for(path: impl AsRef<Path>, identity: &RigIdentity, fs: f64) -> Result<Self> {
+    /// Read and validate `path` for the rig `rig`.
+    pub fn load_for(path: impl AsRef<Path>, rig: &RigRecord) -> Result<Self> {
         let f = Self::load(path.as_ref())?;
-        f.check_rig(identity, fs, &path.as_ref().display().to_string())?;
+        f.check_rig(rig, &path.as_ref().display().to_string())?;
         Ok(f)
     }
 
-    /// Error unless this file was made for `identity` at `fs` Hz.
-    pub fn check_rig(&self, identity: &RigIdentity, fs: f64, origin: &str) -> Result<()> {
-        let found = self.rig.identity();
-        if found != *identity || self.rig.sample_rate_hz != fs {
+    /// Error unless this file was made for `rig`.
+    pub fn check_rig(&self, rig: &RigRecord, origin: &str) -> Result<()> {
+        if self.rig != *rig {
             return Err(CalibrationError::WrongRig {
                 origin: origin.to_owned(),
-                expected: format!("{identity} at {fs} Hz"),
-                found: format!("{found} at {} Hz", self.rig.sample_rate_hz),
+                expected: rig.to_string(),
+                found: self.rig.to_string(),
             });
         }
         Ok(())

@@ -10,26 +10,42 @@ use super::error::{CalibrationError, Result};
 use kilotouch_dsp::C64;
 use serde::{Deserialize, Serialize};
 
-/// Who a calibration belongs to. A calibration file is only valid for the
-/// rig (name and serial) and the rig configuration (hash) it was made on.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+/// The record of who a calibration belongs to: the rig's name and serial
+/// (from its [`crate::rig::RigIdentity`]), the hash of the rig configuration
+/// the calibration measured ([`super::sim::rig_config_hash`]) and the sample
+/// rate. A calibration file is only valid for the rig it records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RigIdentity {
-    /// Rig model or kind, e.g. `sim` or `pantograph-haptuator`.
+pub struct RigRecord {
+    /// Rig name, e.g. `sim` or `pantograph-haptuator`.
     pub name: String,
     /// Serial number or instance name (`-` when not applicable).
     pub serial: String,
     /// Hash of the rig configuration (e.g. `fnv1a64:0123456789abcdef`, see
     /// [`super::hash`]); a changed configuration invalidates a calibration.
     pub config_hash: String,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
 }
 
-impl std::fmt::Display for RigIdentity {
+impl RigRecord {
+    /// The record of a rig's identity with the hash of its configuration.
+    pub fn of(id: &crate::rig::RigIdentity, config_hash: String) -> Self {
+        Self {
+            name: id.name.clone(),
+            serial: id.serial.clone(),
+            config_hash,
+            sample_rate_hz: id.sample_rate_hz,
+        }
+    }
+}
+
+impl std::fmt::Display for RigRecord {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "`{}` serial `{}` config {}",
-            self.name, self.serial, self.config_hash
+            "`{}` serial `{}` config {} at {} Hz",
+            self.name, self.serial, self.config_hash, self.sample_rate_hz
         )
     }
 }
@@ -101,8 +117,8 @@ pub trait CalibrationRig {
     /// Sample rate of [`run`](Self::run) in Hz.
     fn sample_rate(&self) -> f64;
 
-    /// Identity of this rig (stored in and checked against calibration files).
-    fn identity(&self) -> RigIdentity;
+    /// Record of this rig (stored in and checked against calibration files).
+    fn record(&self) -> RigRecord;
 
     /// Self-test: sensor alive and in range, rig responding, safety armed.
     fn check(&mut self) -> Result<CheckReport>;

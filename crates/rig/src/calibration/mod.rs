@@ -44,7 +44,7 @@ pub use design::CompensatorDesign;
 pub use error::{CalibrationError, Result};
 pub use file::CalibrationFile;
 pub use identify::{HighChannelId, LowChannelId};
-pub use interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigIdentity, RunStats};
+pub use interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigRecord, RunStats};
 pub use progress::{NoProgress, Progress, Step, StepContext};
 pub use report::CalibrationReport;
 pub use sim::{RigAdapter, calibrate_sim, rig_config_hash};
@@ -57,8 +57,8 @@ use std::sync::atomic::AtomicBool;
 /// Everything a calibration produced (steps 1–6).
 #[derive(Debug, Clone)]
 pub struct CalibrationOutcome {
-    /// Rig identity.
-    pub identity: RigIdentity,
+    /// The rig's record (name, serial, configuration hash, rate).
+    pub rig: RigRecord,
     /// Sample rate, Hz.
     pub fs: f64,
     /// Rig limits.
@@ -122,7 +122,7 @@ pub fn calibrate<R: CalibrationRig + ?Sized>(
     let design = design::design(fs, &limits, &low, &high, &crossover, cfg, &mut ctx)?;
     let verification = verify::verify(rig, &design, &low, cfg, &mut ctx)?;
     let outcome = CalibrationOutcome {
-        identity: rig.identity(),
+        rig: rig.record(),
         fs,
         limits,
         config: cfg.clone(),

@@ -4,7 +4,7 @@
 
 use super::CalibrationOutcome;
 use super::crossover::CrossoverRule;
-use super::interface::RigIdentity;
+use super::interface::RigRecord;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
@@ -73,7 +73,7 @@ pub struct CalibrationReport {
     /// True when the accelerometer response was divided out.
     pub sensor_corrected: bool,
     /// The rig.
-    pub rig: RigIdentity,
+    pub rig: RigRecord,
 }
 
 impl CalibrationReport {
@@ -112,7 +112,7 @@ impl CalibrationReport {
             crossover_overridden: o.crossover.rule == CrossoverRule::Override,
             crossover_over_budget: o.crossover.over_budget,
             sensor_corrected: v.sensor_corrected,
-            rig: o.identity.clone(),
+            rig: o.rig.clone(),
         }
     }
 

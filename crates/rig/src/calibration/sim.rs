@@ -6,7 +6,7 @@
 use super::error::{CalibrationError, Result};
 use super::hash::content_hash;
 use super::interface::check_run_lengths;
-use super::interface::{ActuatorLimits, CalibrationRig, CheckReport, RigIdentity, RunStats};
+use super::interface::{ActuatorLimits, CalibrationRig, CheckReport, RigRecord, RunStats};
 use super::progress::Progress;
 use super::{CalibrationConfig, CalibrationOutcome, calibrate};
 use crate::accel::Accelerometer;
@@ -29,15 +29,21 @@ pub struct RigAdapter<R: Rig> {
     frames: Vec<SensorFrame>,
 }
 
-/// Hash of a rig configuration for [`RigIdentity::config_hash`]: the
-/// content hash ([`super::hash`]) of the configuration with the noise seeds
-/// set to zero and the `[safety]` section at its defaults — a different seed
-/// or safety setting is the same rig.
+/// Hash of a rig configuration for [`RigRecord::config_hash`]: the
+/// content hash ([`super::hash`]) of the sections that describe the device
+/// a calibration measures (`[rig]`, `[plant]`, `[haptuator]`,
+/// `[accelerometer]` without its noise seed, `[limits]`). The tweezer, the
+/// coupling, the safety layer and the stability requirements are set to
+/// their defaults first: a calibration stays valid when the trap, the force
+/// scale or a safety setting changes.
 pub fn rig_config_hash(cfg: &RigConfig) -> Result<String> {
     let mut c = cfg.clone();
+    let d = RigConfig::default();
     c.accelerometer.seed = 0;
-    c.tweezer.seed = 0;
+    c.tweezer = d.tweezer;
+    c.coupling = d.coupling;
     c.safety = crate::config::SafetyConfig::default();
+    c.stability = crate::config::StabilityConfig::default();
     content_hash(&c)
 }
 
@@ -102,13 +108,8 @@ impl<R: Rig> CalibrationRig for RigAdapter<R> {
         self.rig.sample_rate_hz()
     }
 
-    fn identity(&self) -> RigIdentity {
-        let id = self.rig.identity();
-        RigIdentity {
-            name: id.name.clone(),
-            serial: id.serial.clone(),
-            config_hash: self.config_hash.clone(),
-        }
+    fn record(&self) -> RigRecord {
+        RigRecord::of(self.rig.identity(), self.config_hash.clone())
     }
 
     fn check(&mut self) -> Result<CheckReport> {

@@ -24,9 +24,7 @@
 use super::error::{CalibrationError, Result};
 use super::hash::content_hash;
 use super::interface::check_run_lengths;
-use super::interface::{
-    ActuatorLimits, CalibrationRig, Channel, CheckReport, RigIdentity, RunStats,
-};
+use super::interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigRecord, RunStats};
 use kilotouch_dsp::design::tf_to_sos;
 use kilotouch_dsp::filter::{BiquadCoeffs, Sos, sections_response};
 use kilotouch_dsp::{C64, Tf};
@@ -291,11 +289,12 @@ impl CalibrationRig for StandInRig {
         self.cfg.fs
     }
 
-    fn identity(&self) -> RigIdentity {
-        RigIdentity {
+    fn record(&self) -> RigRecord {
+        RigRecord {
             name: self.cfg.name.clone(),
             serial: self.cfg.serial.clone(),
             config_hash: content_hash(&self.cfg).unwrap_or_else(|_| "fnv1a64:unhashable".into()),
+            sample_rate_hz: self.cfg.fs,
         }
     }
 

@@ -258,12 +258,24 @@ impl Tweezer for LinkTweezer {
         } else {
             [0.0; 2]
         };
+        let in_contact = w.status & ts::IN_CONTACT != 0;
+        // The device reports no obstacle geometry. Pressed against an
+        // obstacle, the contact force balances the optical force, so the
+        // bead's displacement from the trap points along the contact normal.
+        let d = [w.bead_m[0] - trap[0], w.bead_m[1] - trap[1]];
+        let dn = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        let normal = if in_contact && dn > 0.0 && dn.is_finite() {
+            [d[0] / dn, d[1] / dn]
+        } else {
+            [0.0; 2]
+        };
         self.last = TweezerSample {
             bead_m: w.bead_m,
             trap_m: trap,
             force_n: force,
             gap_m: f64::INFINITY,
-            in_contact: w.status & ts::IN_CONTACT != 0,
+            normal,
+            in_contact,
             trapped,
             events: TweezerEvents {
                 contact_start: w.status & ts::CONTACT_START != 0,

@@ -20,11 +20,11 @@
 
 pub mod blind;
 pub mod circling;
+pub mod sim_station;
 pub mod station;
 
 use std::f64::consts::PI;
 
-use kilotouch_rig::coupling::CouplingMode;
 use rand_chacha::ChaCha20Rng;
 use rand_chacha::rand_core::Rng;
 
@@ -41,11 +41,8 @@ pub const UM: f64 = 1e-6;
 /// the condition label.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Feedback {
-    /// Haptic rendering: `None` = the coupling's outputs are replaced by
-    /// zero (V: no force at the handle); `Some(mode)` = the coupling runs
-    /// in that mode (P: [`CouplingMode::Pantograph`], D:
-    /// [`CouplingMode::Dual`]).
-    pub haptic: Option<CouplingMode>,
+    /// The condition the coupling renders (V: no force at the handle).
+    pub condition: Condition,
     /// Camera frames are shown (false in the blind task).
     pub vision: bool,
 }
@@ -54,13 +51,8 @@ impl Feedback {
     /// Feedback of `condition` in `task`: V → no haptics, P → Pantograph
     /// only, D → dual stage; vision unless the task is blind navigation.
     pub fn of(condition: Condition, task: &Task) -> Self {
-        let haptic = match condition {
-            Condition::V => None,
-            Condition::P => Some(CouplingMode::Pantograph),
-            Condition::D => Some(CouplingMode::Dual),
-        };
         Self {
-            haptic,
+            condition,
             vision: matches!(task, Task::Circling(_)),
         }
     }

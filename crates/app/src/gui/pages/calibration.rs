@@ -16,21 +16,28 @@
 //!   compensators C_L and C_H; the third-octave verification before and
 //!   after compensation against the tolerance band (Fig. 7), with PASS/FAIL.
 //! * Save (step 7) and load of calibration files with the file's checks
-//!   (syntax, checksum, contents, rig identity) shown as errors; "Apply to
-//!   engine" sends [`ShellRequest::ApplyCalibration`].
+//!   (syntax, checksum, contents, rig identity) shown as errors.
+//! * The closed loop with the calibration: its force-normalised chain
+//!   (C_L = 1, so the rendered force does not change) and the stability
+//!   margins of P and D with it ([`kilotouch_rig::stability`]). "Apply to
+//!   engine" sends [`ShellRequest::ApplyCalibration`] only when the margins
+//!   meet the rig file's minimum; otherwise the page says which margin fails
+//!   and the largest safe force scale.
 
 use crate::gui::charts::{
     self, BandBars, FAIL_COLOR, HIGH_COLOR, LOW_COLOR, PASS_COLOR, SUM_COLOR, Series, db, log_f,
     log_points, unwrap_phase_deg,
 };
-use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::env::{AppliedCalibration, PageEnv, ShellRequest};
+use crate::gui::pages::rig::margins_ui;
 use crate::gui::work::calibration::{CalibrationRun, RunEnd, StepProgress};
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::calibration::measure::ChannelFrf;
-use kilotouch_rig::calibration::{
-    CalibrationConfig, CalibrationFile, CalibrationRig, RigAdapter, RigIdentity, Step,
-};
+use kilotouch_rig::calibration::{CalibrationConfig, CalibrationFile, RigAdapter, RigRecord, Step};
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::Clearance;
+use kilotouch_rig::stability::{self, StabilityReport};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -88,6 +95,31 @@ struct Shown {
     source: ResultSource,
     plots: Plots,
     saved_to: Option<PathBuf>,
+    /// The closed loop with this calibration (or why it cannot be built).
+    closed_loop: Result<LoopCheck, String>,
+}
+
+/// The closed loop with a calibration: its chain, the analysis, and the
+/// clearance when the margins meet the minimum.
+#[derive(Debug, Clone)]
+struct LoopCheck {
+    chain: LoopChain,
+    report: StabilityReport,
+    clearance: Option<Clearance>,
+}
+
+/// Build the calibration's force-normalised chain for `cfg` and analyse the
+/// closed loop with it (a few hundred ms the first time, memoized).
+fn loop_check(file: &CalibrationFile, label: &str, cfg: &RigConfig) -> Result<LoopCheck, String> {
+    let chain = LoopChain::from_calibration(file, label, cfg.rig.sample_rate_hz)
+        .map_err(|e| e.to_string())?;
+    let report = stability::analyse(cfg, &chain.coefficients).map_err(|e| e.to_string())?;
+    let clearance = Clearance::check(cfg, &chain).ok();
+    Ok(LoopCheck {
+        chain,
+        report,
+        clearance,
+    })
 }
 
 /// Logarithmically spaced frequencies from `lo` to `hi` Hz (`n` ≥ 2 points).
@@ -232,11 +264,12 @@ fn build_plots(f: &CalibrationFile) -> Plots {
     }
 }
 
-/// Identity and sample rate of the simulated rig of `cfg` (what a
-/// calibration file must have been made for).
-pub fn sim_identity(cfg: &RigConfig) -> Result<(RigIdentity, f64), String> {
+/// The record of the simulated rig of `cfg` (what a calibration file must
+/// have been made for).
+pub fn sim_record(cfg: &RigConfig) -> Result<RigRecord, String> {
+    use kilotouch_rig::calibration::CalibrationRig;
     let rig = RigAdapter::sim(cfg, None).map_err(|e| format!("rig configuration: {e}"))?;
-    Ok((rig.identity(), rig.sample_rate()))
+    Ok(rig.record())
 }
 
 /// The Calibration wizard page (module documentation).
@@ -368,7 +401,7 @@ impl CalibrationPage {
         ));
     }
 
-    fn poll(&mut self) {
+    fn poll(&mut self, cfg: &RigConfig) {
         let Some(run) = self.run.as_mut() else {
             return;
         };
@@ -386,11 +419,13 @@ impl CalibrationPage {
                         if passed { "passed" } else { "FAILED" }
                     )));
                     let plots = build_plots(&file);
+                    let closed_loop = loop_check(&file, "this session's calibration", cfg);
                     self.shown = Some(Shown {
                         file,
                         source: ResultSource::Wizard,
                         plots,
                         saved_to: None,
+                        closed_loop,
                     });
                 }
                 Err(e) => self.status = Some(Status::Error(e.to_string())),
@@ -435,9 +470,8 @@ impl CalibrationPage {
 
     fn load(&mut self, rig: &RigConfig) {
         let path = PathBuf::from(self.load_path.trim());
-        let result = sim_identity(rig).and_then(|(id, fs)| {
-            CalibrationFile::load_for(&path, &id, fs).map_err(|e| e.to_string())
-        });
+        let result = sim_record(rig)
+            .and_then(|id| CalibrationFile::load_for(&path, &id).map_err(|e| e.to_string()));
         match result {
             Ok(file) => {
                 self.status = Some(Status::Info(format!(
@@ -452,11 +486,13 @@ impl CalibrationPage {
                 )));
                 let plots = build_plots(&file);
                 self.apply_despite_fail = false;
+                let closed_loop = loop_check(&file, &path.display().to_string(), rig);
                 self.shown = Some(Shown {
                     file,
                     source: ResultSource::Loaded(path),
                     plots,
                     saved_to: None,
+                    closed_loop,
                 });
             }
             Err(e) => self.status = Some(Status::Error(e)),
@@ -468,27 +504,70 @@ impl CalibrationPage {
             return;
         };
         // The rig may have changed since the calibration was made.
-        let check = sim_identity(env.rig_config).and_then(|(id, fs)| {
+        let check = sim_record(env.rig_config).and_then(|id| {
             shown
                 .file
-                .check_rig(&id, fs, "the calibration on display")
+                .check_rig(&id, "the calibration on display")
                 .map_err(|e| e.to_string())
         });
-        match check {
-            Ok(()) => {
-                env.requests
-                    .push(ShellRequest::ApplyCalibration(Box::new(shown.file.clone())));
-                self.status = Some(Status::Info(
-                    "calibration sent to the engine (compensated chain)".into(),
-                ));
-            }
-            Err(e) => self.status = Some(Status::Error(e)),
+        if let Err(e) = check {
+            self.status = Some(Status::Error(e));
+            return;
         }
+        let lc = match &shown.closed_loop {
+            Ok(lc) => lc,
+            Err(e) => {
+                self.status = Some(Status::Error(format!("calibration not applied: {e}")));
+                return;
+            }
+        };
+        let Some(clearance) = lc.clearance.clone() else {
+            self.status = Some(Status::Error(format!(
+                "calibration not applied: {}",
+                lc.report.refusal().unwrap_or_default()
+            )));
+            return;
+        };
+        let path = shown.saved_to.clone().or_else(|| match &shown.source {
+            ResultSource::Loaded(p) => Some(p.clone()),
+            ResultSource::Wizard => None,
+        });
+        let chain = match &path {
+            Some(p) => LoopChain::from_calibration(
+                &shown.file,
+                &p.display().to_string(),
+                env.rig_config.rig.sample_rate_hz,
+            )
+            .unwrap_or_else(|_| lc.chain.clone()),
+            None => lc.chain.clone(),
+        };
+        let clearance = if chain.source == *clearance.source() {
+            clearance
+        } else {
+            match Clearance::check(env.rig_config, &chain) {
+                Ok(c) => c,
+                Err(e) => {
+                    self.status = Some(Status::Error(format!("calibration not applied: {e}")));
+                    return;
+                }
+            }
+        };
+        env.requests.push(ShellRequest::ApplyCalibration(Box::new(
+            AppliedCalibration {
+                chain,
+                clearance,
+                path,
+            },
+        )));
+        self.status = Some(Status::Info(
+            "calibration sent to the engine (force-normalised chain: the rendered force is unchanged)"
+                .into(),
+        ));
     }
 
     /// Draw the page.
     pub fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
-        self.poll();
+        self.poll(env.rig_config);
         if self.is_running() {
             // The worker repaints on progress; this keeps the clock moving.
             ui.ctx().request_repaint_after(Duration::from_millis(250));
@@ -734,6 +813,10 @@ impl CalibrationPage {
             }
         });
         let passed = self.verification_passed();
+        let safe = self
+            .shown
+            .as_ref()
+            .is_some_and(|s| s.closed_loop.as_ref().is_ok_and(|c| c.clearance.is_some()));
         ui.horizontal(|ui| {
             if passed == Some(false) {
                 ui.checkbox(
@@ -741,13 +824,21 @@ impl CalibrationPage {
                     "apply although the verification failed",
                 );
             }
-            let enabled =
-                passed == Some(true) || (passed == Some(false) && self.apply_despite_fail);
-            if ui
-                .add_enabled(enabled, egui::Button::new("Apply to engine"))
-                .clicked()
-            {
+            let enabled = safe
+                && (passed == Some(true) || (passed == Some(false) && self.apply_despite_fail));
+            let b = ui.add_enabled(enabled, egui::Button::new("Apply to engine"));
+            let b = if !safe && self.shown.is_some() {
+                b.on_disabled_hover_text(
+                    "the closed loop with this calibration does not meet the minimum margins (below)",
+                )
+            } else {
+                b
+            };
+            if b.clicked() {
                 self.apply(env);
+            }
+            if let Some(a) = env.applied {
+                ui.label(format!("engine runs: {}", a.chain.source.describe()));
             }
         });
     }
@@ -770,6 +861,21 @@ impl CalibrationPage {
         if let Some(p) = &shown.saved_to {
             ui.label(format!("saved to {}", p.display()));
         }
+        egui::CollapsingHeader::new("Closed loop with this calibration")
+            .default_open(true)
+            .show(ui, |ui| match &shown.closed_loop {
+                Ok(lc) => {
+                    ui.label(
+                        "The loop runs the calibration's chain force-normalised (K_sys = G0_L, so \
+                         C_L = 1 N/N): the force rendered at low frequency is the same as without \
+                         calibration; only the crossover's compensation changes.",
+                    );
+                    margins_ui(ui, &lc.report, "cal-margins");
+                }
+                Err(e) => {
+                    ui.colored_label(FAIL_COLOR, format!("cannot build the closed loop: {e}"));
+                }
+            });
         let verdict = if v.passed {
             egui::RichText::new(format!(
                 "Verification PASS: max |deviation| {:.2} dB within ±{} dB over {} bands \

@@ -259,9 +259,9 @@ impl ExplorePage {
                 let b = ui
                     .add(egui::Button::selectable(
                         current == Some(c),
-                        RichText::new(c.letter()).strong().size(16.0),
+                        RichText::new(c.code()).strong().size(16.0),
                     ))
-                    .on_hover_text(c.describe());
+                    .on_hover_text(c.description());
                 if b.clicked()
                     && let Some(e) = engine.as_deref_mut()
                 {
@@ -269,7 +269,7 @@ impl ExplorePage {
                 }
             }
             if let Some(c) = current {
-                ui.label(c.describe());
+                ui.label(c.description());
             }
             ui.separator();
             ui.label(RichText::new("Tool").strong());
@@ -434,7 +434,7 @@ impl ExplorePage {
         let estop = engine
             .as_ref()
             .and_then(|e| e.health())
-            .is_some_and(|h| h.safety == crate::engine::SafetyState::EmergencyStop);
+            .is_some_and(|h| h.safety == crate::engine::SafetyState::EStop);
         let shown = self.camera.visible();
         let painter = ui.painter_at(rect);
         let Some(snap) = shown else {

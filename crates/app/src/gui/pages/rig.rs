@@ -1,11 +1,13 @@
 //! Rig page: which rig (simulated, serial DAQ, audio interface — the
 //! `--rig` syntax of [`RigSpec`]), which rig file, connect/disconnect,
-//! reconnect after a device fault, identity, status and counters.
+//! reconnect after a device fault, identity, status and counters, and the
+//! closed loop's stability margins with the chain the engine runs.
 
 use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
 use egui::{Color32, RichText};
 use kilotouch_rig::live::RigSpec;
+use kilotouch_rig::stability::StabilityReport;
 
 /// Hint shown under the rig field.
 pub const RIG_HINT: &str = "sim  ·  serial:/dev/ttyACM0[,baud=N][,timeout-ms=N]  ·  audio[:DEVICE]  \
@@ -277,11 +279,11 @@ impl RigPage {
                         }
                         Some(x) => {
                             let col = match x.safety {
-                                SafetyState::EmergencyStop | SafetyState::Fault => Color32::RED,
-                                SafetyState::Armed => Color32::from_rgb(60, 200, 90),
+                                SafetyState::EStop | SafetyState::Fault => Color32::RED,
+                                SafetyState::Enabled => Color32::from_rgb(60, 200, 90),
                                 _ => ui.visuals().text_color(),
                             };
-                            ui.colored_label(col, format!("safety: {}", x.safety.label()));
+                            ui.colored_label(col, format!("safety: {}", x.status_label()));
                             egui::Grid::new("rig-status").striped(true).show(ui, |ui| {
                                 let r = &x.rig;
                                 let rows = [
@@ -300,13 +302,19 @@ impl RigPage {
                                     ("commands limited", r.limited_frames.to_string()),
                                     ("Haptuator end stop", r.end_stop_frames.to_string()),
                                     ("non-finite commands", r.nonfinite_commands.to_string()),
-                                    ("coupling clamps", x.coupling.clamped.to_string()),
+                                    (
+                                        "passivity controller active",
+                                        x.coupling.passivity_active.to_string(),
+                                    ),
                                     (
                                         "trap at workspace edge",
                                         x.coupling.workspace_clamped.to_string(),
                                     ),
                                     ("telemetry dropped", x.telemetry_dropped.to_string()),
-                                    ("frames zeroed by e-stop", x.estop_zeroed_frames.to_string()),
+                                    (
+                                        "frames zeroed (e-stop, fault)",
+                                        x.estop_zeroed_frames.to_string(),
+                                    ),
                                 ];
                                 for (k, v) in rows {
                                     ui.label(k);
@@ -314,17 +322,104 @@ impl RigPage {
                                     ui.end_row();
                                 }
                             });
-                            let chain = match h.last_swap() {
-                                None => "as designed from the rig model (no calibration loaded)"
-                                    .to_owned(),
-                                Some(o) => format!("calibration loaded ({o:?})"),
+                            let swap = match h.last_swap() {
+                                None => String::new(),
+                                Some(o) => format!(" (last swap: {o:?})"),
                             };
-                            ui.label(format!("D-mode chain: {chain}"));
+                            ui.label(format!("D chain: {}{swap}", h.chain_source().describe()));
                         }
                     }
                 });
             });
+            ui.add_space(6.0);
+            ui.group(|ui| {
+                ui.label(RichText::new("Closed-loop stability").strong());
+                match h.stability() {
+                    Some(r) => margins_ui(ui, r, "rig-margins"),
+                    None => {
+                        ui.label("not analysed (the loop was armed without the analysis)");
+                    }
+                }
+            });
         });
         actions
+    }
+}
+
+/// Green/red for a margin against its minimum.
+fn verdict_color(ok: bool) -> Color32 {
+    if ok {
+        Color32::from_rgb(60, 200, 90)
+    } else {
+        Color32::from_rgb(235, 80, 70)
+    }
+}
+
+fn fmt_or_inf(x: f64, unit: &str) -> String {
+    if x.is_finite() {
+        format!("{x:.1} {unit}")
+    } else {
+        "∞".to_owned()
+    }
+}
+
+/// The stability report as a table: per condition the worst-case gain and
+/// phase margins over the hand range and the free/pressed states, the
+/// verdict, and the critical values (Rig and Calibration pages).
+pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
+    egui::Grid::new(id).striped(true).show(ui, |ui| {
+        for h in [
+            "condition",
+            "gain margin",
+            "phase margin",
+            "verdict",
+            "worst case",
+        ] {
+            ui.label(RichText::new(h).strong());
+        }
+        ui.end_row();
+        for c in &r.conditions {
+            ui.label(c.condition.code());
+            ui.colored_label(
+                verdict_color(c.gain_margin_db >= r.min_gain_margin_db),
+                fmt_or_inf(c.gain_margin_db, "dB"),
+            );
+            ui.colored_label(
+                verdict_color(c.phase_margin_deg >= r.min_phase_margin_deg),
+                fmt_or_inf(c.phase_margin_deg, "°"),
+            );
+            let v = if !c.stable {
+                "UNSTABLE"
+            } else if c.meets_minimum {
+                "safe"
+            } else {
+                "below the minimum"
+            };
+            ui.colored_label(verdict_color(c.meets_minimum), v);
+            let w = &c.worst_phase_case;
+            ui.label(format!(
+                "{:?}, {:?}, finger {:.0} N/m, {:.1} N·s/m",
+                w.axis, w.state, w.hand.stiffness_n_per_m, w.hand.damping_n_s_per_m
+            ));
+            ui.end_row();
+        }
+    });
+    ui.label(format!(
+        "minimum {} dB / {}°. Trap stiffness {:.1} pN/µm (critical {}); force scale {:.3e} N/N \
+         (largest safe {:.3e}, critical {:.3e}); pressed stiffness at the handle {:.0} N/m; \
+         high-band force full scale {:.2} N; P = {}.",
+        r.min_gain_margin_db,
+        r.min_phase_margin_deg,
+        r.trap_stiffness_pn_um,
+        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm"),
+        r.force_scale,
+        r.max_force_scale,
+        r.critical_force_scale,
+        r.pressed_stiffness_n_per_m,
+        r.high_band_force_full_scale_n,
+        r.p_mode.describe(),
+    ));
+    if let Some(why) = r.refusal() {
+        ui.colored_label(verdict_color(false), why);
     }
 }

@@ -123,11 +123,7 @@ impl StudyPage {
             folder: None,
             session: None,
             sitting_id: None,
-            mapping: HandMapping {
-                scale: 1.0,
-                handle_origin_m: [0.0; 2],
-                trap_offset_m: [0.0; 2],
-            },
+            mapping: HandMapping::from_config(&kilotouch_rig::RigConfig::default().coupling),
             state: None,
             current: None,
             telemetry: None,

@@ -1,0 +1,343 @@
+//! The closed loop: rig + tweezer + coupling (with its chain) + safety layer,
+//! the one type the Explore engine, the study's stations, `kilotouch sim
+//! press` and the benchmarks drive.
+//!
+//! # One sample ([`HapticLoop::control`])
+//!
+//! ```text
+//!  sensors[n−1] ──▶ trap = mapping(handle) ──▶ tweezer.step ──▶ image (+ wall damper)
+//!                                                                   │
+//!  rig.process ◀── safety.apply ◀── condition routing / chain (V, P, D) ◀──┘
+//! ```
+//!
+//! The handle position read at the end of sample n − 1 sets the trap; the
+//! command computed from it is applied during sample n (block size 1: one
+//! sample of loop delay, [`HapticLoop::step`]). Live rigs exchange blocks
+//! ([`HapticLoop::step_block`]): the commands of block b are computed, one
+//! sample at a time through the same [`HapticLoop::control`], from the
+//! sensor frames of block b − 1, so the loop delay is the block length.
+//!
+//! # Arming
+//!
+//! A loop is armed only with a [`Clearance`]: the stability analysis
+//! ([`crate::stability`]) of its rig file and chain met the configured
+//! minimum margins, or the caller overrode it explicitly (tests that study
+//! unstable settings, `sim press --allow-unstable`). The safety layer then
+//! brings forces on through its ramp.
+
+use crate::condition::Condition;
+use crate::config::RigConfig;
+use crate::coupling::{ChainSource, Coupling, ForceSplitter, LoopChain, Rendered};
+use crate::error::RigError;
+use crate::rig::{ActuatorFrame, BlockReport, Rig, SensorFrame, SimRig};
+use crate::safety::{SafetyLayer, SafetyStatus, TripReason};
+use crate::stability::StabilityReport;
+use crate::tweezer::{SimTweezer, Tweezer, TweezerParams, TweezerSample};
+use kilotouch_dsp::chain::Chain;
+
+/// Largest block a live exchange computes at once, samples.
+pub const MAX_BLOCK: usize = 64;
+
+/// Permission to arm a loop (module docs).
+#[derive(Debug, Clone)]
+pub struct Clearance {
+    report: Option<Box<StabilityReport>>,
+    source: ChainSource,
+}
+
+impl Clearance {
+    /// Analyse `cfg` with `chain`; refuse (naming the failing margin and
+    /// the largest safe force scale) when a margin is below the minimum.
+    ///
+    /// # Errors
+    /// [`RigError::LoopNotSafe`]; analysis failures.
+    pub fn check(cfg: &RigConfig, chain: &LoopChain) -> Result<Self, RigError> {
+        let report = crate::stability::analyse(cfg, &chain.coefficients)?;
+        if let Some(why) = report.refusal() {
+            return Err(RigError::LoopNotSafe(format!(
+                "{why} (chain: {})",
+                chain.source.describe()
+            )));
+        }
+        Ok(Self {
+            report: Some(Box::new(report)),
+            source: chain.source.clone(),
+        })
+    }
+
+    /// Arm without the analysis. For tests and tools that study unsafe
+    /// settings on the simulated rig on purpose; never for a live rig.
+    pub fn overridden(source: ChainSource) -> Self {
+        Self {
+            report: None,
+            source,
+        }
+    }
+
+    /// The analysis, when one was run.
+    pub fn report(&self) -> Option<&StabilityReport> {
+        self.report.as_deref()
+    }
+
+    /// The chain's source.
+    pub fn source(&self) -> &ChainSource {
+        &self.source
+    }
+}
+
+/// One sample of the loop.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LoopSample {
+    /// The sensor frame read at the end of the sample (handle position m,
+    /// fingertip acceleration m/s²).
+    pub sensors: SensorFrame,
+    /// The tweezer's output of the sample.
+    pub tweezer: TweezerSample,
+    /// The coupling's rendering (image, damper, command before safety).
+    pub rendered: Rendered,
+    /// The command sent to the rig (after the safety layer).
+    pub command: ActuatorFrame,
+}
+
+/// The closed loop (module docs).
+#[derive(Debug)]
+pub struct HapticLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
+    /// The rig.
+    pub rig: R,
+    /// The tweezer.
+    pub tweezer: T,
+    /// The coupling.
+    pub coupling: Coupling<S>,
+    /// The safety layer every command passes through.
+    pub safety: SafetyLayer,
+    clearance: Clearance,
+    sensors: SensorFrame,
+    missed: bool,
+    last: LoopSample,
+    block_in: [SensorFrame; MAX_BLOCK],
+    block: [LoopSample; MAX_BLOCK],
+    block_cmd: [ActuatorFrame; MAX_BLOCK],
+    block_out: [SensorFrame; MAX_BLOCK],
+    block_len: usize,
+}
+
+/// The simulated loop.
+pub type SimLoop = HapticLoop<SimRig, SimTweezer, Chain>;
+
+impl SimLoop {
+    /// The simulated loop of a rig file (batch-paced [`SimRig`], the rig
+    /// file's tweezer and `[safety]`) running `chain`, armed by `clearance`.
+    ///
+    /// # Errors
+    /// Invalid configuration.
+    pub fn simulated(
+        cfg: &RigConfig,
+        chain: &LoopChain,
+        clearance: Clearance,
+    ) -> Result<Self, RigError> {
+        let fs = cfg.rig.sample_rate_hz;
+        Self::new(
+            SimRig::new(cfg)?,
+            SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?,
+            Coupling::with_chain(cfg, &chain.coefficients)?,
+            SafetyLayer::from_config(cfg)?,
+            clearance,
+        )
+    }
+}
+
+impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
+    /// Assemble: starts the rig, puts the bead in the trap at the rest
+    /// position and arms the safety layer when its `arm_on_start` is set.
+    ///
+    /// # Errors
+    /// The rig refuses to start.
+    pub fn new(
+        mut rig: R,
+        mut tweezer: T,
+        coupling: Coupling<S>,
+        mut safety: SafetyLayer,
+        clearance: Clearance,
+    ) -> Result<Self, RigError> {
+        rig.start()?;
+        tweezer.reset(coupling.mapping().rest_trap_m());
+        if safety.arm_on_start() {
+            safety.arm()?;
+        }
+        Ok(Self {
+            rig,
+            tweezer,
+            coupling,
+            safety,
+            clearance,
+            sensors: SensorFrame::default(),
+            missed: false,
+            last: LoopSample::default(),
+            block_in: [SensorFrame::default(); MAX_BLOCK],
+            block: [LoopSample::default(); MAX_BLOCK],
+            block_cmd: [ActuatorFrame::default(); MAX_BLOCK],
+            block_out: [SensorFrame::default(); MAX_BLOCK],
+            block_len: 0,
+        })
+    }
+
+    /// The clearance the loop was armed with.
+    pub fn clearance(&self) -> &Clearance {
+        &self.clearance
+    }
+
+    /// Replace the clearance (a new chain was swapped in after its own check).
+    pub fn set_clearance(&mut self, c: Clearance) {
+        self.clearance = c;
+    }
+
+    /// Latest sensor frame.
+    pub fn sensors(&self) -> &SensorFrame {
+        &self.sensors
+    }
+
+    /// The last sample of [`Self::step`].
+    pub fn last(&self) -> &LoopSample {
+        &self.last
+    }
+
+    /// Safety state, trip and counters.
+    pub fn safety_status(&self) -> SafetyStatus {
+        self.safety.status()
+    }
+
+    /// Current condition.
+    pub fn condition(&self) -> Condition {
+        self.coupling.condition()
+    }
+
+    /// Emergency stop: zero output from the next sample, latched until
+    /// `safety.reset()` and `safety.arm()`.
+    pub fn estop(&mut self) {
+        self.safety.estop();
+    }
+
+    /// Start a trial: new rig and tweezer (fresh seeds), the bead in the
+    /// trap at rest, filters cleared, `condition` at once, a fresh safety
+    /// layer armed.
+    ///
+    /// # Errors
+    /// The rig refuses to start; the safety layer refuses to arm.
+    pub fn restart(
+        &mut self,
+        mut rig: R,
+        mut tweezer: T,
+        condition: Condition,
+        mut safety: SafetyLayer,
+    ) -> Result<(), RigError> {
+        rig.start()?;
+        self.coupling.set_condition_now(condition);
+        self.coupling.reset();
+        self.sensors = SensorFrame::default();
+        let trap = self.coupling.trap_target(self.sensors.handle_m);
+        tweezer.reset(trap);
+        safety.arm()?;
+        self.rig = rig;
+        self.tweezer = tweezer;
+        self.safety = safety;
+        self.missed = false;
+        self.block_len = 0;
+        Ok(())
+    }
+
+    /// The controller part of one sample: `sensors` (the frame the
+    /// controller sees), whether the previous exchange missed its deadline.
+    /// Returns the command to send (after the safety layer), the rendering
+    /// and the tweezer sample. Allocates nothing, locks nothing, never
+    /// panics; the command is finite.
+    #[inline]
+    pub fn control(
+        &mut self,
+        sensors: &SensorFrame,
+        missed: bool,
+    ) -> (ActuatorFrame, Rendered, TweezerSample) {
+        let (rendered, s) = self.coupling.step(sensors, &mut self.tweezer);
+        let cmd = self.safety.apply(rendered.command, sensors, missed);
+        (cmd, rendered, s)
+    }
+
+    /// Advance one sample with a one-frame exchange (simulated rigs).
+    ///
+    /// # Errors
+    /// A rig error (the safety layer trips first).
+    #[inline]
+    pub fn step(&mut self) -> Result<LoopSample, RigError> {
+        let input = self.sensors;
+        let (cmd, rendered, tw) = self.control(&input, self.missed);
+        let report = match self.rig.process_frame(&cmd, &mut self.sensors) {
+            Ok(r) => r,
+            Err(e) => {
+                self.safety.fault(TripReason::RigError);
+                return Err(e);
+            }
+        };
+        // `lag_s > 0` first: the same test (f_s > 0 is finite), but a
+        // constant zero lag (batch rigs) then folds away.
+        self.missed = report.lost_frames > 0
+            || report.skipped_samples > 0
+            || (report.lag_s > 0.0 && report.lag_s * self.safety.sample_rate_hz() > 1.0);
+        self.last = LoopSample {
+            sensors: self.sensors,
+            tweezer: tw,
+            rendered,
+            command: cmd,
+        };
+        Ok(self.last)
+    }
+
+    /// Advance `n` ≤ [`MAX_BLOCK`] samples with one block exchange (live
+    /// rigs, module docs). The samples are in [`Self::block`].
+    ///
+    /// # Errors
+    /// A rig error (the safety layer trips first).
+    pub fn step_block(&mut self, n: usize) -> Result<BlockReport, RigError> {
+        let n = n.min(MAX_BLOCK);
+        for i in 0..n {
+            let sens = self.block_in[i];
+            let (cmd, rendered, tw) = self.control(&sens, self.missed && i == 0);
+            self.block_cmd[i] = cmd;
+            self.block[i] = LoopSample {
+                sensors: SensorFrame::default(),
+                tweezer: tw,
+                rendered,
+                command: cmd,
+            };
+        }
+        let res = self
+            .rig
+            .process_block(&self.block_cmd[..n], &mut self.block_out[..n]);
+        match res {
+            Ok(r) => {
+                let fs = self.safety.sample_rate_hz();
+                self.missed = r.lost_frames > 0 || r.skipped_samples > 0 || r.lag_s * fs > n as f64;
+                for i in 0..n {
+                    self.block[i].sensors = self.block_out[i];
+                }
+                self.block_in[..n].copy_from_slice(&self.block_out[..n]);
+                if let Some(s) = self.block_out[..n].last() {
+                    self.sensors = *s;
+                }
+                if let Some(s) = self.block[..n].last() {
+                    self.last = *s;
+                }
+                self.block_len = n;
+                Ok(r)
+            }
+            Err(e) => {
+                self.safety.fault(TripReason::RigError);
+                self.block_len = 0;
+                Err(e)
+            }
+        }
+    }
+
+    /// The samples of the last [`Self::step_block`].
+    pub fn block(&self) -> &[LoopSample] {
+        &self.block[..self.block_len]
+    }
+}
