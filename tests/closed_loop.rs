@@ -215,6 +215,37 @@ fn predicted_and_simulated_stability_agree() {
     assert!(checked >= 2, "the unstable side must be exercised");
 }
 
+/// The passivity observer/controller as a run-time net: a deliberately
+/// unstable setting (no wall damper, twice the force scale) chatters and
+/// loses contact without it, and stays pressed and quiet with it.
+#[test]
+fn the_passivity_controller_catches_a_deliberately_unstable_loop() {
+    let mut cfg = RigConfig::default();
+    cfg.coupling.contact_damping_n_s_per_m = 0.0;
+    cfg.coupling.force_scale = 2e11;
+    let chain = LoopChain::as_designed(&cfg).expect("chain");
+    let r = analyse(&cfg, &chain.coefficients).expect("analysis");
+    assert!(!r.condition(Condition::D).expect("D").nominal_stable, "{}", r.summary());
+    let opts = PressOptions {
+        condition: Condition::D,
+        duration_s: 5.0,
+        seed: 5,
+        depth_m: 0.4e-6,
+    };
+    let run = |pc: bool| {
+        let mut c = cfg.clone();
+        c.coupling.passivity_controller = pc;
+        simulate_press(&c, &chain, Clearance::overridden(chain.source.clone()), &opts)
+            .expect("press")
+            .0
+    };
+    let (off, on) = (run(false), run(true));
+    assert!(!off.stable && off.passivity_active_samples == 0, "{off:?}");
+    assert!(on.stable && !on.escaped && on.passivity_active_samples > 0, "{on:?}");
+    assert!(on.handle_force_osc_rms_n < 0.1 * off.handle_force_osc_rms_n, "{on:?} vs {off:?}");
+    assert!((on.handle_force_mean_n / on.expected_force_n - 1.0).abs() < 0.02, "{on:?}");
+}
+
 /// SHA-256 of the file at `path` from coreutils' `sha256sum`, an
 /// implementation independent of the study crate's.
 fn sha256sum(path: &Path) -> String {

@@ -170,6 +170,25 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
     let (l, _) = a.chain.coefficients.response(0.01);
     assert!((l.norm() - 1.0).abs() < 1e-6, "{l}");
 
+    // The same calibration on a rig file without the wall damper: the closed
+    // loop would not meet the minimum margins, so Apply is refused and the
+    // page says which margin fails and the largest safe force scale.
+    h.state_mut().rig.coupling.contact_damping_n_s_per_m = 0.0;
+    h.state_mut().page.set_load_path(&good);
+    h.get_by_label("Load calibration").click();
+    h.step();
+    h.step();
+    h.get_by_label_contains("closed loop not safe");
+    let before = h.state().requests.len();
+    h.get_by_label("Apply to engine").click();
+    h.step();
+    let applied_now = h.state().requests[before..]
+        .iter()
+        .filter(|r| matches!(r, ShellRequest::ApplyCalibration(_)))
+        .count();
+    assert_eq!(applied_now, 0, "an unsafe calibration must not be applied");
+    h.state_mut().rig.coupling.contact_damping_n_s_per_m = 15.0;
+
     // A corrupted file (K_sys changed by 1 %, checksum kept) is
     // refused with the checksum error, shown on the page.
     let text = std::fs::read_to_string(&good).unwrap();

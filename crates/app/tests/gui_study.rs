@@ -124,3 +124,72 @@ fn study_page_runs_a_simulated_sitting() {
     h.step();
     assert!(h.query_by_label_contains("Resume at trial P02").is_some());
 }
+
+/// The sitting runs and records the calibration chosen on the page: the
+/// file and its SHA-256 land in `session.json`; "as designed" is recorded
+/// as uncalibrated.
+#[test]
+fn study_page_records_the_chosen_calibration() {
+    use kilotouch::gui::pages::study::CalibrationChoice;
+    use kilotouch_rig::calibration::{CalibrationConfig, NoProgress, calibrate_sim};
+    let dir = tempfile::tempdir().unwrap();
+    let cal = dir.path().join("cal.toml");
+    calibrate_sim(
+        None,
+        Some(3),
+        &CalibrationConfig::default(),
+        Some(&cal),
+        &mut NoProgress,
+        &std::sync::atomic::AtomicBool::new(false),
+    )
+    .unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, TINY).unwrap();
+    for (choice, out_name) in [
+        (CalibrationChoice::File, "with-cal"),
+        (CalibrationChoice::AsDesigned, "uncal"),
+    ] {
+        let out = dir.path().join(out_name);
+        let app = common::fresh_app(Some(Page::Study));
+        let mut h = common::app_harness(app, 1100.0, 900.0, None);
+        {
+            let s = &mut h.state_mut().study;
+            s.source = ProtocolSource::File;
+            s.protocol_file = proto.display().to_string();
+            s.participant_text = "P01".into();
+            s.out_text = out.display().to_string();
+            s.kind = ParticipantKind::Simulated;
+            s.speed = Speed::Fast;
+            s.separate_window = false;
+            s.calibration = choice;
+            s.calibration_file = cal.display().to_string();
+        }
+        assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+        h.step();
+        h.step();
+        let shown = match choice {
+            CalibrationChoice::File => format!("recorded: {} with its SHA-256", cal.display()),
+            _ => "recorded as uncalibrated".to_owned(),
+        };
+        assert!(h.query_by_label_contains(&shown).is_some(), "{shown}");
+        h.get_by_label("Open session").click();
+        h.step();
+        assert!(h.state().study.is_running(), "{:?}", h.state().study.error());
+        h.step();
+        h.get_by_label("Start").click();
+        assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+            .study
+            .finished()
+            .is_some()));
+        let session: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap())
+                .unwrap();
+        match choice {
+            CalibrationChoice::File => {
+                assert_eq!(session["calibration"]["path"], cal.display().to_string());
+                assert_eq!(session["calibration"]["sha256"].as_str().unwrap().len(), 64);
+            }
+            _ => assert!(session["calibration"].is_null(), "{session}"),
+        }
+    }
+}

@@ -97,6 +97,9 @@ pub struct PressReport {
     pub duration_s: f64,
     /// The force asked for: g·κ·k_c/(κ + k_c)·depth, N.
     pub expected_force_n: f64,
+    /// Samples in which the passivity controller added damping (0 when it
+    /// is off).
+    pub passivity_active_samples: u64,
 }
 
 /// The time series of a press (for plots and CSV), one row per sample.
@@ -249,6 +252,7 @@ pub fn simulate_press(
             chain: chain.source.describe(),
             duration_s: d,
             expected_force_n: expected,
+            passivity_active_samples: lp.coupling.counters().passivity_active,
         },
         trace,
     ))

@@ -271,6 +271,17 @@ impl RigPage {
                             }
                         });
                 });
+                cols[0].add_space(6.0);
+                cols[0].group(|ui| {
+                    ui.label(RichText::new("Closed-loop stability").strong());
+                    ui.label(format!("D chain: {}", h.chain_source().describe()));
+                    match h.stability() {
+                        Some(r) => margins_ui(ui, r, "rig-margins"),
+                        None => {
+                            ui.label("not analysed (the loop was armed without the analysis)");
+                        }
+                    }
+                });
                 cols[1].group(|ui| {
                     ui.label(RichText::new("Status").strong());
                     match h.health() {
@@ -322,24 +333,12 @@ impl RigPage {
                                     ui.end_row();
                                 }
                             });
-                            let swap = match h.last_swap() {
-                                None => String::new(),
-                                Some(o) => format!(" (last swap: {o:?})"),
-                            };
-                            ui.label(format!("D chain: {}{swap}", h.chain_source().describe()));
+                            if let Some(o) = h.last_swap() {
+                                ui.label(format!("last chain swap: {o:?}"));
+                            }
                         }
                     }
                 });
-            });
-            ui.add_space(6.0);
-            ui.group(|ui| {
-                ui.label(RichText::new("Closed-loop stability").strong());
-                match h.stability() {
-                    Some(r) => margins_ui(ui, r, "rig-margins"),
-                    None => {
-                        ui.label("not analysed (the loop was armed without the analysis)");
-                    }
-                }
             });
         });
         actions
@@ -368,18 +367,12 @@ fn fmt_or_inf(x: f64, unit: &str) -> String {
 /// verdict, and the critical values (Rig and Calibration pages).
 pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
     egui::Grid::new(id).striped(true).show(ui, |ui| {
-        for h in [
-            "condition",
-            "gain margin",
-            "phase margin",
-            "verdict",
-            "worst case",
-        ] {
+        for h in ["", "gain margin", "phase margin", "verdict", "worst case"] {
             ui.label(RichText::new(h).strong());
         }
         ui.end_row();
         for c in &r.conditions {
-            ui.label(c.condition.code());
+            ui.label(RichText::new(c.condition.code()).strong());
             ui.colored_label(
                 verdict_color(c.gain_margin_db >= r.min_gain_margin_db),
                 fmt_or_inf(c.gain_margin_db, "dB"),
@@ -397,28 +390,59 @@ pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
             };
             ui.colored_label(verdict_color(c.meets_minimum), v);
             let w = &c.worst_phase_case;
+            let axis = match w.axis {
+                kilotouch_rig::Axis::X => "x",
+                kilotouch_rig::Axis::Y => "y",
+            };
+            let state = match w.state {
+                kilotouch_rig::stability::LoopState::Free => "free",
+                kilotouch_rig::stability::LoopState::Pressed => "pressed",
+            };
             ui.label(format!(
-                "{:?}, {:?}, finger {:.0} N/m, {:.1} N·s/m",
-                w.axis, w.state, w.hand.stiffness_n_per_m, w.hand.damping_n_s_per_m
+                "{axis}, {state}, finger {:.0} N/m, {:.1} N·s/m",
+                w.hand.stiffness_n_per_m, w.hand.damping_n_s_per_m
             ));
             ui.end_row();
         }
     });
-    ui.label(format!(
-        "minimum {} dB / {}°. Trap stiffness {:.1} pN/µm (critical {}); force scale {:.3e} N/N \
-         (largest safe {:.3e}, critical {:.3e}); pressed stiffness at the handle {:.0} N/m; \
-         high-band force full scale {:.2} N; P = {}.",
-        r.min_gain_margin_db,
-        r.min_phase_margin_deg,
-        r.trap_stiffness_pn_um,
-        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm"),
-        r.force_scale,
-        r.max_force_scale,
-        r.critical_force_scale,
-        r.pressed_stiffness_n_per_m,
-        r.high_band_force_full_scale_n,
-        r.p_mode.describe(),
-    ));
+    ui.add_space(4.0);
+    egui::Grid::new(format!("{id}-critical")).show(ui, |ui| {
+        let rows = [
+            (
+                "required",
+                format!("≥ {} dB and ≥ {}°", r.min_gain_margin_db, r.min_phase_margin_deg),
+            ),
+            (
+                "trap stiffness",
+                format!(
+                    "{:.1} pN/µm (unstable above {})",
+                    r.trap_stiffness_pn_um,
+                    fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                ),
+            ),
+            (
+                "force scale",
+                format!(
+                    "{:.3e} N/N (largest safe {:.3e}, unstable above {:.3e})",
+                    r.force_scale, r.max_force_scale, r.critical_force_scale
+                ),
+            ),
+            (
+                "pressed stiffness at the handle",
+                format!("{:.0} N/m", r.pressed_stiffness_n_per_m),
+            ),
+            (
+                "Haptuator full scale",
+                format!("{:.2} N of high-band force", r.high_band_force_full_scale_n),
+            ),
+            ("P renders", r.p_mode.describe()),
+        ];
+        for (k, v) in rows {
+            ui.label(k);
+            ui.label(v);
+            ui.end_row();
+        }
+    });
     if let Some(why) = r.refusal() {
         ui.colored_label(verdict_color(false), why);
     }

@@ -52,6 +52,20 @@ pub enum EngineTransition {
     Restart,
 }
 
+/// Which chain D runs in a sitting (recorded in `session.json` and the
+/// journal with the file's SHA-256).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CalibrationChoice {
+    /// The calibration applied to the engine on the Calibration page (its
+    /// file); the as-designed chain when none is applied.
+    #[default]
+    Applied,
+    /// The model's as-designed chain, recorded as uncalibrated.
+    AsDesigned,
+    /// A calibration file typed in.
+    File,
+}
+
 /// Study sessions.
 #[derive(Debug)]
 pub struct StudyPage {
@@ -70,6 +84,10 @@ pub struct StudyPage {
     /// Participant view in a separate window (else inline on this page;
     /// inline is what the UI tests use).
     pub separate_window: bool,
+    /// Which chain D runs.
+    pub calibration: CalibrationChoice,
+    /// Calibration file (for [`CalibrationChoice::File`]).
+    pub calibration_file: String,
     /// Draw the scene with wgpu (set by the shell when installed).
     pub gpu: bool,
     protocol: Option<Protocol>,
@@ -114,6 +132,8 @@ impl StudyPage {
             kind: ParticipantKind::Mouse,
             speed: Speed::RealTime,
             separate_window: true,
+            calibration: CalibrationChoice::default(),
+            calibration_file: String::new(),
             gpu: false,
             protocol: None,
             table: None,
@@ -312,6 +332,66 @@ impl StudyPage {
         self.folder.as_ref().map(|(_, s)| s)
     }
 
+    /// The calibration file the sitting runs and records (`None`: the
+    /// as-designed chain, recorded as uncalibrated).
+    fn resolve_calibration(&self, env: &PageEnv<'_>) -> Result<Option<PathBuf>, String> {
+        match self.calibration {
+            CalibrationChoice::AsDesigned => Ok(None),
+            CalibrationChoice::Applied => match env.applied {
+                None => Ok(None),
+                Some(a) => match &a.path {
+                    Some(p) => Ok(Some(p.clone())),
+                    None => Err(
+                        "the applied calibration was not saved: save it on the Calibration page \
+                         (a study records the file and its SHA-256), or choose another chain"
+                            .into(),
+                    ),
+                },
+            },
+            CalibrationChoice::File => {
+                let t = self.calibration_file.trim();
+                if t.is_empty() {
+                    Err("type the calibration file, or choose another chain".into())
+                } else {
+                    Ok(Some(PathBuf::from(t)))
+                }
+            }
+        }
+    }
+
+    fn calibration_ui(&mut self, ui: &mut egui::Ui, env: &PageEnv<'_>) {
+        ui.horizontal(|ui| {
+            ui.label("D's chain:");
+            let applied = match env.applied {
+                Some(a) => format!("applied: {}", a.chain.source.describe()),
+                None => "applied (none: as designed)".into(),
+            };
+            ui.radio_value(&mut self.calibration, CalibrationChoice::Applied, applied)
+                .on_hover_text("the calibration applied on the Calibration page");
+            ui.radio_value(
+                &mut self.calibration,
+                CalibrationChoice::AsDesigned,
+                "as designed (uncalibrated)",
+            );
+            ui.radio_value(&mut self.calibration, CalibrationChoice::File, "file:");
+            if self.calibration == CalibrationChoice::File {
+                let l = ui.label("calibration file");
+                ui.add(
+                    egui::TextEdit::singleline(&mut self.calibration_file)
+                        .hint_text("calibration file (.toml)")
+                        .desired_width(260.0),
+                )
+                .labelled_by(l.id);
+            }
+        });
+        let recorded = match self.resolve_calibration(env) {
+            Ok(None) => "recorded as uncalibrated (the model's as-designed chain)".to_owned(),
+            Ok(Some(p)) => format!("recorded: {} with its SHA-256", p.display()),
+            Err(e) => e,
+        };
+        ui.label(RichText::new(recorded).weak());
+    }
+
     fn open_session(&mut self, env: &mut PageEnv<'_>, resume: bool) {
         self.error = None;
         self.finished = None;
@@ -348,7 +428,15 @@ impl StudyPage {
                 }
             }
         };
+        let calibration = match self.resolve_calibration(env) {
+            Ok(c) => c,
+            Err(e) => {
+                self.error = Some(e);
+                return;
+            }
+        };
         let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
+        opts.calibration = calibration;
         opts.participant = self.kind;
         opts.speed = if self.kind == ParticipantKind::Simulated {
             self.speed
@@ -563,6 +651,7 @@ impl StudyPage {
                 ui.radio_value(&mut self.speed, Speed::Fast, "as fast as possible");
             }
         });
+        self.calibration_ui(ui, env);
         ui.checkbox(
             &mut self.separate_window,
             "participant view in a separate window",
