@@ -225,7 +225,11 @@ fn the_passivity_controller_catches_a_deliberately_unstable_loop() {
     cfg.coupling.force_scale = 2e11;
     let chain = LoopChain::as_designed(&cfg).expect("chain");
     let r = analyse(&cfg, &chain.coefficients).expect("analysis");
-    assert!(!r.condition(Condition::D).expect("D").nominal_stable, "{}", r.summary());
+    assert!(
+        !r.condition(Condition::D).expect("D").nominal_stable,
+        "{}",
+        r.summary()
+    );
     let opts = PressOptions {
         condition: Condition::D,
         duration_s: 5.0,
@@ -235,15 +239,29 @@ fn the_passivity_controller_catches_a_deliberately_unstable_loop() {
     let run = |pc: bool| {
         let mut c = cfg.clone();
         c.coupling.passivity_controller = pc;
-        simulate_press(&c, &chain, Clearance::overridden(chain.source.clone()), &opts)
-            .expect("press")
-            .0
+        simulate_press(
+            &c,
+            &chain,
+            Clearance::overridden(chain.source.clone()),
+            &opts,
+        )
+        .expect("press")
+        .0
     };
     let (off, on) = (run(false), run(true));
     assert!(!off.stable && off.passivity_active_samples == 0, "{off:?}");
-    assert!(on.stable && !on.escaped && on.passivity_active_samples > 0, "{on:?}");
-    assert!(on.handle_force_osc_rms_n < 0.1 * off.handle_force_osc_rms_n, "{on:?} vs {off:?}");
-    assert!((on.handle_force_mean_n / on.expected_force_n - 1.0).abs() < 0.02, "{on:?}");
+    assert!(
+        on.stable && !on.escaped && on.passivity_active_samples > 0,
+        "{on:?}"
+    );
+    assert!(
+        on.handle_force_osc_rms_n < 0.1 * off.handle_force_osc_rms_n,
+        "{on:?} vs {off:?}"
+    );
+    assert!(
+        (on.handle_force_mean_n / on.expected_force_n - 1.0).abs() < 0.02,
+        "{on:?}"
+    );
 }
 
 /// SHA-256 of the file at `path` from coreutils' `sha256sum`, an

@@ -72,7 +72,10 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     // The closed loop's margins with the chain the engine runs.
     h.get_by_label("Closed-loop stability");
     h.get_by_label_contains("D chain: as designed (uncalibrated)");
-    assert!(h.query_all_by_label("safe").count() >= 2, "P and D are safe");
+    assert!(
+        h.query_all_by_label("safe").count() >= 2,
+        "P and D are safe"
+    );
     // Explore says that the mouse does not move a live rig's trap.
     h.state_mut().page = Page::Explore;
     h.step();

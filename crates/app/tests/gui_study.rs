@@ -174,7 +174,11 @@ fn study_page_records_the_chosen_calibration() {
         assert!(h.query_by_label_contains(&shown).is_some(), "{shown}");
         h.get_by_label("Open session").click();
         h.step();
-        assert!(h.state().study.is_running(), "{:?}", h.state().study.error());
+        assert!(
+            h.state().study.is_running(),
+            "{:?}",
+            h.state().study.error()
+        );
         h.step();
         h.get_by_label("Start").click();
         assert!(step_until_every(&mut h, POLL, 20.0, |a| a

@@ -56,7 +56,10 @@ impl PassivityController {
         let n = ((WINDOW_S * fs).round().max(1.0) as usize).min(MAX_WINDOW);
         Self {
             dt: 1.0 / fs,
-            ring: [vec![0.0; n].into_boxed_slice(), vec![0.0; n].into_boxed_slice()],
+            ring: [
+                vec![0.0; n].into_boxed_slice(),
+                vec![0.0; n].into_boxed_slice(),
+            ],
             pos: 0,
             w: [0.0; 2],
             active: 0,
@@ -166,7 +169,11 @@ mod tests {
             xs.push(x);
             let want = -800.0 * xs[n];
             pc.apply([want, 0.0], [v, 0.0]);
-            assert!(pc.energy_j()[0] >= -1e-12, "sample {n}: {:?}", pc.energy_j());
+            assert!(
+                pc.energy_j()[0] >= -1e-12,
+                "sample {n}: {:?}",
+                pc.energy_j()
+            );
         }
         assert!(pc.active_samples() > 100 && pc.dissipated_j() > 0.0);
         // A force pushing along the motion (negative damping) produces

@@ -355,7 +355,9 @@ fn verdict_color(ok: bool) -> Color32 {
 }
 
 fn fmt_or_inf(x: f64, unit: &str) -> String {
-    if x.is_finite() {
+    if x.is_finite() && unit.is_empty() {
+        format!("{x:.1}")
+    } else if x.is_finite() {
         format!("{x:.1} {unit}")
     } else {
         "∞".to_owned()
@@ -367,7 +369,7 @@ fn fmt_or_inf(x: f64, unit: &str) -> String {
 /// verdict, and the critical values (Rig and Calibration pages).
 pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
     egui::Grid::new(id).striped(true).show(ui, |ui| {
-        for h in ["", "gain margin", "phase margin", "verdict", "worst case"] {
+        for h in ["", "gain margin", "phase margin", "verdict", "worst at"] {
             ui.label(RichText::new(h).strong());
         }
         ui.end_row();
@@ -398,8 +400,8 @@ pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
                 kilotouch_rig::stability::LoopState::Free => "free",
                 kilotouch_rig::stability::LoopState::Pressed => "pressed",
             };
-            ui.label(format!(
-                "{axis}, {state}, finger {:.0} N/m, {:.1} N·s/m",
+            ui.label(format!("{axis}, {state}")).on_hover_text(format!(
+                "finger {:.0} N/m, {:.1} N·s/m",
                 w.hand.stiffness_n_per_m, w.hand.damping_n_s_per_m
             ));
             ui.end_row();
@@ -410,21 +412,25 @@ pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
         let rows = [
             (
                 "required",
-                format!("≥ {} dB and ≥ {}°", r.min_gain_margin_db, r.min_phase_margin_deg),
+                format!(
+                    "≥ {} dB and ≥ {}°",
+                    r.min_gain_margin_db, r.min_phase_margin_deg
+                ),
             ),
             (
                 "trap stiffness",
                 format!(
-                    "{:.1} pN/µm (unstable above {})",
+                    "{:.1} pN/µm (unstable: {})",
                     r.trap_stiffness_pn_um,
-                    fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                    fmt_or_inf(r.critical_trap_stiffness_pn_um, "")
                 ),
             ),
+            ("force scale", format!("{:.3e} N/N", r.force_scale)),
             (
-                "force scale",
+                "largest safe / unstable",
                 format!(
-                    "{:.3e} N/N (largest safe {:.3e}, unstable above {:.3e})",
-                    r.force_scale, r.max_force_scale, r.critical_force_scale
+                    "{:.3e} / {:.3e} N/N",
+                    r.max_force_scale, r.critical_force_scale
                 ),
             ),
             (
@@ -433,7 +439,7 @@ pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
             ),
             (
                 "Haptuator full scale",
-                format!("{:.2} N of high-band force", r.high_band_force_full_scale_n),
+                format!("{:.2} N (high band)", r.high_band_force_full_scale_n),
             ),
             ("P renders", r.p_mode.describe()),
         ];
