@@ -185,13 +185,10 @@ impl ExplorePage {
         n
     }
 
-    /// Hand position (m) that puts the trap at `trap_m` (inverse coupling).
+    /// Hand position (m) that puts the trap at `trap_m` (the rig crate's
+    /// hand mapping, inverted).
     pub fn hand_for_trap(cfg: &RigConfig, trap_m: [f64; 2]) -> [f64; 2] {
-        let c = &cfg.coupling;
-        [
-            c.handle_origin_m[0] + (trap_m[0] - c.trap_offset_m[0]) / c.position_scale,
-            c.handle_origin_m[1] + (trap_m[1] - c.trap_offset_m[1]) / c.position_scale,
-        ]
+        kilotouch_rig::coupling::HandMapping::from_config(&cfg.coupling).to_hand(trap_m)
     }
 
     fn place_obstacle(&mut self, at: [f64; 2], cfg: &RigConfig) -> Result<(), String> {
