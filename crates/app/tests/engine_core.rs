@@ -17,8 +17,8 @@ use kilotouch::engine::{
 use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain, model_chain_design};
+use kilotouch_rig::device::ManualClock;
 use kilotouch_rig::haptic_loop::Clearance;
-use kilotouch_rig::rig::ManualClock;
 use kilotouch_rig::tweezer::Obstacle;
 use std::time::{Duration, Instant};
 

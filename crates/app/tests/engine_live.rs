@@ -21,7 +21,7 @@ use kilotouch::engine::{
     Condition, EngineEvent, EngineHandle, EngineOptions, SafetyState, TelemetrySample, flags,
 };
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::rig::RigState;
+use kilotouch_rig::device::RigState;
 use std::time::{Duration, Instant};
 
 /// Drain telemetry and events for `d`; returns the samples and the events

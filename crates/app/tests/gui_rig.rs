@@ -13,7 +13,7 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::engine::SafetyState;
 use kilotouch::gui::{KilotouchApp, Page};
-use kilotouch_rig::rig::RigKind;
+use kilotouch_rig::device::RigKind;
 use std::time::{Duration, Instant};
 
 fn harness() -> Harness<'static, KilotouchApp> {

@@ -279,6 +279,11 @@ pub struct LimitsConfig {
     pub haptuator_drive_max_v: f64,
 }
 
+/// Largest velocity span L of the safety layer, samples.
+pub const MAX_VELOCITY_SPAN: u32 = 250;
+/// Largest watchdog window W of the safety layer, samples.
+pub const MAX_WATCHDOG_WINDOW: usize = 1 << 20;
+
 /// `[safety]`: the safety layer every closed-loop run passes through
 /// (`crate::safety`, `docs/THEORY.md` (safety layer and audio rig)). Per-axis force and drive limits
 /// are `[limits]`; this section adds the rest. Every key has a default, so a
@@ -368,7 +373,7 @@ impl SafetyConfig {
     /// at least 1.
     pub fn watchdog_window_samples(&self, fs: f64) -> usize {
         (crate::round_half_away(self.watchdog_window_s * fs).max(1.0) as usize)
-            .min(crate::safety::MAX_WATCHDOG_WINDOW + 1)
+            .min(MAX_WATCHDOG_WINDOW + 1)
     }
 
     /// Watchdog limit at `fs` Hz: M = round(fraction·W) missed samples
@@ -407,25 +412,22 @@ impl SafetyConfig {
             ));
         }
         let l = self.velocity_span_samples;
-        if !(3..=crate::safety::MAX_VELOCITY_SPAN).contains(&l) {
+        if !(3..=MAX_VELOCITY_SPAN).contains(&l) {
             v.push((
                 "velocity_span_samples",
                 l as f64,
-                format!(
-                    "must be in [3, {}] (got {l})",
-                    crate::safety::MAX_VELOCITY_SPAN
-                ),
+                format!("must be in [3, {}] (got {l})", MAX_VELOCITY_SPAN),
             ));
         }
         if self.watchdog_window_s.is_finite() && self.watchdog_window_s > 0.0 && fs.is_finite() {
             let w = self.watchdog_window_samples(fs);
-            if w > crate::safety::MAX_WATCHDOG_WINDOW {
+            if w > MAX_WATCHDOG_WINDOW {
                 v.push((
                     "watchdog_window_s",
                     self.watchdog_window_s,
                     format!(
                         "is {w} samples at {fs} Hz; at most {} allowed",
-                        crate::safety::MAX_WATCHDOG_WINDOW
+                        MAX_WATCHDOG_WINDOW
                     ),
                 ));
             }

@@ -28,9 +28,10 @@
 use crate::condition::Condition;
 use crate::config::RigConfig;
 use crate::coupling::{ChainSource, Coupling, ForceSplitter, LoopChain, Rendered};
+use crate::device::{ActuatorFrame, BlockReport, Rig, SensorFrame};
 use crate::error::RigError;
-use crate::rig::{ActuatorFrame, BlockReport, Rig, SensorFrame, SimRig};
 use crate::safety::{SafetyLayer, SafetyStatus, TripReason};
+use crate::sim::SimRig;
 use crate::stability::StabilityReport;
 use crate::tweezer::{SimTweezer, Tweezer, TweezerParams, TweezerSample};
 use kilotouch_dsp::chain::Chain;

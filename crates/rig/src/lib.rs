@@ -18,28 +18,28 @@ pub mod calibration;
 pub mod condition;
 pub mod config;
 pub mod coupling;
+pub mod device;
 pub mod error;
 pub mod haptic_loop;
-pub mod live;
 pub mod lorentzian;
 pub mod lti;
 pub mod normal;
 pub mod plant;
 pub mod press;
-pub mod rig;
 pub mod safety;
+pub mod serial;
 pub mod sim;
 pub mod stability;
 pub mod tweezer;
 
 pub use condition::{Condition, PMode};
 pub use config::{RigConfig, default_config_text};
+pub use device::{ActuatorFrame, Rig, SensorFrame};
 pub use error::RigError;
 pub use haptic_loop::{Clearance, HapticLoop, LoopSample};
 pub use lti::Integrator;
 pub use plant::{Axis, AxisModel, Channel, DualStagePlant};
-pub use rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
-pub use sim::{FrfReport, simulate_frf};
+pub use sim::{FrfReport, SimRig, simulate_frf};
 pub use tweezer::{SimTweezer, Tweezer, TweezerParams};
 
 /// `x.round()` (half away from zero), bit for bit, without a libm call or

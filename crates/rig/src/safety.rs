@@ -78,16 +78,13 @@
 //! `crates/rig/benches/rig.rs`.
 
 use crate::config::{RigConfig, SafetyConfig};
+use crate::device::{ActuatorFrame, FrameFlags, RigIdentity, SensorFrame};
 use crate::error::RigError;
-use crate::rig::{ActuatorFrame, FrameFlags, RigIdentity, SensorFrame};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-/// Largest velocity span L, samples.
-pub const MAX_VELOCITY_SPAN: u32 = 250;
-/// Largest watchdog window W, samples.
-pub const MAX_WATCHDOG_WINDOW: usize = 1 << 20;
+pub use crate::config::{MAX_VELOCITY_SPAN, MAX_WATCHDOG_WINDOW};
 
 /// Ring length of the velocity estimator (> L + 1, power of two).
 const RING: usize = 256;

@@ -12,7 +12,7 @@
 
 use kilotouch_rig::audio::*;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::rig::{ActuatorFrame, FrameFlags, Rig, RigFault, RigKind, SensorFrame};
+use kilotouch_rig::device::{ActuatorFrame, FrameFlags, Rig, RigFault, RigKind, SensorFrame};
 use std::time::{Duration, Instant};
 
 fn null_cfg(pacing: AudioPacing) -> AudioRigConfig {

@@ -6,9 +6,9 @@ use kilotouch_dsp::chain::ChainCoefficients;
 use kilotouch_dsp::spectral::{WelchConfig, welch};
 use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::*;
+use kilotouch_rig::device::{ActuatorFrame, Rig};
 use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::plant::{Axis, AxisModel, Channel};
-use kilotouch_rig::rig::{ActuatorFrame, Rig};
 use kilotouch_rig::tweezer::{Tweezer, TweezerSample};
 use kilotouch_rig::{Condition, PMode};
 

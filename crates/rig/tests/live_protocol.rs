@@ -5,11 +5,12 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::live::emulator::{
+use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
+use kilotouch_rig::serial::emulator::{
     DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Next, code_to_value, value_to_code,
 };
-use kilotouch_rig::live::frame::{self, DaqCommand, DaqSample, Decoder, DeviceState, ty};
-use kilotouch_rig::rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+use kilotouch_rig::serial::frame::{self, DaqCommand, DaqSample, Decoder, DeviceState, ty};
+use kilotouch_rig::sim::SimRig;
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 use std::time::Duration;

@@ -6,16 +6,17 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::device::{
+    ActuatorFrame, Clock, FrameFlags, Rig, RigFault, RigState, SensorFrame, SystemClock,
+};
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::live::emulator::{
+use kilotouch_rig::serial::emulator::{
     DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Instrument, code_to_value,
 };
-use kilotouch_rig::live::frame::DaqCommand;
-use kilotouch_rig::live::pty::{Pty, serve};
-use kilotouch_rig::live::{LinkTweezer, SerialConfig, SerialRig, TweezerInstrument};
-use kilotouch_rig::rig::{
-    ActuatorFrame, Clock, FrameFlags, Rig, RigFault, RigState, SensorFrame, SimRig, SystemClock,
-};
+use kilotouch_rig::serial::frame::DaqCommand;
+use kilotouch_rig::serial::pty::{Pty, serve};
+use kilotouch_rig::serial::{LinkTweezer, SerialConfig, SerialRig, TweezerInstrument};
+use kilotouch_rig::sim::SimRig;
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
 use std::f64::consts::PI;
 use std::sync::Arc;
@@ -84,7 +85,10 @@ fn commands(n: usize, start: usize) -> Vec<ActuatorFrame> {
         .map(|i| {
             let t = i as f64 / rc.rig.sample_rate_hz;
             let q = |v: f64, max: f64| {
-                code_to_value(kilotouch_rig::live::emulator::value_to_code(v, max).0, max)
+                code_to_value(
+                    kilotouch_rig::serial::emulator::value_to_code(v, max).0,
+                    max,
+                )
             };
             ActuatorFrame {
                 force_n: [q(0.3 * fmax * (2.0 * PI * 30.0 * t).sin(), fmax), 0.0],

@@ -3,9 +3,10 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
+use kilotouch_rig::device::*;
 use kilotouch_rig::lti::Integrator;
 use kilotouch_rig::plant::{Axis, AxisModel, Channel};
-use kilotouch_rig::rig::*;
+use kilotouch_rig::sim::{Pacing, SimRig};
 use num_complex::Complex64 as C64;
 use std::f64::consts::PI;
 use std::time::Duration;

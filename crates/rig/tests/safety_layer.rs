@@ -5,8 +5,8 @@
 
 use kilotouch_rig::config::{RigConfig, SafetyConfig};
 use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::device::{ActuatorFrame, FrameFlags, Rig, SensorFrame};
 use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
-use kilotouch_rig::rig::{ActuatorFrame, FrameFlags, Rig, SensorFrame};
 use kilotouch_rig::safety::*;
 
 const FS: f64 = 1000.0;

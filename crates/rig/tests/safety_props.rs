@@ -10,7 +10,7 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::SafetyConfig;
-use kilotouch_rig::rig::{ActuatorFrame, SensorFrame};
+use kilotouch_rig::device::{ActuatorFrame, SensorFrame};
 use kilotouch_rig::safety::{HardLimits, SafetyLayer, SafetyState};
 use proptest::prelude::*;
 

@@ -9,8 +9,9 @@ use kilotouch_rig::calibration::sim::{calibrate_sim, rig_config_hash};
 use kilotouch_rig::calibration::{
     CalibrationConfig, CalibrationOutcome, RigAdapter, Step, calibrate,
 };
-use kilotouch_rig::live::{RigSpec, SerialConfig, SerialRig};
-use kilotouch_rig::rig::Rig;
+use kilotouch_rig::device::Rig;
+use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::serial::{SerialConfig, SerialRig};
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;

@@ -10,10 +10,10 @@
 use anyhow::Context;
 use clap::Subcommand;
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::live::emulator::{Emulator, EmulatorConfig, FaultInjection, Instrument};
-use kilotouch_rig::live::pty::{Pty, ServeEnd, serve};
-use kilotouch_rig::live::{DaqInstrument, TweezerInstrument};
-use kilotouch_rig::rig::{Clock, SystemClock};
+use kilotouch_rig::device::{Clock, SystemClock};
+use kilotouch_rig::serial::emulator::{Emulator, EmulatorConfig, FaultInjection, Instrument};
+use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve};
+use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;

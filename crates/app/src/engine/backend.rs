@@ -13,9 +13,10 @@
 //! `block_len` samples (module docs of [`crate::engine`]): one round trip
 //! per block, not per sample.
 
+use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{BlockReport, RigFault, RigIdentity, RigKind, RigStatus};
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::live::{RigSpec, SerialRig};
-use kilotouch_rig::rig::{BlockReport, RigFault, RigIdentity, RigKind, RigStatus};
+use kilotouch_rig::serial::SerialRig;
 use kilotouch_rig::{ActuatorFrame, Rig, RigConfig, SensorFrame, SimRig};
 
 /// The device (see [`EngineRig`]).

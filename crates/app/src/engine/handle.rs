@@ -8,9 +8,9 @@ use super::{
     TelemetrySample,
 };
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
+use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{Clock, RigIdentity, SystemClock};
 use kilotouch_rig::haptic_loop::Clearance;
-use kilotouch_rig::live::RigSpec;
-use kilotouch_rig::rig::{Clock, RigIdentity, SystemClock};
 use kilotouch_rig::stability::StabilityReport;
 use kilotouch_rig::tweezer::Obstacle;
 use kilotouch_rig::{RigConfig, SimTweezer, TweezerParams};

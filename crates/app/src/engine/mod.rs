@@ -34,7 +34,7 @@
 //! The rig is any [`backend::EngineRig`]: simulated (default), a serial DAQ
 //! (`serial:PATH`, or the emulator on a pty) or, with the `audio` feature,
 //! an audio interface, chosen with the `--rig` syntax
-//! ([`kilotouch_rig::live::RigSpec`]). A live rig differs in three ways:
+//! ([`kilotouch_rig::device::RigSpec`]). A live rig differs in three ways:
 //!
 //! * **Block exchange.** One round trip per sample would cost a serial
 //!   link's latency 10 000 times a second; the engine exchanges one block of
@@ -75,9 +75,9 @@ pub use handle::{EngineHandle, engine_pair, engine_pair_with_rig};
 pub use runner::EngineCore;
 
 use kilotouch_rig::coupling::CouplingCounters;
+use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::live::RigSpec;
-use kilotouch_rig::rig::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::{ActuatorFrame, SimTweezer};
 use splitter::{ChainSwap, SwapOutcome};
 

@@ -26,7 +26,7 @@
 //! the time from the start of a block's computation to its end (sleep
 //! excluded).
 
-use kilotouch_rig::rig::Clock;
+use kilotouch_rig::device::Clock;
 use std::time::Duration;
 
 /// Timing of one block.
@@ -168,7 +168,7 @@ impl<C: Clock> Pacer<C> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kilotouch_rig::rig::ManualClock;
+    use kilotouch_rig::device::ManualClock;
 
     #[test]
     fn deadlines_come_from_the_anchor_and_stalls_are_caught_up() {

@@ -10,10 +10,10 @@ use super::{
 };
 use kilotouch_dsp::chain::Chain;
 use kilotouch_rig::coupling::{Coupling, LoopChain};
+use kilotouch_rig::device::Clock;
+use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, LoopSample, MAX_BLOCK};
-use kilotouch_rig::live::RigSpec;
-use kilotouch_rig::rig::Clock;
 use kilotouch_rig::safety::{SafetyLayer, SafetyState, TripReason};
 use kilotouch_rig::{Rig, RigConfig, SimTweezer, Tweezer, TweezerParams};
 use std::sync::Arc;

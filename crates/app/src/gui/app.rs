@@ -16,7 +16,7 @@ use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
 use egui::{Color32, RichText};
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::live::RigSpec;
+use kilotouch_rig::device::RigSpec;
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;

@@ -73,7 +73,7 @@ use std::time::{Duration, Instant};
 
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
-use kilotouch_rig::rig::SystemClock;
+use kilotouch_rig::device::SystemClock;
 use kilotouch_study::export::{
     CalibrationRef, PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE,
     TrialRow, plan, read_session, read_trials,

@@ -7,7 +7,7 @@
 
 use egui_kittest::Harness;
 use kilotouch::gui::{AppOptions, KilotouchApp, Page};
-use kilotouch_rig::live::RigSpec;
+use kilotouch_rig::device::RigSpec;
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Output, Stdio};

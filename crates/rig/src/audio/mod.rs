@@ -1,7 +1,7 @@
 //! Audio-interface rig and monitor (cargo feature `audio`, cpal; on Linux
 //! ALSA, needs `libasound2-dev` to build).
 //!
-//! * [`AudioRig`]: a [`Rig`](crate::rig::Rig) on a sound card. Output
+//! * [`AudioRig`]: a [`Rig`](crate::device::Rig) on a sound card. Output
 //!   channels drive the Haptuator (and, on DC-coupled interfaces, the
 //!   Pantograph amplifiers: [`AudioRigConfig::pantograph_channels`]); one
 //!   input channel reads the fingertip accelerometer (scaled by

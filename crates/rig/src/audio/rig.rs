@@ -3,11 +3,11 @@
 
 use super::{POLL_S, cpal_err, f32_config, find_device};
 use crate::config::RigConfig;
-use crate::error::RigError;
-use crate::rig::{
+use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
     RigStatus, SensorFrame, StatusCounters, check_block_lengths,
 };
+use crate::error::RigError;
 use crate::safety::{HardLimits, hard_limit};
 use cpal::traits::{DeviceTrait, StreamTrait};
 use serde::{Deserialize, Serialize};

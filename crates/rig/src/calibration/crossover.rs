@@ -35,13 +35,13 @@
 //! e_H = max_{f < f_r}        |H(f)|·|Ĥ_H(f)/(Ĝ_H(f) e^{−j2πfτ}) − 1|   (1 where incoherent)
 //! ```
 
+use super::bands::band_centres;
 use super::config::CalibrationConfig;
-use super::design::{predicted_max_abs_dev_db, unit_chain};
 use super::error::{CalibrationError, Result};
 use super::identify::{HighChannelId, LowChannelId, gain_below};
 use super::measure::smooth_octave;
+use super::prediction::{predicted_max_abs_dev_db, unit_chain};
 use super::progress::{Step, StepContext};
-use super::verify::band_centres;
 use kilotouch_dsp::C64;
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use serde::{Deserialize, Serialize};

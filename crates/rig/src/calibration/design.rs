@@ -27,15 +27,14 @@ use super::crossover::CrossoverChoice;
 use super::error::{CalibrationError, Result};
 use super::identify::{HighChannelId, LowChannelId};
 use super::interface::ActuatorLimits;
+pub use super::prediction::{chain_group_delay, predicted_max_abs_dev_db, unit_chain};
 use super::progress::{Step, StepContext};
+use kilotouch_dsp::Tf;
 use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_dsp::compensator::{self, HighCompensatorConfig};
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_dsp::design::Prewarp;
-use kilotouch_dsp::filter::sections_response_and_derivative;
-use kilotouch_dsp::{C64, Tf};
 use serde::{Deserialize, Serialize};
-use std::f64::consts::PI;
 
 /// Result of step 5: everything needed to build the chain.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -146,64 +145,6 @@ impl CompensatorDesign {
     }
 }
 
-/// Group delay (s) of the chain's electrical sum low + high at `f_hz`:
-/// τ = −Im((L' + H')/(L + H))/fs, derivatives with respect to ω in
-/// rad/sample (analytic, per section).
-pub fn chain_group_delay(c: &ChainCoefficients, f_hz: f64) -> f64 {
-    let w = 2.0 * PI * f_hz / c.fs();
-    let (l, dl) = sections_response_and_derivative(c.low(), w);
-    let (h, dh) = sections_response_and_derivative(c.high(), w);
-    -((dl + dh) / (l + h)).im / c.fs()
-}
-
-/// Chain coefficients with K_sys = 1 for a crossover at `fc` Hz, low-channel
-/// gain `g0_l`, the identified high channel and the design settings of
-/// `cfg`.
-pub fn unit_chain(
-    fs: f64,
-    fc: f64,
-    order: usize,
-    g0_l: f64,
-    high: &HighChannelId,
-    cfg: &CalibrationConfig,
-) -> Result<ChainCoefficients> {
-    let d = &cfg.design;
-    let design = ChainDesign {
-        fs,
-        crossover_order: order,
-        crossover_fc: fc,
-        k_sys: 1.0,
-        g0_l,
-        g_h: high.model.clone(),
-        high: HighCompensatorConfig {
-            f_corner_hz: d.band_limit_hz,
-            zeta: d.band_limit_zeta,
-        },
-        c_h_prewarp: Prewarp::AtHz(d.c_h_prewarp_hz.unwrap_or(cfg.verify.f_max_hz)),
-    };
-    ChainCoefficients::design(&design).map_err(|e| CalibrationError::dsp("compensated chain", e))
-}
-
-/// Response predicted at `centres` (Hz) when `chain` (overall gain `k_sys`)
-/// drives channels with the measured responses of `low` and `high`:
-/// max over f of |20·log10|(L(f) Ĥ_L(f) + H(f) Ĥ_H(f))/K_sys||, dB.
-pub fn predicted_max_abs_dev_db(
-    chain: &ChainCoefficients,
-    k_sys: f64,
-    low: &LowChannelId,
-    high: &HighChannelId,
-    centres: &[f64],
-) -> f64 {
-    centres
-        .iter()
-        .map(|&f| {
-            let (l, h) = chain.response(f);
-            let p: C64 = (l * low.frf.at(f) + h * high.frf.at(f)) / k_sys;
-            (20.0 * p.norm().log10()).abs()
-        })
-        .fold(0.0, f64::max)
-}
-
 /// 1/96-octave grid from 0.1 Hz to just below Nyquist.
 fn log_grid(fs: f64) -> impl Iterator<Item = f64> {
     let top = 0.499 * fs;
@@ -280,7 +221,7 @@ pub fn design(
     out.high_drive_per_unit = hmax * out.k_sys;
     // Prediction from the measured responses at the verification bands.
     let chain = out.chain_coefficients()?;
-    let centres = super::verify::band_centres(low, cfg)?;
+    let centres = super::bands::band_centres(low, cfg)?;
     let worst = predicted_max_abs_dev_db(&chain, out.k_sys, low, high, &centres);
     out.predicted_max_abs_dev_db = worst;
     ctx.report(

@@ -1,6 +1,6 @@
 //! Typed errors of the calibration procedure.
 
-use super::progress::Step;
+use super::step::Step;
 use kilotouch_dsp::DspError;
 use thiserror::Error;
 

@@ -11,7 +11,7 @@ use kilotouch_dsp::C64;
 use serde::{Deserialize, Serialize};
 
 /// The record of who a calibration belongs to: the rig's name and serial
-/// (from its [`crate::rig::RigIdentity`]), the hash of the rig configuration
+/// (from its [`crate::device::RigIdentity`]), the hash of the rig configuration
 /// the calibration measured ([`super::sim::rig_config_hash`]) and the sample
 /// rate. A calibration file is only valid for the rig it records.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -30,7 +30,7 @@ pub struct RigRecord {
 
 impl RigRecord {
     /// The record of a rig's identity with the hash of its configuration.
-    pub fn of(id: &crate::rig::RigIdentity, config_hash: String) -> Self {
+    pub fn of(id: &crate::device::RigIdentity, config_hash: String) -> Self {
         Self {
             name: id.name.clone(),
             serial: id.serial.clone(),

@@ -21,6 +21,7 @@
 //! each rig run, and keeps its raw records (`raw` fields). Theory, units and
 //! the crossover rule: `docs/THEORY.md`.
 
+pub mod bands;
 pub mod check;
 pub mod config;
 pub mod crossover;
@@ -31,10 +32,12 @@ pub mod hash;
 pub mod identify;
 pub mod interface;
 pub mod measure;
+pub mod prediction;
 pub mod progress;
 pub mod report;
 pub mod sim;
 pub mod standin;
+pub mod step;
 pub mod verify;
 
 pub use check::CheckResult;

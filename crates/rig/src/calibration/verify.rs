@@ -14,16 +14,18 @@
 //! with the crossover alone (constant gains, no C_H dynamics), and the
 //! chain's group delay is reported.
 
+use super::bands::bands;
 use super::config::CalibrationConfig;
-use super::design::{CompensatorDesign, chain_group_delay};
+use super::design::CompensatorDesign;
 use super::error::{CalibrationError, Result};
 use super::identify::LowChannelId;
 use super::interface::CalibrationRig;
 use super::measure::{RawRecord, run_both};
+use super::prediction::chain_group_delay;
 use super::progress::{Step, StepContext};
 use kilotouch_dsp::chain::{Chain, ChainCoefficients};
 use kilotouch_dsp::excitation::{SteppedSineConfig, sine_dft, stepped_sine};
-use kilotouch_dsp::thirdoctave::{Band, bands_between, flatness};
+use kilotouch_dsp::thirdoctave::flatness;
 use serde::{Deserialize, Serialize};
 
 /// One line of the verification table.
@@ -80,34 +82,6 @@ pub struct Verification {
     /// Raw records (not stored in the calibration file).
     #[serde(skip)]
     pub raw: Vec<RawRecord>,
-}
-
-/// Third-octave bands to verify, ascending, each with its `extended` flag.
-pub fn bands(low: &LowChannelId, cfg: &CalibrationConfig) -> Result<Vec<(Band, bool)>> {
-    let v = &cfg.verify;
-    let err = |e| CalibrationError::dsp("third-octave bands", e);
-    let main = bands_between(v.f_min_hz, v.f_max_hz).map_err(err)?;
-    let mut out = Vec::new();
-    if v.extend_below {
-        let lo = v.extend_min_hz.max(low.flat_band_hz[0]);
-        if lo < v.f_min_hz {
-            for b in bands_between(lo, v.f_min_hz).map_err(err)? {
-                if b.centre_hz >= lo && main.iter().all(|m| m.index != b.index) {
-                    out.push((b, true));
-                }
-            }
-        }
-    }
-    out.extend(main.into_iter().map(|b| (b, false)));
-    Ok(out)
-}
-
-/// Centre frequencies of [`bands`], Hz.
-pub fn band_centres(low: &LowChannelId, cfg: &CalibrationConfig) -> Result<Vec<f64>> {
-    Ok(bands(low, cfg)?
-        .into_iter()
-        .map(|(b, _)| b.centre_hz)
-        .collect())
 }
 
 /// Measure the tip acceleration amplitude of a sine of `f` through

@@ -33,8 +33,8 @@ pub use mapping::HandMapping;
 
 use crate::condition::{Condition, PMode};
 use crate::config::RigConfig;
+use crate::device::{ActuatorFrame, SensorFrame};
 use crate::error::RigError;
-use crate::rig::{ActuatorFrame, SensorFrame};
 use crate::tweezer::{Tweezer, TweezerSample};
 use damper::WallDamper;
 use kilotouch_dsp::chain::{Chain, ChainCoefficients};

@@ -12,7 +12,7 @@
 
 use kilotouch_rig::Condition;
 use kilotouch_rig::coupling::ChainSource;
-use kilotouch_rig::rig::{ActuatorFrame, SensorFrame};
+use kilotouch_rig::device::{ActuatorFrame, SensorFrame};
 use kilotouch_rig::tweezer::TweezerSample;
 use rand_chacha::ChaCha20Rng;
 

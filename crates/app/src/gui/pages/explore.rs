@@ -273,7 +273,7 @@ impl ExplorePage {
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
             if engine
                 .as_deref()
-                .is_some_and(|e| e.identity().kind != kilotouch_rig::rig::RigKind::Simulated)
+                .is_some_and(|e| e.identity().kind != kilotouch_rig::device::RigKind::Simulated)
             {
                 ui.colored_label(
                     Color32::from_rgb(230, 150, 40),

@@ -6,7 +6,7 @@
 use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
 use egui::{Color32, RichText};
-use kilotouch_rig::live::RigSpec;
+use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::stability::StabilityReport;
 
 /// Hint shown under the rig field.

@@ -22,11 +22,11 @@ use super::frame::{
     self, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DeviceKind, DeviceState, Hello,
     PROTOCOL_VERSION, WireItem, fault, flag,
 };
-use crate::error::RigError;
-use crate::rig::{
+use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
     RigStatus, SensorFrame, StatusCounters, check_block_lengths,
 };
+use crate::error::RigError;
 use serialport::{ClearBuffer, SerialPort};
 use std::io::{ErrorKind, Read, Write};
 use std::time::{Duration, Instant};

@@ -1,9 +1,6 @@
-//! Library entry points of the `kilotouch sim …` commands.
-//!
-//! * `kilotouch sim frf --channel low|high [--rig-config FILE] --freqs F1,F2,…`
-//!   → [`simulate_frf`]: the model's true (analytic, continuous, linear)
-//!   response from the channel's drive to the tip acceleration.
-//! * `kilotouch sim tweezer …` → [`crate::tweezer::simulate_tweezer`].
+//! The model's true (analytic, continuous, linear) response from a
+//! channel's drive to the tip acceleration (`kilotouch sim frf --channel
+//! low|high [--rig-config FILE] --freqs F1,F2,…`, [`simulate_frf`]).
 
 use crate::config::RigConfig;
 use crate::error::RigError;

@@ -74,7 +74,7 @@ pub mod ty {
 }
 
 /// Per-sample flag bits of device samples. Bits 1–4 equal the host's
-/// [`crate::rig::FrameFlags`] bits; bit 0 is never sent (the host uses it
+/// [`crate::device::FrameFlags`] bits; bit 0 is never sent (the host uses it
 /// for lost-frame placeholders).
 pub mod flag {
     /// Accelerometer at its range on some axis.
@@ -90,7 +90,7 @@ pub mod flag {
     pub const CMD_LATE: u8 = 0x20;
     /// The watchdog had zeroed the outputs during this sample.
     pub const WATCHDOG: u8 = 0x40;
-    /// Bits the host copies into [`crate::rig::FrameFlags`].
+    /// Bits the host copies into [`crate::device::FrameFlags`].
     pub const HOST_MASK: u8 = CLIPPED | LIMITED | END_STOP | NONFINITE;
 }
 

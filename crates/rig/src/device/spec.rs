@@ -1,8 +1,8 @@
 //! `--rig` specifications: `sim`, `serial:PATH[,baud=N][,timeout-ms=N]`,
 //! `audio[:DEVICE]`.
 
-use super::serial::SerialConfig;
 use crate::error::RigError;
+use crate::serial::SerialConfig;
 use std::time::Duration;
 
 /// Which rig a command talks to.

@@ -10,8 +10,8 @@
 //! serial port.
 
 use super::emulator::{Emulator, Instrument, Next};
+use crate::device::Clock;
 use crate::error::RigError;
-use crate::rig::Clock;
 use nix::fcntl::{FcntlArg, OFlag, fcntl, open};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::{PtyMaster, grantpt, posix_openpt, ptsname_r, unlockpt};

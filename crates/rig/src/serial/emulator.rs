@@ -46,8 +46,9 @@ use super::frame::{
     PROTOCOL_VERSION, Status, WireItem, fault, flag,
 };
 use crate::config::RigConfig;
+use crate::device::{ActuatorFrame, Rig, SensorFrame};
 use crate::error::RigError;
-use crate::rig::{ActuatorFrame, Rig, SensorFrame, SimRig};
+use crate::sim::SimRig;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::time::Duration;

@@ -22,7 +22,7 @@ use super::frame::{
     self, Caps, DeviceKind, Hello, PROTOCOL_VERSION, TrapCommand, TweezerCaps, TweezerWireSample,
     WireItem, tweezer_status as ts,
 };
-use super::serial::{Link, LinkErrorKind, LinkStats, SerialConfig};
+use super::rig::{Link, LinkErrorKind, LinkStats, SerialConfig};
 use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::tweezer::{SimTweezer, Tweezer, TweezerEvents, TweezerParams, TweezerSample};

@@ -9,19 +9,16 @@
 //!   command buffer, batching, watchdog, fault injection), with the DAQ
 //!   instrument ([`emulator::DaqInstrument`]).
 //! * [`pty`]: pseudo-terminal creation and the serving loop.
-//! * [`serial`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`serial::Link`].
+//! * [`rig`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`rig::Link`].
 //! * [`tweezer_link`]: [`LinkTweezer`] ([`crate::Tweezer`]) and the tweezer
 //!   instrument.
-//! * [`spec`]: parsing of `--rig sim | serial:PATH[,baud=N] | audio[:DEVICE]`.
 
 pub mod emulator;
 pub mod frame;
 pub mod pty;
-pub mod serial;
-pub mod spec;
+pub mod rig;
 pub mod tweezer_link;
 
 pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection};
-pub use serial::{LinkStats, SerialConfig, SerialRig};
-pub use spec::RigSpec;
+pub use rig::{LinkStats, SerialConfig, SerialRig};
 pub use tweezer_link::{LinkTweezer, TweezerInstrument};

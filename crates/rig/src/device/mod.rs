@@ -1,0 +1,118 @@
+//! The rig interface: what every backend (simulated, serial DAQ, audio
+//! interface) implements and every controller uses. The backends live in
+//! their own modules: [`crate::sim`], [`crate::serial`], `crate::audio`.
+//!
+//! # Interface
+//!
+//! A [`Rig`] exchanges *blocks* of frames at its sample rate (default
+//! 10 kHz): one [`ActuatorFrame`] per sample goes out (Pantograph force x, y
+//! in N; Haptuator drive in V) and one [`SensorFrame`] per sample comes back
+//! (handle position x, y in m; fingertip acceleration x, y, z in m/s²),
+//! stamped with the device's sequence number. Command `i` of a block is
+//! applied during sample `first_seq + i`; sensor frame `i` is read at the
+//! end of that sample. Identity, status and faults are queried separately.
+//!
+//! How live backends fit the same calls without change:
+//! * **Serial DAQ at 10 kHz.** Frames carry the device's sequence number;
+//!   a gap in the numbers is filled with placeholder frames flagged
+//!   [`FrameFlags::LOST`] (last good values held), counted in
+//!   [`BlockReport::lost_frames`] and reported as [`RigFault::LostFrames`].
+//! * **Audio interface via a cpal callback.** The callback thread owns the
+//!   device; `process_block` only moves frames through lock-free SPSC rings,
+//!   so it neither locks nor allocates; callback under-runs surface as
+//!   [`RigFault::Overrun`] and lost frames.
+//! * **Device watchdog.** A device that zeroes its outputs after missing
+//!   commands reports [`RigFault::WatchdogTripped`]; the rig enters
+//!   [`RigState::Faulted`] until `start` is called again.
+//! * **Disconnects.** `process_block` returns [`RigError::Disconnected`] and
+//!   the state becomes [`RigState::Disconnected`].
+//!
+//! `process_block` must not allocate, lock or panic in any implementation;
+//! faults are queued in a fixed-capacity ring ([`FaultQueue`]).
+
+mod clock;
+mod fault;
+mod frame;
+mod identity;
+mod spec;
+
+pub use clock::{Clock, ManualClock, SystemClock};
+pub(crate) use fault::StatusCounters;
+pub use fault::{FaultQueue, RigFault};
+pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
+pub use identity::{RigIdentity, RigKind, RigState, RigStatus};
+pub use spec::RigSpec;
+
+use crate::error::RigError;
+
+/// The block-length contract of [`Rig::process_block`], shared by every
+/// implementation: one sensor frame per command.
+pub fn check_block_lengths(
+    commands: &[ActuatorFrame],
+    sensors: &[SensorFrame],
+) -> Result<(), RigError> {
+    if commands.len() == sensors.len() {
+        Ok(())
+    } else {
+        Err(RigError::InvalidInput(format!(
+            "{} commands but {} sensor frames",
+            commands.len(),
+            sensors.len()
+        )))
+    }
+}
+
+/// A haptic rig, simulated or live (module docs).
+pub trait Rig: Send {
+    /// Identity.
+    fn identity(&self) -> &RigIdentity;
+    /// Sample rate, Hz.
+    fn sample_rate_hz(&self) -> f64 {
+        self.identity().sample_rate_hz
+    }
+    /// Start exchanging frames (anchors the clock of paced rigs).
+    fn start(&mut self) -> Result<(), RigError>;
+    /// Stop; actuators go to zero.
+    fn stop(&mut self) -> Result<(), RigError>;
+    /// Exchange one block: `commands.len()` must equal `sensors.len()`.
+    /// Paced and live rigs block until the block's frames are due; batch
+    /// rigs return at once. Must not allocate, lock or panic.
+    fn process_block(
+        &mut self,
+        commands: &[ActuatorFrame],
+        sensors: &mut [SensorFrame],
+    ) -> Result<BlockReport, RigError>;
+    /// Exchange a block of one frame: exactly
+    /// `process_block(&[*command], &mut [*sensors])` (the default
+    /// implementation), which a rig may override with a cheaper path for the
+    /// sample-by-sample [`HapticLoop`](crate::HapticLoop) (the
+    /// batch [`SimRig`](crate::sim::SimRig) does). `sensors` is written only on success. Must not
+    /// allocate, lock or panic.
+    #[inline]
+    fn process_frame(
+        &mut self,
+        command: &ActuatorFrame,
+        sensors: &mut SensorFrame,
+    ) -> Result<BlockReport, RigError> {
+        frame_as_block(self, command, sensors)
+    }
+    /// Current counters and state.
+    fn status(&self) -> RigStatus;
+    /// Oldest queued fault, if any.
+    fn pop_fault(&mut self) -> Option<RigFault>;
+}
+
+/// One frame exchanged as a one-frame block: the default
+/// [`Rig::process_frame`], also the fallback of rigs that override it.
+/// `sensors` is written only on success.
+#[inline]
+pub fn frame_as_block<R: Rig + ?Sized>(
+    rig: &mut R,
+    command: &ActuatorFrame,
+    sensors: &mut SensorFrame,
+) -> Result<BlockReport, RigError> {
+    let mut out = [*sensors];
+    let r = rig.process_block(std::slice::from_ref(command), &mut out)?;
+    *sensors = out[0];
+    Ok(r)
+}
