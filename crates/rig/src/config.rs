@@ -505,232 +505,273 @@ impl RigConfig {
         }
     }
 
-    /// All semantic problems as (section, key, message).
+    /// All semantic problems as (section, key, message): each section
+    /// checks itself (the sections that depend on the sample rate get it).
     fn issues(&self) -> Vec<(&'static str, &'static str, String)> {
-        let mut v = Vec::new();
         let fs = self.rig.sample_rate_hz;
-        let mut pos = |sec: &'static str, key: &'static str, x: f64, what: &str| {
-            if !(x.is_finite() && x > 0.0) {
-                v.push((sec, key, format!("{what} must be finite and > 0 (got {x})")));
-            }
+        let mut v = Vec::new();
+        let rate_ok = fs.is_finite() && fs > 0.0;
+        let mut add = |section: &'static str, issues: Vec<(&'static str, String)>| {
+            v.extend(issues.into_iter().map(|(k, m)| (section, k, m)));
         };
-        pos("rig", "sample_rate_hz", fs, "sample rate");
-        let p = &self.plant;
-        for (k, x) in [
-            ("m_h", p.m_h),
-            ("m_v", p.m_v),
-            ("m_1", p.m_1),
-            ("m_2", p.m_2),
-        ] {
-            pos("plant", k, x, "mass");
-        }
-        for (k, x) in [
-            ("k_v", p.k_v),
-            ("k_1", p.k_1),
-            ("k_2", p.k_2),
-            ("k_f", p.k_f),
-        ] {
-            pos("plant", k, x, "stiffness");
-        }
-        let h = &self.haptuator;
-        pos(
-            "haptuator",
-            "drive_gain_n_per_v",
-            h.drive_gain_n_per_v,
-            "drive gain",
-        );
-        pos(
-            "haptuator",
-            "drive_corner_hz",
-            h.drive_corner_hz,
-            "drive corner",
-        );
-        pos("haptuator", "stroke_m", h.stroke_m, "stroke");
-        let a = &self.accelerometer;
-        pos("accelerometer", "range_g", a.range_g, "range");
-        let t = &self.tweezer;
-        pos("tweezer", "radius_m", t.radius_m, "bead radius");
-        pos("tweezer", "viscosity_pa_s", t.viscosity_pa_s, "viscosity");
-        pos("tweezer", "temperature_k", t.temperature_k, "temperature");
-        pos(
-            "tweezer",
-            "stiffness_n_per_m",
-            t.stiffness_n_per_m,
-            "trap stiffness",
-        );
-        pos(
-            "tweezer",
-            "escape_distance_m",
-            t.escape_distance_m,
-            "escape distance",
-        );
-        pos(
-            "tweezer",
-            "contact_range_m",
-            t.contact_range_m,
-            "contact range",
-        );
-        pos(
-            "tweezer",
-            "contact_stiffness_n_per_m",
-            t.contact_stiffness_n_per_m,
-            "contact stiffness",
-        );
-        let c = &self.coupling;
-        let l = &self.limits;
-        pos(
-            "limits",
-            "pantograph_force_max_n",
-            l.pantograph_force_max_n,
-            "force limit",
-        );
-        pos(
-            "limits",
-            "haptuator_drive_max_v",
-            l.haptuator_drive_max_v,
-            "drive limit",
-        );
-
-        let mut nonneg = |sec: &'static str, key: &'static str, x: f64| {
-            if !(x.is_finite() && x >= 0.0) {
-                v.push((sec, key, format!("must be finite and ≥ 0 (got {x})")));
-            }
-        };
-        nonneg("rig", "encoder_resolution_m", self.rig.encoder_resolution_m);
-        for (k, x) in [
-            ("b_v", p.b_v),
-            ("b_1", p.b_1),
-            ("b_2", p.b_2),
-            ("b_f", p.b_f),
-        ] {
-            nonneg("plant", k, x);
-        }
-        nonneg(
-            "haptuator",
-            "stop_stiffness_n_per_m",
-            h.stop_stiffness_n_per_m,
-        );
-        nonneg(
-            "haptuator",
-            "stop_damping_n_s_per_m",
-            h.stop_damping_n_s_per_m,
-        );
-        nonneg(
-            "accelerometer",
-            "noise_density_ug_per_rthz",
-            a.noise_density_ug_per_rthz,
-        );
-        nonneg("accelerometer", "lsb_m_s2", a.lsb_m_s2);
-        for (name, br) in [
-            ("motor_branch", &p.motor_branch),
-            ("link_branch", &p.link_branch),
+        add("rig", self.rig.issues());
+        add("plant", self.plant.issues());
+        for (section, br) in [
+            ("plant.motor_branch", &self.plant.motor_branch),
+            ("plant.link_branch", &self.plant.link_branch),
         ] {
             if let Some(b) = br {
-                let sec: &'static str = if name == "motor_branch" {
-                    "plant.motor_branch"
-                } else {
-                    "plant.link_branch"
-                };
-                if !(b.mass.is_finite() && b.mass > 0.0) {
-                    v.push((
-                        sec,
-                        "mass",
-                        format!("mass must be finite and > 0 (got {})", b.mass),
-                    ));
-                }
-                if !(b.stiffness.is_finite() && b.stiffness > 0.0) {
-                    v.push((
-                        sec,
-                        "stiffness",
-                        format!("stiffness must be finite and > 0 (got {})", b.stiffness),
-                    ));
-                }
-                if !(b.damping.is_finite() && b.damping >= 0.0) {
-                    v.push((
-                        sec,
-                        "damping",
-                        format!("must be finite and ≥ 0 (got {})", b.damping),
-                    ));
-                }
+                add(section, b.issues());
             }
         }
-        let nyq = 0.5 * fs;
+        add("haptuator", self.haptuator.issues(fs));
+        add("accelerometer", self.accelerometer.issues(fs));
+        add("tweezer", self.tweezer.issues());
+        for o in &self.tweezer.obstacles {
+            add("tweezer.obstacles", o.issues());
+        }
+        add("coupling", self.coupling.issues(fs));
+        add("limits", self.limits.issues());
+        if rate_ok {
+            add(
+                "safety",
+                self.safety
+                    .issue(fs)
+                    .into_iter()
+                    .map(|(k, _, m)| (k, m))
+                    .collect(),
+            );
+        }
+        add("stability", self.stability.issues());
+        v
+    }
+}
+
+/// A problem unless `x` is finite and > 0: "{what} must be finite and > 0".
+fn positive(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, what: &str) {
+    if !(x.is_finite() && x > 0.0) {
+        v.push((key, format!("{what} must be finite and > 0 (got {x})")));
+    }
+}
+
+/// A problem unless `x` is finite and ≥ 0.
+fn non_negative(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64) {
+    if !(x.is_finite() && x >= 0.0) {
+        v.push((key, format!("must be finite and ≥ 0 (got {x})")));
+    }
+}
+
+/// A problem unless `x` is a corner frequency in (0, fs/2) (skipped when
+/// `fs` itself is unusable: that is the `[rig]` section's problem).
+fn below_nyquist(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, fs: f64) {
+    let nyq = 0.5 * fs;
+    if fs.is_finite() && fs > 0.0 && x.is_finite() && x >= nyq {
+        v.push((key, format!("must be below Nyquist ({nyq} Hz), got {x}")));
+    }
+}
+
+impl RigSection {
+    /// Problems as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(&mut v, "sample_rate_hz", self.sample_rate_hz, "sample rate");
+        non_negative(&mut v, "encoder_resolution_m", self.encoder_resolution_m);
+        v
+    }
+}
+
+impl PlantConfig {
+    /// Problems of the masses, stiffnesses and dampings as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        for (k, x) in [
+            ("m_h", self.m_h),
+            ("m_v", self.m_v),
+            ("m_1", self.m_1),
+            ("m_2", self.m_2),
+        ] {
+            positive(&mut v, k, x, "mass");
+        }
+        for (k, x) in [
+            ("k_v", self.k_v),
+            ("k_1", self.k_1),
+            ("k_2", self.k_2),
+            ("k_f", self.k_f),
+        ] {
+            positive(&mut v, k, x, "stiffness");
+        }
+        for (k, x) in [
+            ("b_v", self.b_v),
+            ("b_1", self.b_1),
+            ("b_2", self.b_2),
+            ("b_f", self.b_f),
+        ] {
+            non_negative(&mut v, k, x);
+        }
+        v
+    }
+}
+
+impl BranchConfig {
+    /// Problems as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(&mut v, "mass", self.mass, "mass");
+        positive(&mut v, "stiffness", self.stiffness, "stiffness");
+        non_negative(&mut v, "damping", self.damping);
+        v
+    }
+}
+
+impl HaptuatorConfig {
+    /// Problems at sample rate `fs` as (key, message).
+    pub fn issues(&self, fs: f64) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(
+            &mut v,
+            "drive_gain_n_per_v",
+            self.drive_gain_n_per_v,
+            "drive gain",
+        );
+        positive(
+            &mut v,
+            "drive_corner_hz",
+            self.drive_corner_hz,
+            "drive corner",
+        );
+        below_nyquist(&mut v, "drive_corner_hz", self.drive_corner_hz, fs);
+        positive(&mut v, "stroke_m", self.stroke_m, "stroke");
+        non_negative(
+            &mut v,
+            "stop_stiffness_n_per_m",
+            self.stop_stiffness_n_per_m,
+        );
+        non_negative(
+            &mut v,
+            "stop_damping_n_s_per_m",
+            self.stop_damping_n_s_per_m,
+        );
+        v
+    }
+}
+
+impl AccelerometerConfig {
+    /// Problems at sample rate `fs` as (key, message).
+    pub fn issues(&self, fs: f64) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(&mut v, "range_g", self.range_g, "range");
+        non_negative(
+            &mut v,
+            "noise_density_ug_per_rthz",
+            self.noise_density_ug_per_rthz,
+        );
+        non_negative(&mut v, "lsb_m_s2", self.lsb_m_s2);
         if fs.is_finite() && fs > 0.0 {
-            if h.drive_corner_hz >= nyq {
-                v.push((
-                    "haptuator",
-                    "drive_corner_hz",
-                    format!(
-                        "must be below Nyquist ({nyq} Hz), got {}",
-                        h.drive_corner_hz
-                    ),
-                ));
-            }
-            for (i, fc) in a.corner_hz.iter().enumerate() {
+            let nyq = 0.5 * fs;
+            for (i, fc) in self.corner_hz.iter().enumerate() {
                 if !(fc.is_finite() && *fc > 0.0 && *fc < nyq) {
                     v.push((
-                        "accelerometer",
                         "corner_hz",
                         format!("axis {i}: corner must be in (0, {nyq}) Hz, got {fc}"),
                     ));
                 }
             }
-            if let PMode::Lowpass { hz } = c.p_mode
+        }
+        if self.static_m_s2.iter().any(|x| !x.is_finite()) {
+            v.push(("static_m_s2", "must be finite".into()));
+        }
+        v
+    }
+}
+
+impl TweezerConfig {
+    /// Problems as (key, message) (the obstacles check themselves).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(&mut v, "radius_m", self.radius_m, "bead radius");
+        positive(&mut v, "viscosity_pa_s", self.viscosity_pa_s, "viscosity");
+        positive(&mut v, "temperature_k", self.temperature_k, "temperature");
+        positive(
+            &mut v,
+            "stiffness_n_per_m",
+            self.stiffness_n_per_m,
+            "trap stiffness",
+        );
+        positive(
+            &mut v,
+            "escape_distance_m",
+            self.escape_distance_m,
+            "escape distance",
+        );
+        positive(
+            &mut v,
+            "contact_range_m",
+            self.contact_range_m,
+            "contact range",
+        );
+        positive(
+            &mut v,
+            "contact_stiffness_n_per_m",
+            self.contact_stiffness_n_per_m,
+            "contact stiffness",
+        );
+        if let Some(hw) = self.wall_distance_m
+            && !(hw.is_finite() && hw > self.radius_m)
+        {
+            v.push((
+                "wall_distance_m",
+                format!("must exceed the bead radius {} m (got {hw})", self.radius_m),
+            ));
+        }
+        v
+    }
+}
+
+impl ObstacleConfig {
+    /// Problems as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        if self.radius_m.is_finite()
+            && self.radius_m > 0.0
+            && self.x_m.is_finite()
+            && self.y_m.is_finite()
+        {
+            Vec::new()
+        } else {
+            vec![("radius_m", format!("obstacle {self:?} is invalid"))]
+        }
+    }
+}
+
+impl CouplingConfig {
+    /// Problems at sample rate `fs` as (key, message).
+    pub fn issues(&self, fs: f64) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        let nyq = 0.5 * fs;
+        if fs.is_finite() && fs > 0.0 {
+            if let PMode::Lowpass { hz } = self.p_mode
                 && !(hz.is_finite() && hz > 0.0 && hz < nyq)
             {
                 v.push((
-                    "coupling",
                     "p_mode",
                     format!("the low-pass corner must be in (0, {nyq}) Hz, got {hz}"),
                 ));
             }
-            let fv = c.velocity_filter_hz;
+            let fv = self.velocity_filter_hz;
             if !(fv.is_finite() && fv > 0.0 && fv < nyq) {
                 v.push((
-                    "coupling",
                     "velocity_filter_hz",
                     format!("must be in (0, {nyq}) Hz, got {fv}"),
                 ));
             }
         }
-        if a.static_m_s2.iter().any(|x| !x.is_finite()) {
-            v.push(("accelerometer", "static_m_s2", "must be finite".into()));
+        if !(self.position_scale.is_finite() && self.position_scale != 0.0) {
+            v.push(("position_scale", "must be finite and non-zero".into()));
         }
-        if let Some(hw) = t.wall_distance_m
-            && !(hw.is_finite() && hw > t.radius_m)
-        {
+        if !self.force_scale.is_finite() {
+            v.push(("force_scale", "must be finite".into()));
+        }
+        if let Some(hz) = self.pantograph_band_hz {
             v.push((
-                "tweezer",
-                "wall_distance_m",
-                format!("must exceed the bead radius {} m (got {hw})", t.radius_m),
-            ));
-        }
-        for o in &t.obstacles {
-            if !(o.radius_m.is_finite()
-                && o.radius_m > 0.0
-                && o.x_m.is_finite()
-                && o.y_m.is_finite())
-            {
-                v.push((
-                    "tweezer.obstacles",
-                    "radius_m",
-                    format!("obstacle {o:?} is invalid"),
-                ));
-            }
-        }
-        if !(c.position_scale.is_finite() && c.position_scale != 0.0) {
-            v.push((
-                "coupling",
-                "position_scale",
-                "must be finite and non-zero".into(),
-            ));
-        }
-        if !c.force_scale.is_finite() {
-            v.push(("coupling", "force_scale", "must be finite".into()));
-        }
-        if let Some(hz) = c.pantograph_band_hz {
-            v.push((
-                "coupling",
                 "pantograph_band_hz",
                 format!(
                     "was removed: P's signal is now `p_mode` (\"full-band\", \"low-channel\", or \
@@ -738,37 +779,47 @@ impl RigConfig {
                 ),
             ));
         }
-        let d = c.contact_damping_n_s_per_m;
+        let d = self.contact_damping_n_s_per_m;
         if !(d.is_finite() && (0.0..=1e4).contains(&d)) {
             v.push((
-                "coupling",
                 "contact_damping_n_s_per_m",
                 format!("must be in [0, 10000] N·s/m (got {d})"),
             ));
         }
-        for (key, x) in self.stability.issues() {
-            v.push(("stability", key, x));
-        }
         for i in 0..2 {
-            if !(c.trap_min_m[i].is_finite()
-                && c.trap_max_m[i].is_finite()
-                && c.trap_min_m[i] < c.trap_max_m[i])
+            if !(self.trap_min_m[i].is_finite()
+                && self.trap_max_m[i].is_finite()
+                && self.trap_min_m[i] < self.trap_max_m[i])
             {
                 v.push((
-                    "coupling",
                     "trap_min_m",
                     format!("axis {i}: need trap_min_m < trap_max_m"),
                 ));
             }
-            if !(c.handle_origin_m[i].is_finite() && c.trap_offset_m[i].is_finite()) {
-                v.push(("coupling", "trap_offset_m", "must be finite".into()));
+            if !(self.handle_origin_m[i].is_finite() && self.trap_offset_m[i].is_finite()) {
+                v.push(("trap_offset_m", "must be finite".into()));
             }
         }
-        if fs.is_finite() && fs > 0.0 {
-            for (key, _, message) in self.safety.issue(fs) {
-                v.push(("safety", key, message));
-            }
-        }
+        v
+    }
+}
+
+impl LimitsConfig {
+    /// Problems as (key, message).
+    pub fn issues(&self) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        positive(
+            &mut v,
+            "pantograph_force_max_n",
+            self.pantograph_force_max_n,
+            "force limit",
+        );
+        positive(
+            &mut v,
+            "haptuator_drive_max_v",
+            self.haptuator_drive_max_v,
+            "drive limit",
+        );
         v
     }
 }
