@@ -115,44 +115,47 @@ pub struct PressTrace {
     pub handle_m: Vec<f64>,
 }
 
-/// Simulate a press (module docs) with `chain`, armed by `clearance`.
-///
-/// # Errors
-/// Invalid options or configuration; rig errors.
-pub fn simulate_press(
-    cfg: &RigConfig,
-    chain: &LoopChain,
-    clearance: Clearance,
-    opts: &PressOptions,
-) -> Result<(PressReport, PressTrace), RigError> {
+/// Where the hand goes: the scenario's geometry (module docs).
+#[derive(Debug, Clone)]
+struct Scenario {
+    /// The rig file with the press's seeds, condition and one obstacle.
+    cfg: RigConfig,
+    /// Pressing direction in handle space (unit).
+    uh: [f64; 2],
+    /// Hand at rest and pressed, m.
+    hand_start: [f64; 2],
+    hand_end: [f64; 2],
+    /// g·κ·k_c/(κ + k_c)·depth, N.
+    expected_n: f64,
+}
+
+/// Check the options and lay out the scenario: the first obstacle of the
+/// rig file (or one at (12, 0) µm, radius 5 µm), the line from the rest trap
+/// to its centre, the trap `depth` past contact, the finger's static
+/// deflection added to the hand.
+fn scenario(cfg: &RigConfig, opts: &PressOptions) -> Result<Scenario, RigError> {
     if !opts.condition.haptic() {
         return Err(RigError::InvalidInput(
             "press needs a haptic condition (P or D)".into(),
         ));
     }
     let d = opts.duration_s;
-    if !(d.is_finite() && (APPROACH_S + SETTLE_S + 5.0 * WINDOW_S..=MAX_DURATION_S).contains(&d)) {
+    let shortest = APPROACH_S + SETTLE_S + 5.0 * WINDOW_S;
+    if !(d.is_finite() && (shortest..=MAX_DURATION_S).contains(&d)) {
         return Err(RigError::InvalidParameter {
             name: "duration",
             value: d,
-            reason: format!(
-                "must be in [{}, {MAX_DURATION_S}] s",
-                APPROACH_S + SETTLE_S + 5.0 * WINDOW_S
-            ),
+            reason: format!("must be in [{shortest}, {MAX_DURATION_S}] s"),
         });
     }
-    let t = &cfg.tweezer;
-    if !(opts.depth_m.is_finite() && opts.depth_m > 0.0 && opts.depth_m < t.escape_distance_m) {
+    let esc = cfg.tweezer.escape_distance_m;
+    if !(opts.depth_m.is_finite() && opts.depth_m > 0.0 && opts.depth_m < esc) {
         return Err(RigError::InvalidParameter {
             name: "depth",
             value: opts.depth_m,
-            reason: format!(
-                "must be in (0, {}) m (the escape distance)",
-                t.escape_distance_m
-            ),
+            reason: format!("must be in (0, {esc}) m (the escape distance)"),
         });
     }
-    let fs = cfg.rig.sample_rate_hz;
     let mut cfg = cfg.clone();
     let mut seeds = rand_xoshiro::SplitMix64::seed_from_u64(opts.seed);
     cfg.accelerometer.seed = seeds.next_u64();
@@ -184,22 +187,38 @@ pub fn simulate_press(
         ));
     }
     let (kappa, kc) = (params.stiffness_n_per_m, params.contact_stiffness_n_per_m);
-    let expected = cfg.coupling.force_scale * kappa * kc / (kappa + kc) * opts.depth_m;
-    // Handle-space pressing direction and the finger's static deflection.
+    let expected_n = cfg.coupling.force_scale * kappa * kc / (kappa + kc) * opts.depth_m;
     let uh = [u[0] * mapping.scale.signum(), u[1] * mapping.scale.signum()];
-    let hand_start = mapping.to_hand(rest);
     let push = mapping.to_hand(trap_end);
-    let defl = expected / cfg.plant.k_f;
-    let hand_end = [push[0] + uh[0] * defl, push[1] + uh[1] * defl];
-
+    let defl = expected_n / cfg.plant.k_f;
     cfg.tweezer.obstacles = vec![ObstacleConfig {
         x_m: obstacle.centre_m[0],
         y_m: obstacle.centre_m[1],
         radius_m: obstacle.radius_m,
     }];
-    let mut lp = HapticLoop::simulated(&cfg, chain, clearance)?;
+    Ok(Scenario {
+        cfg,
+        uh,
+        hand_start: mapping.to_hand(rest),
+        hand_end: [push[0] + uh[0] * defl, push[1] + uh[1] * defl],
+        expected_n,
+    })
+}
 
-    let n = crate::round_half_away(d * fs) as usize;
+/// Simulate a press (module docs) with `chain`, armed by `clearance`.
+///
+/// # Errors
+/// Invalid options or configuration; rig errors.
+pub fn simulate_press(
+    cfg: &RigConfig,
+    chain: &LoopChain,
+    clearance: Clearance,
+    opts: &PressOptions,
+) -> Result<(PressReport, PressTrace), RigError> {
+    let sc = scenario(cfg, opts)?;
+    let fs = sc.cfg.rig.sample_rate_hz;
+    let mut lp = HapticLoop::simulated(&sc.cfg, chain, clearance)?;
+    let n = crate::round_half_away(opts.duration_s * fs) as usize;
     let n_approach = crate::round_half_away(APPROACH_S * fs) as usize;
     let mut trace = PressTrace::default();
     for v in [
@@ -210,32 +229,29 @@ pub fn simulate_press(
     ] {
         v.reserve_exact(n);
     }
+    let (uh, h0, h1) = (sc.uh, sc.hand_start, sc.hand_end);
     let mut escaped = false;
     let mut contact = Vec::with_capacity(n);
     for k in 0..n {
         let a = ((k + 1) as f64 / n_approach as f64).min(1.0);
         // Smooth (raised-cosine) approach: no velocity step at either end.
         let w = 0.5 - 0.5 * (std::f64::consts::PI * a).cos();
-        lp.rig.set_hand([
-            hand_start[0] + w * (hand_end[0] - hand_start[0]),
-            hand_start[1] + w * (hand_end[1] - hand_start[1]),
-        ]);
+        lp.rig
+            .set_hand([h0[0] + w * (h1[0] - h0[0]), h0[1] + w * (h1[1] - h0[1])]);
         let s = lp.step()?;
         let r = s.rendered;
         let f = [r.image_n[0] + r.damping_n[0], r.image_n[1] + r.damping_n[1]];
         trace.t_s.push(k as f64 / fs);
         trace.force_n.push(-(f[0] * uh[0] + f[1] * uh[1]));
         trace.gap_m.push(s.tweezer.gap_m);
-        trace
-            .handle_m
-            .push(s.sensors.handle_m[0] * uh[0] + s.sensors.handle_m[1] * uh[1]);
+        let hm = s.sensors.handle_m;
+        trace.handle_m.push(hm[0] * uh[0] + hm[1] * uh[1]);
         escaped |= !s.tweezer.trapped;
         contact.push(s.tweezer.in_contact);
     }
-    let start = crate::round_half_away((APPROACH_S + SETTLE_S) * fs) as usize;
+    let start = (crate::round_half_away((APPROACH_S + SETTLE_S) * fs) as usize).min(n);
     let (mean, osc_rms, growth) = envelope(&trace.force_n, start, fs);
-    let cf = contact[start.min(n)..].iter().filter(|c| **c).count() as f64
-        / (n - start.min(n)).max(1) as f64;
+    let cf = contact[start..].iter().filter(|c| **c).count() as f64 / (n - start).max(1) as f64;
     let stable = !escaped
         && growth.is_finite()
         && growth <= MAX_GROWTH_DB_PER_S
@@ -250,8 +266,8 @@ pub fn simulate_press(
             contact_fraction: cf,
             condition: opts.condition,
             chain: chain.source.describe(),
-            duration_s: d,
-            expected_force_n: expected,
+            duration_s: opts.duration_s,
+            expected_force_n: sc.expected_n,
             passivity_active_samples: lp.coupling.counters().passivity_active,
         },
         trace,
