@@ -11,3 +11,4 @@ pub mod engine;
 pub mod gui;
 pub mod output;
 pub mod session;
+pub mod tweezer_sim;

@@ -5,7 +5,8 @@
 //! motion"): IIR filters in second-order sections, Butterworth/bilinear design,
 //! the Linkwitz–Riley crossover, the channel compensators C_L and C_H (§3.3),
 //! the per-sample signal chain of Fig. 6, excitation signals, Welch spectral
-//! estimation, continuous-time model fitting and third-octave analysis.
+//! estimation, continuous-time model fitting, third-octave analysis and the
+//! (aliased) Lorentzian spectrum of a trapped bead with its fit.
 //!
 //! This crate does no I/O. All coefficients and filter state are `f64`.
 //! Frequencies are in hertz unless a name says otherwise (`_rad_s` = rad/s);
@@ -28,6 +29,7 @@ pub mod excitation;
 pub mod spectral;
 
 pub mod fit;
+pub mod lorentzian;
 pub mod thirdoctave;
 
 pub use error::DspError;

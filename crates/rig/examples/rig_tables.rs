@@ -14,7 +14,7 @@ use kilotouch_rig::lti::{self, Integrator};
 use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL, OUT_MOTOR};
 use kilotouch_rig::plant::{AxisSim, DualStagePlant, NU, NX, PlantInput};
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer};
-use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams, TweezerSimArgs, simulate_tweezer};
+use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams};
 use nalgebra::SVector;
 use std::hint::black_box;
 
@@ -284,24 +284,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for r in [0.01, 0.1, 0.5, 1.0, 1.5, 1.9] {
         let fs = 1.0 / (r * tau);
         let n = if r < 0.05 { 4_000_000.0 } else { 1_000_000.0 };
-        let base = TweezerSimArgs {
-            fs_hz: fs,
-            duration_s: n / fs,
-            seed: 3,
-            ..TweezerSimArgs::default()
-        };
-        let ex = simulate_tweezer(&base)?;
-        let em = simulate_tweezer(&TweezerSimArgs {
-            integrator: TweezerIntegrator::Euler,
-            ..base.clone()
-        })?;
-        let v = |rep: &kilotouch_rig::tweezer::TweezerSimReport| {
-            0.5 * (rep.var_x_m2 + rep.var_y_m2) / rep.var_theory_m2
+        let v = |integrator| -> Result<f64, Box<dyn std::error::Error>> {
+            let p = TweezerParams {
+                integrator,
+                escape_distance_m: f64::MAX,
+                seed: 3,
+                ..TweezerParams::paper_default()
+            };
+            let var_theory = p.variance_theory();
+            let mut tw = SimTweezer::new(p, fs)?;
+            tw.start_stationary();
+            let (mut s, mut s2) = ([0.0; 2], [0.0; 2]);
+            for _ in 0..n as usize {
+                let b = tw.step([0.0, 0.0]).bead_m;
+                for i in 0..2 {
+                    s[i] += b[i];
+                    s2[i] += b[i] * b[i];
+                }
+            }
+            let var = |i: usize| (s2[i] - s[i] * s[i] / n) / (n - 1.0);
+            Ok(0.5 * (var(0) + var(1)) / var_theory)
         };
         println!(
             "| {r} | {n:.0e} | {:.4} | {:.4} | {:.4} |",
-            v(&ex),
-            v(&em),
+            v(TweezerIntegrator::Exact)?,
+            v(TweezerIntegrator::Euler)?,
             1.0 / (1.0 - 0.5 * r)
         );
     }

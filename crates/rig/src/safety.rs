@@ -89,13 +89,10 @@ pub use crate::config::{MAX_VELOCITY_SPAN, MAX_WATCHDOG_WINDOW};
 /// Ring length of the velocity estimator (> L + 1, power of two).
 const RING: usize = 256;
 
-/// ‖(x, y)‖₂ as √(x² + y²): several times cheaper than `f64::hypot` (a
-/// libm call). Callers pass values bounded by the limits (no overflow) or
-/// accept +∞ for |x| ≳ 1e154 (a huge command or speed, which the comparisons
-/// then treat as too large, correctly).
-#[inline]
+/// ‖(x, y)‖₂ ([`crate::lanes::norm2`]).
+#[inline(always)]
 fn norm2(x: f64, y: f64) -> f64 {
-    (x * x + y * y).sqrt()
+    crate::lanes::norm2([x, y])
 }
 
 /// Hard (stateless) actuator limits.

@@ -1,11 +1,12 @@
 //! `kilotouch sim …`: the simulated rig's models, headless.
 
 use crate::output::{db, emit, parse_freqs, wrap_deg};
+use crate::tweezer_sim::{TweezerSimArgs, simulate_tweezer};
 use clap::Subcommand;
 use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::plant::Channel;
 use kilotouch_rig::sim::simulate_frf;
-use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerSimArgs, simulate_tweezer};
+use kilotouch_rig::tweezer::TweezerIntegrator;
 use serde::Serialize;
 use std::path::PathBuf;
 

@@ -7,8 +7,6 @@ use crate::error::RigError;
 use crate::plant::{Axis, AxisModel, Channel};
 use serde::{Deserialize, Serialize};
 
-pub use crate::tweezer::{TweezerSimArgs, TweezerSimReport, simulate_tweezer};
-
 /// One point of a frequency response.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FrfPoint {

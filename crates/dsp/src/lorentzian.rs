@@ -2,7 +2,7 @@
 //!
 //! For the exact (Ornstein–Uhlenbeck) sampled process x\[n+1\] = c x\[n\] + σ ξ,
 //! c = e^{−x}, x = 2π f_c/f_s, the two-sided PSD is the *aliased Lorentzian*
-//! (Berg-Sørensen & Flyvbjerg 2004, eq. 4; REFERENCE-VALUES.md)
+//! (Berg-Sørensen & Flyvbjerg 2004, eq. 4; docs/REFERENCE-VALUES.md)
 //!
 //! P₂(f) = (D/(2π f_c f_s)) · sinh x / (cosh x − cos(2π f/f_s)),
 //!
@@ -17,7 +17,7 @@
 //! leaves a 1-D search over ln f_c (grid scan, then golden section). Unlike
 //! least squares on relative residuals, this has no O(1/K) bias.
 
-use crate::error::RigError;
+use crate::error::DspError;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -57,16 +57,16 @@ pub fn fit_aliased_lorentzian(
     fs: f64,
     f_lo: f64,
     f_hi: f64,
-) -> Result<LorentzianFit, RigError> {
+) -> Result<LorentzianFit, DspError> {
     if f.len() != psd.len() {
-        return Err(RigError::InvalidInput(format!(
+        return Err(DspError::InvalidInput(format!(
             "f and psd differ in length ({} vs {})",
             f.len(),
             psd.len()
         )));
     }
     if !(fs.is_finite() && fs > 0.0) {
-        return Err(RigError::InvalidParameter {
+        return Err(DspError::InvalidParameter {
             name: "fs",
             value: fs,
             reason: "must be finite and > 0".into(),
@@ -79,7 +79,7 @@ pub fn fit_aliased_lorentzian(
         .map(|(a, b)| (*a, *b))
         .collect();
     if pts.len() < 8 {
-        return Err(RigError::InvalidInput(format!(
+        return Err(DspError::InvalidInput(format!(
             "only {} usable bins in [{f_lo}, {f_hi}] Hz",
             pts.len()
         )));
@@ -135,7 +135,7 @@ pub fn fit_aliased_lorentzian(
     let t = 0.5 * (a + b);
     let (v, dhat) = objective(t);
     if !(v.is_finite() && dhat.is_finite() && dhat > 0.0) {
-        return Err(RigError::Numerical(
+        return Err(DspError::Numerical(
             "Lorentzian fit did not converge".into(),
         ));
     }

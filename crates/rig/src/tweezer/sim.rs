@@ -1,354 +1,20 @@
-//! Optical tweezer: an overdamped Brownian bead in a harmonic trap
-//! (paper §4.1, eqs. 4–6), with a coverslip wall, fixed spherical obstacles,
-//! contact and escape.
-//!
-//! **Model.** The bead's inertia is dropped: m/γ₀ ≈ 1 µs for a 3 µm glass
-//! bead in water, two orders of magnitude below the 100 µs sample period
-//! (the paper quotes ≈2 µs and drops it too, eq. 6). In each direction i of
-//! a frame in which the drag is diagonal,
-//!
-//! γ_i ẋ_i = −k_i (x_i − e_i(t)) + γ_i v_d,i + √(2 k_B T γ_i) ξ_i(t),
-//!
-//! with k_i the trap stiffness κ (plus the contact stiffness along the
-//! obstacle normal inside the contact zone), e_i the equilibrium (trap
-//! position, moving linearly over a step) and v_d the Itô drift
-//! k_B T ∂(1/γ_⊥)/∂h along the normal near an obstacle.
-//!
-//! **Exact step.** With γ_i frozen over a (sub)step h, c = e^{−h/τ},
-//! τ = γ_i/k_i, w = ė_i:
-//! x(h) = e(h) + c (x₀ − e(0)) + (v_d − w) τ (1 − c) + √((k_BT/k_i)(1 − c²)) N(0,1),
-//! the exact Ornstein–Uhlenbeck transition (REFERENCE-VALUES.md), stable for
-//! every h. Euler–Maruyama is available for comparison (biased variance
-//! (k_BT/κ)/(1 − h/2τ), unstable for h > 2τ).
-//!
-//! **Drag.** Stokes γ₀ = 6πηR. A coverslip at centre distance H scales the
-//! in-plane drag by Faxén's parallel factor. Near an obstacle (surface at
-//! distance h from the bead centre along the normal n) the drag along n is
-//! Brenner's (Schäffer et al. 2007 approximation) and along the tangent
-//! Faxén's, both treating the obstacle surface as locally plane; the nearest
-//! obstacle only; wall and obstacle factors multiply. h is clamped at
-//! h/R ≥ 1.1 ([`DRAG_CLAMP_GAP_OVER_R`]) near contact, and the Itô drift is
-//! zero inside the clamp.
-//!
-//! **Contact.** A short-range linear repulsion k_c (δ − g) along n for a
-//! surface gap g < δ; sub-steps (more when the trap moves fast or the bead
-//! is close) keep each move below a fraction of δ and of the gap, and a
-//! reflecting boundary at g = 0 guarantees that nothing tunnels.
-//!
-//! **Escape.** Beyond `escape_distance` from the trap centre (the linear
-//! range, default ≈ R) the bead is lost: no optical force, free diffusion,
-//! until the trap comes back within half that distance (recapture).
+//! The simulated tweezer ([`SimTweezer`]): the exact step of the module
+//! docs of [`super`], with sub-steps in contact, the reflecting boundary,
+//! escape and recapture; and its two fast paths (free space; near an
+//! obstacle with the tabulated coefficients) that must equal the general
+//! path (free space bit for bit; near an obstacle within the table's error).
 
-use crate::config::TweezerConfig;
+use super::drag::{
+    DRAG_CLAMP_GAP_OVER_R, faxen_parallel_mobility, perpendicular_mobility,
+    perpendicular_mobility_ds,
+};
+use super::table::DragTable;
+use super::{
+    MAX_SUBSTEPS, Obstacle, Tweezer, TweezerEvents, TweezerIntegrator, TweezerParams, TweezerSample,
+};
 use crate::error::RigError;
+use crate::lanes::{l2_add, l2_mul, l2_sub, norm2};
 use crate::normal::NormalStream;
-use serde::{Deserialize, Serialize};
-use std::f64::consts::PI;
-
-/// Boltzmann constant, J/K (exact, SI 2019).
-pub const BOLTZMANN: f64 = 1.380_649e-23;
-
-/// Largest number of sub-steps per sample: bounds the worst-case cost of a
-/// sample (≈ 40 µs, within the 100 µs period at 10 kHz). When the cap binds
-/// (trap moving > ~0.6 µm per sample next to an obstacle) the contact zone is
-/// resolved more coarsely; the reflecting boundary still prevents overlap.
-pub const MAX_SUBSTEPS: u32 = 128;
-
-/// Clamp of the drag formulas near contact: the surface distance h used in
-/// Faxén/Brenner is at least (1 + this)·R, i.e. h/R ≥ 1.1, the range in which
-/// Schäffer's approximation is validated (and the scale of surface
-/// roughness below which lubrication theory stops applying).
-pub const DRAG_CLAMP_GAP_OVER_R: f64 = 0.1;
-
-/// Stokes drag of a sphere, γ₀ = 6π η R (N·s/m).
-pub fn stokes_drag(viscosity_pa_s: f64, radius_m: f64) -> f64 {
-    6.0 * PI * viscosity_pa_s * radius_m
-}
-
-/// Faxén's parallel wall correction γ∥/γ₀ for s = R/h (h = centre–wall
-/// distance): 1/(1 − 9/16 s + 1/8 s³ − 45/256 s⁴ − 1/16 s⁵).
-pub fn faxen_parallel(s: f64) -> f64 {
-    1.0 / faxen_parallel_mobility(s)
-}
-
-/// Parallel mobility ratio γ₀/γ∥ = 1/[`faxen_parallel`] (Faxén's series).
-#[inline]
-fn faxen_parallel_mobility(s: f64) -> f64 {
-    1.0 - 9.0 / 16.0 * s + 0.125 * s.powi(3) - 45.0 / 256.0 * s.powi(4) - 0.0625 * s.powi(5)
-}
-
-/// Perpendicular mobility ratio γ₀/γ⊥ (Schäffer et al. 2007 approximation
-/// of Brenner's series), s = R/h.
-pub fn perpendicular_mobility(s: f64) -> f64 {
-    1.0 - 9.0 / 8.0 * s + 0.5 * s.powi(3) - 0.57 * s.powi(4)
-        + 0.2 * s.powi(5)
-        + 7.0 / 200.0 * s.powi(11)
-        - 0.04 * s.powi(12)
-}
-
-/// d/ds of [`perpendicular_mobility`].
-pub fn perpendicular_mobility_ds(s: f64) -> f64 {
-    -9.0 / 8.0 + 1.5 * s * s - 2.28 * s.powi(3) + s.powi(4) + 77.0 / 200.0 * s.powi(10)
-        - 0.48 * s.powi(11)
-}
-
-/// Brenner's perpendicular wall correction γ⊥/γ₀ (Schäffer's approximation,
-/// within 0.1 % of the exact series for h/R ≥ 1.1), s = R/h.
-pub fn brenner_perpendicular(s: f64) -> f64 {
-    1.0 / perpendicular_mobility(s)
-}
-
-/// Bead integrator.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TweezerIntegrator {
-    /// Exact Ornstein–Uhlenbeck transition (default).
-    Exact,
-    /// Euler–Maruyama (comparison only).
-    Euler,
-}
-
-impl std::str::FromStr for TweezerIntegrator {
-    type Err = RigError;
-    fn from_str(s: &str) -> Result<Self, RigError> {
-        match s {
-            "exact" => Ok(Self::Exact),
-            "euler" => Ok(Self::Euler),
-            _ => Err(RigError::InvalidInput(format!(
-                "unknown integrator `{s}` (expected exact|euler)"
-            ))),
-        }
-    }
-}
-
-/// A fixed spherical obstacle whose centre lies in the focal plane.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Obstacle {
-    /// Centre (x, y), m.
-    pub centre_m: [f64; 2],
-    /// Radius, m.
-    pub radius_m: f64,
-}
-
-/// Physical and numerical parameters of the simulated tweezer.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TweezerParams {
-    /// Bead radius R, m.
-    pub radius_m: f64,
-    /// Dynamic viscosity η, Pa·s.
-    pub viscosity_pa_s: f64,
-    /// Temperature T, K.
-    pub temperature_k: f64,
-    /// Trap stiffness κ, N/m.
-    pub stiffness_n_per_m: f64,
-    /// Bead-centre to coverslip distance H, m (None: no wall).
-    pub wall_distance_m: Option<f64>,
-    /// Trap linear range, m (escape beyond it).
-    pub escape_distance_m: f64,
-    /// Contact range δ, m.
-    pub contact_range_m: f64,
-    /// Contact stiffness k_c, N/m.
-    pub contact_stiffness_n_per_m: f64,
-    /// Obstacles.
-    pub obstacles: Vec<Obstacle>,
-    /// Integrator.
-    pub integrator: TweezerIntegrator,
-    /// Apply the Itô drift k_BT ∂(1/γ⊥)/∂h near obstacles (disable only to
-    /// demonstrate the artefact).
-    pub ito_drift: bool,
-    /// RNG seed.
-    pub seed: u64,
-}
-
-impl TweezerParams {
-    /// Paper defaults: R = 1.5 µm glass bead in water at 20 °C, κ = 20 pN/µm,
-    /// no wall, no obstacles.
-    pub fn paper_default() -> Self {
-        Self {
-            radius_m: 1.5e-6,
-            viscosity_pa_s: 1.0016e-3,
-            temperature_k: 293.15,
-            stiffness_n_per_m: 2.0e-5,
-            wall_distance_m: None,
-            escape_distance_m: 1.5e-6,
-            contact_range_m: 2.0e-8,
-            contact_stiffness_n_per_m: 2.0e-3,
-            obstacles: Vec::new(),
-            integrator: TweezerIntegrator::Exact,
-            ito_drift: true,
-            seed: 0,
-        }
-    }
-
-    /// From the `[tweezer]` section of a rig file.
-    pub fn from_config(c: &TweezerConfig) -> Self {
-        Self {
-            radius_m: c.radius_m,
-            viscosity_pa_s: c.viscosity_pa_s,
-            temperature_k: c.temperature_k,
-            stiffness_n_per_m: c.stiffness_n_per_m,
-            wall_distance_m: c.wall_distance_m,
-            escape_distance_m: c.escape_distance_m,
-            contact_range_m: c.contact_range_m,
-            contact_stiffness_n_per_m: c.contact_stiffness_n_per_m,
-            obstacles: c
-                .obstacles
-                .iter()
-                .map(|o| Obstacle {
-                    centre_m: [o.x_m, o.y_m],
-                    radius_m: o.radius_m,
-                })
-                .collect(),
-            integrator: TweezerIntegrator::Exact,
-            ito_drift: true,
-            seed: c.seed,
-        }
-    }
-
-    /// Check every parameter.
-    pub fn validate(&self) -> Result<(), RigError> {
-        let pos = |name: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                })
-            }
-        };
-        pos("radius_m", self.radius_m)?;
-        pos("viscosity_pa_s", self.viscosity_pa_s)?;
-        pos("temperature_k", self.temperature_k)?;
-        pos("stiffness_n_per_m", self.stiffness_n_per_m)?;
-        pos("escape_distance_m", self.escape_distance_m)?;
-        pos("contact_range_m", self.contact_range_m)?;
-        pos("contact_stiffness_n_per_m", self.contact_stiffness_n_per_m)?;
-        if let Some(h) = self.wall_distance_m
-            && !(h.is_finite() && h > self.radius_m)
-        {
-            return Err(RigError::InvalidParameter {
-                name: "wall_distance_m",
-                value: h,
-                reason: format!("must exceed the bead radius {} m", self.radius_m),
-            });
-        }
-        for o in &self.obstacles {
-            if !(o.radius_m.is_finite()
-                && o.radius_m > 0.0
-                && o.centre_m.iter().all(|v| v.is_finite()))
-            {
-                return Err(RigError::InvalidParameter {
-                    name: "obstacles",
-                    value: o.radius_m,
-                    reason: "obstacle radius must be > 0 and centre finite".into(),
-                });
-            }
-        }
-        Ok(())
-    }
-
-    /// k_B T, J.
-    pub fn kt(&self) -> f64 {
-        BOLTZMANN * self.temperature_k
-    }
-
-    /// Stokes drag γ₀, N·s/m.
-    pub fn gamma0(&self) -> f64 {
-        stokes_drag(self.viscosity_pa_s, self.radius_m)
-    }
-
-    /// Faxén factor of the coverslip (1 without wall).
-    pub fn wall_factor(&self) -> f64 {
-        self.wall_distance_m
-            .map_or(1.0, |h| faxen_parallel(self.radius_m / h))
-    }
-
-    /// In-plane drag far from obstacles, N·s/m.
-    pub fn gamma_free(&self) -> f64 {
-        self.gamma0() * self.wall_factor()
-    }
-
-    /// Corner frequency f_c = κ/(2πγ) far from obstacles, Hz.
-    pub fn corner_hz(&self) -> f64 {
-        self.stiffness_n_per_m / (2.0 * PI * self.gamma_free())
-    }
-
-    /// Diffusion coefficient D = k_BT/γ far from obstacles, m²/s.
-    pub fn diffusion(&self) -> f64 {
-        self.kt() / self.gamma_free()
-    }
-
-    /// Equipartition variance k_BT/κ per axis, m².
-    pub fn variance_theory(&self) -> f64 {
-        self.kt() / self.stiffness_n_per_m
-    }
-
-    /// Relaxation time τ = γ/κ, s.
-    pub fn tau(&self) -> f64 {
-        self.gamma_free() / self.stiffness_n_per_m
-    }
-}
-
-/// Events of one sample.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TweezerEvents {
-    /// The bead entered an obstacle's contact zone.
-    pub contact_start: bool,
-    /// The bead left the contact zone (with hysteresis, 3δ).
-    pub contact_end: bool,
-    /// The bead left the trap's linear range and is lost.
-    pub escaped: bool,
-    /// A lost bead was recaptured by the trap.
-    pub recaptured: bool,
-}
-
-impl TweezerEvents {
-    /// True if any event fired.
-    pub fn any(&self) -> bool {
-        self.contact_start || self.contact_end || self.escaped || self.recaptured
-    }
-}
-
-/// One sample of tweezer output.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct TweezerSample {
-    /// Bead centre (x, y), m.
-    pub bead_m: [f64; 2],
-    /// Trap centre (x, y), m.
-    pub trap_m: [f64; 2],
-    /// Optical force on the bead κ(trap − bead), N (0 when lost).
-    pub force_n: [f64; 2],
-    /// Surface gap to the nearest obstacle, m (∞ without obstacles).
-    pub gap_m: f64,
-    /// Unit normal of the nearest obstacle's surface at the bead (from the
-    /// obstacle's centre toward the bead); zero without obstacles.
-    pub normal: [f64; 2],
-    /// Inside an obstacle's contact zone.
-    pub in_contact: bool,
-    /// Bead held by the trap.
-    pub trapped: bool,
-    /// Events of this sample.
-    pub events: TweezerEvents,
-    /// Sub-steps used.
-    pub substeps: u32,
-}
-
-/// An optical tweezer driven at the loop rate: trap position in, bead
-/// position, optical force and events out. Implemented by [`SimTweezer`]
-/// now and by live tweezers later.
-pub trait Tweezer {
-    /// Loop sample rate, Hz.
-    fn sample_rate_hz(&self) -> f64;
-    /// Trap stiffness κ, N/m.
-    fn stiffness_n_per_m(&self) -> f64;
-    /// Move the trap to `trap_m` (linearly over the sample period) and
-    /// advance one sample. Must not allocate, lock or panic.
-    fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample;
-    /// Put the trap at `trap_m` and the bead in it (trapped, no contact).
-    fn reset(&mut self, trap_m: [f64; 2]);
-}
 
 /// Simulated tweezer (module docs).
 #[derive(Debug, Clone)]
@@ -388,7 +54,6 @@ pub struct SimTweezer {
     reflections: u64,
     nonfinite: u64,
 }
-
 /// Scalar Ornstein–Uhlenbeck coefficients of one direction over a sub-step:
 /// stiffness `k` (N/m) toward an equilibrium moving linearly `e0` → `e1` (m),
 /// mobility `mu` = 1/γ (m/(N·s), the inverse drag: the wall corrections are
@@ -401,191 +66,8 @@ struct Ou {
     mu: f64,
     v: f64,
 }
-
 /// Nearest obstacle: (index, unit normal from its centre to the bead, gap).
 type Near = Option<(usize, [f64; 2], f64)>;
-
-/// Number of cubic pieces of [`DragTable`] over s ∈ [0, s_clamp].
-pub const DRAG_TABLE_PIECES: usize = 512;
-
-/// Exact-OU coefficients of one full sample near an obstacle, for a trapped
-/// bead outside the contact zone, as functions of s = R/h (h = distance from
-/// the bead centre to the obstacle surface), in lane pairs (normal,
-/// tangent): c = e^{−dt k μ}, g = τ(1 − c) = (1 − c)/(k μ),
-/// σ = √((k_BT/k)(1 − c²)), and the Itô drift's displacement v_d·g⊥ (normal
-/// only), with μ⊥ = μ₀·[`perpendicular_mobility`], μ∥ = μ₀·Faxén's parallel
-/// mobility, k = κ and v_d = k_BT μ₀ p′(s)(−s²/R) (module docs).
-///
-/// These are the exact step's coefficients (two exponentials, a division
-/// and two square roots per direction, two mobility polynomials). Tabulated
-/// as piecewise cubics on [`DRAG_TABLE_PIECES`] equal pieces of
-/// [0, s_clamp], s_clamp = 1/(1 + [`DRAG_CLAMP_GAP_OVER_R`]) (the clamp
-/// region and the contact zone take the exact path), each cubic
-/// interpolating at the four Chebyshev points of its piece. The largest
-/// relative deviation from the exact coefficients is measured at
-/// construction on a grid 8× finer than the pieces (see
-/// [`SimTweezer::drag_table_error`]; ≈ 1e-13 for the defaults) and the
-/// table is not used if it exceeds 1e-9.
-/// One cubic piece of [`DragTable`]: `[power][pair][lane]`.
-type DragPiece = [[[f64; 2]; 4]; 4];
-
-/// 1.5·2⁵²: (x − 0.5) + this (x ∈ [0, 2⁵⁰]) is 1.5·2⁵² + round(x − 0.5),
-/// in the binade [2⁵², 2⁵³) of unit spacing, i.e. ⌊x⌋ (or ⌊x⌋ − 1 when x
-/// is an odd integer: the tie rounds to even; then t = 1 on the piece
-/// below), so the piece index is in the low bits of the sum — no
-/// saturating float→integer conversion.
-const PIECE_ROUND: f64 = 6_755_399_441_055_744.0;
-
-#[derive(Debug, Clone)]
-struct DragTable {
-    inv_ds: f64,
-    /// Per piece, the monomial coefficients (t⁰…t³, t ∈ [0, 1] across the
-    /// piece) of the four lane pairs (c, g, σ, drift), contiguous (256
-    /// bytes per piece); a fixed-size array so that a masked index needs
-    /// no bounds check.
-    coef: Box<[DragPiece; DRAG_TABLE_PIECES]>,
-    max_rel_err: f64,
-}
-
-impl DragTable {
-    /// Largest accepted relative interpolation error.
-    const MAX_REL_ERR: f64 = 1e-9;
-
-    /// Exact coefficients at s (see the type docs): [c⊥, c∥, g⊥, g∥, σ⊥, σ∥, drift⊥].
-    fn exact(s: f64, k: f64, h: f64, kt: f64, mu0: f64, inv_r: f64, drift: bool) -> [f64; 7] {
-        let mp = mu0 * perpendicular_mobility(s);
-        let mt = mu0 * faxen_parallel_mobility(s);
-        let vd = if drift {
-            kt * mu0 * perpendicular_mobility_ds(s) * (-(s * s) * inv_r)
-        } else {
-            0.0
-        };
-        let one = |mu: f64| {
-            let kmu = k * mu;
-            let c = (-h * kmu).exp();
-            (c, (1.0 - c) / kmu, (kt / k * (1.0 - c * c)).sqrt())
-        };
-        let (cp, gp, sp) = one(mp);
-        let (ct, gt, st) = one(mt);
-        [cp, ct, gp, gt, sp, st, vd * gp]
-    }
-
-    #[allow(clippy::needless_range_loop)] // q indexes the 7 coefficients of every table row
-    fn new(k: f64, h: f64, kt: f64, mu0: f64, inv_r: f64, drift: bool) -> Option<Self> {
-        let n = DRAG_TABLE_PIECES;
-        let s_max = 1.0 / (1.0 + DRAG_CLAMP_GAP_OVER_R);
-        let ds = s_max / n as f64;
-        let f = |s: f64| Self::exact(s, k, h, kt, mu0, inv_r, drift);
-        // Chebyshev points of [0, 1] and the cubic through them (Newton
-        // divided differences, then expanded to monomials in t).
-        let tn: [f64; 4] =
-            std::array::from_fn(|j| 0.5 * (1.0 - ((2 * j + 1) as f64 * PI / 8.0).cos()));
-        let mut coef = Vec::with_capacity(n);
-        for i in 0..n {
-            let vals: [[f64; 7]; 4] = std::array::from_fn(|j| f((i as f64 + tn[j]) * ds));
-            let mut piece = [[[0.0; 2]; 4]; 4];
-            for q in 0..7 {
-                let y: [f64; 4] = std::array::from_fn(|j| vals[j][q]);
-                // Divided differences.
-                let mut d = y;
-                for lvl in 1..4 {
-                    for j in (lvl..4).rev() {
-                        d[j] = (d[j] - d[j - 1]) / (tn[j] - tn[j - lvl]);
-                    }
-                }
-                // Newton form → monomials: p(t) = d0 + (t−t0)(d1 + (t−t1)(d2 + (t−t2) d3)).
-                let mut m = [d[3], 0.0, 0.0, 0.0]; // coefficients of the inner polynomial, t⁰ first
-                for lvl in (0..3).rev() {
-                    // m ← m·(t − t_lvl) + d_lvl
-                    let mut nm = [0.0; 4];
-                    for p in 0..4 {
-                        if p + 1 < 4 {
-                            nm[p + 1] += m[p];
-                        }
-                        nm[p] -= tn[lvl] * m[p];
-                    }
-                    nm[0] += d[lvl];
-                    m = nm;
-                }
-                let (pair, lane) = (q / 2, q % 2);
-                for (p, mp) in m.iter().enumerate() {
-                    piece[p][pair][lane] = *mp;
-                }
-            }
-            coef.push(piece);
-        }
-        let coef: Box<[DragPiece; DRAG_TABLE_PIECES]> = coef.into_boxed_slice().try_into().ok()?;
-        let mut t = Self {
-            inv_ds: 1.0 / ds,
-            coef,
-            max_rel_err: 0.0,
-        };
-        // Measure the interpolation error on a grid 8× finer than the pieces.
-        let mut err: f64 = 0.0;
-        for i in 0..=(8 * n) {
-            let s = s_max * i as f64 / (8 * n) as f64;
-            let e = f(s);
-            let a = t.eval(s);
-            let got = [
-                a[0][0], a[0][1], a[1][0], a[1][1], a[2][0], a[2][1], a[3][0],
-            ];
-            for q in 0..7 {
-                // The drift displacement is measured against the step's
-                // noise amplitude σ⊥ (it vanishes at s = 0).
-                let scale = if q == 6 { e[4] } else { e[q].abs() };
-                err = err.max((got[q] - e[q]).abs() / scale);
-            }
-        }
-        if err.is_nan() || err > Self::MAX_REL_ERR {
-            return None;
-        }
-        t.max_rel_err = err;
-        Some(t)
-    }
-
-    /// The four lane pairs (c, g, σ, drift) at s ∈ [0, s_max].
-    #[inline(always)]
-    fn eval(&self, s: f64) -> [[f64; 2]; 4] {
-        // Piece i = ⌊x⌋ (x ≥ 0; [`PIECE_ROUND`]) and t = x − i ∈ [0, 1]; the
-        // mask and the clamp keep i in the table for any s (out of
-        // [0, s_max] the value is meaningless but nothing panics).
-        let x = s * self.inv_ds;
-        let y = (x - 0.5) + PIECE_ROUND;
-        let i = ((y.to_bits() as usize) & (2 * DRAG_TABLE_PIECES - 1)).min(DRAG_TABLE_PIECES - 1);
-        let t = x - i as f64;
-        let c = &self.coef[i];
-        std::array::from_fn(|q| {
-            let mut v = c[3][q];
-            for p in (0..3).rev() {
-                v = add2(mul2(v, [t; 2]), c[p][q]);
-            }
-            v
-        })
-    }
-}
-
-/// Lane-wise a + b.
-#[inline(always)]
-fn add2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
-    [a[0] + b[0], a[1] + b[1]]
-}
-
-/// Lane-wise a − b.
-#[inline(always)]
-fn sub2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
-    [a[0] - b[0], a[1] - b[1]]
-}
-
-/// Lane-wise a·b.
-#[inline(always)]
-fn mul2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
-    [a[0] * b[0], a[1] * b[1]]
-}
-
-fn norm2(v: [f64; 2]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1]).sqrt()
-}
-
 impl SimTweezer {
     /// Create at sample rate `fs_hz` with the bead in the trap at the origin.
     pub fn new(params: TweezerParams, fs_hz: f64) -> Result<Self, RigError> {
@@ -733,6 +215,17 @@ impl SimTweezer {
     #[inline]
     fn normal(&mut self) -> f64 {
         self.rng.sample()
+    }
+
+    /// Put the bead at a position drawn from the free trap's stationary
+    /// distribution around the trap centre (variance k_BT/κ per axis), from
+    /// the tweezer's own noise stream: a simulation that starts there needs
+    /// no warm-up.
+    pub fn start_stationary(&mut self) {
+        let sd = self.p.variance_theory().sqrt();
+        let t = self.trap;
+        let b = [t[0] + sd * self.normal(), t[1] + sd * self.normal()];
+        self.set_bead(b);
     }
 
     /// One exact/EM update of a scalar coordinate x over h (see [`Ou`]).
@@ -942,16 +435,19 @@ impl SimTweezer {
         // Every operation below is lane-wise on pairs (normal, tangent) or
         // (x, y), so that it compiles to packed SSE2 arithmetic.
         let t = [-n[1], n[0]];
-        let u = sub2(self.bead, p0);
-        let v = sub2(p1, p0);
+        let u = l2_sub(self.bead, p0);
+        let v = l2_sub(p1, p0);
         // Projections on (n, t): a = u_x (n_x, t_x) + u_y (n_y, t_y).
         let (ntx, nty) = ([n[0], t[0]], [n[1], t[1]]);
-        let a = add2(mul2([u[0]; 2], ntx), mul2([u[1]; 2], nty));
-        let b = add2(mul2([v[0]; 2], ntx), mul2([v[1]; 2], nty));
-        let w = mul2(b, [self.fs; 2]);
-        let dx = add2(add2(mul2(c, a), sub2(dr, mul2(w, g))), mul2(sg, nz));
+        let a = l2_add(l2_mul([u[0]; 2], ntx), l2_mul([u[1]; 2], nty));
+        let b = l2_add(l2_mul([v[0]; 2], ntx), l2_mul([v[1]; 2], nty));
+        let w = l2_mul(b, [self.fs; 2]);
+        let dx = l2_add(
+            l2_add(l2_mul(c, a), l2_sub(dr, l2_mul(w, g))),
+            l2_mul(sg, nz),
+        );
         // Back to (x, y): p₁ + dx_n n + dx_t t.
-        self.bead = add2(p1, add2(mul2([dx[0]; 2], n), mul2([dx[1]; 2], t)));
+        self.bead = l2_add(p1, l2_add(l2_mul([dx[0]; 2], n), l2_mul([dx[1]; 2], t)));
     }
 
     /// After a trapped move that ended farther than the escape distance
@@ -1213,7 +709,6 @@ impl SimTweezer {
         self.finish_sample(p1, near, ev, n_sub)
     }
 }
-
 impl Tweezer for SimTweezer {
     fn sample_rate_hz(&self) -> f64 {
         self.fs
@@ -1256,217 +751,9 @@ impl Tweezer for SimTweezer {
     }
 }
 
-/// Arguments of `kilotouch sim tweezer` (units in the names).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TweezerSimArgs {
-    /// Simulated duration, s.
-    pub duration_s: f64,
-    /// Sample rate, Hz.
-    pub fs_hz: f64,
-    /// Trap stiffness, pN/µm.
-    pub stiffness_pn_um: f64,
-    /// Bead radius, µm.
-    pub radius_um: f64,
-    /// Temperature, K.
-    pub temperature_k: f64,
-    /// Viscosity, Pa·s.
-    pub viscosity_pa_s: f64,
-    /// Bead-centre to coverslip distance, µm.
-    pub wall_distance_um: Option<f64>,
-    /// Integrator.
-    pub integrator: TweezerIntegrator,
-    /// Seed.
-    pub seed: u64,
-}
-
-impl Default for TweezerSimArgs {
-    fn default() -> Self {
-        Self {
-            duration_s: 10.0,
-            fs_hz: 10_000.0,
-            stiffness_pn_um: 20.0,
-            radius_um: 1.5,
-            temperature_k: 293.15,
-            viscosity_pa_s: 1.0016e-3,
-            wall_distance_um: None,
-            integrator: TweezerIntegrator::Exact,
-            seed: 1,
-        }
-    }
-}
-
-/// Result of `kilotouch sim tweezer` (SI units in the names).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TweezerSimReport {
-    /// Sample variance of x about its mean, m².
-    pub var_x_m2: f64,
-    /// Sample variance of y about its mean, m².
-    pub var_y_m2: f64,
-    /// Fitted corner frequency (aliased Lorentzian, x and y PSDs averaged), Hz.
-    pub fc_fit_hz: f64,
-    /// Fitted diffusion coefficient, m²/s.
-    pub d_fit_m2_s: f64,
-    /// κ/(2πγ) with γ including the wall factor, Hz.
-    pub fc_theory_hz: f64,
-    /// k_BT/κ, m².
-    pub var_theory_m2: f64,
-    /// k_BT/γ, m²/s.
-    pub d_theory_m2_s: f64,
-    /// Drag γ = γ₀·(Faxén factor), N·s/m.
-    pub gamma_n_s_m: f64,
-    /// Faxén factor of the wall (1 without).
-    pub wall_factor: f64,
-    /// Sample period over relaxation time, dt/τ.
-    pub dt_over_tau: f64,
-    /// Samples simulated per axis.
-    pub n_samples: usize,
-    /// Welch segment length used for the PSD.
-    pub nperseg: usize,
-    /// Fit band, Hz.
-    pub fit_band_hz: [f64; 2],
-    /// Integrator used.
-    pub integrator: TweezerIntegrator,
-    /// Seed used.
-    pub seed: u64,
-}
-
-/// Library entry point of `kilotouch sim tweezer`: simulate a bead in a
-/// fixed trap, report variances and an aliased-Lorentzian fit of the PSD
-/// (Welch, Hann, 50 % overlap, from `kilotouch_dsp::spectral::welch`).
-pub fn simulate_tweezer(args: &TweezerSimArgs) -> Result<TweezerSimReport, RigError> {
-    let bad = |name: &'static str, value: f64, reason: &str| RigError::InvalidParameter {
-        name,
-        value,
-        reason: reason.to_string(),
-    };
-    if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
-        return Err(bad("duration_s", args.duration_s, "must be finite and > 0"));
-    }
-    if !(args.fs_hz.is_finite() && args.fs_hz > 0.0) {
-        return Err(bad("fs_hz", args.fs_hz, "must be finite and > 0"));
-    }
-    let n = (args.duration_s * args.fs_hz).round();
-    if !(2048.0..=2.0e9).contains(&n) {
-        return Err(bad(
-            "duration_s",
-            args.duration_s,
-            "need between 2048 and 2e9 samples",
-        ));
-    }
-    let n = n as usize;
-    let params = TweezerParams {
-        radius_m: args.radius_um * 1e-6,
-        viscosity_pa_s: args.viscosity_pa_s,
-        temperature_k: args.temperature_k,
-        stiffness_n_per_m: args.stiffness_pn_um * 1e-6,
-        wall_distance_m: args.wall_distance_um.map(|h| h * 1e-6),
-        escape_distance_m: f64::MAX,
-        integrator: args.integrator,
-        seed: args.seed,
-        ..TweezerParams::paper_default()
-    };
-    params.validate()?;
-    let dt_over_tau = 1.0 / (args.fs_hz * params.tau());
-    if args.integrator == TweezerIntegrator::Euler && dt_over_tau >= 2.0 {
-        return Err(RigError::Unstable(format!(
-            "Euler–Maruyama is unstable for dt/τ = {dt_over_tau:.3} ≥ 2; use the exact integrator"
-        )));
-    }
-    let mut tw = SimTweezer::new(params.clone(), args.fs_hz)?;
-    // Start from the stationary distribution.
-    let sd = params.variance_theory().sqrt();
-    let b0 = [sd * tw.normal(), sd * tw.normal()];
-    tw.set_bead(b0);
-    let mut xs = Vec::with_capacity(n);
-    let mut ys = Vec::with_capacity(n);
-    for _ in 0..n {
-        let s = tw.step([0.0, 0.0]);
-        xs.push(s.bead_m[0]);
-        ys.push(s.bead_m[1]);
-    }
-    let var = |v: &[f64]| {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() - 1) as f64
-    };
-    let nperseg = (n / 16).clamp(256, 8192).next_power_of_two().min(n);
-    let cfg = kilotouch_dsp::spectral::WelchConfig::new(nperseg);
-    let px = kilotouch_dsp::spectral::welch(&xs, args.fs_hz, &cfg)?;
-    let py = kilotouch_dsp::spectral::welch(&ys, args.fs_hz, &cfg)?;
-    let psd: Vec<f64> = px.p.iter().zip(&py.p).map(|(a, b)| 0.5 * (a + b)).collect();
-    let f_lo = 3.0 * args.fs_hz / nperseg as f64;
-    let f_hi = 0.5 * args.fs_hz * (1.0 - 4.0 / nperseg as f64);
-    let fit = crate::lorentzian::fit_aliased_lorentzian(&px.f, &psd, args.fs_hz, f_lo, f_hi)?;
-    Ok(TweezerSimReport {
-        var_x_m2: var(&xs),
-        var_y_m2: var(&ys),
-        fc_fit_hz: fit.fc_hz,
-        d_fit_m2_s: fit.d_m2_s,
-        fc_theory_hz: params.corner_hz(),
-        var_theory_m2: params.variance_theory(),
-        d_theory_m2_s: params.diffusion(),
-        gamma_n_s_m: params.gamma_free(),
-        wall_factor: params.wall_factor(),
-        dt_over_tau,
-        n_samples: n,
-        nperseg,
-        fit_band_hz: [f_lo, f_hi],
-        integrator: args.integrator,
-        seed: args.seed,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn wall_corrections_match_reference_table() {
-        // REFERENCE-VALUES.md (h/R, parallel, perpendicular).
-        let table = [
-            (1.1, 2.360, 11.46),
-            (1.5, 1.615, 3.205),
-            (2.0, 1.386, 2.126),
-            (3.0, 1.227, 1.569),
-            (5.0, 1.126, 1.285),
-            (10.0, 1.059, 1.126),
-        ];
-        for (hr, par, perp) in table {
-            let s = 1.0 / hr;
-            assert!(
-                (faxen_parallel(s) / par - 1.0).abs() < 2e-3,
-                "Faxén at h/R={hr}: {}",
-                faxen_parallel(s)
-            );
-            // Schäffer's approximation is within 0.1 % of the exact series.
-            assert!(
-                (brenner_perpendicular(s) / perp - 1.0).abs() < 1.5e-3,
-                "Brenner at h/R={hr}: {}",
-                brenner_perpendicular(s)
-            );
-        }
-    }
-
-    #[test]
-    fn mobility_derivative_matches_finite_difference() {
-        for s in [0.05, 0.3, 0.6, 0.9, 0.99] {
-            let h = 1e-6;
-            let fd = (perpendicular_mobility(s + h) - perpendicular_mobility(s - h)) / (2.0 * h);
-            assert!((fd - perpendicular_mobility_ds(s)).abs() < 1e-7, "s={s}");
-        }
-        // Lubrication limit: the mobility vanishes at contact like (1 − s).
-        assert!(perpendicular_mobility(1.0).abs() < 1e-12);
-    }
-
-    #[test]
-    fn stokes_and_default_corner() {
-        let p = TweezerParams::paper_default();
-        // γ₀ = 6π·1.0016e-3·1.5e-6 = 2.8318e-8 N·s/m.
-        assert!((p.gamma0() - 2.8318e-8).abs() < 1e-11);
-        // f_c = κ/(2πγ₀) ≈ 112.4 Hz for 20 pN/µm; inertia m/γ₀ ≈ 1 µs.
-        assert!((p.corner_hz() / (2e-5 / (2.0 * PI * 2.8318e-8)) - 1.0).abs() < 1e-4);
-        let mass = 4.0 / 3.0 * PI * p.radius_m.powi(3) * 2500.0;
-        assert!(mass / p.gamma0() < 2e-6);
-    }
 
     #[test]
     fn nonfinite_trap_is_ignored() {
