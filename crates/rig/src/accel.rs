@@ -226,6 +226,27 @@ impl Accelerometer {
         self.sample_general(a_true, w)
     }
 
+    /// [`Self::sample`] by the general path alone (the same noise draws):
+    /// the reference its common-case path must equal bit for bit, for the
+    /// equivalence harness (`tests/equivalence.rs`).
+    #[doc(hidden)]
+    pub fn sample_reference(&mut self, a_true: [f64; 3]) -> AccelReading {
+        let mut w = [0.0; 3];
+        if self.noise_sigma > 0.0 {
+            for wi in w.iter_mut() {
+                *wi = self.noise_sigma * self.noise.sample();
+            }
+        }
+        self.sample_general(a_true, w)
+    }
+
+    /// Whether the common-case path applies to this configuration (a
+    /// quantisation step in the fast range).
+    #[doc(hidden)]
+    pub fn has_fast_path(&self) -> bool {
+        self.quant_fast
+    }
+
     /// [`Self::sample`] outside the common case: non-finite inputs or
     /// states, clipping, no or a tiny quantisation step.
     #[cold]
@@ -399,56 +420,5 @@ mod tests {
             )
             .is_err()
         );
-    }
-}
-
-#[cfg(test)]
-mod fast_path_tests {
-    use super::*;
-    use crate::config::RigConfig;
-
-    /// The common-case path of `sample` against the general path on the
-    /// same noise draws: bit-identical readings, states and counters, over
-    /// inputs inside the range, clipping on each axis, and non-finite ones.
-    #[test]
-    fn fast_path_is_the_general_path_bit_for_bit() {
-        let cfg = RigConfig::default().accelerometer;
-        let mut a = Accelerometer::new(&cfg, 10_000.0).unwrap();
-        let mut b = a.clone();
-        assert!(a.quant_fast);
-        let range = a.range_m_s2();
-        let mut s = 0x2545_F491_4F6C_DD1D_u64;
-        let mut fast = 0;
-        for k in 0..200_000 {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            let u = (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-            // Mostly in range, bursts beyond it (clipping), some NaN/∞.
-            let mut x = match (k / 1000) % 8 {
-                3 => [2.0 * range * (1.0 + 0.1 * u), -0.5 * range * u, 0.0],
-                6 => [0.5 * range * u, -3.0 * range * (1.0 + u), 0.0],
-                _ => [range * u, -0.7 * range * u, 0.0],
-            };
-            if k % 9973 == 0 {
-                x[k % 2] = if k % 3 == 0 { f64::NAN } else { f64::INFINITY };
-            }
-            let ra = a.sample(x);
-            let w = [0, 1, 2].map(|_| b.noise_sigma * b.noise.sample());
-            let rb = b.sample_general(x, w);
-            assert_eq!(ra.m_s2.map(f64::to_bits), rb.m_s2.map(f64::to_bits), "{k}");
-            assert_eq!(ra.clipped, rb.clipped);
-            assert_eq!(a.state.map(f64::to_bits), b.state.map(f64::to_bits));
-            fast += usize::from(!ra.clipped);
-        }
-        assert_eq!(a.clipped_samples(), b.clipped_samples());
-        assert_eq!(a.nonfinite_inputs(), b.nonfinite_inputs());
-        assert!(
-            a.clipped_samples() > 10_000 && a.nonfinite_inputs() > 10,
-            "{} {}",
-            a.clipped_samples(),
-            a.nonfinite_inputs()
-        );
-        assert!(fast > 100_000);
     }
 }

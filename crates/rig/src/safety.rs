@@ -650,6 +650,26 @@ impl SafetyLayer {
         self.apply_general(cmd, sample, speed, bad_sensor, deadline_missed)
     }
 
+    /// [`Self::apply`] by the general paths alone (velocity estimate and
+    /// limiting): the reference the common-case paths must equal bit for
+    /// bit, for the equivalence harness (`tests/equivalence.rs`).
+    #[doc(hidden)]
+    pub fn apply_reference(
+        &mut self,
+        cmd: ActuatorFrame,
+        sensors: &SensorFrame,
+        deadline_missed: bool,
+    ) -> ActuatorFrame {
+        let sample = self.counters.samples;
+        self.counters.samples += 1;
+        if self.estop_flag.load(Ordering::Acquire) && self.state != SafetyState::EStop {
+            self.enter_estop(sample);
+        }
+        let (speed, bad_sensor) = self.vel.update_general(sensors.handle_m);
+        self.speed = speed;
+        self.apply_general(cmd, sample, speed, bad_sensor, deadline_missed)
+    }
+
     /// Forces on, finite command scaled by the gain (`f`, `v`), some limit
     /// binding (or possibly): the hard limits, then the slew limit, with
     /// flags and counters.

@@ -1,0 +1,550 @@
+//! The one equivalence harness: every fast path of the workspace against the
+//! readable reference it must equal, driven by the same inputs and compared
+//! output by output — bit for bit where the fast path promises it, within a
+//! stated tolerance where it computes the same map another way.
+//!
+//! | pair | fast | reference | comparison |
+//! |---|---|---|---|
+//! | rounding | `round_half_away` | `f64::round` | bits |
+//! | accelerometer | `Accelerometer::sample` | `sample_reference` (general path) | bits |
+//! | safety layer | `SafetyLayer::apply` | `apply_reference` (general velocity and limiting) | bits |
+//! | tweezer, free space | `Tweezer::step` | `SimTweezer::step_reference` | bits |
+//! | tweezer, near an obstacle | `Tweezer::step` (tabulated coefficients) | `step_reference` (exact) | 1e-15 m |
+//! | plant, outputs on demand | `DualStagePlant::step_fast` + `tip_m` | `step` | bits |
+//! | plant, modal form | modal ZOH update | dense ZOH update (`force_dense`) | 2e-9 of full scale |
+//! | simulated rig | `SimRig::process_frame` | one-frame `process_block` | bits |
+//! | signal chain | `Chain::process` (packed kernel) | `Chain::process_reference` | see the pair |
+//!
+//! Each pair's inputs cover the fast path and every way out of it (limits,
+//! non-finite values, state changes), and the pair checks that the fast path
+//! was taken often enough for the comparison to mean something.
+
+use kilotouch_rig::accel::Accelerometer;
+use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
+use kilotouch_rig::plant::PlantInput;
+use kilotouch_rig::safety::{SafetyLayer, SafetyState};
+use kilotouch_rig::sim::SimRig;
+use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerParams, TweezerSample};
+use kilotouch_rig::{DualStagePlant, Integrator, RigConfig};
+
+/// How a pair's outputs must agree.
+#[derive(Debug, Clone, Copy)]
+enum Tol {
+    /// Bit for bit (NaN equal to NaN).
+    Bits,
+    /// |fast − reference| ≤ abs + rel·|reference| per output.
+    Close { rel: f64, abs: f64 },
+}
+
+/// Run one pair: `fast` and `reference` each own their state and map the
+/// same input to a vector of outputs; panics with the pair, the sample and
+/// the output on the first disagreement. Returns the largest deviation.
+fn check<I>(
+    name: &str,
+    tol: Tol,
+    inputs: &[I],
+    mut fast: impl FnMut(&I) -> Vec<f64>,
+    mut reference: impl FnMut(&I) -> Vec<f64>,
+) -> f64 {
+    let mut worst: f64 = 0.0;
+    for (k, i) in inputs.iter().enumerate() {
+        let (a, b) = (fast(i), reference(i));
+        assert_eq!(a.len(), b.len(), "{name}: output count");
+        for (j, (x, y)) in a.iter().zip(&b).enumerate() {
+            let same = match tol {
+                Tol::Bits => x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()),
+                Tol::Close { rel, abs } => {
+                    (x.is_nan() && y.is_nan()) || (x - y).abs() <= abs + rel * y.abs()
+                }
+            };
+            assert!(
+                same,
+                "{name}: sample {k}, output {j}: fast {x:e} vs reference {y:e}"
+            );
+            if x.is_finite() && y.is_finite() {
+                worst = worst.max((x - y).abs());
+            }
+        }
+    }
+    worst
+}
+
+/// A deterministic stream of uniform numbers in [0, 1) (xorshift64).
+struct Uniform(u64);
+
+impl Uniform {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn bits(&mut self) -> u64 {
+        self.next();
+        self.0
+    }
+}
+
+fn b(x: bool) -> f64 {
+    f64::from(u8::from(x))
+}
+
+#[test]
+fn rounding() {
+    let mut u = Uniform(0x9E37_79B9_7F4A_7C15);
+    let mut inputs = vec![
+        0.0,
+        -0.0,
+        0.5,
+        -0.5,
+        2.5,
+        -2.5,
+        0.49999999999999994,
+        4503599627370495.5,
+        4503599627370496.0,
+        1e300,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NAN,
+        f64::MIN_POSITIVE,
+        5e-324,
+    ];
+    for _ in 0..200_000 {
+        let x = u.next() - 0.5;
+        inputs.push(x * 10_000.0);
+        inputs.push((x * 8192.0).round() + 0.5);
+        inputs.push((x * 1e15).round() + 0.5);
+        inputs.push(f64::from_bits(u.bits()));
+    }
+    check(
+        "rounding",
+        Tol::Bits,
+        &inputs,
+        |&x| vec![kilotouch_rig::round_half_away(x)],
+        |&x| vec![x.round()],
+    );
+}
+
+#[test]
+fn accelerometer() {
+    let cfg = RigConfig::default().accelerometer;
+    let mut fast = Accelerometer::new(&cfg, 10_000.0).expect("accelerometer");
+    let mut reference = fast.clone();
+    assert!(
+        fast.has_fast_path(),
+        "the default sensor takes the fast path"
+    );
+    let range = fast.range_m_s2();
+    let mut u = Uniform(0x2545_F491_4F6C_DD1D);
+    let inputs: Vec<[f64; 3]> = (0..200_000)
+        .map(|k| {
+            let x = u.next() - 0.5;
+            // Mostly in range, bursts beyond it (clipping), some NaN/∞.
+            let mut a = match (k / 1000) % 8 {
+                3 => [2.0 * range * (1.0 + 0.1 * x), -0.5 * range * x, 0.0],
+                6 => [0.5 * range * x, -3.0 * range * (1.0 + x), 0.0],
+                _ => [range * x, -0.7 * range * x, 0.0],
+            };
+            if k % 9973 == 0 {
+                a[k % 2] = if k % 3 == 0 { f64::NAN } else { f64::INFINITY };
+            }
+            a
+        })
+        .collect();
+    let out = |r: kilotouch_rig::accel::AccelReading, a: &Accelerometer| {
+        let mut v = r.m_s2.to_vec();
+        v.extend([
+            b(r.clipped),
+            a.clipped_samples() as f64,
+            a.nonfinite_inputs() as f64,
+        ]);
+        v
+    };
+    let mut in_range = 0usize;
+    check(
+        "accelerometer",
+        Tol::Bits,
+        &inputs,
+        |x| {
+            let r = fast.sample(*x);
+            in_range += usize::from(!r.clipped);
+            out(r, &fast)
+        },
+        |x| {
+            let r = reference.sample_reference(*x);
+            out(r, &reference)
+        },
+    );
+    assert!(in_range > 100_000, "fast path taken {in_range} times");
+}
+
+/// One sample of the safety layer's input, and an event applied before it.
+#[derive(Debug, Clone, Copy)]
+struct SafetyInput {
+    cmd: ActuatorFrame,
+    handle_m: [f64; 2],
+    missed: bool,
+    /// 0 none, 1 emergency stop, 2 reset and re-arm.
+    event: u8,
+}
+
+#[test]
+fn safety_layer() {
+    let cfg = RigConfig::default();
+    let mut u = Uniform(0x1234_5678_9ABC_DEF1);
+    let mut handle = [0.0f64; 2];
+    let inputs: Vec<SafetyInput> = (0..300_000)
+        .map(|k| {
+            let phase = (k / 5000) % 10;
+            // Slow handle motion, occasional jumps and NaN positions.
+            for h in &mut handle {
+                *h += 2e-6 * (u.next() - 0.5);
+            }
+            let mut h = handle;
+            if k % 7919 == 0 {
+                h[0] += 0.05;
+            }
+            if k % 10_007 == 0 {
+                h[1] = f64::NAN;
+            }
+            let scale = match phase {
+                0 => 0.01,
+                3 => 8.0,
+                5 => 0.5,
+                _ => 0.3,
+            };
+            let mut cmd = ActuatorFrame {
+                force_n: [scale * (u.next() - 0.5), scale * (u.next() - 0.5)],
+                haptuator_v: 4.0 * (u.next() - 0.5),
+            };
+            if k % 12_007 == 0 {
+                cmd.force_n[0] = f64::NAN;
+            }
+            // An emergency stop now and then; a reset and re-arm every
+            // 5000 samples clears it and any trip alike in both layers.
+            let event = match (k % 50_000, k % 5000) {
+                (40_000, _) => 1,
+                (_, 4000) => 2,
+                _ => 0,
+            };
+            SafetyInput {
+                cmd,
+                handle_m: h,
+                missed: k % 997 == 0 || (phase == 7 && k % 3 == 0),
+                event,
+            }
+        })
+        .collect();
+    let make = || {
+        let mut s = SafetyLayer::from_config(&cfg).expect("safety layer");
+        s.arm().expect("arm");
+        s
+    };
+    let (mut fast, mut reference) = (make(), make());
+    let step = |s: &mut SafetyLayer, i: &SafetyInput, general: bool| {
+        match i.event {
+            1 => s.estop(),
+            2 => {
+                s.reset();
+                s.arm().expect("arm after reset");
+            }
+            _ => {}
+        }
+        let sensors = SensorFrame {
+            handle_m: i.handle_m,
+            ..SensorFrame::default()
+        };
+        let o = if general {
+            s.apply_reference(i.cmd, &sensors, i.missed)
+        } else {
+            s.apply(i.cmd, &sensors, i.missed)
+        };
+        let st = s.status();
+        let c = st.counters;
+        vec![
+            o.force_n[0],
+            o.force_n[1],
+            o.haptuator_v,
+            st.gain,
+            st.state as u8 as f64,
+            st.handle_speed_m_s.unwrap_or(-1.0),
+            c.limited as f64,
+            c.slew_limited as f64,
+            c.nonfinite_commands as f64,
+            c.nonfinite_sensors as f64,
+            c.missed_deadlines as f64,
+            c.faults as f64,
+            c.latched_zeroed as f64,
+        ]
+    };
+    let mut enabled = 0usize;
+    check(
+        "safety layer",
+        Tol::Bits,
+        &inputs,
+        |i| {
+            let v = step(&mut fast, i, false);
+            enabled += usize::from(fast.state() == SafetyState::Enabled);
+            v
+        },
+        |i| step(&mut reference, i, true),
+    );
+    assert!(enabled > 50_000, "forces on for {enabled} samples");
+}
+
+/// Tweezer outputs compared: bead, optical force, gap, flags.
+fn tweezer_out(s: TweezerSample) -> Vec<f64> {
+    vec![
+        s.bead_m[0],
+        s.bead_m[1],
+        s.force_n[0],
+        s.force_n[1],
+        s.gap_m,
+        b(s.trapped),
+        b(s.in_contact),
+        b(s.events.escaped),
+        b(s.events.contact_start),
+    ]
+}
+
+#[test]
+fn tweezer_free_space() {
+    let p = TweezerParams {
+        seed: 11,
+        ..TweezerParams::paper_default()
+    };
+    let mut fast = SimTweezer::new(p.clone(), 1e4).expect("tweezer");
+    let mut reference = SimTweezer::new(p, 1e4).expect("tweezer");
+    let mut u = Uniform(77);
+    let mut t = [0.0f64; 2];
+    let inputs: Vec<[f64; 2]> = (0..200_000)
+        .map(|k| {
+            t[0] += 2e-9 * (u.next() - 0.5);
+            t[1] += 2e-9 * (u.next() - 0.5);
+            let mut x = t;
+            if k % 50_000 == 49_999 {
+                // A jump beyond the escape distance: lost, then recaptured.
+                x[0] += 5e-6;
+            }
+            if k % 33_331 == 0 {
+                x[1] = f64::NAN;
+            }
+            x
+        })
+        .collect();
+    check(
+        "tweezer, free space",
+        Tol::Bits,
+        &inputs,
+        |x| tweezer_out(fast.step(*x)),
+        |x| tweezer_out(reference.step_reference(*x)),
+    );
+}
+
+#[test]
+fn tweezer_near_an_obstacle() {
+    let p = TweezerParams {
+        obstacles: vec![
+            Obstacle {
+                centre_m: [8e-6, 0.0],
+                radius_m: 5e-6,
+            },
+            Obstacle {
+                centre_m: [-10e-6, 14e-6],
+                radius_m: 5e-6,
+            },
+        ],
+        seed: 4,
+        ..TweezerParams::paper_default()
+    };
+    let mut fast = SimTweezer::new(p.clone(), 1e4).expect("tweezer");
+    let mut reference = SimTweezer::new(p, 1e4).expect("tweezer");
+    // The reference: the general path with the exact coefficients.
+    reference.set_drag_table(false);
+    // Trap between x = −1 µm and 1.2 µm: surface gaps 0.3 … 2.5 µm, the
+    // tabulated path's range.
+    let inputs: Vec<[f64; 2]> = (0..40_000)
+        .map(|k| [0.1e-6 + 1.1e-6 * (k as f64 * 2e-4).sin(), 0.2e-6])
+        .collect();
+    let mut near = 0usize;
+    // The table reproduces the exact coefficients to ≈ 1e-12 relative; over
+    // the run the bead positions stay within 1e-15 m (a millionth of the
+    // thermal spread), forces within κ·1e-15 m.
+    let worst = check(
+        "tweezer, near an obstacle",
+        Tol::Close {
+            rel: 0.0,
+            abs: 1e-15,
+        },
+        &inputs,
+        |x| {
+            let s = fast.step(*x);
+            near += usize::from(s.gap_m < 1e-6);
+            tweezer_out(s)
+        },
+        |x| tweezer_out(reference.step_reference(*x)),
+    );
+    assert!(
+        near > 5_000,
+        "the bead must spend time near the obstacle: {near}"
+    );
+    assert!(worst > 0.0, "not vacuous: the two paths round differently");
+}
+
+fn plant_inputs(vmax: f64) -> Vec<PlantInput> {
+    (0..40_000)
+        .map(|k| {
+            let w = 2.0 * std::f64::consts::PI * k as f64 * 1e-4;
+            let mut i = PlantInput {
+                force_n: [0.8 * (37.0 * w).sin(), 0.5 * (23.0 * w).cos()],
+                drive_v: vmax * (55.0 * w).sin(),
+                hand_m: [1e-3 * (3.0 * w).sin(), 0.0],
+                hand_vel_m_s: [6e-3 * std::f64::consts::PI * (3.0 * w).cos(), 0.0],
+            };
+            if k % 997 == 5 {
+                i.force_n[k % 2] = f64::NAN;
+                i.drive_v = f64::INFINITY;
+            }
+            i
+        })
+        .collect()
+}
+
+#[test]
+fn plant_outputs_on_demand() {
+    let cfg = RigConfig::default();
+    let mut fast = DualStagePlant::new(&cfg, Integrator::Zoh).expect("plant");
+    let mut reference = fast.clone();
+    check(
+        "plant, outputs on demand",
+        Tol::Bits,
+        &plant_inputs(cfg.limits.haptuator_drive_max_v),
+        |i| {
+            let o = fast.step_fast(i);
+            let tip = fast.tip_m();
+            vec![
+                o.accel_m_s2[0],
+                o.accel_m_s2[1],
+                o.motor_m[0],
+                o.motor_m[1],
+                o.stroke_m,
+                tip[0],
+                tip[1],
+            ]
+        },
+        |i| {
+            let o = reference.step(i);
+            vec![
+                o.accel_m_s2[0],
+                o.accel_m_s2[1],
+                o.motor_m[0],
+                o.motor_m[1],
+                o.stroke_m,
+                o.tip_m[0],
+                o.tip_m[1],
+            ]
+        },
+    );
+    assert!(fast.x.end_stop_steps() > 100, "end-stop episodes exercised");
+}
+
+/// Largest deviation of the modal form from the dense one, as a fraction of
+/// full scale (measured: 3.8e-10 on this run).
+const FULL_SCALE_TOL: f64 = 2e-9;
+
+#[test]
+fn plant_modal_form() {
+    let cfg = RigConfig::default();
+    let mut fast = DualStagePlant::new(&cfg, Integrator::Zoh).expect("plant");
+    let mut reference = fast.clone();
+    assert!(fast.x.is_modal() && fast.y.is_modal());
+    reference.x.force_dense();
+    reference.y.force_dense();
+    // The same exact ZOH map in a modal basis: only the round-off differs.
+    // Each output is divided by its scale in this run (accelerations reach
+    // ≈ 50 m/s², motor positions ≈ 1 mm, the stroke ≈ 1 mm), so the
+    // tolerance is relative to full scale.
+    let scaled = |o: kilotouch_rig::plant::PlantOutput| {
+        vec![
+            o.accel_m_s2[0] / 50.0,
+            o.accel_m_s2[1] / 50.0,
+            o.motor_m[0] / 1e-3,
+            o.motor_m[1] / 1e-3,
+            o.stroke_m / 1e-3,
+        ]
+    };
+    let worst = check(
+        "plant, modal form",
+        Tol::Close {
+            rel: 0.0,
+            abs: FULL_SCALE_TOL,
+        },
+        &plant_inputs(cfg.limits.haptuator_drive_max_v),
+        |i| scaled(fast.step(i)),
+        |i| scaled(reference.step(i)),
+    );
+    eprintln!("plant, modal form: largest deviation {worst:e} of full scale");
+    assert!(worst > 0.0, "not vacuous: the two forms round differently");
+}
+
+#[test]
+fn simulated_rig_frame_path() {
+    let cfg = RigConfig::default();
+    let mut fast = SimRig::new(&cfg).expect("rig");
+    let mut reference = SimRig::new(&cfg).expect("rig");
+    fast.start().expect("start");
+    reference.start().expect("start");
+    let mut u = Uniform(5);
+    let inputs: Vec<(ActuatorFrame, [f64; 2])> = (0..100_000)
+        .map(|k| {
+            let mut c = ActuatorFrame {
+                force_n: [3.0 * (u.next() - 0.5), 3.0 * (u.next() - 0.5)],
+                haptuator_v: 3.0 * (u.next() - 0.5),
+            };
+            if k % 4999 == 0 {
+                c.force_n[1] = f64::NAN;
+            }
+            if k % 3001 == 0 {
+                c.force_n[0] = 9.0;
+            }
+            (c, [1e-3 * (k as f64 * 1e-3).sin(), 0.0])
+        })
+        .collect();
+    let out = |s: SensorFrame, r: &SimRig| {
+        let st = r.status();
+        vec![
+            s.seq as f64,
+            s.handle_m[0],
+            s.handle_m[1],
+            s.accel_m_s2[0],
+            s.accel_m_s2[1],
+            s.accel_m_s2[2],
+            f64::from(s.flags.0),
+            st.frames as f64,
+            st.limited_frames as f64,
+            st.nonfinite_commands as f64,
+        ]
+    };
+    check(
+        "simulated rig, frame path",
+        Tol::Bits,
+        &inputs,
+        |(c, h)| {
+            fast.set_hand(*h);
+            let mut s = SensorFrame::default();
+            fast.process_frame(c, &mut s).expect("frame");
+            out(s, &fast)
+        },
+        |(c, h)| {
+            reference.set_hand(*h);
+            let mut s = [SensorFrame::default()];
+            reference
+                .process_block(std::slice::from_ref(c), &mut s)
+                .expect("block");
+            out(s[0], &reference)
+        },
+    );
+    while let Some(f) = fast.pop_fault() {
+        assert_eq!(Some(f), reference.pop_fault());
+    }
+}
