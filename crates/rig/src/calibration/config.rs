@@ -355,6 +355,16 @@ impl CalibrationConfig {
         finite_pos("fs", fs)?;
         self.low.validate("low", fs)?;
         self.high.validate("high", fs)?;
+        self.validate_analysis(fs)?;
+        self.validate_high_fit()?;
+        self.validate_crossover(fs)?;
+        self.validate_design(fs)?;
+        self.validate_verify(fs)?;
+        self.validate_check()
+    }
+
+    /// The `[analysis]` settings of the spectral analysis.
+    fn validate_analysis(&self, fs: f64) -> Result<()> {
         let a = &self.analysis;
         if a.nperseg < 64 {
             return Err(CalibrationError::config(
@@ -400,7 +410,13 @@ impl CalibrationConfig {
             ));
         }
         finite_pos("analysis.flat_tol_db", a.flat_tol_db)?;
+        Ok(())
+    }
+
+    /// The `[high_fit]` settings of the high-channel fit.
+    fn validate_high_fit(&self) -> Result<()> {
         let h = &self.high_fit;
+        let a = &self.analysis;
         if h.den_order == 0 || h.num_order > h.den_order || h.den_order > 8 {
             return Err(CalibrationError::config(
                 "high_fit.den_order",
@@ -443,6 +459,11 @@ impl CalibrationConfig {
                 "must be a non-empty list of counts in 0..=4",
             ));
         }
+        Ok(())
+    }
+
+    /// The `[crossover]` settings of the crossover choice.
+    fn validate_crossover(&self, fs: f64) -> Result<()> {
         let c = &self.crossover;
         if !matches!(c.order, 2 | 4 | 8) {
             return Err(CalibrationError::config(
@@ -471,6 +492,11 @@ impl CalibrationConfig {
                 "must be > crossover.min_hz",
             ));
         }
+        Ok(())
+    }
+
+    /// The `[design]` settings of the compensator design.
+    fn validate_design(&self, fs: f64) -> Result<()> {
         let d = &self.design;
         if let Some(k) = d.k_sys {
             finite_pos("design.k_sys", k)?;
@@ -493,6 +519,11 @@ impl CalibrationConfig {
                 "must be in (0, fs/2)",
             ));
         }
+        Ok(())
+    }
+
+    /// The `[verify]` settings of the verification.
+    fn validate_verify(&self, fs: f64) -> Result<()> {
         let v = &self.verify;
         finite_pos("verify.f_min_hz", v.f_min_hz)?;
         if !(v.f_max_hz.is_finite() && v.f_max_hz >= v.f_min_hz && v.f_max_hz < fs / 2.0) {
@@ -513,6 +544,11 @@ impl CalibrationConfig {
         }
         finite_pos("verify.measure_s", v.measure_s)?;
         finite_pos("verify.tolerance_db", v.tolerance_db)?;
+        Ok(())
+    }
+
+    /// The `[check]` settings of the check.
+    fn validate_check(&self) -> Result<()> {
         let k = &self.check;
         finite_pos("check.quiet_s", k.quiet_s)?;
         if !(6..=16).contains(&k.burst_order) {

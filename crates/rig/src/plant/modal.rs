@@ -149,20 +149,14 @@ impl SlowInputs {
         self.key = key;
     }
 }
-/// Real modal decomposition of Φ: `None` if Φ is defective, has repeated
-/// eigenvalues or an ill-conditioned eigenbasis (the dense update is used then).
-pub(super) fn modal_regime<const N: usize>(
-    phi: &DMatrix<f64>,
-    gamma: &DMatrix<f64>,
-    c: &DMatrix<f64>,
-    d: &DMatrix<f64>,
-    picks: (usize, usize, Option<usize>),
-) -> Option<ModalRegime<N>> {
+/// A real eigenbasis of Φ: T with the real and imaginary parts of one
+/// eigenvector per complex pair (ascending modulus) and one per real
+/// eigenvalue (ascending), Λ block-diagonal with T⁻¹ΦT = Λ. `None` for
+/// repeated eigenvalues, an ill-conditioned basis (κ(T) ≥ 1e8) or a residual
+/// ‖ΦT − TΛ‖ above 1e-11 relative. Eigenvectors by inverse iteration.
+fn real_eigenbasis(phi: &DMatrix<f64>) -> Option<(DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
     use num_complex::Complex64 as C;
     let n = phi.nrows();
-    if n != N || N > MODAL_MAX_STATES {
-        return None;
-    }
     let ev = lti::eigenvalues(phi);
     let scale = ev.iter().map(|z| z.norm()).fold(1.0, f64::max);
     let tol = 1e-9 * scale;
@@ -243,6 +237,22 @@ pub(super) fn modal_regime<const N: usize>(
     if !(cond.is_finite() && cond < 1e8 && resid < 1e-11) {
         return None;
     }
+    Some((t, tinv, lam))
+}
+
+/// The map in the basis T·S of the blocks' input normalisation (see
+/// [`ModalRegime`]): (T, T⁻¹, Λ, Γ) become (T S, S⁻¹T⁻¹, S⁻¹ΛS, S⁻¹T⁻¹Γ)
+/// with the force column (1, 0) and, where chosen, the drive column (0, 1)
+/// written exactly; returns also whether every structure-of-arrays block
+/// takes the drive as (0, 1). `None` if a grouped block has no force input.
+#[allow(clippy::type_complexity)]
+fn normalise_inputs<const N: usize>(
+    t: DMatrix<f64>,
+    tinv: DMatrix<f64>,
+    lam: DMatrix<f64>,
+    gamma: &DMatrix<f64>,
+) -> Option<(DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, bool)> {
+    let n = t.nrows();
     // Input normalisation of the 2×2 blocks (see `ModalRegime`).
     let g0 = &tinv * gamma;
     let gmax = (0..n).map(|i| g0[(i, IN_FORCE)].abs()).fold(0.0, f64::max);
@@ -293,6 +303,24 @@ pub(super) fn modal_regime<const N: usize>(
         }
     }
     let drive_unit = kind[..2 * groups(N)].iter().all(|&k| k == 2);
+    Some((t, tinv, lam, g, drive_unit))
+}
+
+/// Real modal decomposition of Φ: `None` if Φ is defective, has repeated
+/// eigenvalues or an ill-conditioned eigenbasis (the dense update is used then).
+pub(super) fn modal_regime<const N: usize>(
+    phi: &DMatrix<f64>,
+    gamma: &DMatrix<f64>,
+    c: &DMatrix<f64>,
+    d: &DMatrix<f64>,
+    picks: (usize, usize, Option<usize>),
+) -> Option<ModalRegime<N>> {
+    let n = phi.nrows();
+    if n != N || N > MODAL_MAX_STATES {
+        return None;
+    }
+    let (t, tinv, lam) = real_eigenbasis(phi)?;
+    let (t, tinv, lam, g, drive_unit) = normalise_inputs::<N>(t, tinv, lam, gamma)?;
     let ct = c * &t;
     let (h, m1, v) = picks;
     let nat = |fl: usize| natural_index(fl, N);

@@ -103,9 +103,9 @@ impl AxisModel {
         lti::hankel_singular_values(&phi, &gam, &ss.c.rows(output, 1).into_owned())
     }
 }
-fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisModel, RigError> {
-    // DOF layout.
-    let dofs = match axis {
+/// The degrees of freedom of an axis (module docs of [`super`]).
+fn dof_map(axis: Axis) -> DofMap {
+    match axis {
         Axis::X => DofMap {
             h: 0,
             v: Some(1),
@@ -126,58 +126,81 @@ fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisMo
             n_dof: 5,
             drive: None,
         },
-    };
+    }
+}
+
+/// Masses, stiffness and damping matrices of eq. 1 with the finger and the
+/// side branches, and the DOF of real (non-phantom) bodies.
+struct Mechanics {
+    mass: Vec<f64>,
+    k: DMatrix<f64>,
+    c: DMatrix<f64>,
+    active_dof: Vec<usize>,
+}
+
+fn mechanics(p: &PlantConfig, dofs: &DofMap) -> Result<Mechanics, RigError> {
     let nd = dofs.n_dof;
-    let n = 2 * nd + usize::from(dofs.drive.is_some());
-    let mut mass = vec![1.0; nd];
-    let mut k = DMatrix::<f64>::zeros(nd, nd);
-    let mut c = DMatrix::<f64>::zeros(nd, nd);
-    let mut active_dof = vec![dofs.h, dofs.m1, dofs.m2];
-    let link =
-        |k: &mut DMatrix<f64>, c: &mut DMatrix<f64>, i: usize, j: usize, kk: f64, cc: f64| {
-            k[(i, i)] += kk;
-            k[(j, j)] += kk;
-            k[(i, j)] -= kk;
-            k[(j, i)] -= kk;
-            c[(i, i)] += cc;
-            c[(j, j)] += cc;
-            c[(i, j)] -= cc;
-            c[(j, i)] -= cc;
-        };
-    mass[dofs.h] = p.m_h;
-    mass[dofs.m1] = p.m_1;
-    mass[dofs.m2] = p.m_2;
+    let mut m = Mechanics {
+        mass: vec![1.0; nd],
+        k: DMatrix::<f64>::zeros(nd, nd),
+        c: DMatrix::<f64>::zeros(nd, nd),
+        active_dof: vec![dofs.h, dofs.m1, dofs.m2],
+    };
+    let link = |m: &mut Mechanics, i: usize, j: usize, kk: f64, cc: f64| {
+        for (mat, x) in [(&mut m.k, kk), (&mut m.c, cc)] {
+            mat[(i, i)] += x;
+            mat[(j, j)] += x;
+            mat[(i, j)] -= x;
+            mat[(j, i)] -= x;
+        }
+    };
+    m.mass[dofs.h] = p.m_h;
+    m.mass[dofs.m1] = p.m_1;
+    m.mass[dofs.m2] = p.m_2;
     if let Some(v) = dofs.v {
-        mass[v] = p.m_v;
-        active_dof.push(v);
-        link(&mut k, &mut c, dofs.h, v, p.k_v, p.b_v);
+        m.mass[v] = p.m_v;
+        m.active_dof.push(v);
+        link(&mut m, dofs.h, v, p.k_v, p.b_v);
     }
-    link(&mut k, &mut c, dofs.m1, dofs.m2, p.k_1, p.b_1);
-    link(&mut k, &mut c, dofs.m2, dofs.h, p.k_2, p.b_2);
-    k[(dofs.h, dofs.h)] += p.k_f;
-    c[(dofs.h, dofs.h)] += p.b_f;
-    if let Some(br) = p.motor_branch {
-        mass[dofs.e] = br.mass;
-        link(&mut k, &mut c, dofs.m1, dofs.e, br.stiffness, br.damping);
-        active_dof.push(dofs.e);
+    link(&mut m, dofs.m1, dofs.m2, p.k_1, p.b_1);
+    link(&mut m, dofs.m2, dofs.h, p.k_2, p.b_2);
+    m.k[(dofs.h, dofs.h)] += p.k_f;
+    m.c[(dofs.h, dofs.h)] += p.b_f;
+    for (br, node, dof) in [
+        (p.motor_branch, dofs.m1, dofs.e),
+        (p.link_branch, dofs.m2, dofs.l),
+    ] {
+        if let Some(br) = br {
+            m.mass[dof] = br.mass;
+            link(&mut m, node, dof, br.stiffness, br.damping);
+            m.active_dof.push(dof);
+        }
     }
-    if let Some(br) = p.link_branch {
-        mass[dofs.l] = br.mass;
-        link(&mut k, &mut c, dofs.m2, dofs.l, br.stiffness, br.damping);
-        active_dof.push(dofs.l);
-    }
-    if mass.iter().any(|m| !(m.is_finite() && *m > 0.0)) {
+    if m.mass.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
         return Err(RigError::InvalidInput(
             "plant masses must be finite and > 0".into(),
         ));
     }
+    Ok(m)
+}
+
+/// State matrices (A, B) of the free regime: positions, velocities and the
+/// drive state.
+fn free_matrices(
+    p: &PlantConfig,
+    h: &HaptuatorConfig,
+    dofs: &DofMap,
+    m: &Mechanics,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let nd = dofs.n_dof;
+    let n = 2 * nd + usize::from(dofs.drive.is_some());
     let mut a = DMatrix::<f64>::zeros(n, n);
     let mut b = DMatrix::<f64>::zeros(n, NU);
     for i in 0..nd {
         a[(i, nd + i)] = 1.0;
         for j in 0..nd {
-            a[(nd + i, j)] = -k[(i, j)] / mass[i];
-            a[(nd + i, nd + j)] = -c[(i, j)] / mass[i];
+            a[(nd + i, j)] = -m.k[(i, j)] / m.mass[i];
+            a[(nd + i, nd + j)] = -m.c[(i, j)] / m.mass[i];
         }
     }
     let vh = nd + dofs.h;
@@ -191,32 +214,42 @@ fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisMo
         a[(vh, di)] = 1.0 / p.m_h;
         a[(nd + v, di)] = -1.0 / p.m_v;
     }
-    // Outputs.
+    (a, b)
+}
+
+/// The state-space model of (A, B) with the outputs [ẍ_h, x_h, x_1, r]; the
+/// acceleration row is h's velocity row of (A, B).
+fn with_outputs(dofs: &DofMap, a: &DMatrix<f64>, b: &DMatrix<f64>) -> StateSpace {
+    let n = a.nrows();
+    let vh = dofs.n_dof + dofs.h;
     let mut cm = DMatrix::<f64>::zeros(NY, n);
-    let dm = DMatrix::<f64>::zeros(NY, NU);
+    let mut dm = DMatrix::<f64>::zeros(NY, NU);
     cm[(OUT_TIP, dofs.h)] = 1.0;
     cm[(OUT_MOTOR, dofs.m1)] = 1.0;
     if let Some(v) = dofs.v {
         cm[(OUT_STROKE, v)] = 1.0;
         cm[(OUT_STROKE, dofs.h)] = -1.0;
     }
-    let with_accel = |a: &DMatrix<f64>, b: &DMatrix<f64>| -> StateSpace {
-        let mut cc = cm.clone();
-        let mut dd = dm.clone();
-        for j in 0..n {
-            cc[(OUT_ACCEL, j)] = a[(vh, j)];
-        }
-        for j in 0..NU {
-            dd[(OUT_ACCEL, j)] = b[(vh, j)];
-        }
-        StateSpace {
-            a: a.clone(),
-            b: b.clone(),
-            c: cc,
-            d: dd,
-        }
-    };
-    let free = with_accel(&a, &b);
+    for j in 0..n {
+        cm[(OUT_ACCEL, j)] = a[(vh, j)];
+    }
+    for j in 0..NU {
+        dm[(OUT_ACCEL, j)] = b[(vh, j)];
+    }
+    StateSpace {
+        a: a.clone(),
+        b: b.clone(),
+        c: cm,
+        d: dm,
+    }
+}
+
+fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisModel, RigError> {
+    let dofs = dof_map(axis);
+    let nd = dofs.n_dof;
+    let m = mechanics(p, &dofs)?;
+    let (a, b) = free_matrices(p, h, &dofs, &m);
+    let free = with_outputs(&dofs, &a, &b);
     // End-stop regimes: F_m = −k_s r − b_s ṙ ± k_s s on the magnet, −F_m on h.
     let (plus, minus, stroke) = match dofs.v {
         Some(v) => {
@@ -228,7 +261,7 @@ fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisMo
             let mut ap = a.clone();
             let mut bp = b.clone();
             let mut bm = b.clone();
-            for (row, g) in [(nd + v, 1.0 / p.m_v), (vh, -1.0 / p.m_h)] {
+            for (row, g) in [(nd + v, 1.0 / p.m_v), (nd + dofs.h, -1.0 / p.m_h)] {
                 ap[(row, v)] -= g * ks;
                 ap[(row, dofs.h)] += g * ks;
                 ap[(row, nd + v)] -= g * bs;
@@ -236,18 +269,18 @@ fn build_axis(p: &PlantConfig, h: &HaptuatorConfig, axis: Axis) -> Result<AxisMo
                 bp[(row, IN_ONE)] += g * ks * s;
                 bm[(row, IN_ONE)] -= g * ks * s;
             }
-            (with_accel(&ap, &bp), with_accel(&ap, &bm), s)
+            (
+                with_outputs(&dofs, &ap, &bp),
+                with_outputs(&dofs, &ap, &bm),
+                s,
+            )
         }
         None => (free.clone(), free.clone(), f64::INFINITY),
     };
-    let mut active: Vec<usize> = Vec::new();
+    let mut active_dof = m.active_dof;
     active_dof.sort_unstable();
-    for &d in &active_dof {
-        active.push(d);
-    }
-    for &d in &active_dof {
-        active.push(nd + d);
-    }
+    let mut active: Vec<usize> = active_dof.clone();
+    active.extend(active_dof.iter().map(|&d| nd + d));
     if let Some(di) = dofs.drive {
         active.push(di);
     }
