@@ -264,6 +264,48 @@ fn to_sample(v: f64, full_scale: f64) -> f32 {
 }
 
 impl AudioRig {
+    /// Under-runs (the device played silence) and input overflows (frames
+    /// dropped) since the last block: counted, reported and queued.
+    fn note_stream_losses(&mut self, report: &mut BlockReport, shared: &Shared) {
+        let c = shared.snapshot();
+        let under = c.underrun_frames - self.seen_underruns;
+        let over = c.overflow_frames - self.seen_overflows;
+        self.seen_underruns = c.underrun_frames;
+        self.seen_overflows = c.overflow_frames;
+        if under > 0 {
+            report.skipped_samples = under;
+            self.counters.counts.skipped_samples += under;
+            self.counters.push(RigFault::Overrun {
+                seq: report.first_seq,
+                skipped: under,
+            });
+        }
+        if over > 0 {
+            let count = u32::try_from(over).unwrap_or(u32::MAX);
+            report.lost_frames = count;
+            self.counters.counts.lost_frames += over;
+            self.counters.push(RigFault::LostFrames {
+                first_seq: report.first_seq,
+                count,
+            });
+        }
+    }
+
+    /// Wall-clock pacing: sleep until the block is due, or report the lag.
+    fn pace(&mut self, report: &mut BlockReport) {
+        if self.cfg.pacing == AudioPacing::WallClock {
+            let fs = self.identity.sample_rate_hz;
+            let due =
+                self.started_at + Duration::from_secs_f64((self.seq - self.anchor_seq) as f64 / fs);
+            let now = Instant::now();
+            if now < due {
+                std::thread::sleep(due - now);
+            } else {
+                report.lag_s = (now - due).as_secs_f64();
+            }
+        }
+    }
+
     /// Open the devices and choose the stream configurations (streams start
     /// with [`Rig::start`]).
     pub fn open(cfg: &AudioRigConfig) -> Result<Self, RigError> {
@@ -607,41 +649,8 @@ impl Rig for AudioRig {
                 ))
             });
         }
-        // Under-runs (device played silence) and input overflows (frames
-        // dropped) since the last block.
-        let c = shared.snapshot();
-        let under = c.underrun_frames - self.seen_underruns;
-        let over = c.overflow_frames - self.seen_overflows;
-        self.seen_underruns = c.underrun_frames;
-        self.seen_overflows = c.overflow_frames;
-        if under > 0 {
-            report.skipped_samples = under;
-            self.counters.counts.skipped_samples += under;
-            self.counters.push(RigFault::Overrun {
-                seq: report.first_seq,
-                skipped: under,
-            });
-        }
-        if over > 0 {
-            let count = u32::try_from(over).unwrap_or(u32::MAX);
-            report.lost_frames = count;
-            self.counters.counts.lost_frames += over;
-            self.counters.push(RigFault::LostFrames {
-                first_seq: report.first_seq,
-                count,
-            });
-        }
-        if self.cfg.pacing == AudioPacing::WallClock {
-            let fs = self.identity.sample_rate_hz;
-            let due =
-                self.started_at + Duration::from_secs_f64((self.seq - self.anchor_seq) as f64 / fs);
-            let now = Instant::now();
-            if now < due {
-                std::thread::sleep(due - now);
-            } else {
-                report.lag_s = (now - due).as_secs_f64();
-            }
-        }
+        self.note_stream_losses(&mut report, &shared);
+        self.pace(&mut report);
         Ok(report)
     }
 

@@ -484,16 +484,11 @@ impl Link {
                     }
                     frame::ty::FAULT => {
                         stats.device_faults += 1;
-                        if let Some(fr) = frame::parse_fault(f.payload) {
-                            let seq = frame::unwrap_seq(fr.seq, expected);
-                            if (fr.code == fault::WATCHDOG && seq >= expected)
-                                || fr.code == fault::NOT_RUNNING
-                            {
-                                return Err(LinkErr::Watchdog {
-                                    seq,
-                                    received: expected > first,
-                                });
-                            }
+                        if let Some(seq) = watchdog_fault(f.payload, expected) {
+                            return Err(LinkErr::Watchdog {
+                                seq,
+                                received: expected > first,
+                            });
                         }
                     }
                     _ => {}
@@ -516,30 +511,51 @@ impl Link {
                 grace_used = false;
                 (cfg.timeout - idle).min(Duration::from_millis(20))
             };
-            let Some(port) = port.as_mut() else {
-                return Err(LinkErr::Io(std::io::Error::new(
-                    ErrorKind::NotConnected,
-                    "the port is closed",
-                )));
-            };
-            let _ = port.set_timeout(wait);
-            match port.read(rx) {
-                Ok(0) => {
-                    return Err(LinkErr::Io(std::io::Error::new(
-                        ErrorKind::UnexpectedEof,
-                        "end of file on the port",
-                    )));
-                }
-                Ok(k) => {
-                    // rx holds MAX_FRAME bytes, which always fit (module docs).
-                    let taken = decoder.push(&rx[..k]);
-                    stats.bytes_skipped += (k - taken) as u64;
-                }
-                Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => {}
-                Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(e) => return Err(LinkErr::Io(e)),
-            }
+            read_into(port, rx, decoder, stats, wait)?;
         }
+    }
+}
+
+/// The sequence number of a FAULT frame that means the device stopped
+/// (its watchdog tripped at or after `expected`, or it is not running).
+fn watchdog_fault(payload: &[u8], expected: u64) -> Option<u64> {
+    let fr = frame::parse_fault(payload)?;
+    let seq = frame::unwrap_seq(fr.seq, expected);
+    ((fr.code == fault::WATCHDOG && seq >= expected) || fr.code == fault::NOT_RUNNING)
+        .then_some(seq)
+}
+
+/// Wait up to `wait` for bytes on the port and feed them to the decoder
+/// (counting the bytes it skips). A time-out is not an error; end of file
+/// and I/O errors are.
+fn read_into(
+    port: &mut Option<Box<dyn SerialPort>>,
+    rx: &mut [u8],
+    decoder: &mut Decoder,
+    stats: &mut LinkStats,
+    wait: Duration,
+) -> Result<(), LinkErr> {
+    let Some(port) = port.as_mut() else {
+        return Err(LinkErr::Io(std::io::Error::new(
+            ErrorKind::NotConnected,
+            "the port is closed",
+        )));
+    };
+    let _ = port.set_timeout(wait);
+    match port.read(rx) {
+        Ok(0) => Err(LinkErr::Io(std::io::Error::new(
+            ErrorKind::UnexpectedEof,
+            "end of file on the port",
+        ))),
+        Ok(k) => {
+            // rx holds MAX_FRAME bytes, which always fit (module docs).
+            let taken = decoder.push(&rx[..k]);
+            stats.bytes_skipped += (k - taken) as u64;
+            Ok(())
+        }
+        Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => Ok(()),
+        Err(e) if e.kind() == ErrorKind::Interrupted => Ok(()),
+        Err(e) => Err(LinkErr::Io(e)),
     }
 }
 
