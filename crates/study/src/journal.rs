@@ -43,13 +43,13 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::export::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use crate::export::error::{ExportError, Position, Result, io_err};
-use crate::export::fsutil::{
+use crate::export::session::{CalibrationRef, OrderRow};
+use crate::seeds::TrialKey;
+use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::fsutil::{
     Checked, TornTail, append_durable, cut_torn_tail, open_append, split_lines, valid_prefix,
 };
-use crate::export::session::{CalibrationRef, OrderRow};
-use crate::export::utc::UtcTime;
-use crate::seeds::TrialKey;
+use crate::storage::utc::UtcTime;
 
 /// File name of the journal in a study folder.
 pub const JOURNAL_FILE: &str = "journal.jsonl";

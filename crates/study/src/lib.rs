@@ -23,4 +23,5 @@ pub mod runner;
 pub mod seeds;
 pub mod simulate;
 pub mod stats;
+mod storage;
 pub mod task;

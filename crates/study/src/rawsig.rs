@@ -42,8 +42,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::error::{ExportError, Result, io_err};
-use crate::export::fsutil::write_atomic;
+use crate::storage::error::{ExportError, Result, io_err};
+use crate::storage::fsutil::write_atomic;
 
 /// NPY magic string.
 pub const NPY_MAGIC: &[u8; 6] = b"\x93NUMPY";

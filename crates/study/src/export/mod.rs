@@ -41,12 +41,11 @@
 //! [`NpyWriter::finish`]: crate::rawsig::NpyWriter::finish
 
 pub mod checksum;
-pub mod error;
-pub mod fsutil;
 pub mod session;
 pub mod summary;
 pub mod trials;
-pub mod utc;
+
+pub use crate::storage::{error, fsutil, utc};
 
 use std::collections::HashMap;
 use std::fmt;
@@ -69,8 +68,11 @@ use crate::journal::{JOURNAL_FILE, Journal, Record, RecoveryRecord, SessionStart
 use crate::protocol::{Location, Protocol, ProtocolError};
 use crate::rawsig::{NpyWriter, RawLayout};
 use crate::seeds::{Phase, TrialKey, format_seed};
-use error::io_err;
-use fsutil::{create_dir_durable, cut_torn_tail, open_append, sync_dir, write_atomic};
+use crate::storage::error::io_err;
+use crate::storage::fsutil::{
+    append_durable, create_dir_durable, cut_torn_tail, open_append, parent_of, sync_dir,
+    write_atomic,
+};
 
 /// Folder of the raw-signal files.
 pub const RAW_DIR: &str = "raw";
@@ -1175,9 +1177,9 @@ fn create_trials_file(path: &Path) -> Result<fs::File> {
         .append(true)
         .open(path)
         .map_err(io_err(path, "create"))?;
-    fsutil::append_durable(&mut f, path, trials::header_line().as_bytes())?;
+    append_durable(&mut f, path, trials::header_line().as_bytes())?;
     f.sync_all().map_err(io_err(path, "fsync"))?;
-    sync_dir(&fsutil::parent_of(path))?;
+    sync_dir(&parent_of(path))?;
     Ok(f)
 }
 

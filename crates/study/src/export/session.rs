@@ -5,9 +5,9 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::checksum::sha256_hex;
-use super::error::{ExportError, Result, io_err};
-use super::utc::UtcTime;
 use crate::protocol::{AssignmentTable, Condition, Protocol};
+use crate::storage::error::{ExportError, Result, io_err};
+use crate::storage::utc::UtcTime;
 
 /// File name of the study record.
 pub const SESSION_FILE: &str = "session.json";

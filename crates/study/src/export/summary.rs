@@ -26,10 +26,10 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::error::{ExportError, Position, Result, io_err};
 use super::trials::{Metric, TrialRow};
 use crate::protocol::Condition;
 use crate::seeds::Phase;
+use crate::storage::error::{ExportError, Position, Result, io_err};
 
 /// File name of the long summary.
 pub const CELLS_LONG_FILE: &str = "cells_long.csv";

@@ -18,11 +18,11 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 use super::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use super::error::{ExportError, Position, Result, io_err};
-use super::fsutil::{Checked, TornTail, append_durable, split_lines, valid_prefix};
-use super::utc::UtcTime;
 use crate::protocol::{Condition, Task};
 use crate::seeds::{Phase, TrialKey, format_seed, parse_seed};
+use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::fsutil::{Checked, Line, TornTail, append_durable, split_lines, valid_prefix};
+use crate::storage::utc::UtcTime;
 
 /// File name of the trial table.
 pub const TRIALS_FILE: &str = "trials.csv";
@@ -645,7 +645,7 @@ pub fn parse_trials(path: &Path, bytes: &[u8], opts: ReadOptions) -> Result<Tria
 }
 
 /// Completeness and checksum of one data line; the CRC when valid.
-fn check_line(path: &Path, line: super::fsutil::Line<'_>, opts: ReadOptions) -> Checked<u32> {
+fn check_line(path: &Path, line: Line<'_>, opts: ReadOptions) -> Checked<u32> {
     let at = |column: Option<&str>| Position {
         line: line.number,
         column: column.map(str::to_owned),

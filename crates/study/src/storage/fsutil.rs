@@ -14,7 +14,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::error::{Result, io_err};
+use super::error::{ExportError, Result, io_err};
+use super::utc::UtcTime;
 
 /// Flushes a directory's entries (new, renamed files) to stable storage.
 ///
@@ -148,7 +149,7 @@ pub fn cut_torn_tail(
     let name = path
         .file_name()
         .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned());
-    let stamp = super::utc::UtcTime::now().unix_millis();
+    let stamp = UtcTime::now().unix_millis();
     let copy = recovery_dir.join(format!("{name}.{stamp}.torn"));
     write_atomic(&copy, bytes)?;
     let f = OpenOptions::new()
@@ -210,10 +211,10 @@ pub(crate) enum Checked<T> {
     Good(T),
     /// An invalid line: the error to report if valid lines follow it, and a
     /// short reason for the torn-tail report otherwise.
-    Bad(super::error::ExportError, String),
+    Bad(ExportError, String),
     /// A line that passed its checksum (so was written completely as it is)
     /// but cannot be understood: never cut, always an error.
-    Fatal(super::error::ExportError),
+    Fatal(ExportError),
 }
 
 /// Valid records with their 1-based line numbers, and the torn tail.
