@@ -15,7 +15,6 @@
 
 pub mod counterbalance;
 pub mod export;
-pub mod journal;
 pub mod operator;
 pub mod protocol;
 pub mod rawsig;
@@ -25,3 +24,5 @@ pub mod simulate;
 pub mod stats;
 mod storage;
 pub mod task;
+
+pub use export::journal;

@@ -41,6 +41,7 @@
 //! [`NpyWriter::finish`]: crate::rawsig::NpyWriter::finish
 
 pub mod checksum;
+pub mod journal;
 pub mod session;
 pub mod summary;
 pub mod trials;
@@ -64,7 +65,6 @@ pub use trials::{
 };
 pub use utc::UtcTime;
 
-use crate::journal::{JOURNAL_FILE, Journal, Record, RecoveryRecord, SessionStart};
 use crate::protocol::{Location, Protocol, ProtocolError};
 use crate::rawsig::{NpyWriter, RawLayout};
 use crate::seeds::{Phase, TrialKey, format_seed};
@@ -73,6 +73,7 @@ use crate::storage::fsutil::{
     append_durable, create_dir_durable, cut_torn_tail, open_append, parent_of, sync_dir,
     write_atomic,
 };
+use journal::{JOURNAL_FILE, Journal, Record, RecoveryRecord, SessionStart};
 
 /// Folder of the raw-signal files.
 pub const RAW_DIR: &str = "raw";
@@ -367,7 +368,7 @@ pub fn regenerate_summaries(dir: &Path) -> Result<SummaryFiles> {
 }
 
 /// Sittings recorded in a journal.
-fn sittings(entries: &[crate::journal::Entry]) -> Vec<Sitting> {
+fn sittings(entries: &[journal::Entry]) -> Vec<Sitting> {
     let mut out: Vec<Sitting> = Vec::new();
     for e in entries {
         match &e.record {
@@ -516,8 +517,8 @@ impl StudyStore {
         };
         // Read and check everything before modifying anything: an error
         // leaves the folder exactly as it was.
-        let journal_bytes = crate::journal::read_bytes(&journal_path)?;
-        let mut jread = crate::journal::parse_journal(&journal_path, &journal_bytes)?;
+        let journal_bytes = journal::read_bytes(&journal_path)?;
+        let mut jread = journal::parse_journal(&journal_path, &journal_bytes)?;
         for (e, line) in jread.entries.iter().zip(&jread.lines) {
             if let Record::SessionStarted(s) = &e.record
                 && s.protocol_sha256 != info.protocol_sha256
@@ -782,7 +783,7 @@ impl StudyStore {
     }
 
     fn write_session_info(&mut self) -> Result<()> {
-        let jread = crate::journal::read_journal(self.journal.path())?;
+        let jread = journal::read_journal(self.journal.path())?;
         self.info.sittings = sittings(&jread.entries);
         self.info.updated_utc = UtcTime::now();
         self.info.progress = Progress {
@@ -1232,7 +1233,7 @@ mod tests {
         assert!(e.to_string().contains("reopen"), "{e}");
         let rows = read_trials(&dir.join(TRIALS_FILE)).unwrap().rows;
         assert_eq!(rows.len(), 2, "the row reached trials.csv");
-        let j = crate::journal::read_journal(&dir.join(JOURNAL_FILE)).unwrap();
+        let j = journal::read_journal(&dir.join(JOURNAL_FILE)).unwrap();
         let completed = j
             .entries
             .iter()

@@ -42,8 +42,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use crate::export::session::{CalibrationRef, OrderRow};
+use super::checksum::{crc32, crc32_hex, parse_crc32_hex};
+use super::session::{CalibrationRef, OrderRow};
 use crate::seeds::TrialKey;
 use crate::storage::error::{ExportError, Position, Result, io_err};
 use crate::storage::fsutil::{
