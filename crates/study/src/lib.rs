@@ -14,6 +14,7 @@
 //! `docs/STUDY.md`.
 
 pub mod counterbalance;
+mod error;
 pub mod export;
 pub mod operator;
 pub mod protocol;

@@ -29,9 +29,7 @@
 
 use std::fmt;
 
-use kilotouch_rig::RigError;
-use thiserror::Error;
-
+pub use crate::error::RunError;
 use crate::export::{ExportError, StudyStore, TaskKind, TrialRow, TrialTicket, UtcTime};
 use crate::operator::{Observation, Participant, TrialBrief, VisualFrame};
 use crate::protocol::{Protocol, Task};
@@ -41,27 +39,6 @@ use crate::task::station::Station;
 use crate::task::{
     Feedback, Geometry, Scene, TaskAccumulator, TaskMetrics, TaskParams, TaskSample, TrialEnd,
 };
-
-/// Errors of running trials.
-#[derive(Debug, Error)]
-#[non_exhaustive]
-pub enum RunError {
-    /// Rig or tweezer error.
-    #[error("rig: {0}")]
-    Rig(#[from] RigError),
-    /// Storage error.
-    #[error("{0}")]
-    Export(#[from] ExportError),
-    /// Filter design error (operator percepts).
-    #[error("dsp: {0}")]
-    Dsp(#[from] kilotouch_dsp::DspError),
-    /// An operation not allowed in the current state.
-    #[error("runner: {0}")]
-    State(String),
-    /// Invalid runner configuration.
-    #[error("runner configuration: {0}")]
-    Config(String),
-}
 
 /// Camera and control timing of the runner.
 #[derive(Debug, Clone, Copy, PartialEq)]
