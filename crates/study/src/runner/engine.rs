@@ -1,11 +1,13 @@
 //! [`TrialEngine`]: runs one trial sample by sample (see the [`super`]
 //! module documentation); [`TrialOutcome`]: what a finished trial gives.
 
+use kilotouch_rig::tweezer::{TweezerEvents, TweezerSample};
+
 use crate::error::RunError;
 use crate::operator::{Observation, Participant, VisualFrame};
 use crate::protocol::Protocol;
 use crate::seeds::TrialKey;
-use crate::task::station::Station;
+use crate::task::station::{Station, StationSample};
 use crate::task::{Geometry, Scene, TaskAccumulator, TaskMetrics, TaskSample, TrialEnd};
 
 use super::config::RunnerConfig;
@@ -227,40 +229,29 @@ impl<S: Station> TrialEngine<S> {
         if self.end.is_some() {
             return Ok(self.end);
         }
-        let Some(acc) = self.acc.as_mut() else {
+        if self.acc.is_none() {
             return Err(RunError::State("no trial started".into()));
-        };
+        }
         let every = self.cfg.act_every as u64;
         let dt = 1.0 / self.fs;
         for _ in 0..n {
             let phase = self.k % every;
             if phase == 0 {
-                let obs = Observation {
-                    t_s: self.k as f64 * dt,
-                    dt_s: dt,
-                    frame: if self.vision { self.shown } else { None },
-                    force_n: &self.force_buf,
-                    accel_m_s2: &self.accel_buf,
-                    handle_m: self.handle,
-                };
-                let target = participant.act(&obs);
-                self.force_buf.clear();
-                self.accel_buf.clear();
-                self.hand_prev = self.hand_next;
-                if target.iter().all(|v| v.is_finite()) {
-                    self.hand_next = target;
-                }
+                self.ask_participant(participant, dt);
             }
-            let a = (phase + 1) as f64 / every as f64;
-            let hand = [
-                self.hand_prev[0] + a * (self.hand_next[0] - self.hand_prev[0]),
-                self.hand_prev[1] + a * (self.hand_next[1] - self.hand_prev[1]),
-            ];
+            let hand = self.hand_at(phase, every);
             self.station.set_hand(hand);
             let ss = self.station.step()?;
             self.k += 1;
             let t = self.k as f64 * dt;
             let tw = &ss.tweezer;
+            self.handle = ss.sensors.handle_m;
+            if self.force_buf.len() < self.force_buf.capacity() {
+                self.force_buf.push(ss.command.force_n);
+                self.accel_buf.push(ss.sensors.accel_m_s2);
+            }
+            let captured = self.capture_frame(t, tw);
+            self.display_due_frames();
             let sample = TaskSample {
                 t_s: t,
                 bead_m: tw.bead_m,
@@ -269,99 +260,136 @@ impl<S: Station> TrialEngine<S> {
                 force_hand_n: ss.force_hand_n,
                 trapped: tw.trapped,
             };
-            self.handle = ss.sensors.handle_m;
-            if self.force_buf.len() < self.force_buf.capacity() {
-                self.force_buf.push(ss.command.force_n);
-                self.accel_buf.push(ss.sensors.accel_m_s2);
+            let end = self.acc.as_mut().and_then(|acc| acc.push(&sample));
+            if self.k.is_multiple_of(self.cfg.trajectory_every as u64) {
+                self.keep_trajectory_point(tw.bead_m);
             }
-            // Camera: capture every frame period, display after the latency.
-            let mut ev = 0.0;
-            if self.k.is_multiple_of(self.frame_every) {
-                let geometry = self.geometry;
-                let f = VisualFrame {
-                    seq: self.frame_seq,
-                    captured_s: t,
-                    bead_m: tw.bead_m,
-                    trap_m: tw.trap_m,
-                    obstacle_m: geometry.obstacle_m,
-                    obstacle_radius_m: geometry.obstacle_radius_m,
-                    bead_radius_m: geometry.bead_radius_m,
-                };
-                let due = self.k + self.latency_samples;
-                self.frames[(self.frame_seq as usize) % FRAME_RING] = Some((due, f));
-                self.next_due = self.next_due.min(due);
-                self.frame_seq += 1;
-                ev = event::FRAME;
-            }
-            if self.k >= self.next_due {
-                let mut next = u64::MAX;
-                for slot in &mut self.frames {
-                    match *slot {
-                        Some((due, f)) if due <= self.k => {
-                            if self.shown.is_none_or(|s| s.seq < f.seq) {
-                                self.shown = Some(f);
-                            }
-                            *slot = None;
-                        }
-                        Some((due, _)) => next = next.min(due),
-                        None => {}
-                    }
-                }
-                self.next_due = next;
-            }
-            if tw.events.contact_start {
-                ev = event::CONTACT_START;
-            }
-            if tw.events.contact_end {
-                ev = event::CONTACT_END;
-            }
-            if tw.events.recaptured {
-                ev = event::RECAPTURED;
-            }
-            if tw.events.escaped {
-                ev = event::ESCAPED;
-            }
-            let end = acc.push(&sample);
-            if end.is_some() {
-                ev = event::END;
-            }
-            if self.k.is_multiple_of(self.cfg.trajectory_every as u64)
-                && self.trajectory.len() < self.trajectory_cap
-            {
-                self.trajectory.push(tw.bead_m);
-            }
-            let r = &mut self.row;
-            r[0] = ss.sensors.handle_m[0];
-            r[1] = ss.sensors.handle_m[1];
-            r[2] = tw.trap_m[0];
-            r[3] = tw.trap_m[1];
-            r[4] = tw.bead_m[0];
-            r[5] = tw.bead_m[1];
-            r[6] = tw.force_n[0];
-            r[7] = tw.force_n[1];
-            r[8] = ss.force_hand_n[0];
-            r[9] = ss.force_hand_n[1];
-            r[10] = ss.command.force_n[0];
-            r[11] = ss.command.haptuator_v;
-            r[12] = ss.sensors.accel_m_s2[0];
-            r[13] = ss.sensors.accel_m_s2[1];
-            r[14] = ss.sensors.accel_m_s2[2];
-            r[15] = f64::from(u8::from(
-                self.geometry.gap_m(tw.bead_m) < self.contact_gap_m,
-            ));
-            r[16] = ev;
-            r[17] = hand[0];
-            r[18] = hand[1];
+            self.fill_row(&ss, hand, event_code(&tw.events, captured, end.is_some()));
             raw.push(&self.row)?;
             if let Some(e) = end {
-                if self.trajectory.len() < self.trajectory_cap {
-                    self.trajectory.push(tw.bead_m);
-                }
+                self.keep_trajectory_point(tw.bead_m);
                 self.end = Some(e);
                 return Ok(Some(e));
             }
         }
         Ok(None)
+    }
+
+    /// Asks the participant for the hand target of the next `act_every`
+    /// samples, with what happened since the last call; a non-finite target
+    /// keeps the previous one.
+    #[inline]
+    fn ask_participant<P: Participant + ?Sized>(&mut self, participant: &mut P, dt: f64) {
+        let obs = Observation {
+            t_s: self.k as f64 * dt,
+            dt_s: dt,
+            frame: if self.vision { self.shown } else { None },
+            force_n: &self.force_buf,
+            accel_m_s2: &self.accel_buf,
+            handle_m: self.handle,
+        };
+        let target = participant.act(&obs);
+        self.force_buf.clear();
+        self.accel_buf.clear();
+        self.hand_prev = self.hand_next;
+        if target.iter().all(|v| v.is_finite()) {
+            self.hand_next = target;
+        }
+    }
+
+    /// The hand position at sample `phase` (0-based) of a control period of
+    /// `every` samples: linear from the previous target to the next, m.
+    #[inline]
+    fn hand_at(&self, phase: u64, every: u64) -> [f64; 2] {
+        let a = (phase + 1) as f64 / every as f64;
+        [
+            self.hand_prev[0] + a * (self.hand_next[0] - self.hand_prev[0]),
+            self.hand_prev[1] + a * (self.hand_next[1] - self.hand_prev[1]),
+        ]
+    }
+
+    /// Camera capture: every frame period, a frame of the scene at time `t`
+    /// (s) is queued for display `latency_samples` later. Returns whether a
+    /// frame was captured at this sample.
+    #[inline]
+    fn capture_frame(&mut self, t: f64, tw: &TweezerSample) -> bool {
+        if !self.k.is_multiple_of(self.frame_every) {
+            return false;
+        }
+        let geometry = self.geometry;
+        let f = VisualFrame {
+            seq: self.frame_seq,
+            captured_s: t,
+            bead_m: tw.bead_m,
+            trap_m: tw.trap_m,
+            obstacle_m: geometry.obstacle_m,
+            obstacle_radius_m: geometry.obstacle_radius_m,
+            bead_radius_m: geometry.bead_radius_m,
+        };
+        let due = self.k + self.latency_samples;
+        self.frames[(self.frame_seq as usize) % FRAME_RING] = Some((due, f));
+        self.next_due = self.next_due.min(due);
+        self.frame_seq += 1;
+        true
+    }
+
+    /// Camera display: once the earliest queued frame is due, shows the
+    /// newest due frame and drops every due one from the ring.
+    #[inline]
+    fn display_due_frames(&mut self) {
+        if self.k < self.next_due {
+            return;
+        }
+        let mut next = u64::MAX;
+        for slot in &mut self.frames {
+            match *slot {
+                Some((due, f)) if due <= self.k => {
+                    if self.shown.is_none_or(|s| s.seq < f.seq) {
+                        self.shown = Some(f);
+                    }
+                    *slot = None;
+                }
+                Some((due, _)) => next = next.min(due),
+                None => {}
+            }
+        }
+        self.next_due = next;
+    }
+
+    /// Appends a bead position to the kept trajectory, up to its capacity.
+    #[inline]
+    fn keep_trajectory_point(&mut self, bead_m: [f64; 2]) {
+        if self.trajectory.len() < self.trajectory_cap {
+            self.trajectory.push(bead_m);
+        }
+    }
+
+    /// Fills the raw row of the sample ([`super::raw_channels`] order).
+    #[inline]
+    fn fill_row(&mut self, ss: &StationSample, hand: [f64; 2], event: f64) {
+        let tw = &ss.tweezer;
+        let r = &mut self.row;
+        r[0] = ss.sensors.handle_m[0];
+        r[1] = ss.sensors.handle_m[1];
+        r[2] = tw.trap_m[0];
+        r[3] = tw.trap_m[1];
+        r[4] = tw.bead_m[0];
+        r[5] = tw.bead_m[1];
+        r[6] = tw.force_n[0];
+        r[7] = tw.force_n[1];
+        r[8] = ss.force_hand_n[0];
+        r[9] = ss.force_hand_n[1];
+        r[10] = ss.command.force_n[0];
+        r[11] = ss.command.haptuator_v;
+        r[12] = ss.sensors.accel_m_s2[0];
+        r[13] = ss.sensors.accel_m_s2[1];
+        r[14] = ss.sensors.accel_m_s2[2];
+        r[15] = f64::from(u8::from(
+            self.geometry.gap_m(tw.bead_m) < self.contact_gap_m,
+        ));
+        r[16] = event;
+        r[17] = hand[0];
+        r[18] = hand[1];
     }
 
     /// The outcome of the current trial (metrics so far if not ended).
@@ -403,5 +431,27 @@ impl<S: Station> TrialEngine<S> {
             }
         }
         self.outcome()
+    }
+}
+
+/// The `event` channel's code at a sample: its most significant event —
+/// trial end, escape, recapture, contact end, contact start, camera frame —
+/// or 0 for none ([`event`]).
+#[inline]
+fn event_code(events: &TweezerEvents, frame_captured: bool, ended: bool) -> f64 {
+    if ended {
+        event::END
+    } else if events.escaped {
+        event::ESCAPED
+    } else if events.recaptured {
+        event::RECAPTURED
+    } else if events.contact_end {
+        event::CONTACT_END
+    } else if events.contact_start {
+        event::CONTACT_START
+    } else if frame_captured {
+        event::FRAME
+    } else {
+        0.0
     }
 }
