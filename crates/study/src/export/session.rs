@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::checksum::sha256_hex;
 use crate::protocol::{AssignmentTable, Condition, Protocol};
 use crate::storage::error::{ExportError, Result, io_err};
-use crate::storage::fsutil::write_atomic;
+use crate::storage::fsutil::{read_json, write_atomic};
 use crate::storage::utc::UtcTime;
 
 /// File name of the study record.
@@ -210,11 +210,7 @@ pub fn protocol_identity(protocol: &Protocol) -> Result<(String, String)> {
 /// # Errors
 /// I/O or JSON errors.
 pub fn read_session(path: &Path) -> Result<SessionInfo> {
-    let text = std::fs::read_to_string(path).map_err(io_err(path, "read"))?;
-    serde_json::from_str(&text).map_err(|source| ExportError::Json {
-        path: path.to_path_buf(),
-        source,
-    })
+    read_json(path)
 }
 
 /// Replaces `session.json` atomically with `info` (pretty JSON and a final

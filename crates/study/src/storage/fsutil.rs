@@ -13,6 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
+use serde::de::DeserializeOwned;
 
 use super::error::{ExportError, Result, io_err};
 use super::utc::UtcTime;
@@ -73,6 +74,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     }
     fs::rename(&tmp, path).map_err(io_err(path, "rename temporary file onto"))?;
     sync_dir(&parent_of(path))
+}
+
+/// Reads a JSON file (`session.json`, a raw file's sidecar).
+///
+/// # Errors
+/// I/O errors; [`ExportError::Json`] naming the file.
+pub(crate) fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = fs::read_to_string(path).map_err(io_err(path, "read"))?;
+    serde_json::from_str(&text).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Appends `bytes` with a single `write_all` and `fdatasync`s the file: when
