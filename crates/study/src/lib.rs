@@ -1,13 +1,19 @@
 //! # kilotouch-study
 //!
 //! Psychophysics study logic for the dual-stage haptic interface of Ji,
-//! Vézien, Hayward et al. (§4 of the paper): the statistics used to compare
-//! the V / P / D conditions ([`stats`]), counterbalancing of session orders
-//! ([`counterbalance`]), study protocol files ([`protocol`]) and the
-//! crash-safe storage of a study's results: the output folder with
-//! `trials.csv`, summaries and `session.json` ([`export`]), the session
-//! journal ([`journal`]), raw signals as NPY ([`rawsig`]) and the per-trial
-//! seed derivation ([`seeds`]).
+//! Vézien, Hayward et al. (§4 of the paper):
+//!
+//! * study protocol files ([`protocol`]), counterbalancing of session
+//!   orders ([`counterbalance`]) and the per-trial seed derivation
+//!   ([`seeds`]);
+//! * the two micro-bead tasks, their metrics and the stations they run on
+//!   ([`task`]); participants and the simulated operator ([`operator`]);
+//! * the session runner ([`runner`]) and simulated studies run in parallel
+//!   ([`simulate`]);
+//! * the crash-safe storage of a study's results: the output folder with
+//!   `trials.csv`, summaries, `session.json` and the session journal
+//!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
+//! * the statistics used to compare the V / P / D conditions ([`stats`]).
 //!
 //! Equations, references and the protocol format are documented in
 //! `docs/THEORY.md`; the output folder and its formats in
@@ -26,4 +32,6 @@ pub mod stats;
 mod storage;
 pub mod task;
 
+// The journal lives in export/ (it is part of the study folder); this keeps
+// `kilotouch_study::journal` working.
 pub use export::journal;
