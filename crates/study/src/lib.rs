@@ -1,21 +1,27 @@
 //! # kilotouch-study
 //!
 //! Psychophysics study logic for the dual-stage haptic interface of Ji,
-//! Vézien, Hayward et al. (§4 of the paper): the statistics used to compare
-//! the V / P / D conditions ([`stats`]), counterbalancing of session orders
-//! ([`counterbalance`]), study protocol files ([`protocol`]) and the
-//! crash-safe storage of a study's results: the output folder with
-//! `trials.csv`, summaries and `session.json` ([`export`]), the session
-//! journal ([`journal`]), raw signals as NPY ([`rawsig`]) and the per-trial
-//! seed derivation ([`seeds`]).
+//! Vézien, Hayward et al. (§4 of the paper):
+//!
+//! * study protocol files ([`protocol`]), counterbalancing of session
+//!   orders ([`counterbalance`]) and the per-trial seed derivation
+//!   ([`seeds`]);
+//! * the two micro-bead tasks, their metrics and the stations they run on
+//!   ([`task`]); participants and the simulated operator ([`operator`]);
+//! * the session runner ([`runner`]) and simulated studies run in parallel
+//!   ([`simulate`]);
+//! * the crash-safe storage of a study's results: the output folder with
+//!   `trials.csv`, summaries, `session.json` and the session journal
+//!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
+//! * the statistics used to compare the V / P / D conditions ([`stats`]).
 //!
 //! Equations, references and the protocol format are documented in
 //! `docs/THEORY.md`; the output folder and its formats in
 //! `docs/STUDY.md`.
 
 pub mod counterbalance;
+mod error;
 pub mod export;
-pub mod journal;
 pub mod operator;
 pub mod protocol;
 pub mod rawsig;
@@ -23,4 +29,9 @@ pub mod runner;
 pub mod seeds;
 pub mod simulate;
 pub mod stats;
+mod storage;
 pub mod task;
+
+// The journal lives in export/ (it is part of the study folder); this keeps
+// `kilotouch_study::journal` working.
+pub use export::journal;

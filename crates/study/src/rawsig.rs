@@ -42,8 +42,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::error::{ExportError, Result, io_err};
-use crate::export::fsutil::write_atomic;
+use crate::storage::error::{ExportError, Result, io_err};
+use crate::storage::fsutil::{read_json, write_atomic};
 
 /// NPY magic string.
 pub const NPY_MAGIC: &[u8; 6] = b"\x93NUMPY";
@@ -544,9 +544,5 @@ pub fn read_npy(path: &Path) -> Result<NpyArray> {
 /// # Errors
 /// I/O or JSON errors.
 pub fn read_sidecar(path: &Path) -> Result<Sidecar> {
-    let text = std::fs::read_to_string(path).map_err(io_err(path, "read"))?;
-    serde_json::from_str(&text).map_err(|source| ExportError::Json {
-        path: path.to_path_buf(),
-        source,
-    })
+    read_json(path)
 }

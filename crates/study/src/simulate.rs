@@ -199,11 +199,6 @@ pub fn simulate(
     let planned_total = store.plan().len();
     let already = store.completed_count();
     let pending: Vec<PlannedTrial> = store.pending().cloned().collect();
-    let dir = opts.out.clone();
-    let next = AtomicUsize::new(0);
-    let cancel = AtomicBool::new(false);
-    let mut simulated = 0.0;
-    let fs = opts.rig.rig.sample_rate_hz;
     // Build one station per worker up front (chain design), so that an
     // invalid rig is reported before anything runs.
     let mut engines = Vec::with_capacity(threads);
@@ -213,79 +208,17 @@ pub fn simulate(
             opts.runner,
         )?);
     }
-    let result: Result<(), RunError> = std::thread::scope(|scope| {
-        let (tx, rx) = mpsc::channel::<(usize, WorkerResult)>();
-        for mut engine in engines.drain(..) {
-            let tx = tx.clone();
-            let (next, cancel, pending, dir) = (&next, &cancel, &pending, &dir);
-            let protocol = &opts.protocol;
-            scope.spawn(move || {
-                loop {
-                    if cancel.load(Ordering::Relaxed) {
-                        break;
-                    }
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(planned) = pending.get(i) else { break };
-                    let r = run_planned(&mut engine, protocol, planned, dir);
-                    let failed = r.is_err();
-                    if tx.send((i, r)).is_err() || failed {
-                        break;
-                    }
-                }
-            });
-        }
-        drop(tx);
-        let mut done: BTreeMap<usize, (UtcTime, TrialOutcome)> = BTreeMap::new();
-        let mut commit_at = 0usize;
-        let mut completed = already;
-        let fail = |e: RunError| {
-            cancel.store(true, Ordering::Relaxed);
-            Err(e)
-        };
-        for (i, r) in rx {
-            match r {
-                Ok(v) => {
-                    done.insert(i, v);
-                }
-                Err(e) => return fail(e),
-            }
-            while let Some((started, outcome)) = done.remove(&commit_at) {
-                let planned = &pending[commit_at];
-                let r = (|| -> Result<(), RunError> {
-                    let mut ticket = store.begin_trial(planned.key, started)?;
-                    if opts.runner.raw.is_some() {
-                        store.attach_raw(&mut ticket)?;
-                    }
-                    let mut row = ticket.row();
-                    outcome.metrics.fill_row(&mut row);
-                    store.commit_trial(ticket, &row)?;
-                    Ok(())
-                })();
-                if let Err(e) = r {
-                    return fail(e);
-                }
-                simulated += outcome.samples as f64 / fs;
-                commit_at += 1;
-                completed += 1;
-                progress(completed, planned_total);
-            }
-        }
-        if commit_at != pending.len() {
-            return fail(RunError::State(format!(
-                "workers stopped after {commit_at} of {} trials",
-                pending.len()
-            )));
-        }
-        Ok(())
-    });
-    result?;
-    let files = store.close()?;
+    let mut completed = already;
+    let simulated = run_in_plan_order(opts, &mut store, &pending, engines, &mut || {
+        completed += 1;
+        progress(completed, planned_total);
+    })?;
+    store.close()?;
     let rows = crate::export::read_trials(&opts.out.join(crate::export::TRIALS_FILE))?.rows;
     let test: Vec<_> = rows
         .iter()
         .filter(|r| r.phase == crate::seeds::Phase::Test)
         .collect();
-    let _ = files;
     Ok(SimulateReport {
         out: opts.out.clone(),
         protocol: opts.protocol.name.clone(),
@@ -303,4 +236,115 @@ pub fn simulate(
         raw: opts.runner.raw.is_some(),
         recovery,
     })
+}
+
+/// The pending trials, handed out to the workers in plan order until they
+/// run out or the run is cancelled.
+struct Queue<'a> {
+    pending: &'a [PlannedTrial],
+    next: AtomicUsize,
+    cancelled: AtomicBool,
+}
+
+impl Queue<'_> {
+    /// The next trial to run and its index in `pending`.
+    fn take(&self) -> Option<(usize, &PlannedTrial)> {
+        if self.cancelled.load(Ordering::Relaxed) {
+            return None;
+        }
+        let i = self.next.fetch_add(1, Ordering::Relaxed);
+        self.pending.get(i).map(|p| (i, p))
+    }
+
+    /// Stops handing out trials.
+    fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Runs `pending` on one thread per engine and commits the rows on this
+/// thread strictly in plan order (module docs), calling `committed` after
+/// each. Returns the simulated time of the trials run, s.
+///
+/// # Errors
+/// The first worker or storage error (the workers then stop after their
+/// current trial).
+fn run_in_plan_order(
+    opts: &SimulateOptions,
+    store: &mut StudyStore,
+    pending: &[PlannedTrial],
+    engines: Vec<TrialEngine<SimStation>>,
+    committed: &mut dyn FnMut(),
+) -> Result<f64, RunError> {
+    let queue = Queue {
+        pending,
+        next: AtomicUsize::new(0),
+        cancelled: AtomicBool::new(false),
+    };
+    std::thread::scope(|scope| {
+        let (tx, rx) = mpsc::channel::<(usize, WorkerResult)>();
+        for mut engine in engines {
+            let (tx, queue) = (tx.clone(), &queue);
+            scope.spawn(move || {
+                while let Some((i, planned)) = queue.take() {
+                    let r = run_planned(&mut engine, &opts.protocol, planned, &opts.out);
+                    let failed = r.is_err();
+                    if tx.send((i, r)).is_err() || failed {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        let fs = opts.rig.rig.sample_rate_hz;
+        let attach_raw = opts.runner.raw.is_some();
+        let r = commit_results(store, pending, rx, fs, attach_raw, committed);
+        if r.is_err() {
+            queue.cancel();
+        }
+        r
+    })
+}
+
+/// Commits the workers' results (index in `pending`, start time and
+/// outcome) in plan order as they arrive; `attach_raw`: the rows name the
+/// raw files the workers wrote. Returns the simulated time, s (`fs`: sample
+/// rate, Hz).
+///
+/// # Errors
+/// A worker's error; storage errors; [`RunError::State`] when the workers
+/// stopped before every trial was run.
+fn commit_results(
+    store: &mut StudyStore,
+    pending: &[PlannedTrial],
+    results: mpsc::Receiver<(usize, WorkerResult)>,
+    fs: f64,
+    attach_raw: bool,
+    committed: &mut dyn FnMut(),
+) -> Result<f64, RunError> {
+    let mut done: BTreeMap<usize, (UtcTime, TrialOutcome)> = BTreeMap::new();
+    let mut commit_at = 0usize;
+    let mut simulated = 0.0;
+    for (i, r) in results {
+        done.insert(i, r?);
+        while let Some((started, outcome)) = done.remove(&commit_at) {
+            let mut ticket = store.begin_trial(pending[commit_at].key, started)?;
+            if attach_raw {
+                store.attach_raw(&mut ticket)?;
+            }
+            let mut row = ticket.row();
+            outcome.metrics.fill_row(&mut row);
+            store.commit_trial(ticket, &row)?;
+            simulated += outcome.samples as f64 / fs;
+            commit_at += 1;
+            committed();
+        }
+    }
+    if commit_at != pending.len() {
+        return Err(RunError::State(format!(
+            "workers stopped after {commit_at} of {} trials",
+            pending.len()
+        )));
+    }
+    Ok(simulated)
 }

@@ -5,15 +5,44 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::checksum::sha256_hex;
-use super::error::{ExportError, Result, io_err};
-use super::utc::UtcTime;
 use crate::protocol::{AssignmentTable, Condition, Protocol};
+use crate::storage::error::{ExportError, Result, io_err};
+use crate::storage::fsutil::{read_json, write_atomic};
+use crate::storage::utc::UtcTime;
 
 /// File name of the study record.
 pub const SESSION_FILE: &str = "session.json";
 
 /// Format tag written to `session.json`.
 pub const FORMAT: &str = "kilotouch-study-output/1";
+
+/// Software version recorded by default.
+pub const SOFTWARE_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// Identity of the writer and the hardware, recorded with every sitting.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StudyMeta {
+    /// Software name (default `kilotouch`).
+    pub software_name: String,
+    /// Software version (default [`SOFTWARE_VERSION`]).
+    pub software_version: String,
+    /// Rig identity (e.g. `simulated`, or the Pantograph serial number).
+    pub rig: String,
+    /// Calibration file in use.
+    pub calibration: Option<CalibrationRef>,
+}
+
+impl StudyMeta {
+    /// Meta with this crate's version and no calibration.
+    pub fn new(rig: &str) -> Self {
+        Self {
+            software_name: "kilotouch".into(),
+            software_version: SOFTWARE_VERSION.into(),
+            rig: rig.into(),
+            calibration: None,
+        }
+    }
+}
 
 /// One participant's condition order.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -181,9 +210,19 @@ pub fn protocol_identity(protocol: &Protocol) -> Result<(String, String)> {
 /// # Errors
 /// I/O or JSON errors.
 pub fn read_session(path: &Path) -> Result<SessionInfo> {
-    let text = std::fs::read_to_string(path).map_err(io_err(path, "read"))?;
-    serde_json::from_str(&text).map_err(|source| ExportError::Json {
+    read_json(path)
+}
+
+/// Replaces `session.json` atomically with `info` (pretty JSON and a final
+/// newline).
+///
+/// # Errors
+/// JSON and I/O errors.
+pub(crate) fn write_session(path: &Path, info: &SessionInfo) -> Result<()> {
+    let mut json = serde_json::to_vec_pretty(info).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,
-    })
+    })?;
+    json.push(b'\n');
+    write_atomic(path, &json)
 }

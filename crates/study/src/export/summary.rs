@@ -21,15 +21,17 @@
 //! the same algorithm and order as [`crate::stats::Design`], so statistics
 //! computed from `cells_long.csv` equal those computed from the trials.
 //! Numbers are written in the shortest form that reads back to the same
-//! `f64`.
+//! `f64`. [`regenerate_summaries`] writes both files of a study folder from
+//! its `trials.csv`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::error::{ExportError, Position, Result, io_err};
-use super::trials::{Metric, TrialRow};
+use super::trials::{Metric, TRIALS_FILE, TrialRow, read_trials};
 use crate::protocol::Condition;
 use crate::seeds::Phase;
+use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::fsutil::{TornTail, write_atomic};
 
 /// File name of the long summary.
 pub const CELLS_LONG_FILE: &str = "cells_long.csv";
@@ -37,6 +39,42 @@ pub const CELLS_LONG_FILE: &str = "cells_long.csv";
 pub const CELLS_WIDE_FILE: &str = "cells_wide.csv";
 
 pub use crate::stats::compensated_mean;
+
+/// Where the summaries were written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SummaryFiles {
+    /// `cells_long.csv`.
+    pub cells_long: PathBuf,
+    /// `cells_wide.csv`.
+    pub cells_wide: PathBuf,
+    /// The summary written.
+    pub summary: Summary,
+    /// Torn tail of `trials.csv` ignored while reading, if any.
+    pub ignored_tail: Option<TornTail>,
+}
+
+/// Regenerates `cells_long.csv` and `cells_wide.csv` of `dir` from its
+/// `trials.csv` (read-only on `trials.csv`; a torn tail is ignored and
+/// reported). Both files are replaced atomically.
+///
+/// # Errors
+/// Those of [`read_trials`] and [`summarize`]; I/O errors.
+pub fn regenerate_summaries(dir: &Path) -> Result<SummaryFiles> {
+    let read = read_trials(&dir.join(TRIALS_FILE))?;
+    let summary = summarize(&read.rows)?;
+    let long = csv_text(&summary.long_header(), &summary.long_records())?;
+    let wide = csv_text(&summary.wide_header(), &summary.wide_records())?;
+    let cells_long = dir.join(CELLS_LONG_FILE);
+    let cells_wide = dir.join(CELLS_WIDE_FILE);
+    write_atomic(&cells_long, long.as_bytes())?;
+    write_atomic(&cells_wide, wide.as_bytes())?;
+    Ok(SummaryFiles {
+        cells_long,
+        cells_wide,
+        summary,
+        ignored_tail: read.torn,
+    })
+}
 
 /// One participant × condition cell.
 #[derive(Debug, Clone, PartialEq)]

@@ -11,18 +11,22 @@
 //! including, its last comma.
 
 use std::collections::HashMap;
-use std::fs::File;
+use std::fs::{File, OpenOptions};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
 use super::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use super::error::{ExportError, Position, Result, io_err};
-use super::fsutil::{Checked, TornTail, append_durable, split_lines, valid_prefix};
-use super::utc::UtcTime;
 use crate::protocol::{Condition, Task};
 use crate::seeds::{Phase, TrialKey, format_seed, parse_seed};
+use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::fsutil::{
+    Checked, Line, TornTail, append_durable, open_append, parent_of, split_lines, sync_dir,
+    valid_prefix,
+};
+use crate::storage::utc::UtcTime;
 
 /// File name of the trial table.
 pub const TRIALS_FILE: &str = "trials.csv";
@@ -52,6 +56,36 @@ pub const TRIALS_COLUMNS: [&str; 22] = [
     "raw_file",
     "row_crc32",
 ];
+
+/// The columns a trial's ticket fills when the trial begins (the row's
+/// identity, as opposed to its results), in [`TRIALS_COLUMNS`] order.
+pub(crate) const IDENTITY_COLUMNS: [&str; 10] = [
+    "participant",
+    "session_index",
+    "session_order",
+    "condition",
+    "phase",
+    "trial",
+    "task",
+    "seed",
+    "started_utc",
+    "raw_file",
+];
+
+/// The first of `columns` (names of [`TRIALS_COLUMNS`]) whose cell differs
+/// between two rows, as `(column, expected cell, found cell)` with the cells
+/// as `trials.csv` writes them ([`TrialRow::cells`]).
+pub(crate) fn first_difference<'c>(
+    expected: &TrialRow,
+    found: &TrialRow,
+    columns: &[&'c str],
+) -> Option<(&'c str, String, String)> {
+    let (e, f) = (expected.cells(), found.cells());
+    columns.iter().find_map(|&column| {
+        let i = TRIALS_COLUMNS.iter().position(|&c| c == column)?;
+        (e[i] != f[i]).then(|| (column, e[i].clone(), f[i].clone()))
+    })
+}
 
 /// The header line (with `\n`).
 pub fn header_line() -> String {
@@ -645,7 +679,7 @@ pub fn parse_trials(path: &Path, bytes: &[u8], opts: ReadOptions) -> Result<Tria
 }
 
 /// Completeness and checksum of one data line; the CRC when valid.
-fn check_line(path: &Path, line: super::fsutil::Line<'_>, opts: ReadOptions) -> Checked<u32> {
+fn check_line(path: &Path, line: Line<'_>, opts: ReadOptions) -> Checked<u32> {
     let at = |column: Option<&str>| Position {
         line: line.number,
         column: column.map(str::to_owned),
@@ -735,5 +769,59 @@ impl TrialsWriter {
     /// Path of the file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+/// Creates `trials.csv` with its header, durably.
+///
+/// # Errors
+/// I/O errors (also when the file exists).
+pub(crate) fn create_trials_file(path: &Path) -> Result<File> {
+    let mut f = OpenOptions::new()
+        .create_new(true)
+        .append(true)
+        .open(path)
+        .map_err(io_err(path, "create"))?;
+    append_durable(&mut f, path, header_line().as_bytes())?;
+    f.sync_all().map_err(io_err(path, "fsync"))?;
+    sync_dir(&parent_of(path))?;
+    Ok(f)
+}
+
+/// Whether `bytes` are a strict prefix of the header: what a crash while
+/// `trials.csv` was being created leaves (there cannot be any row).
+pub(crate) fn is_partial_header(bytes: &[u8]) -> bool {
+    let header = header_line();
+    bytes.len() < header.len() && header.as_bytes().starts_with(bytes)
+}
+
+/// Writes the header of `trials.csv` again over a partial one
+/// ([`is_partial_header`]), durably, and opens the file for appending.
+///
+/// # Errors
+/// I/O errors.
+pub(crate) fn rewrite_header(path: &Path) -> Result<File> {
+    let mut f = OpenOptions::new()
+        .write(true)
+        .open(path)
+        .map_err(io_err(path, "open"))?;
+    f.set_len(0).map_err(io_err(path, "truncate"))?;
+    f.write_all(header_line().as_bytes())
+        .map_err(io_err(path, "write"))?;
+    f.sync_all().map_err(io_err(path, "fsync"))?;
+    drop(f);
+    open_append(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identity_columns_are_columns_in_order() {
+        let at = |c: &str| TRIALS_COLUMNS.iter().position(|&n| n == c);
+        let positions: Vec<_> = IDENTITY_COLUMNS.iter().map(|c| at(c)).collect();
+        assert!(positions.iter().all(Option::is_some), "{positions:?}");
+        assert!(positions.is_sorted(), "{positions:?}");
     }
 }

@@ -56,7 +56,7 @@ pub struct TTest {
     pub n: usize,
 }
 
-/// One-sample t-test of H0: E[x] = `mu0` (two-sided).
+/// One-sample t-test of H0: E\[x\] = `mu0` (two-sided).
 ///
 /// # Errors
 /// n < 2, non-finite data, or zero sample variance.

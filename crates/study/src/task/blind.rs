@@ -23,7 +23,7 @@
 //!   `success_angle` → `retreat_angle`; abort → `aborted`.
 
 use super::{
-    ForceSums, Geometry, TaskSample, TrialEnd, angle_between, bead_escaped, norm, push_until_end,
+    EndState, ForceSums, Geometry, TaskSample, TrialEnd, angle_between, norm, push_until_end,
 };
 
 /// Thresholds of the blind-navigation task (SI, degrees).
@@ -93,8 +93,7 @@ impl BlindMetrics {
 pub struct BlindAccumulator {
     p: BlindParams,
     g: Geometry,
-    end: Option<TrialEnd>,
-    t_last: f64,
+    state: EndState,
     first_contact_s: Option<f64>,
     contact_point: [f64; 2],
     normal: [f64; 2],
@@ -102,7 +101,6 @@ pub struct BlindAccumulator {
     angle_deg: Option<f64>,
     n: u64,
     forces: ForceSums,
-    escaped: bool,
 }
 
 impl BlindAccumulator {
@@ -111,8 +109,7 @@ impl BlindAccumulator {
         Self {
             p,
             g,
-            end: None,
-            t_last: 0.0,
+            state: EndState::default(),
             first_contact_s: None,
             contact_point: [0.0; 2],
             normal: [1.0, 0.0],
@@ -120,7 +117,6 @@ impl BlindAccumulator {
             angle_deg: None,
             n: 0,
             forces: ForceSums::default(),
-            escaped: false,
         }
     }
 
@@ -132,13 +128,11 @@ impl BlindAccumulator {
     /// Adds one sample; returns the end once an end condition is met.
     #[inline]
     pub fn push(&mut self, s: &TaskSample) -> Option<TrialEnd> {
-        if self.end.is_some() {
+        if !self.state.begin(s) {
             return None;
         }
-        self.t_last = s.t_s;
         self.n += 1;
         let fb = self.forces.add(s);
-        let escaped = bead_escaped(s, self.p.escape_distance_m);
         let in_contact = self.g.gap_m(s.bead_m) < self.p.contact_gap_m;
         if in_contact {
             if self.first_contact_s.is_none() {
@@ -150,36 +144,27 @@ impl BlindAccumulator {
         if self.first_contact_s.is_some() && fb.is_finite() {
             self.peak_fb = self.peak_fb.max(fb);
         }
-        let end = if escaped {
-            self.escaped = true;
-            Some(TrialEnd::Escaped)
-        } else if self.first_contact_s.is_some() && !in_contact && {
-            let d = [
-                s.bead_m[0] - self.contact_point[0],
-                s.bead_m[1] - self.contact_point[1],
-            ];
-            norm(d) >= self.p.retreat_distance_m
-        } {
-            let d = [
-                s.bead_m[0] - self.contact_point[0],
-                s.bead_m[1] - self.contact_point[1],
-            ];
-            self.angle_deg = Some(angle_between(d, self.normal).to_degrees());
-            Some(TrialEnd::Retreated)
-        } else if s.t_s >= self.p.timeout_s {
-            Some(TrialEnd::Timeout)
-        } else {
-            None
-        };
-        self.end = end;
-        end
+        let touched = self.first_contact_s.is_some();
+        let d = [
+            s.bead_m[0] - self.contact_point[0],
+            s.bead_m[1] - self.contact_point[1],
+        ];
+        self.state
+            .decide(s, self.p.escape_distance_m, self.p.timeout_s, || {
+                // Retreated: out of contact, the retreat distance away from
+                // the contact point.
+                if touched && !in_contact && norm(d) >= self.p.retreat_distance_m {
+                    self.angle_deg = Some(angle_between(d, self.normal).to_degrees());
+                    Some(TrialEnd::Retreated)
+                } else {
+                    None
+                }
+            })
     }
 
     /// Ends the trial now unless already ended.
     pub fn force_end(&mut self, end: TrialEnd) {
-        if self.end.is_none() {
-            self.end = Some(end);
-        }
+        self.state.force_end(end);
     }
 
     /// Metrics so far.
@@ -187,8 +172,8 @@ impl BlindAccumulator {
         let touched = self.first_contact_s.is_some();
         let (force_mean_pn, force_mean_n) = self.forces.means(self.n);
         BlindMetrics {
-            end: self.end,
-            time_s: self.t_last,
+            end: self.state.end(),
+            time_s: self.state.t_last(),
             time_to_collision_s: self.first_contact_s,
             peak_force_pn: touched.then_some(self.peak_fb * 1e12),
             retreat_angle_err_deg: self.angle_deg,
@@ -196,7 +181,7 @@ impl BlindAccumulator {
             normal: touched.then_some(self.normal),
             force_mean_pn,
             force_mean_n,
-            escaped: self.escaped,
+            escaped: self.state.escaped(),
             success_angle_deg: self.p.success_angle_deg,
         }
     }

@@ -25,7 +25,7 @@
 
 use std::f64::consts::PI;
 
-use super::{ForceSums, Geometry, TaskSample, TrialEnd, bead_escaped, push_until_end, wrap_pi};
+use super::{EndState, ForceSums, Geometry, TaskSample, TrialEnd, push_until_end, wrap_pi};
 
 /// Thresholds of the circling task (SI).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -90,8 +90,7 @@ impl CirclingMetrics {
 pub struct CirclingAccumulator {
     p: CirclingParams,
     g: Geometry,
-    end: Option<TrialEnd>,
-    t_last: f64,
+    state: EndState,
     first_contact_s: Option<f64>,
     prev_angle: f64,
     turned: f64,
@@ -99,7 +98,6 @@ pub struct CirclingAccumulator {
     n_contact: u64,
     sum_disp: f64,
     forces: ForceSums,
-    escaped: bool,
 }
 
 impl CirclingAccumulator {
@@ -108,8 +106,7 @@ impl CirclingAccumulator {
         Self {
             p,
             g,
-            end: None,
-            t_last: 0.0,
+            state: EndState::default(),
             first_contact_s: None,
             prev_angle: 0.0,
             turned: 0.0,
@@ -117,7 +114,6 @@ impl CirclingAccumulator {
             n_contact: 0,
             sum_disp: 0.0,
             forces: ForceSums::default(),
-            escaped: false,
         }
     }
 
@@ -130,11 +126,9 @@ impl CirclingAccumulator {
     /// ignores samples after it).
     #[inline]
     pub fn push(&mut self, s: &TaskSample) -> Option<TrialEnd> {
-        if self.end.is_some() {
+        if !self.state.begin(s) {
             return None;
         }
-        self.t_last = s.t_s;
-        let escaped = bead_escaped(s, self.p.escape_distance_m);
         let gap = self.g.gap_m(s.bead_m);
         let in_contact = gap < self.p.contact_gap_m;
         let rel = self.g.rel(s.bead_m);
@@ -153,25 +147,16 @@ impl CirclingAccumulator {
             self.turned += wrap_pi(angle - self.prev_angle);
             self.prev_angle = angle;
         }
-        let end = if escaped {
-            self.escaped = true;
-            Some(TrialEnd::Escaped)
-        } else if self.turned.abs() >= 2.0 * PI * self.p.revolutions {
-            Some(TrialEnd::Completed)
-        } else if s.t_s >= self.p.timeout_s {
-            Some(TrialEnd::Timeout)
-        } else {
-            None
-        };
-        self.end = end;
-        end
+        let completed = self.turned.abs() >= 2.0 * PI * self.p.revolutions;
+        self.state
+            .decide(s, self.p.escape_distance_m, self.p.timeout_s, || {
+                completed.then_some(TrialEnd::Completed)
+            })
     }
 
     /// Ends the trial now (e.g. experimenter abort) unless already ended.
     pub fn force_end(&mut self, end: TrialEnd) {
-        if self.end.is_none() {
-            self.end = Some(end);
-        }
+        self.state.force_end(end);
     }
 
     /// Metrics so far.
@@ -179,8 +164,8 @@ impl CirclingAccumulator {
         let n = self.n_phase as f64;
         let (force_mean_pn, force_mean_n) = self.forces.means(self.n_phase);
         CirclingMetrics {
-            end: self.end,
-            time_s: self.t_last,
+            end: self.state.end(),
+            time_s: self.state.t_last(),
             first_contact_s: self.first_contact_s,
             contact_fraction: if self.n_phase > 0 {
                 self.n_contact as f64 / n
@@ -190,7 +175,7 @@ impl CirclingAccumulator {
             disp_err_mean_um: (self.n_phase > 0).then(|| self.sum_disp / n * 1e6),
             force_mean_pn,
             force_mean_n,
-            escaped: self.escaped,
+            escaped: self.state.escaped(),
             turns: self.turned / (2.0 * PI),
             phase_samples: self.n_phase,
             min_contact_fraction: self.p.min_contact_fraction,

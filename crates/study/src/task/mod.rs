@@ -390,6 +390,77 @@ pub(crate) fn bead_escaped(s: &TaskSample, escape_distance_m: f64) -> bool {
     !s.trapped || sep.is_nan() || sep > escape_distance_m
 }
 
+/// How a trial ends, as both tasks' accumulators decide it: samples after
+/// the end are ignored, and at each sample the end conditions are checked
+/// in the same order — the bead escaped ([`bead_escaped`]), then the
+/// task's own end, then the time-out.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct EndState {
+    end: Option<TrialEnd>,
+    t_last: f64,
+    escaped: bool,
+}
+
+impl EndState {
+    /// Starts sample `s`: records its time and returns true, or returns
+    /// false once the trial has ended (the sample is ignored).
+    #[inline]
+    pub(crate) fn begin(&mut self, s: &TaskSample) -> bool {
+        if self.end.is_some() {
+            return false;
+        }
+        self.t_last = s.t_s;
+        true
+    }
+
+    /// Ends the trial at sample `s` when an end condition is met: the bead
+    /// escaped (`escape_distance_m`, m), else `task_end` (called only then)
+    /// gives an end, else `t_s ≥ timeout_s` (s). Returns the end.
+    #[inline]
+    pub(crate) fn decide(
+        &mut self,
+        s: &TaskSample,
+        escape_distance_m: f64,
+        timeout_s: f64,
+        task_end: impl FnOnce() -> Option<TrialEnd>,
+    ) -> Option<TrialEnd> {
+        let end = if bead_escaped(s, escape_distance_m) {
+            self.escaped = true;
+            Some(TrialEnd::Escaped)
+        } else if let Some(e) = task_end() {
+            Some(e)
+        } else if s.t_s >= timeout_s {
+            Some(TrialEnd::Timeout)
+        } else {
+            None
+        };
+        self.end = end;
+        end
+    }
+
+    /// Ends the trial now unless already ended.
+    pub(crate) fn force_end(&mut self, end: TrialEnd) {
+        if self.end.is_none() {
+            self.end = Some(end);
+        }
+    }
+
+    /// How the trial ended (`None`: not yet).
+    pub(crate) fn end(&self) -> Option<TrialEnd> {
+        self.end
+    }
+
+    /// Time of the last sample processed, s.
+    pub(crate) fn t_last(&self) -> f64 {
+        self.t_last
+    }
+
+    /// The bead escaped the trap.
+    pub(crate) fn escaped(&self) -> bool {
+        self.escaped
+    }
+}
+
 /// Running sums of the force magnitudes the tasks average: the optical
 /// force on the bead |κ(trap − bead)| and the force rendered at the hand,
 /// N. Non-finite magnitudes add nothing (they still count as samples).

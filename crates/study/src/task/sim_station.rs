@@ -14,7 +14,7 @@ use rand_chacha::rand_core::Rng;
 
 use super::Scene;
 use super::station::{Station, StationSample};
-use crate::runner::RunError;
+use crate::error::RunError;
 
 /// The simulated station (module docs). A fresh rig and tweezer are built
 /// for every trial from the trial's seeds (so resumed studies reproduce rows

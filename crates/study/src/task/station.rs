@@ -19,7 +19,7 @@ use rand_chacha::ChaCha20Rng;
 pub use kilotouch_rig::coupling::HandMapping;
 
 use super::Scene;
-use crate::runner::RunError;
+use crate::error::RunError;
 
 /// One sample of a station.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

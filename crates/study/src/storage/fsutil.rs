@@ -13,8 +13,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
+use serde::de::DeserializeOwned;
 
-use super::error::{Result, io_err};
+use super::error::{ExportError, Result, io_err};
+use super::utc::UtcTime;
 
 /// Flushes a directory's entries (new, renamed files) to stable storage.
 ///
@@ -72,6 +74,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     }
     fs::rename(&tmp, path).map_err(io_err(path, "rename temporary file onto"))?;
     sync_dir(&parent_of(path))
+}
+
+/// Reads a JSON file (`session.json`, a raw file's sidecar).
+///
+/// # Errors
+/// I/O errors; [`ExportError::Json`] naming the file.
+pub(crate) fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = fs::read_to_string(path).map_err(io_err(path, "read"))?;
+    serde_json::from_str(&text).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Appends `bytes` with a single `write_all` and `fdatasync`s the file: when
@@ -148,7 +162,7 @@ pub fn cut_torn_tail(
     let name = path
         .file_name()
         .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned());
-    let stamp = super::utc::UtcTime::now().unix_millis();
+    let stamp = UtcTime::now().unix_millis();
     let copy = recovery_dir.join(format!("{name}.{stamp}.torn"));
     write_atomic(&copy, bytes)?;
     let f = OpenOptions::new()
@@ -210,10 +224,10 @@ pub(crate) enum Checked<T> {
     Good(T),
     /// An invalid line: the error to report if valid lines follow it, and a
     /// short reason for the torn-tail report otherwise.
-    Bad(super::error::ExportError, String),
+    Bad(ExportError, String),
     /// A line that passed its checksum (so was written completely as it is)
     /// but cannot be understood: never cut, always an error.
-    Fatal(super::error::ExportError),
+    Fatal(ExportError),
 }
 
 /// Valid records with their 1-based line numbers, and the torn tail.

@@ -42,14 +42,14 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use crate::export::error::{ExportError, Position, Result, io_err};
-use crate::export::fsutil::{
+use super::checksum::{crc32, crc32_hex, parse_crc32_hex};
+use super::session::{CalibrationRef, OrderRow, Sitting};
+use crate::seeds::TrialKey;
+use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::fsutil::{
     Checked, TornTail, append_durable, cut_torn_tail, open_append, split_lines, valid_prefix,
 };
-use crate::export::session::{CalibrationRef, OrderRow};
-use crate::export::utc::UtcTime;
-use crate::seeds::TrialKey;
+use crate::storage::utc::UtcTime;
 
 /// File name of the journal in a study folder.
 pub const JOURNAL_FILE: &str = "journal.jsonl";
@@ -410,4 +410,29 @@ impl Journal {
     pub fn next_seq(&self) -> u64 {
         self.next_seq
     }
+}
+
+/// Sittings recorded in a journal.
+pub(crate) fn sittings(entries: &[Entry]) -> Vec<Sitting> {
+    let mut out: Vec<Sitting> = Vec::new();
+    for e in entries {
+        match &e.record {
+            Record::SessionStarted(s) => out.push(Sitting {
+                journal_seq: e.seq,
+                started_utc: e.utc,
+                done_utc: None,
+                software_version: s.software_version.clone(),
+                rig: s.rig.clone(),
+                calibration: s.calibration.clone(),
+                resumed: s.resumed,
+            }),
+            Record::SessionDone { .. } => {
+                if let Some(last) = out.last_mut() {
+                    last.done_utc = Some(e.utc);
+                }
+            }
+            _ => {}
+        }
+    }
+    out
 }

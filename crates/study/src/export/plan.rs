@@ -1,0 +1,129 @@
+//! The plan of a study: every trial of a protocol in run order
+//! ([`PlannedTrial`], [`plan`]) and where each trial's raw file goes.
+
+use super::session::OrderRow;
+use super::trials::{TaskKind, TrialRow};
+use crate::protocol::Protocol;
+use crate::rawsig::RawLayout;
+use crate::seeds::{Phase, TrialKey, format_seed};
+use crate::storage::utc::UtcTime;
+
+/// Folder of the raw-signal files.
+pub const RAW_DIR: &str = "raw";
+
+/// One trial of the protocol's plan, with the identity columns of its row.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PlannedTrial {
+    /// Identity.
+    pub key: TrialKey,
+    /// Participant id (`P01`).
+    pub participant: String,
+    /// `session_index` column (0 for practice).
+    pub session_index: u32,
+    /// `session_order` column.
+    pub session_order: String,
+    /// Trial seed.
+    pub seed: u64,
+}
+
+impl PlannedTrial {
+    /// A row with the identity columns filled (participant, session, order,
+    /// condition, phase, trial, task, seed, start time, raw file) and every
+    /// result empty: `success = false`, metrics NA.
+    pub fn blank_row(&self, task: TaskKind, started_utc: UtcTime, raw_file: String) -> TrialRow {
+        TrialRow {
+            participant: self.participant.clone(),
+            session_index: self.session_index,
+            session_order: self.session_order.clone(),
+            condition: self.key.condition,
+            phase: self.key.phase,
+            trial: self.key.trial,
+            task,
+            success: false,
+            reject_reason: String::new(),
+            time_s: None,
+            force_mean_pn: None,
+            force_mean_n: None,
+            disp_err_mean_um: None,
+            contact_fraction: None,
+            seed: self.seed,
+            started_utc,
+            escaped: None,
+            time_to_collision_s: None,
+            peak_force_pn: None,
+            retreat_angle_err_deg: None,
+            raw_file,
+        }
+    }
+}
+
+/// Plan of a protocol: for each participant in index order, the practice
+/// block (each condition in the participant's order, `training.practice_trials`
+/// trials each), then the test sessions in the participant's order
+/// (`trials_per_session` trials each).
+pub fn plan(protocol: &Protocol, orders: &[OrderRow]) -> Vec<PlannedTrial> {
+    let seed = protocol.seeds.study;
+    let mut out = Vec::new();
+    for o in orders {
+        let order = o.order_string();
+        let mut push = |key: TrialKey, session_index: u32| {
+            out.push(PlannedTrial {
+                key,
+                participant: o.participant.clone(),
+                session_index,
+                session_order: order.clone(),
+                seed: key.seed(seed),
+            });
+        };
+        for &c in &o.sessions {
+            for t in 1..=protocol.training.practice_trials {
+                push(TrialKey::new(o.index, c, Phase::Practice, t), 0);
+            }
+        }
+        for (i, &c) in o.sessions.iter().enumerate() {
+            for t in 1..=protocol.trials_per_session {
+                push(
+                    TrialKey::new(o.index, c, Phase::Test, t),
+                    u32::try_from(i + 1).unwrap_or(u32::MAX),
+                );
+            }
+        }
+    }
+    out
+}
+
+/// Relative path (with `/`) of a trial's raw file.
+pub fn raw_file_name(planned: &PlannedTrial) -> String {
+    format!(
+        "{RAW_DIR}/{}_{}_{}_{:03}.npy",
+        planned.participant, planned.key.condition, planned.key.phase, planned.key.trial
+    )
+}
+
+/// `layout` with the trial identity added to its attributes (participant,
+/// condition, phase, trial, session_index, seed, started_utc), as
+/// [`super::StudyStore::raw_writer`] writes it.
+pub fn raw_layout_for(
+    planned: &PlannedTrial,
+    started_utc: UtcTime,
+    layout: RawLayout,
+) -> RawLayout {
+    let mut layout = layout;
+    let p = planned;
+    let attrs = [
+        (
+            "participant",
+            serde_json::Value::from(p.participant.clone()),
+        ),
+        ("condition", p.key.condition.code().into()),
+        ("phase", p.key.phase.as_str().into()),
+        ("trial", p.key.trial.into()),
+        ("session_index", p.session_index.into()),
+        ("seed", format_seed(p.seed).into()),
+        ("started_utc", started_utc.to_string().into()),
+    ];
+    for (k, v) in attrs {
+        layout.attrs.insert(k.to_owned(), v);
+    }
+    layout
+}
