@@ -116,30 +116,62 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
     if let Some(seconds) = a.paced {
         return run_paced(a, seconds);
     }
-    const N: usize = 1_000_000;
     let x = white_noise(N, 1);
-    let coeffs = ChainCoefficients::paper()?;
+    let chain = chain_figures(&x, a.reps)?;
+    let welch_1e6_ms = welch_figure(&x, a.reps)? * 1e3;
+    let rig = rig_figures(10 * a.reps.max(1))?;
+    let report = Report {
+        chain_ns_per_sample: chain.streamed / N as f64 * 1e9,
+        chain_process_ns_per_sample: chain.per_call / N as f64 * 1e9,
+        chain_block_ns_per_sample: chain.block / N as f64 * 1e9,
+        welch_1e6_ms,
+        plant_ns_per_step: rig.plant / N_RIG as f64 * 1e9,
+        tweezer_ns_per_step: rig.tweezer / N_RIG as f64 * 1e9,
+        closed_loop_ns_per_sample: rig.closed_loop / N_RIG as f64 * 1e9,
+        closed_loop_cpu_ns_per_sample: rig.closed_loop_cpu,
+        load_average: load_average(),
+        n_samples: N,
+        reps: a.reps,
+    };
+    emit(a.json, &report, || report.describe())
+}
 
+/// Samples of the chain and Welch figures.
+const N: usize = 1_000_000;
+
+/// Steps per rig run: many short runs (≈ 1–2 ms each), the best one
+/// reported — the least disturbed by other processes on a shared machine.
+const N_RIG: usize = 20_000;
+
+/// Best wall times of the paper's chain over `x`, s.
+struct ChainTimes {
+    streamed: f64,
+    per_call: f64,
+    block: f64,
+}
+
+/// The paper's chain streamed, called per sample and run in blocks of 64.
+fn chain_figures(x: &[f64], reps: usize) -> anyhow::Result<ChainTimes> {
+    let coeffs = ChainCoefficients::paper()?;
     let mut chain = Chain::new(&coeffs);
-    let streamed = best_of(a.reps, || {
+    let streamed = best_of(reps, || {
         chain.reset();
         let mut acc = 0.0;
         chain.stream(x.iter().map(|&v| black_box(v)), |l, h| acc += l + h);
         black_box(acc);
     });
-    let per_call = best_of(a.reps, || {
+    let per_call = best_of(reps, || {
         chain.reset();
         let mut acc = 0.0;
-        for &v in &x {
+        for &v in x {
             let (l, h) = chain.process(black_box(v));
             acc += l + h;
         }
         black_box(acc);
     });
-
     let mut low = vec![0.0; 64];
     let mut high = vec![0.0; 64];
-    let block = best_of(a.reps, || {
+    let block = best_of(reps, || {
         chain.reset();
         for blk in x.chunks(64) {
             let n = blk.len();
@@ -147,30 +179,47 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             black_box((&low, &high));
         }
     });
+    Ok(ChainTimes {
+        streamed,
+        per_call,
+        block,
+    })
+}
 
+/// Best wall time of a Welch PSD of `x` (nperseg 4096, 50 % overlap), s.
+fn welch_figure(x: &[f64], reps: usize) -> anyhow::Result<f64> {
     let cfg = WelchConfig::new(4096);
     let mut err = None;
-    let w = best_of(a.reps, || {
-        if let Err(e) = welch(black_box(&x), 10_000.0, &cfg) {
+    let w = best_of(reps, || {
+        if let Err(e) = welch(black_box(x), 10_000.0, &cfg) {
             err = Some(e);
         }
     });
-    if let Some(e) = err {
-        return Err(e.into());
+    match err {
+        Some(e) => Err(e.into()),
+        None => Ok(w),
     }
+}
 
-    // Rig figures: many short runs (20 000 steps, ≈ 1–2 ms each), the best
-    // one reported — the least disturbed by other processes on a shared
-    // machine — and the drive signal precomputed (no libm call in the
-    // timed loops).
-    const N_RIG: usize = 20_000;
-    let rig_reps = 10 * a.reps.max(1);
+/// Best wall times of [`N_RIG`] steps of the plant, the tweezer and the
+/// closed loop, s; the loop's thread CPU time, ns per sample.
+struct RigTimes {
+    plant: f64,
+    tweezer: f64,
+    closed_loop: f64,
+    closed_loop_cpu: Option<f64>,
+}
+
+/// The default rig's plant, tweezer and D-mode closed loop, each the best of
+/// `reps` runs of [`N_RIG`] steps; the drive signal is precomputed (no libm
+/// call in the timed loops).
+fn rig_figures(reps: usize) -> anyhow::Result<RigTimes> {
     let cfg = RigConfig::default();
     let table: Vec<f64> = (0..4096).map(|k| 0.3 * (k as f64 * 0.0731).sin()).collect();
     let drive = |k: usize| table[k & 4095];
     let mut plant = DualStagePlant::new(&cfg, Integrator::Zoh)?;
     let mut k0 = 0;
-    let plant_t = best_of(rig_reps, || {
+    let plant_t = best_of(reps, || {
         let mut acc = 0.0;
         for k in k0..k0 + N_RIG {
             let out = plant.step(&PlantInput {
@@ -186,7 +235,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
 
     let mut tweezer = SimTweezer::new(TweezerParams::paper_default(), cfg.rig.sample_rate_hz)?;
     let mut k0 = 0;
-    let tweezer_t = best_of(rig_reps, || {
+    let tweezer_t = best_of(reps, || {
         let mut acc = 0.0;
         for k in k0..k0 + N_RIG {
             acc += tweezer.step([1e-9 * drive(k), 0.0]).force_n[0];
@@ -200,7 +249,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
     let mut closed = SimLoop::simulated(&cfg, &chain, clearance)?;
     let mut loop_err = None;
     let cpu0 = thread_cpu_ns();
-    let loop_t = best_of(rig_reps, || {
+    let loop_t = best_of(reps, || {
         let mut acc = 0.0;
         for _ in 0..N_RIG {
             match closed.step() {
@@ -216,27 +265,26 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
     // Thread CPU time over all runs (the kernel updates it at scheduler
     // ticks: only the total over ≈ 0.1 s is meaningful).
     let loop_cpu = match (cpu0, thread_cpu_ns()) {
-        (Some(a0), Some(a1)) if a1 > a0 => Some((a1 - a0) as f64 / (rig_reps * N_RIG) as f64),
+        (Some(a0), Some(a1)) if a1 > a0 => Some((a1 - a0) as f64 / (reps * N_RIG) as f64),
         _ => None,
     };
     if let Some(e) = loop_err {
         return Err(e.into());
     }
+    Ok(RigTimes {
+        plant: plant_t,
+        tweezer: tweezer_t,
+        closed_loop: loop_t,
+        closed_loop_cpu: loop_cpu,
+    })
+}
 
-    let report = Report {
-        chain_ns_per_sample: streamed / N as f64 * 1e9,
-        chain_process_ns_per_sample: per_call / N as f64 * 1e9,
-        chain_block_ns_per_sample: block / N as f64 * 1e9,
-        welch_1e6_ms: w * 1e3,
-        plant_ns_per_step: plant_t / N_RIG as f64 * 1e9,
-        tweezer_ns_per_step: tweezer_t / N_RIG as f64 * 1e9,
-        closed_loop_ns_per_sample: loop_t / N_RIG as f64 * 1e9,
-        closed_loop_cpu_ns_per_sample: loop_cpu,
-        load_average: load_average(),
-        n_samples: N,
-        reps: a.reps,
-    };
-    emit(a.json, &report, || {
+impl Report {
+    /// The figures as text, one per line.
+    pub fn describe(&self) -> String {
+        let or_na = |v: Option<f64>, digits: usize| {
+            v.map_or("n/a".to_string(), |v| format!("{v:.digits$}"))
+        };
         format!(
             "paper chain, streamed    : {:8.3} ns/sample\n\
              paper chain, process()   : {:8.3} ns/sample\n\
@@ -246,22 +294,18 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
              tweezer (exact OU)       : {:8.3} ns/step\n\
              closed loop (D mode)     : {:8.3} ns/sample ({} ns/sample CPU)\n\
              (best of {} repetitions; load average {}; build with --release for meaningful figures)\n",
-            report.chain_ns_per_sample,
-            report.chain_process_ns_per_sample,
-            report.chain_block_ns_per_sample,
-            report.welch_1e6_ms,
-            report.plant_ns_per_step,
-            report.tweezer_ns_per_step,
-            report.closed_loop_ns_per_sample,
-            report
-                .closed_loop_cpu_ns_per_sample
-                .map_or("n/a".to_string(), |c| format!("{c:.3}")),
-            report.reps,
-            report
-                .load_average
-                .map_or("n/a".to_string(), |l| format!("{l:.2}"))
+            self.chain_ns_per_sample,
+            self.chain_process_ns_per_sample,
+            self.chain_block_ns_per_sample,
+            self.welch_1e6_ms,
+            self.plant_ns_per_step,
+            self.tweezer_ns_per_step,
+            self.closed_loop_ns_per_sample,
+            or_na(self.closed_loop_cpu_ns_per_sample, 3),
+            self.reps,
+            or_na(self.load_average, 2),
         )
-    })
+    }
 }
 
 /// `kilotouch bench --paced S` ([`crate::engine::soak`]).
