@@ -1,6 +1,6 @@
 //! The binary's CLI contract (README "Headless commands"), exercised through
 //! the real executable. Expected values come from analytic results and
-//! REFERENCE-VALUES.md, not from earlier runs.
+//! docs/REFERENCE-VALUES.md, not from earlier runs.
 
 mod common;
 
@@ -51,7 +51,7 @@ fn help_lists_the_commands() {
 
 #[test]
 fn crossover_lr4_matches_reference_values() {
-    // REFERENCE-VALUES.md: |L(fc)| = |H(fc)| = −6.0206 dB, in phase at fc, |L+H| = 1.
+    // docs/REFERENCE-VALUES.md: |L(fc)| = |H(fc)| = −6.0206 dB, in phase at fc, |L+H| = 1.
     let v = json_ok(&[
         "crossover",
         "--fs",
@@ -142,7 +142,7 @@ fn crossover_rejects_bad_arguments() {
 
 #[test]
 fn psd_of_white_noise_is_two_over_fs() {
-    // Unit-variance white noise: one-sided density 2/fs (REFERENCE-VALUES.md).
+    // Unit-variance white noise: one-sided density 2/fs (docs/REFERENCE-VALUES.md).
     // A deterministic LCG keeps the test independent of the library's RNG.
     let dir = tempfile::tempdir().unwrap();
     let mut state: u64 = 12345;

@@ -116,7 +116,7 @@ fn sim_frf_low_channel_is_flat_over_the_pantograph_band() {
 
 #[test]
 fn sim_tweezer_obeys_equipartition_and_the_corner_frequency() {
-    // ⟨x²⟩ = k_BT/κ and f_c = κ/(2πγ0), γ0 = 6πηR (REFERENCE-VALUES.md), computed here independently.
+    // ⟨x²⟩ = k_BT/κ and f_c = κ/(2πγ0), γ0 = 6πηR (docs/REFERENCE-VALUES.md), computed here independently.
     let v = json_ok(&[
         "sim",
         "tweezer",

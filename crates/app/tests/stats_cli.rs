@@ -1,4 +1,4 @@
-//! `kilotouch stats` against the public test vectors of REFERENCE-VALUES.md.
+//! `kilotouch stats` against the public test vectors of docs/REFERENCE-VALUES.md.
 
 use serde_json::Value;
 use std::process::Command;

@@ -103,7 +103,7 @@ fn exact_update_is_stable_for_dt_much_larger_than_tau() {
 }
 
 /// Euler–Maruyama's stationary variance is (k_BT/κ)/(1 − dt/2τ): at
-/// dt/τ = 1 it is twice the truth (REFERENCE-VALUES.md).
+/// dt/τ = 1 it is twice the truth (docs/REFERENCE-VALUES.md).
 #[test]
 fn euler_maruyama_variance_bias_matches_theory() {
     let p = TweezerParams::paper_default();
@@ -123,7 +123,7 @@ fn euler_maruyama_variance_bias_matches_theory() {
 }
 
 /// Near the coverslip (h = 1.5 R) the dynamics slow by Faxén's factor
-/// 1.615 (REFERENCE-VALUES.md) while the variance stays k_BT/κ.
+/// 1.615 (docs/REFERENCE-VALUES.md) while the variance stays k_BT/κ.
 #[test]
 fn fitted_corner_near_a_wall_follows_faxen() {
     let args = TweezerSimArgs {

@@ -28,7 +28,7 @@ fn sim(cfg: &RigConfig) -> RigAdapter<kilotouch_rig::SimRig> {
 
 /// Acceptance: on the default simulated rig the compensated chain is flat
 /// within ±1 dB over the third-octave bands 63 Hz–1 kHz (IEC centres,
-/// REFERENCE-VALUES.md), and the uncompensated figure is reported beside it.
+/// docs/REFERENCE-VALUES.md), and the uncompensated figure is reported beside it.
 #[test]
 fn default_sim_rig_is_flat_within_1_db() {
     let out = calibrate_quietly(
@@ -78,7 +78,7 @@ fn default_sim_rig_is_flat_within_1_db() {
 
 /// The group delay reported is that of the chain at DC, where only the low
 /// path passes: the Linkwitz–Riley LR4 low-pass delay 2√2/ω_c
-/// (REFERENCE-VALUES.md; 2.25 ms at 200 Hz), C_L being a gain.
+/// (docs/REFERENCE-VALUES.md; 2.25 ms at 200 Hz), C_L being a gain.
 #[test]
 fn group_delay_is_the_lr4_dc_delay() {
     let out = calibrate_quietly(
@@ -154,7 +154,7 @@ fn sim_identification_matches_the_analytic_plant() {
 }
 
 /// On the stand-in, whose high channel is the paper's eq. 2 (× 20), the fit
-/// recovers eq. 2 (REFERENCE-VALUES.md: natural frequency 339.86 Hz, damping
+/// recovers eq. 2 (docs/REFERENCE-VALUES.md: natural frequency 339.86 Hz, damping
 /// 0.4999, zero at −2560 rad/s, DC gain 0.140351; the stand-in is the
 /// bilinear image of eq. 2 prewarped at the natural frequency, so the
 /// zero, far from it and weakly determined, within 10 %), Ĝ_H follows the

@@ -254,7 +254,7 @@ fn high_channel_follows_paper_eq2() {
         let s = C64::new(0.0, 2.0 * PI * f);
         (250.0 * s + 6.40e5) / (s * s + 2135.0 * s + 4.56e6)
     };
-    // Cross-check the reference itself (REFERENCE-VALUES.md).
+    // Cross-check the reference itself (docs/REFERENCE-VALUES.md).
     assert!((gh(1000.0).norm() - 0.0453443).abs() < 1e-6);
     let f = grid(100.0, 1000.0, 2000);
     let d: Vec<f64> = f

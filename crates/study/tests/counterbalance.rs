@@ -1,6 +1,6 @@
 //! Williams balanced Latin squares: Latin and first-order carry-over
 //! balance for n = 2..=8, assignment rule, the 3-condition / 8-participant
-//! case of REFERENCE-VALUES.md, and the seeded label permutation.
+//! case of docs/REFERENCE-VALUES.md, and the seeded label permutation.
 
 use std::collections::{HashMap, HashSet};
 
@@ -87,7 +87,7 @@ fn three_conditions_give_all_six_orders() {
     assert_eq!(set, all);
 }
 
-/// REFERENCE-VALUES: 3 conditions → 6 rows; 8 participants cannot be fully
+/// docs/REFERENCE-VALUES.md: 3 conditions → 6 rows; 8 participants cannot be fully
 /// balanced. With participant i → row i mod 6, rows 0 and 1 are used by
 /// participants (0, 6) and (1, 7); rows 2..5 once.
 #[test]

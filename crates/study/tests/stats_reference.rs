@@ -1,5 +1,5 @@
 //! Statistics against the public test vectors of
-//! `../shared/reference/REFERENCE-VALUES.md` (PlantGrowth one-way ANOVA,
+//! `docs/REFERENCE-VALUES.md` (PlantGrowth one-way ANOVA,
 //! the scipy Friedman example, the 5 × 3 repeated-measures example), the
 //! scipy `wilcoxon` documentation example, closed forms derived here, and
 //! invariants.

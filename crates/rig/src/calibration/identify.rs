@@ -742,7 +742,7 @@ mod tests {
 
     /// The paper's Ĝ_H (eq. 2) sampled exactly with coherence 1 above 100 Hz
     /// and 0.3 below: the reliable band starts at the first coherent bin and
-    /// the fit recovers eq. 2 (REFERENCE-VALUES.md: ω_n = 2135.42 rad/s,
+    /// the fit recovers eq. 2 (docs/REFERENCE-VALUES.md: ω_n = 2135.42 rad/s,
     /// ζ = 0.4999, zero at −2560 rad/s).
     #[test]
     fn high_fit_recovers_paper_model_above_unreliable_band() {

@@ -22,7 +22,7 @@
 //! **Exact step.** With γ_i frozen over a (sub)step h, c = e^{−h/τ},
 //! τ = γ_i/k_i, w = ė_i:
 //! x(h) = e(h) + c (x₀ − e(0)) + (v_d − w) τ (1 − c) + √((k_BT/k_i)(1 − c²)) N(0,1),
-//! the exact Ornstein–Uhlenbeck transition (REFERENCE-VALUES.md), stable for
+//! the exact Ornstein–Uhlenbeck transition (docs/REFERENCE-VALUES.md), stable for
 //! every h. Euler–Maruyama is available for comparison (biased variance
 //! (k_BT/κ)/(1 − h/2τ), unstable for h > 2τ).
 //!
