@@ -1,5 +1,5 @@
-//! The engine keeps its rate while the GUI is busy resizing and plotting
-//! (issue 6): the whole app on the Explore page (live traces, histogram,
+//! The engine keeps its rate while the GUI is busy resizing and plotting:
+//! the whole app on the Explore page (live traces, histogram,
 //! spectrum, microscope scene through the painter) is stepped as fast as the
 //! test thread can for `KILOTOUCH_BUSY_GUI_TEST_S` seconds (default 20),
 //! resizing the window every frame through six sizes, while the engine runs

@@ -94,7 +94,7 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
     assert!(saw_progress, "no step message was shown while running");
 
     // The verdict is shown and agrees with the verification table: every
-    // third-octave band 63 Hz–1 kHz within ±1 dB (issue 4 acceptance),
+    // third-octave band 63 Hz–1 kHz within ±1 dB (the calibration criterion),
     // recomputed here from the bands.
     h.get_by_label_contains("Verification PASS");
     let file = h.state().page.calibration().expect("a result").clone();

@@ -1,4 +1,4 @@
-//! Issue 7 acceptance, alone in its binary because it takes a minute:
+//! The serial link's soak, alone in its binary because it takes a minute:
 //! `kilotouch rig check` over the emulator's pty streams 10 kHz for 60 s
 //! with no lost frame.
 

@@ -1,6 +1,6 @@
 //! The serial rig end to end through the real executable: `kilotouch
 //! emulate daq --pty` in one process, `kilotouch rig check` and `kilotouch
-//! calibrate --rig serial:PATH` in another (issue 7 acceptance, except the
+//! calibrate --rig serial:PATH` in another (the link's checks, except the
 //! 60 s run, which lives in `serial_acceptance.rs`).
 
 mod common;

@@ -1,4 +1,4 @@
-//! The calibration procedure (issue 4) end to end: on the simulated rig (the
+//! The calibration procedure end to end: on the simulated rig (the
 //! acceptance criteria), on perturbed plants, and on the linear stand-in rig
 //! whose true responses are known exactly.
 
