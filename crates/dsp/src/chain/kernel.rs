@@ -23,7 +23,8 @@
 //!   (equal outputs, up to the sign of a zero).
 //!
 //! The fast kernel computes the same recursion as the reference, rounded
-//! differently.
+//! differently; `tests/chain_equivalence.rs` compares the two over every
+//! stage count (tolerance and its reason stated there).
 //!
 //! The recursive state must stay in registers to be fast: an f64 value
 //! stored and reloaded through memory on every sample adds the
@@ -89,7 +90,7 @@ pub(super) const ZERO_STATE: State = [[[0.0; 2]; 2]; MAX_STAGES];
 ///   first order in both lanes (`tail1`) skips the s2 update.
 /// * `General`: the reference kernel, plain TDF-II per lane (any b0,
 ///   including 0), over all [`MAX_STAGES`]; used for hand-made sections that
-///   cannot be normalised.
+///   cannot be normalised, and by [`super::Chain::new_reference`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Kernel {
     Norm { stages: usize, tail1: bool },
@@ -110,9 +111,9 @@ pub(super) struct Coefs {
 
 impl Coefs {
     /// The sections `low` and `high` (each 1..=[`MAX_STAGES`] long) in
-    /// kernel form: the fast kernel when every b0 can be normalised, the
-    /// reference kernel otherwise.
-    pub(super) fn new(low: &[BiquadCoeffs], high: &[BiquadCoeffs]) -> Self {
+    /// kernel form: the fast kernel when `fast` is set and every b0 can be
+    /// normalised, the reference kernel otherwise.
+    pub(super) fn new(low: &[BiquadCoeffs], high: &[BiquadCoeffs], fast: bool) -> Self {
         let stages = low.len().max(high.len());
         let mut st = [LaneStage::IDENTITY; MAX_STAGES];
         for (k, stage) in st.iter_mut().enumerate() {
@@ -127,7 +128,7 @@ impl Coefs {
             cum: [[1.0; 2]; MAX_STAGES],
             kernel: Kernel::General,
         };
-        if c.normalise() {
+        if fast && c.normalise() {
             let last = &c.st[stages - 1].orig;
             let tail1 = last.iter().all(BiquadCoeffs::is_first_order);
             c.kernel = Kernel::Norm { stages, tail1 };

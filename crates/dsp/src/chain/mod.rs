@@ -17,7 +17,8 @@
 //! monomorphised per stage count; the reference kernel next to it is plain
 //! TDF-II per lane, the same operations as [`Sos`](crate::filter::Sos). The
 //! fast kernel runs every chain whose sections can be normalised (all
-//! designed chains); its outputs agree with the reference to rounding.
+//! designed chains); its outputs agree with the reference to rounding
+//! (`tests/chain_equivalence.rs` checks every stage count).
 //!
 //! # Entry points
 //! The recursive state must stay in registers to be fast: an f64 value
@@ -240,6 +241,8 @@ pub struct Chain {
     tick: u32,
     nonfinite: u64,
     stages: usize,
+    /// Set by [`Chain::new_reference`]: never run the fast kernel.
+    reference: bool,
     n_low: usize,
     n_high: usize,
     fs: f64,
@@ -256,7 +259,22 @@ impl Chain {
     /// Chain with a cross-fade of `fade_len` samples for coefficient swaps
     /// (0 = switch at once, keeping the state).
     pub fn with_fade(coeffs: &ChainCoefficients, fade_len: u32) -> Self {
-        let c = Coefs::new(&coeffs.low, &coeffs.high);
+        Self::build(coeffs, fade_len, false)
+    }
+
+    /// Chain that runs the reference kernel (plain TDF-II per lane, the same
+    /// operations as an [`Sos`](crate::filter::Sos) of each path) for every
+    /// coefficient set, including later swaps; otherwise identical to
+    /// [`Chain::new`]. For the equivalence harness
+    /// (`tests/chain_equivalence.rs`), which checks the fast kernel against
+    /// it; not meant for production use.
+    #[doc(hidden)]
+    pub fn new_reference(coeffs: &ChainCoefficients) -> Self {
+        Self::build(coeffs, DEFAULT_FADE_SAMPLES, true)
+    }
+
+    fn build(coeffs: &ChainCoefficients, fade_len: u32, reference: bool) -> Self {
+        let c = Coefs::new(&coeffs.low, &coeffs.high, !reference);
         Self {
             c,
             s: ZERO_STATE,
@@ -268,6 +286,7 @@ impl Chain {
             tick: 0,
             nonfinite: 0,
             stages: coeffs.stages(),
+            reference,
             n_low: coeffs.low.len(),
             n_high: coeffs.high.len(),
             fs: coeffs.fs,
@@ -287,9 +306,22 @@ impl Chain {
 
     /// True when the running coefficients use the fast normalised kernel
     /// (always the case for designed chains; hand-made sections with b0 = 0
-    /// fall back to the reference kernel).
+    /// fall back to the reference kernel, which [`Chain::new_reference`]
+    /// always uses).
     pub fn uses_fast_kernel(&self) -> bool {
         matches!(self.c.kernel, Kernel::Norm { .. })
+    }
+
+    /// `Some((stage count, first-order tail))` of the fast kernel running the
+    /// current coefficients, `None` when the reference kernel runs them. For
+    /// the equivalence harness (`tests/chain_equivalence.rs`), which checks
+    /// that every fast kernel was exercised.
+    #[doc(hidden)]
+    pub fn fast_kernel_shape(&self) -> Option<(usize, bool)> {
+        match self.c.kernel {
+            Kernel::Norm { stages, tail1 } => Some((stages, tail1)),
+            Kernel::General => None,
+        }
     }
 
     /// True while a coefficient cross-fade is in progress.
@@ -338,7 +370,7 @@ impl Chain {
                 "a coefficient cross-fade is still in progress".into(),
             ));
         }
-        let new = Coefs::new(&coeffs.low, &coeffs.high);
+        let new = Coefs::new(&coeffs.low, &coeffs.high, !self.reference);
         let s = new.convert_state(&self.c, &self.s);
         if self.fade_len > 0 {
             self.gc = self.c;
