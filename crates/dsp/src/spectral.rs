@@ -23,6 +23,7 @@
 //! (or per accumulator) and reused for every segment; detrending and
 //! windowing are fused into the single pass that fills the FFT input.
 
+use crate::error::check_fs;
 use crate::{C64, DspError, Result};
 use realfft::{RealFftPlanner, RealToComplex};
 use serde::{Deserialize, Serialize};
@@ -287,13 +288,7 @@ struct Params {
 
 impl Params {
     fn new(cfg: &WelchConfig, fs: f64, len: Option<usize>) -> Result<(Self, Vec<f64>)> {
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(DspError::param(
-                "fs",
-                fs,
-                "sample rate must be finite and > 0",
-            ));
-        }
+        check_fs(fs)?;
         let nperseg = cfg.nperseg;
         if nperseg == 0 {
             return Err(DspError::param("nperseg", 0.0, "must be ≥ 1"));

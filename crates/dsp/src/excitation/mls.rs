@@ -5,6 +5,7 @@
 //! loops, and the [`mls_bits`] / [`mls_signal`] builders.
 
 use super::buffer::alloc_len;
+use crate::error::check_positive;
 use crate::{DspError, Result};
 
 /// Smallest supported MLS order (register length in bits).
@@ -133,13 +134,7 @@ impl Mls {
             }
             feedback_mask ^= 1u64 << t;
         }
-        if !(amplitude.is_finite() && amplitude > 0.0) {
-            return Err(DspError::InvalidParameter {
-                name: "amplitude",
-                value: amplitude,
-                reason: "must be finite and > 0".into(),
-            });
-        }
+        check_positive("amplitude", amplitude)?;
         if hold == 0 {
             return Err(DspError::InvalidParameter {
                 name: "hold",

@@ -3,7 +3,7 @@
 //! where each window lies.
 
 use super::buffer::alloc_len;
-use crate::error::check_fs;
+use crate::error::{check_fs, check_non_negative, check_positive};
 use crate::{DspError, Result};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -81,27 +81,9 @@ pub fn stepped_sine_schedule(cfg: &SteppedSineConfig, fs: f64) -> Result<Vec<Sin
     if cfg.frequencies.is_empty() {
         return Err(DspError::InvalidInput("no stepped-sine frequencies".into()));
     }
-    if !(cfg.amplitude.is_finite() && cfg.amplitude > 0.0) {
-        return Err(DspError::param(
-            "amplitude",
-            cfg.amplitude,
-            "must be finite and > 0",
-        ));
-    }
-    if !(cfg.settle_time.is_finite() && cfg.settle_time >= 0.0) {
-        return Err(DspError::param(
-            "settle_time",
-            cfg.settle_time,
-            "must be finite and ≥ 0",
-        ));
-    }
-    if !(cfg.measure_time.is_finite() && cfg.measure_time > 0.0) {
-        return Err(DspError::param(
-            "measure_time",
-            cfg.measure_time,
-            "must be finite and > 0",
-        ));
-    }
+    check_positive("amplitude", cfg.amplitude)?;
+    check_non_negative("settle_time", cfg.settle_time)?;
+    check_positive("measure_time", cfg.measure_time)?;
     let limit = 1e15; // samples; keeps all integer arithmetic exact in f64
     let settle = (cfg.settle_time * fs).ceil();
     if settle > limit {

@@ -2,7 +2,7 @@
 //! Convention, preprint 5093), with optional raised-cosine fades.
 
 use super::buffer::alloc_len;
-use crate::error::check_fs;
+use crate::error::{check_fs, check_non_negative, check_positive};
 use crate::{DspError, Result};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -73,9 +73,7 @@ impl LogSweep {
     /// Check the parameters against the sample rate `fs` (Hz).
     pub fn validate(&self, fs: f64) -> Result<()> {
         check_fs(fs)?;
-        if !(self.f1.is_finite() && self.f1 > 0.0) {
-            return Err(DspError::param("f1", self.f1, "must be finite and > 0"));
-        }
+        check_positive("f1", self.f1)?;
         if !(self.f2.is_finite() && self.f2 > self.f1 && self.f2 <= fs / 2.0) {
             return Err(DspError::param(
                 "f2",
@@ -90,27 +88,9 @@ impl LogSweep {
                 "must be finite and last at least 2 samples",
             ));
         }
-        if !(self.amplitude.is_finite() && self.amplitude > 0.0) {
-            return Err(DspError::param(
-                "amplitude",
-                self.amplitude,
-                "must be finite and > 0",
-            ));
-        }
-        if !(self.fade_in.is_finite() && self.fade_in >= 0.0) {
-            return Err(DspError::param(
-                "fade_in",
-                self.fade_in,
-                "must be finite and ≥ 0",
-            ));
-        }
-        if !(self.fade_out.is_finite() && self.fade_out >= 0.0) {
-            return Err(DspError::param(
-                "fade_out",
-                self.fade_out,
-                "must be finite and ≥ 0",
-            ));
-        }
+        check_positive("amplitude", self.amplitude)?;
+        check_non_negative("fade_in", self.fade_in)?;
+        check_non_negative("fade_out", self.fade_out)?;
         if self.fade_in + self.fade_out > self.duration {
             return Err(DspError::param(
                 "fade_out",
