@@ -183,9 +183,9 @@ impl BandLevel {
     }
 }
 
-/// One-sided power spectrum P[k], k = 0 … ⌊N/2⌋, of `x` with a rectangular
-/// window, normalised so that Σ_k P[k] = (1/N) Σ_n x[n]² (Parseval):
-/// P[k] = c_k |X[k]|²/N², c_k = 1 at DC and at Nyquist (even N), 2 otherwise.
+/// One-sided power spectrum P\[k\], k = 0 … ⌊N/2⌋, of `x` with a rectangular
+/// window, normalised so that Σ_k P\[k\] = (1/N) Σ_n x\[n\]² (Parseval):
+/// P\[k\] = c_k |X\[k\]|²/N², c_k = 1 at DC and at Nyquist (even N), 2 otherwise.
 fn one_sided_power(x: &[f64]) -> Result<Vec<f64>> {
     let n = x.len();
     let mut planner = RealFftPlanner::<f64>::new();

@@ -1,7 +1,8 @@
 //! The chain's kernels: the per-sample arithmetic of the two paths, packed
 //! as the two lanes of `[f64; 2]` (lane 0 = low path, lane 1 = high path),
-//! and the coefficient and state layout they run on. [`super::Chain`] owns
-//! the bookkeeping around them (sample counter, events, cross-fade).
+//! the coefficient and state layout they run on, and the per-sample guard
+//! ([`guarded`]: flush schedule, non-finite events). [`super::Chain`] owns
+//! the state between calls, the block chunking and the cross-fade.
 //!
 //! # Two kernels
 //! * The fast kernel ([`run_norm`]): the low and high paths are independent,
