@@ -71,6 +71,26 @@ impl DspError {
     }
 }
 
+/// `value` must be finite and > 0; otherwise `InvalidParameter` naming
+/// `name`.
+pub(crate) fn check_positive(name: &'static str, value: f64) -> crate::Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(DspError::param(name, value, "must be finite and > 0"))
+    }
+}
+
+/// `value` must be finite and ≥ 0; otherwise `InvalidParameter` naming
+/// `name`.
+pub(crate) fn check_non_negative(name: &'static str, value: f64) -> crate::Result<()> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(DspError::param(name, value, "must be finite and ≥ 0"))
+    }
+}
+
 /// A sample rate must be finite and positive (hertz).
 pub(crate) fn check_fs(fs: f64) -> crate::Result<()> {
     if fs.is_finite() && fs > 0.0 {

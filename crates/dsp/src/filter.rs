@@ -18,9 +18,11 @@
 //! ```
 //!
 //! The operations are evaluated in exactly this order (the parenthesised sum
-//! first, which keeps the feedback path y → s1 two operations long); the
-//! SIMD signal chain in [`crate::chain`] uses the same order per lane, so it
-//! is bit-identical to an [`Sos`] built from the same sections.
+//! first, which keeps the feedback path y → s1 two operations long). The
+//! reference kernel of the signal chain in [`crate::chain`] uses the same
+//! order per lane, so it is bit-identical to an [`Sos`] built from the same
+//! sections (up to the sign of a zero output); the chain's fast kernel
+//! normalises each section to b0 = 1 and agrees with it to rounding.
 //!
 //! An [`Sos`] is a cascade of biquads. All coefficients and state are `f64`.
 //!

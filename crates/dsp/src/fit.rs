@@ -322,6 +322,20 @@ fn prepare(
     na: usize,
     opts: &FitOptions,
 ) -> Result<Vec<Point>> {
+    check_data(f_hz, h, weights, nb, na)?;
+    let band = check_options(opts)?;
+    select_points(f_hz, h, weights, nb, na, band)
+}
+
+/// The data checks of [`fit_tf`]: lengths, non-empty data, a proper model,
+/// finite non-negative frequencies, finite responses and weights.
+fn check_data(
+    f_hz: &[f64],
+    h: &[C64],
+    weights: Option<&[f64]>,
+    nb: usize,
+    na: usize,
+) -> Result<()> {
     if f_hz.len() != h.len() {
         return Err(DspError::InvalidInput(format!(
             "frequency and response lengths differ ({} vs {})",
@@ -370,6 +384,11 @@ fn prepare(
             reason: format!("weight #{i} must be finite and non-negative"),
         });
     }
+    Ok(())
+}
+
+/// The option checks of [`fit_tf`]; returns the band [fmin, fmax] in Hz.
+fn check_options(opts: &FitOptions) -> Result<(f64, f64)> {
     if !opts.tol.is_finite() || opts.tol < 0.0 {
         return Err(DspError::InvalidParameter {
             name: "tol",
@@ -402,6 +421,21 @@ fn prepare(
             reason: format!("must be ≥ fmin_hz = {fmin}"),
         });
     }
+    Ok((fmin, fmax))
+}
+
+/// The points in `band` = (fmin, fmax) Hz with positive weight, as σ = jω;
+/// errors when the band holds no such point, gives fewer real equations
+/// (2 per point) than the nb + 1 + na unknowns, or the response vanishes in
+/// it.
+fn select_points(
+    f_hz: &[f64],
+    h: &[C64],
+    weights: Option<&[f64]>,
+    nb: usize,
+    na: usize,
+    (fmin, fmax): (f64, f64),
+) -> Result<Vec<Point>> {
     let in_band = f_hz.iter().filter(|&&f| f >= fmin && f <= fmax).count();
     if in_band == 0 {
         return Err(DspError::InvalidInput(format!(

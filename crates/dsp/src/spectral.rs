@@ -23,11 +23,13 @@
 //! (or per accumulator) and reused for every segment; detrending and
 //! windowing are fused into the single pass that fills the FFT input.
 
+use crate::error::check_fs;
 use crate::{C64, DspError, Result};
 use realfft::{RealFftPlanner, RealToComplex};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::fmt;
+use std::ops::Mul;
 use std::sync::Arc;
 
 // ---------------------------------------------------------------------------
@@ -286,13 +288,7 @@ struct Params {
 
 impl Params {
     fn new(cfg: &WelchConfig, fs: f64, len: Option<usize>) -> Result<(Self, Vec<f64>)> {
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(DspError::param(
-                "fs",
-                fs,
-                "sample rate must be finite and > 0",
-            ));
-        }
+        check_fs(fs)?;
         let nperseg = cfg.nperseg;
         if nperseg == 0 {
             return Err(DspError::param("nperseg", 0.0, "must be ≥ 1"));
@@ -379,42 +375,37 @@ impl Params {
     }
 }
 
-/// Sum with eight independent partial sums (vectorisable, and pairwise-like
-/// error growth).
-#[inline]
-fn fast_sum(x: &[f64]) -> f64 {
-    let mut acc = [0.0f64; 8];
-    let chunks = x.chunks_exact(8);
-    let rem = chunks.remainder();
-    for c in chunks {
-        for (a, v) in acc.iter_mut().zip(c) {
-            *a += v;
-        }
-    }
-    let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
-    for v in rem {
-        s += v;
-    }
-    s
-}
-
-/// Dot product with eight independent partial sums.
-#[inline]
-fn fast_dot(x: &[f64], y: &[f64]) -> f64 {
+/// Σ term(x\[i\], y\[i\]) over the common length, with eight independent
+/// partial sums (vectorisable, and pairwise-like error growth), reduced in a
+/// fixed order.
+#[inline(always)]
+fn sum8(x: &[f64], y: &[f64], term: impl Fn(f64, f64) -> f64) -> f64 {
     let mut acc = [0.0f64; 8];
     let cx = x.chunks_exact(8);
     let cy = y.chunks_exact(8);
     let (rx, ry) = (cx.remainder(), cy.remainder());
     for (a8, b8) in cx.zip(cy) {
-        for ((a, u), v) in acc.iter_mut().zip(a8).zip(b8) {
-            *a += u * v;
+        for ((a, &u), &v) in acc.iter_mut().zip(a8).zip(b8) {
+            *a += term(u, v);
         }
     }
     let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
-    for (u, v) in rx.iter().zip(ry) {
-        s += u * v;
+    for (&u, &v) in rx.iter().zip(ry) {
+        s += term(u, v);
     }
     s
+}
+
+/// Σ x\[i\] (see [`sum8`]).
+#[inline]
+fn fast_sum(x: &[f64]) -> f64 {
+    sum8(x, x, |u, _| u)
+}
+
+/// Σ x\[i\]·y\[i\] (see [`sum8`]).
+#[inline]
+fn fast_dot(x: &[f64], y: &[f64]) -> f64 {
+    sum8(x, y, |u, v| u * v)
 }
 
 /// Detrend + window + zero-pad + real FFT of one segment; owns the plan and
@@ -529,16 +520,12 @@ fn auto_stays_finite(acc: &[f64], x: &[C64]) -> bool {
         .all(|(a, v)| (a + v.re * v.re + v.im * v.im).is_finite())
 }
 
-fn finalize_auto(p: &Params, acc: &[f64], n_seg: usize, out: &mut [f64]) {
+/// `out` = the averaged, one-sided scaled spectrum: acc\[k\]·S_k/n_seg, with
+/// S_k the bin scale of [`Params::bin_scale`] (auto spectra as `f64`, cross
+/// spectra as `C64`).
+fn finalize<T: Copy + Mul<f64, Output = T>>(p: &Params, acc: &[T], n_seg: usize, out: &mut [T]) {
     let inv = 1.0 / n_seg as f64;
-    for (k, (o, a)) in out.iter_mut().zip(acc).enumerate() {
-        *o = a * (inv * p.bin_scale(k));
-    }
-}
-
-fn finalize_cross(p: &Params, acc: &[C64], n_seg: usize, out: &mut [C64]) {
-    let inv = 1.0 / n_seg as f64;
-    for (k, (o, a)) in out.iter_mut().zip(acc).enumerate() {
+    for (k, (o, &a)) in out.iter_mut().zip(acc).enumerate() {
         *o = a * (inv * p.bin_scale(k));
     }
 }
@@ -587,14 +574,29 @@ fn check_finite(x: &[f64], name: &str) -> Result<()> {
     }
 }
 
+/// The error of an estimate that overflowed.
+fn overflow_error() -> DspError {
+    DspError::Numerical("spectral estimate overflowed (input magnitude too large)".into())
+}
+
 fn check_output_finite<'a>(mut values: impl Iterator<Item = &'a f64>) -> Result<()> {
     if values.all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(DspError::Numerical(
-            "spectral estimate overflowed (input magnitude too large)".into(),
-        ))
+        Err(overflow_error())
     }
+}
+
+/// What `feed` of a streaming estimator returns: the number of segments
+/// completed, or a `Numerical` error when `dropped` segments had to be
+/// discarded because they would overflow the accumulators.
+fn feed_result(done: usize, dropped: usize) -> Result<usize> {
+    if dropped > 0 {
+        return Err(DspError::Numerical(format!(
+            "{dropped} segment(s) discarded: spectrum overflow"
+        )));
+    }
+    Ok(done)
 }
 
 fn c_as_f64(v: &[C64]) -> impl Iterator<Item = &f64> {
@@ -625,7 +627,7 @@ pub fn welch(x: &[f64], fs: f64, cfg: &WelchConfig) -> Result<Spectrum> {
         accumulate_auto(&mut acc, &spec);
     }
     let mut out = vec![0.0; p.nbins];
-    finalize_auto(&p, &acc, n_seg, &mut out);
+    finalize(&p, &acc, n_seg, &mut out);
     check_output_finite(out.iter())?;
     Ok(Spectrum {
         f: p.frequencies(),
@@ -664,7 +666,7 @@ pub fn csd(x: &[f64], y: &[f64], fs: f64, cfg: &WelchConfig) -> Result<CrossSpec
         accumulate_cross(&mut acc, &sx, &sy);
     }
     let mut out = acc.clone();
-    finalize_cross(&p, &acc, n_seg, &mut out);
+    finalize(&p, &acc, n_seg, &mut out);
     check_output_finite(c_as_f64(&out))?;
     Ok(CrossSpectrum {
         f: p.frequencies(),
@@ -685,9 +687,7 @@ pub fn frf(x: &[f64], y: &[f64], fs: f64, cfg: &WelchConfig) -> Result<FrfEstima
     for k in 0..n_seg {
         let r = k * p.step..k * p.step + p.nperseg;
         if !s.process_segment_slices(&x[r.clone()], &y[r])? {
-            return Err(DspError::Numerical(
-                "spectral estimate overflowed (input magnitude too large)".into(),
-            ));
+            return Err(overflow_error());
         }
     }
     let mut est = FrfEstimate::default();
@@ -838,12 +838,7 @@ impl StreamingWelch {
                 self.seg.advance(self.p.step, self.p.noverlap);
             }
         }
-        if dropped > 0 {
-            return Err(DspError::Numerical(format!(
-                "{dropped} segment(s) discarded: spectrum overflow"
-            )));
-        }
-        Ok(done)
+        feed_result(done, dropped)
     }
 
     /// Segments averaged so far.
@@ -868,7 +863,7 @@ impl StreamingWelch {
             out.p.fill(0.0);
             return false;
         }
-        finalize_auto(&self.p, &self.acc, self.n_segments, &mut out.p);
+        finalize(&self.p, &self.acc, self.n_segments, &mut out.p);
         true
     }
 
@@ -989,12 +984,7 @@ impl StreamingFrf {
                 self.seg_y.advance(self.p.step, self.p.noverlap);
             }
         }
-        if dropped > 0 {
-            return Err(DspError::Numerical(format!(
-                "{dropped} segment(s) discarded: spectrum overflow"
-            )));
-        }
-        Ok(done)
+        feed_result(done, dropped)
     }
 
     /// Segments averaged so far.
@@ -1031,9 +1021,9 @@ impl StreamingFrf {
             out.pxy.fill(z);
             return false;
         }
-        finalize_auto(&self.p, &self.acc_xx, self.n_segments, &mut out.pxx);
-        finalize_auto(&self.p, &self.acc_yy, self.n_segments, &mut out.pyy);
-        finalize_cross(&self.p, &self.acc_xy, self.n_segments, &mut out.pxy);
+        finalize(&self.p, &self.acc_xx, self.n_segments, &mut out.pxx);
+        finalize(&self.p, &self.acc_yy, self.n_segments, &mut out.pyy);
+        finalize(&self.p, &self.acc_xy, self.n_segments, &mut out.pxy);
         for k in 0..n {
             let (h1, h2, c) = frf_from_spectra(out.pxx[k], out.pyy[k], out.pxy[k]);
             out.h1[k] = h1;

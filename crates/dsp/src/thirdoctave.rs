@@ -15,6 +15,7 @@
 //! Nominal mid-band frequencies are the R10 preferred numbers
 //! (1, 1.25, 1.6, 2, 2.5, 3.15, 4, 5, 6.3, 8) × 10^k, e.g. 31.5, 63, 125, 1000.
 
+use crate::error::{check_fs, check_non_negative, check_positive};
 use crate::{DspError, Result};
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
@@ -125,13 +126,7 @@ pub fn nominal_label(index: i32) -> String {
 /// Number x of the band that contains `f_hz` (lower ≤ f < upper):
 /// x = ⌊10·log10(f/1000) + 1/2⌋. Errors on non-finite or non-positive f.
 pub fn band_index(f_hz: f64) -> Result<i32> {
-    if !f_hz.is_finite() || f_hz <= 0.0 {
-        return Err(DspError::InvalidParameter {
-            name: "f_hz",
-            value: f_hz,
-            reason: "must be finite and > 0".into(),
-        });
-    }
+    check_positive("f_hz", f_hz)?;
     let x = (10.0 * (f_hz / REFERENCE_HZ).log10() + 0.5).floor();
     Ok(x as i32)
 }
@@ -140,13 +135,7 @@ pub fn band_index(f_hz: f64) -> Result<i32> {
 /// in ascending order. `bands_between(63.0, 1000.0)` gives the paper's 13
 /// bands 63 … 1000 Hz (§3.4); `bands_between(20.0, 20_000.0)` the 31 audio bands.
 pub fn bands_between(fmin_hz: f64, fmax_hz: f64) -> Result<Vec<Band>> {
-    if !fmin_hz.is_finite() || fmin_hz <= 0.0 {
-        return Err(DspError::InvalidParameter {
-            name: "fmin_hz",
-            value: fmin_hz,
-            reason: "must be finite and > 0".into(),
-        });
-    }
+    check_positive("fmin_hz", fmin_hz)?;
     if !fmax_hz.is_finite() || fmax_hz < fmin_hz {
         return Err(DspError::InvalidParameter {
             name: "fmax_hz",
@@ -194,9 +183,9 @@ impl BandLevel {
     }
 }
 
-/// One-sided power spectrum P[k], k = 0 … ⌊N/2⌋, of `x` with a rectangular
-/// window, normalised so that Σ_k P[k] = (1/N) Σ_n x[n]² (Parseval):
-/// P[k] = c_k |X[k]|²/N², c_k = 1 at DC and at Nyquist (even N), 2 otherwise.
+/// One-sided power spectrum P\[k\], k = 0 … ⌊N/2⌋, of `x` with a rectangular
+/// window, normalised so that Σ_k P\[k\] = (1/N) Σ_n x\[n\]² (Parseval):
+/// P\[k\] = c_k |X\[k\]|²/N², c_k = 1 at DC and at Nyquist (even N), 2 otherwise.
 fn one_sided_power(x: &[f64]) -> Result<Vec<f64>> {
     let n = x.len();
     let mut planner = RealFftPlanner::<f64>::new();
@@ -240,13 +229,7 @@ pub fn band_levels(x: &[f64], fs: f64, bands: &[Band]) -> Result<Vec<BandLevel>>
             x[i]
         )));
     }
-    if !fs.is_finite() || fs <= 0.0 {
-        return Err(DspError::InvalidParameter {
-            name: "fs",
-            value: fs,
-            reason: "sample rate must be finite and > 0".into(),
-        });
-    }
+    check_fs(fs)?;
     let p = one_sided_power(x)?;
     let n = x.len() as f64;
     let freq = |k: usize| k as f64 * fs / n;
@@ -329,20 +312,8 @@ pub fn flatness(
             "no measured points for the flatness report".into(),
         ));
     }
-    if !target_magnitude.is_finite() || target_magnitude <= 0.0 {
-        return Err(DspError::InvalidParameter {
-            name: "target_magnitude",
-            value: target_magnitude,
-            reason: "must be finite and > 0".into(),
-        });
-    }
-    if !tol_db.is_finite() || tol_db < 0.0 {
-        return Err(DspError::InvalidParameter {
-            name: "tol_db",
-            value: tol_db,
-            reason: "must be finite and ≥ 0".into(),
-        });
-    }
+    check_positive("target_magnitude", target_magnitude)?;
+    check_non_negative("tol_db", tol_db)?;
     let mut bands = Vec::with_capacity(measured.len());
     for &(f_hz, magnitude) in measured {
         if !magnitude.is_finite() || magnitude < 0.0 {

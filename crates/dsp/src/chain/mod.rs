@@ -10,22 +10,17 @@
 //! (folded into the numerator of the first low section); C_H(z): bilinear
 //! image of C_H(s) = K_sys·F(s)/Ĝ_H(s) ([`crate::compensator`]).
 //!
-//! # Speed: two paths as two SIMD lanes
-//! The low and high paths are independent, so they are packed as the two
-//! lanes of `[f64; 2]` and processed stage by stage (stage k = low section k
-//! and high section k; the shorter path is padded with identity sections,
-//! which pass the signal through exactly). With SSE2 (baseline x86-64) LLVM
-//! emits packed `mulpd`/`addpd`. Per lane the recursion is the TDF-II of
-//! [`crate::filter`] on the section normalised to b0 = 1 (its gain applied
-//! once at the path output) with y = v + s1 substituted into the state
-//! update (see `Kernel`): 4 instead of 5 multiplies per section and a
-//! feedback loop of one multiply and one subtraction. It is the same
-//! recursion as the scalar [`Sos`](crate::filter::Sos) of the same sections,
-//! rounded differently; the outputs agree to ~1e-15 relative (tested to
-//! 1e-12). A first-order section (C_H of the paper has one) is placed last
-//! and skips its s2 update. The stage count and first-order tail are const
-//! generics, so the kernel is straight-line code.
+//! # Kernels
+//! The arithmetic lives in `kernel.rs` (private module `kernel`): the fast
+//! kernel packs the low and high paths as the two SIMD lanes of `[f64; 2]`
+//! and runs each section normalised to b0 = 1 (4 multiplies per section),
+//! monomorphised per stage count; the reference kernel next to it is plain
+//! TDF-II per lane, the same operations as [`Sos`](crate::filter::Sos). The
+//! fast kernel runs every chain whose sections can be normalised (all
+//! designed chains); its outputs agree with the reference to rounding
+//! (`tests/chain_equivalence.rs` checks every stage count).
 //!
+//! # Entry points
 //! The recursive state must stay in registers to be fast: an f64 value
 //! stored and reloaded through memory on every sample adds the
 //! store-to-load forwarding latency (5–9 cycles on current x86 cores) to
@@ -66,14 +61,19 @@
 //! output (0, 0) for that sample) — the denormal policy of
 //! [`crate::filter`].
 
+mod kernel;
+
+pub use self::kernel::MAX_STAGES;
+
+use self::kernel::{
+    Coefs, Kernel, State, ZERO_STATE, cold, guarded, nan_if_nonfinite, run_full, run_general,
+    run_norm, with_kernel, zero_state,
+};
 use crate::compensator::{self, HighCompensatorConfig};
 use crate::crossover::LinkwitzRiley;
 use crate::design::{self, Prewarp};
-use crate::filter::{BiquadCoeffs, FLUSH_INTERVAL, FLUSH_THRESHOLD, sections_response};
+use crate::filter::{BiquadCoeffs, FLUSH_INTERVAL, sections_response};
 use crate::{C64, DspError, Result, Tf};
-
-/// Maximum number of sections per path.
-pub const MAX_STAGES: usize = 8;
 
 /// Default cross-fade length of a coefficient swap, in samples (6.4 ms at
 /// 10 kHz: longer than the LR4 time constant at 200 Hz, short enough to
@@ -218,352 +218,6 @@ impl ChainCoefficients {
     }
 }
 
-/// One packed stage: lane 0 = low path, lane 1 = high path.
-///
-/// `orig` holds the sections as designed (used for responses and by the
-/// general kernel); `c1, c2, a1, a2` are the b0-normalised state-update
-/// coefficients of the fast kernel (see [`Kernel`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct LaneStage {
-    orig: [BiquadCoeffs; 2],
-    c1: [f64; 2],
-    c2: [f64; 2],
-    a1: [f64; 2],
-    a2: [f64; 2],
-}
-
-impl LaneStage {
-    const IDENTITY: Self = Self {
-        orig: [BiquadCoeffs::IDENTITY; 2],
-        c1: [0.0; 2],
-        c2: [0.0; 2],
-        a1: [0.0; 2],
-        a2: [0.0; 2],
-    };
-}
-
-/// State of one packed stage: [s1, s2], each [low, high].
-type LaneState = [[f64; 2]; 2];
-
-/// State of all stages.
-type State = [LaneState; MAX_STAGES];
-
-const ZERO_STATE: State = [[[0.0; 2]; 2]; MAX_STAGES];
-
-/// Which kernel runs a coefficient set.
-///
-/// * `Norm`: every section has a normal, non-zero b0. Each section is
-///   normalised to b0 = 1 (its gain moved to one output multiply per path)
-///   and its TDF-II update is written with y = v + s1 substituted:
-///
-///   ```text
-///   y   = v + s1
-///   s1' = (c1 v + s2) − a1 s1,   c1 = b1/b0 − a1
-///   s2' = c2 v − a2 s1,          c2 = b2/b0 − a2
-///   ```
-///
-///   This is TDF-II on the normalised section (state = TDF-II state divided
-///   by the cumulative b0), with 4 instead of 5 multiplies per section and a
-///   feedback loop of one multiply and one subtraction. A last stage that is
-///   first order in both lanes (`tail1`) skips the s2 update.
-/// * `General`: plain TDF-II per lane (any b0, including 0), over all
-///   [`MAX_STAGES`]; used only for hand-made sections that cannot be
-///   normalised.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kernel {
-    Norm { stages: usize, tail1: bool },
-    General,
-}
-
-/// A coefficient set in kernel form.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Coefs {
-    st: [LaneStage; MAX_STAGES],
-    /// Output gain per lane (product of the b0) for `Norm`, else 1.
-    gain: [f64; 2],
-    /// Product of b0 over stages 0..=k per lane (`Norm`), else 1: the state
-    /// of stage k is the TDF-II state divided by this.
-    cum: [[f64; 2]; MAX_STAGES],
-    kernel: Kernel,
-}
-
-impl Coefs {
-    fn new(coeffs: &ChainCoefficients) -> Self {
-        let stages = coeffs.stages();
-        let mut st = [LaneStage::IDENTITY; MAX_STAGES];
-        for (k, stage) in st.iter_mut().enumerate() {
-            stage.orig = [
-                *coeffs.low.get(k).unwrap_or(&BiquadCoeffs::IDENTITY),
-                *coeffs.high.get(k).unwrap_or(&BiquadCoeffs::IDENTITY),
-            ];
-        }
-        let mut c = Self {
-            st,
-            gain: [1.0; 2],
-            cum: [[1.0; 2]; MAX_STAGES],
-            kernel: Kernel::General,
-        };
-        if c.normalise() {
-            let last = &c.st[stages - 1].orig;
-            let tail1 = last.iter().all(BiquadCoeffs::is_first_order);
-            c.kernel = Kernel::Norm { stages, tail1 };
-        } else {
-            c.gain = [1.0; 2];
-            c.cum = [[1.0; 2]; MAX_STAGES];
-        }
-        c
-    }
-
-    /// Fill the normalised coefficients; false if some b0 (or a product of
-    /// them) is zero, subnormal or non-finite.
-    fn normalise(&mut self) -> bool {
-        let mut gain = [1.0f64; 2];
-        for (stage, cum) in self.st.iter_mut().zip(self.cum.iter_mut()) {
-            for (lane, g) in gain.iter_mut().enumerate() {
-                let c = stage.orig[lane];
-                if !c.b0.is_normal() {
-                    return false;
-                }
-                stage.c1[lane] = c.b1 / c.b0 - c.a1;
-                stage.c2[lane] = c.b2 / c.b0 - c.a2;
-                stage.a1[lane] = c.a1;
-                stage.a2[lane] = c.a2;
-                if !(stage.c1[lane].is_finite() && stage.c2[lane].is_finite()) {
-                    return false;
-                }
-                *g *= c.b0;
-                if !g.is_normal() {
-                    return false;
-                }
-                cum[lane] = *g;
-            }
-        }
-        self.gain = gain;
-        true
-    }
-
-    /// `from`'s state (in `from`'s scaling) converted to this set's scaling;
-    /// an exact copy when the scalings are equal.
-    fn convert_state(&self, from: &Coefs, s: &State) -> State {
-        let mut out = ZERO_STATE;
-        for k in 0..MAX_STAGES {
-            for lane in 0..2 {
-                let r = from.cum[k][lane] / self.cum[k][lane];
-                for j in 0..2 {
-                    out[k][j][lane] = s[k][j][lane] * r;
-                }
-            }
-        }
-        out
-    }
-}
-
-/// One normalised second-order stage on both lanes (see [`Kernel`]).
-#[inline(always)]
-fn norm_stage(st: &LaneStage, s: &mut LaneState, v: [f64; 2]) -> [f64; 2] {
-    let y = [v[0] + s[0][0], v[1] + s[0][1]];
-    let s1 = [
-        (st.c1[0] * v[0] + s[1][0]) - st.a1[0] * s[0][0],
-        (st.c1[1] * v[1] + s[1][1]) - st.a1[1] * s[0][1],
-    ];
-    let s2 = [
-        st.c2[0] * v[0] - st.a2[0] * s[0][0],
-        st.c2[1] * v[1] - st.a2[1] * s[0][1],
-    ];
-    *s = [s1, s2];
-    y
-}
-
-/// One normalised first-order stage (b2 = a2 = 0 in both lanes).
-#[inline(always)]
-fn norm_stage1(st: &LaneStage, s: &mut LaneState, v: [f64; 2]) -> [f64; 2] {
-    let y = [v[0] + s[0][0], v[1] + s[0][1]];
-    s[0] = [
-        st.c1[0] * v[0] - st.a1[0] * s[0][0],
-        st.c1[1] * v[1] - st.a1[1] * s[0][1],
-    ];
-    y
-}
-
-/// Expand `$m!(k)` for every stage index k < [`MAX_STAGES`], as
-/// straight-line code: the state is then addressed with constant indices
-/// only, which lets the optimiser keep it in registers across a caller's
-/// sample loop (a loop over stages, even a constant one, is unrolled too late
-/// for that).
-macro_rules! each_stage {
-    ($m:ident) => {
-        $m!(0);
-        $m!(1);
-        $m!(2);
-        $m!(3);
-        $m!(4);
-        $m!(5);
-        $m!(6);
-        $m!(7);
-    };
-}
-const _: () = assert!(MAX_STAGES == 8, "each_stage! expands 8 stages");
-
-/// Flush the tiny values of one stage to zero (denormal policy of
-/// [`crate::filter`]); false if any is non-finite.
-#[inline(always)]
-fn flush_stage(st: &mut LaneState) -> bool {
-    let finite =
-        st[0][0].is_finite() & st[0][1].is_finite() & st[1][0].is_finite() & st[1][1].is_finite();
-    let f = |v: f64| if v.abs() < FLUSH_THRESHOLD { 0.0 } else { v };
-    let [[a, b], [c, d]] = *st;
-    *st = [[f(a), f(b)], [f(c), f(d)]];
-    finite
-}
-
-/// Flush the first `N` stages; false if any state value is non-finite.
-#[inline(always)]
-fn flush_stages<const N: usize>(s: &mut State) -> bool {
-    let mut finite = true;
-    macro_rules! f {
-        ($k:literal) => {
-            if $k < N {
-                finite &= flush_stage(&mut s[$k]);
-            }
-        };
-    }
-    each_stage!(f);
-    finite
-}
-
-/// N normalised stages (the last one first-order if `T`), then the output
-/// gains; when `flush` is set the state is also flushed. Straight-line code;
-/// LLVM packs each lane pair into SSE2 `mulpd`/`addpd`. Returns the outputs
-/// and whether the state is finite (checked only when flushing).
-#[inline(always)]
-fn run_norm<const N: usize, const T: bool>(
-    c: &Coefs,
-    s: &mut State,
-    x: f64,
-    flush: bool,
-) -> ([f64; 2], bool) {
-    let mut v = [x, x];
-    macro_rules! st {
-        ($k:literal) => {
-            if $k < N {
-                v = if T && $k + 1 == N {
-                    norm_stage1(&c.st[$k], &mut s[$k], v)
-                } else {
-                    norm_stage(&c.st[$k], &mut s[$k], v)
-                };
-            }
-        };
-    }
-    each_stage!(st);
-    let ok = if flush { flush_stages::<N>(s) } else { true };
-    ([v[0] * c.gain[0], v[1] * c.gain[1]], ok)
-}
-
-/// Plain TDF-II per lane over all [`MAX_STAGES`] stages (general kernel;
-/// padding stages are exact identities).
-#[inline(always)]
-fn run_general(c: &Coefs, s: &mut State, x: f64, flush: bool) -> ([f64; 2], bool) {
-    let mut v = [x, x];
-    macro_rules! lane {
-        ($k:literal, $l:literal) => {
-            let mut ls = [s[$k][0][$l], s[$k][1][$l]];
-            v[$l] = crate::filter::tdf2_step(&c.st[$k].orig[$l], &mut ls, v[$l]);
-            s[$k][0][$l] = ls[0];
-            s[$k][1][$l] = ls[1];
-        };
-    }
-    macro_rules! st {
-        ($k:literal) => {
-            lane!($k, 0);
-            lane!($k, 1);
-        };
-    }
-    each_stage!(st);
-    let ok = if flush {
-        flush_stages::<MAX_STAGES>(s)
-    } else {
-        true
-    };
-    (v, ok)
-}
-
-/// Any coefficient set over all [`MAX_STAGES`] (the cross-fade's old design;
-/// same values as the specialised kernels, padding stages are identities).
-#[inline(always)]
-fn run_full(c: &Coefs, s: &mut State, x: f64, flush: bool) -> ([f64; 2], bool) {
-    match c.kernel {
-        Kernel::Norm { .. } => run_norm::<MAX_STAGES, false>(c, s, x, flush),
-        Kernel::General => run_general(c, s, x, flush),
-    }
-}
-
-/// Zero a state with stores of `z` (always 0.0, but opaque to the optimiser:
-/// a constant aggregate store would become a `memset` call).
-#[inline(always)]
-fn zero_state(s: &mut State, z: f64) {
-    macro_rules! zs {
-        ($k:literal) => {
-            s[$k] = [[z, z], [z, z]];
-        };
-    }
-    each_stage!(zs);
-}
-
-/// Marks the branch it is called from as unlikely (the `#[cold]` polyfill of
-/// `std::hint::cold_path`, which is newer than the workspace's MSRV), for
-/// the event paths of the kernels.
-#[cold]
-#[inline(always)]
-fn cold() {}
-
-/// 0 for a finite `v`, NaN for ±∞ or NaN (v − v, exact in IEEE 754). Summed
-/// over a chunk it flags any non-finite output with two vector additions per
-/// sample and no branch.
-#[inline(always)]
-#[allow(clippy::eq_op)]
-fn nan_if_nonfinite(v: f64) -> f64 {
-    v - v
-}
-
-/// The guarded per-sample step of kernel (N, T) (N = 0: general kernel) on
-/// a state, outside any cross-fade: non-finite input or output → (0, 0),
-/// state zeroed, event counted; every [`FLUSH_INTERVAL`]-th sample the state
-/// is flushed and checked.
-///
-/// A non-finite input needs no test of its own: x enters every output lane
-/// (through b0·x, or x itself after normalisation), so the output of that
-/// sample is non-finite too (∞·0 and ∞ − ∞ are NaN), and the output test
-/// catches it before anything reaches the caller; the poisoned state is
-/// then zeroed.
-#[inline(always)]
-fn guarded<const N: usize, const T: bool>(
-    c: &Coefs,
-    s: &mut State,
-    tick: &mut u32,
-    events: &mut u64,
-    zero: f64,
-    x: f64,
-) -> (f64, f64) {
-    *tick += 1;
-    let flush = *tick >= FLUSH_INTERVAL;
-    if flush {
-        *tick = 0;
-    }
-    let (y, ok) = if N == 0 {
-        run_general(c, s, x, flush)
-    } else {
-        run_norm::<N, T>(c, s, x, flush)
-    };
-    if !(ok && y[0].is_finite() && y[1].is_finite()) {
-        cold();
-        *events += 1;
-        zero_state(s, zero);
-        *tick = 0;
-        return (0.0, 0.0);
-    }
-    (y[0], y[1])
-}
-
 /// The running signal chain (Fig. 6). See the module docs.
 ///
 /// Layout for speed: the running coefficients and state sit at fixed places
@@ -587,6 +241,8 @@ pub struct Chain {
     tick: u32,
     nonfinite: u64,
     stages: usize,
+    /// Set by [`Chain::new_reference`]: never run the fast kernel.
+    reference: bool,
     n_low: usize,
     n_high: usize,
     fs: f64,
@@ -603,7 +259,22 @@ impl Chain {
     /// Chain with a cross-fade of `fade_len` samples for coefficient swaps
     /// (0 = switch at once, keeping the state).
     pub fn with_fade(coeffs: &ChainCoefficients, fade_len: u32) -> Self {
-        let c = Coefs::new(coeffs);
+        Self::build(coeffs, fade_len, false)
+    }
+
+    /// Chain that runs the reference kernel (plain TDF-II per lane, the same
+    /// operations as an [`Sos`](crate::filter::Sos) of each path) for every
+    /// coefficient set, including later swaps; otherwise identical to
+    /// [`Chain::new`]. For the equivalence harness
+    /// (`tests/chain_equivalence.rs`), which checks the fast kernel against
+    /// it; not meant for production use.
+    #[doc(hidden)]
+    pub fn new_reference(coeffs: &ChainCoefficients) -> Self {
+        Self::build(coeffs, DEFAULT_FADE_SAMPLES, true)
+    }
+
+    fn build(coeffs: &ChainCoefficients, fade_len: u32, reference: bool) -> Self {
+        let c = Coefs::new(&coeffs.low, &coeffs.high, !reference);
         Self {
             c,
             s: ZERO_STATE,
@@ -615,6 +286,7 @@ impl Chain {
             tick: 0,
             nonfinite: 0,
             stages: coeffs.stages(),
+            reference,
             n_low: coeffs.low.len(),
             n_high: coeffs.high.len(),
             fs: coeffs.fs,
@@ -634,9 +306,22 @@ impl Chain {
 
     /// True when the running coefficients use the fast normalised kernel
     /// (always the case for designed chains; hand-made sections with b0 = 0
-    /// fall back to the general kernel).
+    /// fall back to the reference kernel, which [`Chain::new_reference`]
+    /// always uses).
     pub fn uses_fast_kernel(&self) -> bool {
         matches!(self.c.kernel, Kernel::Norm { .. })
+    }
+
+    /// `Some((stage count, first-order tail))` of the fast kernel running the
+    /// current coefficients, `None` when the reference kernel runs them. For
+    /// the equivalence harness (`tests/chain_equivalence.rs`), which checks
+    /// that every fast kernel was exercised.
+    #[doc(hidden)]
+    pub fn fast_kernel_shape(&self) -> Option<(usize, bool)> {
+        match self.c.kernel {
+            Kernel::Norm { stages, tail1 } => Some((stages, tail1)),
+            Kernel::General => None,
+        }
     }
 
     /// True while a coefficient cross-fade is in progress.
@@ -685,7 +370,7 @@ impl Chain {
                 "a coefficient cross-fade is still in progress".into(),
             ));
         }
-        let new = Coefs::new(coeffs);
+        let new = Coefs::new(&coeffs.low, &coeffs.high, !self.reference);
         let s = new.convert_state(&self.c, &self.s);
         if self.fade_len > 0 {
             self.gc = self.c;
@@ -725,74 +410,7 @@ impl Chain {
     /// registers) or [`Chain::process_block`], which give identical output.
     #[inline]
     pub fn process(&mut self, x: f64) -> (f64, f64) {
-        match self.c.kernel {
-            Kernel::Norm {
-                stages: 1,
-                tail1: false,
-            } => self.step::<1, false>(x),
-            Kernel::Norm {
-                stages: 1,
-                tail1: true,
-            } => self.step::<1, true>(x),
-            Kernel::Norm {
-                stages: 2,
-                tail1: false,
-            } => self.step::<2, false>(x),
-            Kernel::Norm {
-                stages: 2,
-                tail1: true,
-            } => self.step::<2, true>(x),
-            Kernel::Norm {
-                stages: 3,
-                tail1: false,
-            } => self.step::<3, false>(x),
-            Kernel::Norm {
-                stages: 3,
-                tail1: true,
-            } => self.step::<3, true>(x),
-            Kernel::Norm {
-                stages: 4,
-                tail1: false,
-            } => self.step::<4, false>(x),
-            Kernel::Norm {
-                stages: 4,
-                tail1: true,
-            } => self.step::<4, true>(x),
-            Kernel::Norm {
-                stages: 5,
-                tail1: false,
-            } => self.step::<5, false>(x),
-            Kernel::Norm {
-                stages: 5,
-                tail1: true,
-            } => self.step::<5, true>(x),
-            Kernel::Norm {
-                stages: 6,
-                tail1: false,
-            } => self.step::<6, false>(x),
-            Kernel::Norm {
-                stages: 6,
-                tail1: true,
-            } => self.step::<6, true>(x),
-            Kernel::Norm {
-                stages: 7,
-                tail1: false,
-            } => self.step::<7, false>(x),
-            Kernel::Norm {
-                stages: 7,
-                tail1: true,
-            } => self.step::<7, true>(x),
-            Kernel::Norm {
-                stages: 8,
-                tail1: false,
-            } => self.step::<8, false>(x),
-            Kernel::Norm {
-                stages: 8,
-                tail1: true,
-            } => self.step::<8, true>(x),
-            // `N = 0` selects the general kernel.
-            _ => self.step::<0, false>(x),
-        }
+        with_kernel!(self.c.kernel, N, T => self.step::<N, T>(x))
     }
 
     /// Block processing: `input` → `low`, `high`; processes
@@ -803,93 +421,22 @@ impl Chain {
         let (input, low, high) = (&input[..n], &mut low[..n], &mut high[..n]);
         // The kernel cannot change inside this call (only `set_coefficients`
         // changes it), so dispatch once and run a monomorphised loop.
-        macro_rules! block {
-            ($n:literal, $t:literal) => {
-                self.block::<$n, $t>(input, low, high)
-            };
-        }
-        match self.c.kernel {
-            Kernel::Norm {
-                stages: 1,
-                tail1: false,
-            } => block!(1, false),
-            Kernel::Norm {
-                stages: 1,
-                tail1: true,
-            } => block!(1, true),
-            Kernel::Norm {
-                stages: 2,
-                tail1: false,
-            } => block!(2, false),
-            Kernel::Norm {
-                stages: 2,
-                tail1: true,
-            } => block!(2, true),
-            Kernel::Norm {
-                stages: 3,
-                tail1: false,
-            } => block!(3, false),
-            Kernel::Norm {
-                stages: 3,
-                tail1: true,
-            } => block!(3, true),
-            Kernel::Norm {
-                stages: 4,
-                tail1: false,
-            } => block!(4, false),
-            Kernel::Norm {
-                stages: 4,
-                tail1: true,
-            } => block!(4, true),
-            Kernel::Norm {
-                stages: 5,
-                tail1: false,
-            } => block!(5, false),
-            Kernel::Norm {
-                stages: 5,
-                tail1: true,
-            } => block!(5, true),
-            Kernel::Norm {
-                stages: 6,
-                tail1: false,
-            } => block!(6, false),
-            Kernel::Norm {
-                stages: 6,
-                tail1: true,
-            } => block!(6, true),
-            Kernel::Norm {
-                stages: 7,
-                tail1: false,
-            } => block!(7, false),
-            Kernel::Norm {
-                stages: 7,
-                tail1: true,
-            } => block!(7, true),
-            Kernel::Norm {
-                stages: 8,
-                tail1: false,
-            } => block!(8, false),
-            Kernel::Norm {
-                stages: 8,
-                tail1: true,
-            } => block!(8, true),
-            _ => block!(0, false),
-        }
+        with_kernel!(self.c.kernel, N, T => self.block::<N, T>(input, low, high));
         n
     }
 
     /// Block loop of kernel (N, T), equivalent sample for sample to
     /// [`Chain::process`]. The samples up to the next maintenance sample run
-    /// as one chunk through [`run_norm`] with the state in a local (kept in
-    /// registers) and without per-sample branches: the only per-sample check
-    /// is an accumulator `acc += y − y`, which stays 0 while every output is
-    /// finite and becomes NaN otherwise (a non-finite input always yields a
-    /// non-finite output at the same sample). If it is not finite after the
-    /// chunk, the first non-finite output j is located, output j zeroed, the
-    /// state reset, the event counted, and processing resumes at j + 1 —
-    /// exactly what the per-sample path does. The last sample of a chunk
-    /// flushes and checks the state in registers. The general kernel and
-    /// cross-fades go through the per-sample step.
+    /// as one chunk through the fast kernel with the state in a local (kept
+    /// in registers) and without per-sample branches: the only per-sample
+    /// check is an accumulator `acc += y − y`, which stays 0 while every
+    /// output is finite and becomes NaN otherwise (a non-finite input always
+    /// yields a non-finite output at the same sample). If it is not finite
+    /// after the chunk, the first non-finite output j is located, output j
+    /// zeroed, the state reset, the event counted, and processing resumes at
+    /// j + 1 — exactly what the per-sample path does. The last sample of a
+    /// chunk flushes and checks the state in registers. The reference kernel
+    /// and cross-fades go through the per-sample step.
     fn block<const N: usize, const T: bool>(
         &mut self,
         input: &[f64],
@@ -982,79 +529,7 @@ impl Chain {
             sink(l, h);
             count += 1;
         }
-        macro_rules! fast {
-            ($n:literal, $t:literal) => {
-                self.stream_fast::<$n, $t, _, _>(it, &mut sink)
-            };
-        }
-        count
-            + match self.c.kernel {
-                Kernel::Norm {
-                    stages: 1,
-                    tail1: false,
-                } => fast!(1, false),
-                Kernel::Norm {
-                    stages: 1,
-                    tail1: true,
-                } => fast!(1, true),
-                Kernel::Norm {
-                    stages: 2,
-                    tail1: false,
-                } => fast!(2, false),
-                Kernel::Norm {
-                    stages: 2,
-                    tail1: true,
-                } => fast!(2, true),
-                Kernel::Norm {
-                    stages: 3,
-                    tail1: false,
-                } => fast!(3, false),
-                Kernel::Norm {
-                    stages: 3,
-                    tail1: true,
-                } => fast!(3, true),
-                Kernel::Norm {
-                    stages: 4,
-                    tail1: false,
-                } => fast!(4, false),
-                Kernel::Norm {
-                    stages: 4,
-                    tail1: true,
-                } => fast!(4, true),
-                Kernel::Norm {
-                    stages: 5,
-                    tail1: false,
-                } => fast!(5, false),
-                Kernel::Norm {
-                    stages: 5,
-                    tail1: true,
-                } => fast!(5, true),
-                Kernel::Norm {
-                    stages: 6,
-                    tail1: false,
-                } => fast!(6, false),
-                Kernel::Norm {
-                    stages: 6,
-                    tail1: true,
-                } => fast!(6, true),
-                Kernel::Norm {
-                    stages: 7,
-                    tail1: false,
-                } => fast!(7, false),
-                Kernel::Norm {
-                    stages: 7,
-                    tail1: true,
-                } => fast!(7, true),
-                Kernel::Norm {
-                    stages: 8,
-                    tail1: false,
-                } => fast!(8, false),
-                Kernel::Norm {
-                    stages: 8,
-                    tail1: true,
-                } => fast!(8, true),
-                _ => fast!(0, false),
-            }
+        count + with_kernel!(self.c.kernel, N, T => self.stream_fast::<N, T, _, _>(it, &mut sink))
     }
 
     /// The monomorphised streaming loop (not fading: a fade cannot start
@@ -1080,7 +555,7 @@ impl Chain {
     }
 
     /// The guarded per-sample step with kernel (N, T) on the running state;
-    /// N = 0 means the general kernel.
+    /// N = 0 means the reference kernel.
     #[inline(always)]
     fn step<const N: usize, const T: bool>(&mut self, x: f64) -> (f64, f64) {
         if self.fading {
