@@ -15,6 +15,12 @@ const N: usize = 1_000_000;
 
 /// Deterministic broadband input in [−1, 1) (xorshift64*), never silent, so
 /// the denormal flush never triggers.
+/// The paper's chain coefficients, the input and two output buffers.
+fn chain_setup() -> (ChainCoefficients, Vec<f64>, Vec<f64>, Vec<f64>) {
+    let coeffs = ChainCoefficients::paper().expect("paper chain");
+    (coeffs, chain_input(), vec![0.0; N], vec![0.0; N])
+}
+
 fn chain_input() -> Vec<f64> {
     let mut s: u64 = 0x9E37_79B9_7F4A_7C15;
     (0..N)
@@ -32,10 +38,7 @@ fn chain_input() -> Vec<f64> {
 /// iterator, each output pair pushed to a closure) and `Chain::process`
 /// called once per sample in a loop.
 fn bench_chain_per_sample(c: &mut Criterion) {
-    let coeffs = ChainCoefficients::paper().expect("paper chain");
-    let input = chain_input();
-    let mut low = vec![0.0; N];
-    let mut high = vec![0.0; N];
+    let (coeffs, input, mut low, mut high) = chain_setup();
     let mut chain = Chain::new(&coeffs);
     let mut g = c.benchmark_group("chain");
     g.throughput(Throughput::Elements(N as u64));
@@ -65,10 +68,7 @@ fn bench_chain_per_sample(c: &mut Criterion) {
 /// Block API: one 1e6-sample block, and 64-sample blocks (a typical
 /// real-time buffer).
 fn bench_chain_block(c: &mut Criterion) {
-    let coeffs = ChainCoefficients::paper().expect("paper chain");
-    let input = chain_input();
-    let mut low = vec![0.0; N];
-    let mut high = vec![0.0; N];
+    let (coeffs, input, mut low, mut high) = chain_setup();
     let mut chain = Chain::new(&coeffs);
     let mut g = c.benchmark_group("chain");
     g.throughput(Throughput::Elements(N as u64));
@@ -98,10 +98,7 @@ fn bench_chain_block(c: &mut Criterion) {
 /// one after the other (the structure of scipy's `sosfilt`, ~7.3 ns/sample
 /// there).
 fn bench_chain_scalar_reference(c: &mut Criterion) {
-    let coeffs = ChainCoefficients::paper().expect("paper chain");
-    let input = chain_input();
-    let mut low = vec![0.0; N];
-    let mut high = vec![0.0; N];
+    let (coeffs, input, mut low, mut high) = chain_setup();
     let mut lo = Sos::new(coeffs.low().to_vec()).expect("low");
     let mut hi = Sos::new(coeffs.high().to_vec()).expect("high");
     let mut g = c.benchmark_group("chain");

@@ -24,7 +24,7 @@
 //!   (equal outputs, up to the sign of a zero).
 //!
 //! The fast kernel computes the same recursion as the reference, rounded
-//! differently; `tests/chain_equivalence.rs` compares the two over every
+//! differently; `tests/equivalence.rs` compares the two over every
 //! stage count (tolerance and its reason stated there).
 //!
 //! The recursive state must stay in registers to be fast: an f64 value
@@ -326,10 +326,13 @@ pub(super) fn run_full(c: &Coefs, s: &mut State, x: f64, flush: bool) -> ([f64; 
     }
 }
 
-/// Zero a state with stores of `z` (always 0.0, but opaque to the optimiser:
-/// a constant aggregate store would become a `memset` call).
+/// Zero a state with one store per lane pair. The zero goes through
+/// [`std::hint::black_box`] so that the optimiser cannot merge the stores
+/// into a `memset` call, whose clobbered registers would cost the kernels
+/// around it their register allocation.
 #[inline(always)]
-pub(super) fn zero_state(s: &mut State, z: f64) {
+pub(super) fn zero_state(s: &mut State) {
+    let z = std::hint::black_box(0.0);
     macro_rules! zs {
         ($k:literal) => {
             s[$k] = [[z, z], [z, z]];
@@ -370,7 +373,6 @@ pub(super) fn guarded<const N: usize, const T: bool>(
     s: &mut State,
     tick: &mut u32,
     events: &mut u64,
-    zero: f64,
     x: f64,
 ) -> (f64, f64) {
     *tick += 1;
@@ -386,7 +388,7 @@ pub(super) fn guarded<const N: usize, const T: bool>(
     if !(ok && y[0].is_finite() && y[1].is_finite()) {
         cold();
         *events += 1;
-        zero_state(s, zero);
+        zero_state(s);
         *tick = 0;
         return (0.0, 0.0);
     }

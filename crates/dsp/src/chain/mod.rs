@@ -18,7 +18,7 @@
 //! TDF-II per lane, the same operations as [`Sos`](crate::filter::Sos). The
 //! fast kernel runs every chain whose sections can be normalised (all
 //! designed chains); its outputs agree with the reference to rounding
-//! (`tests/chain_equivalence.rs` checks every stage count).
+//! (`tests/equivalence.rs` checks every stage count).
 //!
 //! # Entry points
 //! The recursive state must stay in registers to be fast: an f64 value
@@ -246,8 +246,6 @@ pub struct Chain {
     n_low: usize,
     n_high: usize,
     fs: f64,
-    /// Always 0.0 (see [`Chain::reset`]).
-    zero: f64,
 }
 
 impl Chain {
@@ -266,7 +264,7 @@ impl Chain {
     /// operations as an [`Sos`](crate::filter::Sos) of each path) for every
     /// coefficient set, including later swaps; otherwise identical to
     /// [`Chain::new`]. For the equivalence harness
-    /// (`tests/chain_equivalence.rs`), which checks the fast kernel against
+    /// (`tests/equivalence.rs`), which checks the fast kernel against
     /// it; not meant for production use.
     #[doc(hidden)]
     pub fn new_reference(coeffs: &ChainCoefficients) -> Self {
@@ -290,7 +288,6 @@ impl Chain {
             n_low: coeffs.low.len(),
             n_high: coeffs.high.len(),
             fs: coeffs.fs,
-            zero: 0.0,
         }
     }
 
@@ -314,7 +311,7 @@ impl Chain {
 
     /// `Some((stage count, first-order tail))` of the fast kernel running the
     /// current coefficients, `None` when the reference kernel runs them. For
-    /// the equivalence harness (`tests/chain_equivalence.rs`), which checks
+    /// the equivalence harness (`tests/equivalence.rs`), which checks
     /// that every fast kernel was exercised.
     #[doc(hidden)]
     pub fn fast_kernel_shape(&self) -> Option<(usize, bool)> {
@@ -337,8 +334,8 @@ impl Chain {
     /// Zero the state (a running cross-fade continues).
     #[inline(always)]
     pub fn reset(&mut self) {
-        zero_state(&mut self.s, self.zero);
-        zero_state(&mut self.gs, self.zero);
+        zero_state(&mut self.s);
+        zero_state(&mut self.gs);
         self.tick = 0;
     }
 
@@ -544,7 +541,7 @@ impl Chain {
         let mut events = 0u64;
         let mut count = 0;
         for x in it {
-            let (l, h) = guarded::<N, T>(&self.c, &mut s, &mut tick, &mut events, self.zero, x);
+            let (l, h) = guarded::<N, T>(&self.c, &mut s, &mut tick, &mut events, x);
             sink(l, h);
             count += 1;
         }
@@ -562,14 +559,7 @@ impl Chain {
             cold();
             return self.fade_step::<N, T>(x);
         }
-        guarded::<N, T>(
-            &self.c,
-            &mut self.s,
-            &mut self.tick,
-            &mut self.nonfinite,
-            self.zero,
-            x,
-        )
+        guarded::<N, T>(&self.c, &mut self.s, &mut self.tick, &mut self.nonfinite, x)
     }
 
     /// The guarded step during a cross-fade: new design (running state) and
