@@ -98,44 +98,17 @@ fn crossover_lr4_matches_reference_values() {
 
 #[test]
 fn crossover_rejects_bad_arguments() {
+    let words = |s: &'static str| s.split(' ').collect::<Vec<_>>();
     fails_with(
-        &[
-            "crossover",
-            "--fs",
-            "10000",
-            "--fc",
-            "200",
-            "--order",
-            "3",
-            "--freqs",
-            "1",
-        ],
+        &words("crossover --fs 10000 --fc 200 --order 3 --freqs 1"),
         "order",
     );
     fails_with(
-        &[
-            "crossover",
-            "--fs",
-            "10000",
-            "--fc",
-            "6000",
-            "--order",
-            "4",
-            "--freqs",
-            "1",
-        ],
+        &words("crossover --fs 10000 --fc 6000 --order 4 --freqs 1"),
         "fc",
     );
     fails_with(
-        &[
-            "crossover",
-            "--fs",
-            "10000",
-            "--fc",
-            "200",
-            "--freqs",
-            "1,x",
-        ],
+        &words("crossover --fs 10000 --fc 200 --freqs 1,x"),
         "--freqs",
     );
 }

@@ -16,57 +16,58 @@ use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
 use std::time::Duration;
 
-const TINY: &str = r#"
-name = "tiny-gui"
-participants = 2
-conditions = ["V", "P", "D"]
-trials_per_session = 1
-
-[training]
-practice_trials = 0
-max_duration_min = 1.0
-
-[task.circling]
-obstacle_radius_um = 5.0
-bead_radius_um = 1.5
-timeout_s = 1.5
-min_contact_fraction = 0.5
-escape_distance_um = 1.5
-revolutions = 1.0
-
-[tolerances]
-contact_gap_um = 0.2
-
-[counterbalance]
-scheme = "williams"
-permute_labels = false
-
-[seeds]
-study = 5
-"#;
+/// The tiny study of `data/tiny.toml` without practice trials: 2
+/// participants × 3 conditions × 1 trial.
+fn tiny() -> String {
+    include_str!("data/tiny.toml").replace("practice_trials = 1", "practice_trials = 0")
+}
 
 /// The pause between UI steps while waiting (the sitting runs as fast as
 /// possible).
 const POLL: Duration = Duration::from_millis(5);
 
-#[test]
-fn study_page_runs_a_simulated_sitting() {
-    let dir = tempfile::tempdir().unwrap();
-    let proto = dir.path().join("tiny.toml");
-    std::fs::write(&proto, TINY).unwrap();
-    let out = dir.path().join("out");
+/// The app on the Study page with the protocol file `proto`, participant
+/// `participant`, output folder `out`, the simulated participant at full
+/// speed and the inline participant view.
+fn study_page(
+    proto: &std::path::Path,
+    participant: &str,
+    out: &std::path::Path,
+) -> egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp> {
     let app = common::fresh_app(Some(Page::Study));
     let mut h = common::app_harness(app, 1100.0, 900.0, None);
     {
         let s = &mut h.state_mut().study;
         s.source = ProtocolSource::File;
         s.protocol_file = proto.display().to_string();
-        s.participant_text = "jane@example.org".into();
+        s.participant_text = participant.into();
         s.out_text = out.display().to_string();
         s.kind = ParticipantKind::Simulated;
         s.speed = Speed::Fast;
         s.separate_window = false;
     }
+    h
+}
+
+/// Click "Open session" and check that the session opened.
+fn open_session(h: &mut egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>) {
+    h.get_by_label("Open session").click();
+    h.step();
+    assert!(
+        h.state().study.is_running(),
+        "{:?}",
+        h.state().study.error()
+    );
+    h.step();
+}
+
+#[test]
+fn study_page_runs_a_simulated_sitting() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, tiny()).unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "jane@example.org", &out);
     assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
     h.step();
     // An e-mail address is refused as participant ID.
@@ -87,14 +88,7 @@ fn study_page_runs_a_simulated_sitting() {
 
     h.state_mut().study.participant_text = "P01".into();
     h.step();
-    h.get_by_label("Open session").click();
-    h.step();
-    assert!(
-        h.state().study.is_running(),
-        "{:?}",
-        h.state().study.error()
-    );
-    h.step();
+    open_session(&mut h);
     // One rig at a time: the Explore engine is parked while the session is open.
     assert!(h.state().engine.is_none());
     assert!(
@@ -144,23 +138,15 @@ fn study_page_records_the_chosen_calibration() {
     )
     .unwrap();
     let proto = dir.path().join("tiny.toml");
-    std::fs::write(&proto, TINY).unwrap();
+    std::fs::write(&proto, tiny()).unwrap();
     for (choice, out_name) in [
         (CalibrationChoice::File, "with-cal"),
         (CalibrationChoice::AsDesigned, "uncal"),
     ] {
         let out = dir.path().join(out_name);
-        let app = common::fresh_app(Some(Page::Study));
-        let mut h = common::app_harness(app, 1100.0, 900.0, None);
+        let mut h = study_page(&proto, "P01", &out);
         {
             let s = &mut h.state_mut().study;
-            s.source = ProtocolSource::File;
-            s.protocol_file = proto.display().to_string();
-            s.participant_text = "P01".into();
-            s.out_text = out.display().to_string();
-            s.kind = ParticipantKind::Simulated;
-            s.speed = Speed::Fast;
-            s.separate_window = false;
             s.calibration = choice;
             s.calibration_file = cal.display().to_string();
         }
@@ -172,14 +158,7 @@ fn study_page_records_the_chosen_calibration() {
             _ => "recorded as uncalibrated".to_owned(),
         };
         assert!(h.query_by_label_contains(&shown).is_some(), "{shown}");
-        h.get_by_label("Open session").click();
-        h.step();
-        assert!(
-            h.state().study.is_running(),
-            "{:?}",
-            h.state().study.error()
-        );
-        h.step();
+        open_session(&mut h);
         h.get_by_label("Start").click();
         assert!(step_until_every(&mut h, POLL, 20.0, |a| a
             .study

@@ -47,6 +47,23 @@ fn default_config_round_trips_through_the_loader() {
     assert_eq!(a, b);
 }
 
+/// `kilotouch sim frf --channel low --freqs 100` on the rig file `path`:
+/// its output and stderr.
+fn frf_at_100_hz(path: &std::path::Path) -> (std::process::Output, String) {
+    let out = run(&[
+        "sim",
+        "frf",
+        "--channel",
+        "low",
+        "--rig-config",
+        &path.to_string_lossy(),
+        "--freqs",
+        "100",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out, err)
+}
+
 #[test]
 fn bad_rig_file_names_file_line_and_field() {
     let dir = tempfile::tempdir().unwrap();
@@ -57,17 +74,7 @@ fn bad_rig_file_names_file_line_and_field() {
     let path = dir.path().join("bad.toml");
     std::fs::write(&path, &text).unwrap();
     let line = text.lines().position(|l| l.starts_with("m_h =")).unwrap() + 1;
-    let out = run(&[
-        "sim",
-        "frf",
-        "--channel",
-        "low",
-        "--rig-config",
-        &path.to_string_lossy(),
-        "--freqs",
-        "100",
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = frf_at_100_hz(&path);
     assert!(!out.status.success());
     assert!(
         err.contains("bad.toml") && err.contains("m_h") && err.contains(&line.to_string()),
@@ -76,17 +83,7 @@ fn bad_rig_file_names_file_line_and_field() {
 
     let typo = text.replace("k_f =", "k_ff =");
     std::fs::write(&path, typo).unwrap();
-    let out = run(&[
-        "sim",
-        "frf",
-        "--channel",
-        "low",
-        "--rig-config",
-        &path.to_string_lossy(),
-        "--freqs",
-        "100",
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = frf_at_100_hz(&path);
     assert!(!out.status.success() && err.contains("k_ff"), "{err}");
 }
 

@@ -9,18 +9,23 @@ use common::{BIN, Emulator, json_ok, kilotouch as run};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-#[test]
-fn rig_check_streams_10_khz_without_loss() {
-    let emu = Emulator::spawn("daq", &[]);
-    let v = json_ok(&[
+/// `kilotouch rig check --rig <the emulator> --duration SECONDS --json`.
+fn rig_check(emu: &Emulator, seconds: &str) -> serde_json::Value {
+    json_ok(&[
         "rig",
         "check",
         "--rig",
         &emu.rig(),
         "--duration",
-        "3",
+        seconds,
         "--json",
-    ]);
+    ])
+}
+
+#[test]
+fn rig_check_streams_10_khz_without_loss() {
+    let emu = Emulator::spawn("daq", &[]);
+    let v = rig_check(&emu, "3");
     assert_eq!(v["lost"].as_u64(), Some(0), "{v}");
     assert_eq!(v["crc_errors"].as_u64(), Some(0), "{v}");
     assert_eq!(v["nominal_rate_hz"].as_f64(), Some(10_000.0));
@@ -85,15 +90,7 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
             "3",
         ],
     );
-    let v = json_ok(&[
-        "rig",
-        "check",
-        "--rig",
-        &emu.rig(),
-        "--duration",
-        "2",
-        "--json",
-    ]);
+    let v = rig_check(&emu, "2");
     let (frames, lost) = (v["frames"].as_u64().unwrap(), v["lost"].as_u64().unwrap());
     // ≈ 1 − (1 − 4e-4)^162 ≈ 6 % of the frames of 10 samples are hit.
     assert!(lost > 100 && lost < frames / 4, "{v}");

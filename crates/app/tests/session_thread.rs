@@ -26,34 +26,7 @@ use kilotouch_study::simulate::{SimulateOptions, simulate};
 
 /// 2 participants × 3 conditions × 1 test trial, 1 practice trial per
 /// condition, 2 s time-outs: 12 short trials.
-const TINY: &str = r#"
-name = "tiny"
-participants = 2
-conditions = ["V", "P", "D"]
-trials_per_session = 1
-
-[training]
-practice_trials = 1
-max_duration_min = 1.0
-
-[task.circling]
-obstacle_radius_um = 5.0
-bead_radius_um = 1.5
-timeout_s = 2.0
-min_contact_fraction = 0.5
-escape_distance_um = 1.5
-revolutions = 1.0
-
-[tolerances]
-contact_gap_um = 0.2
-
-[counterbalance]
-scheme = "williams"
-permute_labels = true
-
-[seeds]
-study = 77
-"#;
+const TINY: &str = include_str!("data/tiny.toml");
 
 fn tiny() -> Protocol {
     Protocol::from_toml_str(TINY, "tiny.toml").unwrap()

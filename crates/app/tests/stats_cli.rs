@@ -22,8 +22,10 @@ fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> St
     p.to_string_lossy().into_owned()
 }
 
-fn stats_json(path: &str, test: &str) -> Value {
-    let out = run(&[
+/// `kilotouch stats PATH --dv score --within condition --subject
+/// participant --test TEST`, then `extra`.
+fn stats<'a>(path: &'a str, test: &'a str, extra: &[&'a str]) -> std::process::Output {
+    let mut args = vec![
         "stats",
         path,
         "--dv",
@@ -34,8 +36,13 @@ fn stats_json(path: &str, test: &str) -> Value {
         "participant",
         "--test",
         test,
-        "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
+fn stats_json(path: &str, test: &str) -> Value {
+    let out = stats(path, test, &["--json"]);
     assert!(
         out.status.success(),
         "{}",
@@ -139,27 +146,8 @@ fn malformed_inputs_name_the_problem() {
         std::fs::write(&p, text).unwrap();
         p.to_string_lossy().into_owned()
     };
-    let args = |p: &str| -> Vec<String> {
-        [
-            "stats",
-            p,
-            "--dv",
-            "score",
-            "--within",
-            "condition",
-            "--subject",
-            "participant",
-            "--test",
-            "rm",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
-    };
     let check = |p: &str, needle: &str| {
-        let a = args(p);
-        let a: Vec<&str> = a.iter().map(|s| s.as_str()).collect();
-        let out = run(&a);
+        let out = stats(p, "rm", &[]);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{p} should fail");
         assert!(err.contains(needle), "`{needle}` not in: {err}");

@@ -79,23 +79,8 @@ fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
     });
     println!("| plant, both axes, ZOH (`plant_ns_per_step`) | {t:.1} |");
     let m = AxisModel::new(cfg, Axis::X)?;
-    for integ in Integrator::ALL {
-        let mut s = AxisSim::<NX>::new(&m, integ, 1e-4)?;
-        let t = ns_per_call(n, |k| {
-            s.step(&SVector::<f64, NU>::from([
-                drive(k),
-                drive(k + 3),
-                0.0,
-                0.0,
-                1.0,
-            ]))
-            .accel
-        });
-        println!("| plant x axis only, {} | {t:.1} |", integ.name());
-    }
-    let mut s = AxisSim::<NX>::new(&m, Integrator::Zoh, 1e-4)?;
-    s.force_dense();
-    let t = ns_per_call(n, |k| {
+    // Force and drive from the test signal, hand still, end-stop input 1.
+    let x_step = |s: &mut AxisSim<NX>, k: usize| {
         s.step(&SVector::<f64, NU>::from([
             drive(k),
             drive(k + 3),
@@ -104,7 +89,15 @@ fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {
             1.0,
         ]))
         .accel
-    });
+    };
+    for integ in Integrator::ALL {
+        let mut s = AxisSim::<NX>::new(&m, integ, 1e-4)?;
+        let t = ns_per_call(n, |k| x_step(&mut s, k));
+        println!("| plant x axis only, {} | {t:.1} |", integ.name());
+    }
+    let mut s = AxisSim::<NX>::new(&m, Integrator::Zoh, 1e-4)?;
+    s.force_dense();
+    let t = ns_per_call(n, |k| x_step(&mut s, k));
     println!("| plant x axis only, zoh, dense update (no modal form) | {t:.1} |");
     for (name, params) in [
         (

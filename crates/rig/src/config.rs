@@ -473,6 +473,15 @@ impl RigConfig {
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
+    /// The rig file at `path`, or the built-in rig (the paper's, [`Default`])
+    /// when no path is given.
+    pub fn load_or_default(path: Option<impl AsRef<Path>>) -> Result<Self, RigError> {
+        match path {
+            Some(p) => Self::load(p),
+            None => Ok(Self::default()),
+        }
+    }
+
     /// Serialise back to TOML.
     pub fn to_toml_string(&self) -> Result<String, RigError> {
         toml::to_string_pretty(self).map_err(|e| RigError::InvalidInput(e.to_string()))

@@ -599,11 +599,7 @@ impl SafetyLayer {
         sensors: &SensorFrame,
         deadline_missed: bool,
     ) -> ActuatorFrame {
-        let sample = self.counters.samples;
-        self.counters.samples += 1;
-        if self.estop_flag.load(Ordering::Acquire) && self.state != SafetyState::EStop {
-            self.enter_estop(sample);
-        }
+        let sample = self.open_sample();
         let (speed, bad_sensor) = self.vel.update(sensors.handle_m);
         self.speed = speed;
         // The common case, forces on and nothing to count or trip: every
@@ -650,6 +646,18 @@ impl SafetyLayer {
         self.apply_general(cmd, sample, speed, bad_sensor, deadline_missed)
     }
 
+    /// Count the sample and honour a pending emergency stop; returns the
+    /// sample's index.
+    #[inline(always)]
+    fn open_sample(&mut self) -> u64 {
+        let sample = self.counters.samples;
+        self.counters.samples += 1;
+        if self.estop_flag.load(Ordering::Acquire) && self.state != SafetyState::EStop {
+            self.enter_estop(sample);
+        }
+        sample
+    }
+
     /// [`Self::apply`] by the general paths alone (velocity estimate and
     /// limiting): the reference the common-case paths must equal bit for
     /// bit, for the equivalence harness (`tests/equivalence.rs`).
@@ -660,11 +668,7 @@ impl SafetyLayer {
         sensors: &SensorFrame,
         deadline_missed: bool,
     ) -> ActuatorFrame {
-        let sample = self.counters.samples;
-        self.counters.samples += 1;
-        if self.estop_flag.load(Ordering::Acquire) && self.state != SafetyState::EStop {
-            self.enter_estop(sample);
-        }
+        let sample = self.open_sample();
         let (speed, bad_sensor) = self.vel.update_general(sensors.handle_m);
         self.speed = speed;
         self.apply_general(cmd, sample, speed, bad_sensor, deadline_missed)

@@ -316,10 +316,7 @@ fn run_paced(a: &Args, seconds: f64) -> anyhow::Result<()> {
     if !(seconds.is_finite() && seconds >= 1.0) {
         anyhow::bail!("--paced: give at least 1 second (got {seconds})");
     }
-    let cfg = match &a.rig_config {
-        Some(p) => RigConfig::load(p)?,
-        None => RigConfig::default(),
-    };
+    let cfg = RigConfig::load_or_default(a.rig_config.as_ref())?;
     let mut err = std::io::stderr();
     let mut last = -1i64;
     let report = run_soak(&cfg, EngineOptions::default(), seconds, &mut |f| {

@@ -88,10 +88,7 @@ fn calibrate_serial(
     progress: &mut dyn kilotouch_rig::calibration::Progress,
     cancel: &AtomicBool,
 ) -> anyhow::Result<CalibrationOutcome> {
-    let rc = match rig_config {
-        Some(p) => RigConfig::load(p)?,
-        None => RigConfig::default(),
-    };
+    let rc = RigConfig::load_or_default(rig_config)?;
     let mut cfg = cfg.clone();
     // The device idles between runs while the host computes; its watchdog
     // may trip then, with nothing owed: restart it instead of failing.

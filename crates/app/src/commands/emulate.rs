@@ -93,10 +93,7 @@ impl Args {
     }
 
     fn rig_config(&self) -> anyhow::Result<RigConfig> {
-        let mut rc = match &self.rig_config {
-            Some(p) => RigConfig::load(p)?,
-            None => RigConfig::default(),
-        };
+        let mut rc = RigConfig::load_or_default(self.rig_config.as_ref())?;
         if let Some(s) = self.seed {
             rc.accelerometer.seed = s;
             rc.tweezer.seed = s;

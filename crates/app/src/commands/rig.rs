@@ -7,7 +7,7 @@ use kilotouch_rig::config::default_config_text;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
-use kilotouch_rig::serial::SerialRig;
+use kilotouch_rig::serial::{LinkStats, SerialRig};
 use kilotouch_rig::sim::SimRig;
 use kilotouch_rig::stability::{StabilityReport, analyse};
 use serde::Serialize;
@@ -35,15 +35,38 @@ pub enum RigCommand {
     Margins(MarginsArgs),
 }
 
-/// Arguments of `kilotouch rig margins`.
-#[derive(Debug, clap::Args)]
-pub struct MarginsArgs {
+/// The rig and the chain condition D runs on it (`--rig-config`,
+/// `--calibration`), shared by every command that closes the loop.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoopArgs {
     /// Rig file (default: the built-in rig).
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
-    /// Calibration file whose chain D runs (default: the model's as-designed chain).
+    /// Calibration file (`kilotouch calibrate --out`) whose chain D runs
+    /// (default: the model's as-designed chain).
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+}
+
+impl LoopArgs {
+    /// The rig file (or the built-in one) and the chain D runs with it; a
+    /// calibration made for another rig file is refused.
+    pub fn load(&self) -> anyhow::Result<(RigConfig, LoopChain)> {
+        let cfg = RigConfig::load_or_default(self.rig_config.as_ref())?;
+        let chain = match &self.calibration {
+            Some(p) => LoopChain::load(p, &cfg)?,
+            None => LoopChain::as_designed(&cfg)?,
+        };
+        Ok((cfg, chain))
+    }
+}
+
+/// Arguments of `kilotouch rig margins`.
+#[derive(Debug, clap::Args)]
+pub struct MarginsArgs {
+    /// Rig and chain.
+    #[command(flatten)]
+    pub rig: LoopArgs,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -57,22 +80,6 @@ pub struct MarginsReport {
     pub report: StabilityReport,
     /// Where the chain came from.
     pub chain: ChainSource,
-}
-
-/// The rig file at `path` (or the built-in one) and the chain D runs with it.
-pub fn rig_and_chain(
-    rig_config: Option<&PathBuf>,
-    calibration: Option<&PathBuf>,
-) -> anyhow::Result<(RigConfig, LoopChain)> {
-    let cfg = match rig_config {
-        Some(p) => RigConfig::load(p)?,
-        None => RigConfig::default(),
-    };
-    let chain = match calibration {
-        Some(p) => LoopChain::load(p, &cfg)?,
-        None => LoopChain::as_designed(&cfg)?,
-    };
-    Ok((cfg, chain))
 }
 
 /// Arguments of `kilotouch rig check`.
@@ -176,54 +183,35 @@ fn check(a: &CheckArgs) -> anyhow::Result<CheckReport> {
         anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
     }
     let spec: RigSpec = a.rig.parse()?;
-    match &spec {
+    let (id, (frames, lost, elapsed, max_block), link) = match &spec {
         RigSpec::Sim => {
-            let rc = match &a.rig_config {
-                Some(p) => RigConfig::load(p)?,
-                None => RigConfig::default(),
-            };
+            let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
             let mut rig = SimRig::paced(&rc, 0.5)?;
-            let (frames, lost, elapsed, max_block) = stream(&mut rig, a.duration, a.block)?;
-            let id = rig.identity().clone();
-            Ok(CheckReport {
-                rig: spec.describe(),
-                device: id.name,
-                firmware: id.firmware,
-                nominal_rate_hz: id.sample_rate_hz,
-                frames,
-                received: frames - lost,
-                lost,
-                crc_errors: 0,
-                bytes_skipped: 0,
-                late_commands: 0,
-                rate_hz: frames as f64 / elapsed,
-                duration_s: elapsed,
-                max_block_ms: 1e3 * max_block,
-            })
+            let streamed = stream(&mut rig, a.duration, a.block)?;
+            (rig.identity().clone(), streamed, LinkStats::default())
         }
         RigSpec::Serial(cfg) => {
             let mut rig = SerialRig::open(cfg)?;
-            let (frames, lost, elapsed, max_block) = stream(&mut rig, a.duration, a.block)?;
-            let id = rig.identity().clone();
-            let ls = rig.link_stats();
-            Ok(CheckReport {
-                rig: spec.describe(),
-                device: id.name,
-                firmware: id.firmware,
-                nominal_rate_hz: id.sample_rate_hz,
-                frames,
-                received: frames - lost,
-                lost,
-                crc_errors: ls.crc_errors,
-                bytes_skipped: ls.bytes_skipped,
-                late_commands: ls.late_commands,
-                rate_hz: frames as f64 / elapsed,
-                duration_s: elapsed,
-                max_block_ms: 1e3 * max_block,
-            })
+            let streamed = stream(&mut rig, a.duration, a.block)?;
+            (rig.identity().clone(), streamed, rig.link_stats())
         }
-        RigSpec::Audio(_) => Err(RigSpec::audio_not_built().into()),
-    }
+        RigSpec::Audio(_) => return Err(RigSpec::audio_not_built().into()),
+    };
+    Ok(CheckReport {
+        rig: spec.describe(),
+        device: id.name,
+        firmware: id.firmware,
+        nominal_rate_hz: id.sample_rate_hz,
+        frames,
+        received: frames - lost,
+        lost,
+        crc_errors: link.crc_errors,
+        bytes_skipped: link.bytes_skipped,
+        late_commands: link.late_commands,
+        rate_hz: frames as f64 / elapsed,
+        duration_s: elapsed,
+        max_block_ms: 1e3 * max_block,
+    })
 }
 
 /// Run a `rig` subcommand.
@@ -240,7 +228,7 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
             emit(a.json, &report, || report.table())
         }
         RigCommand::Margins(a) => {
-            let (cfg, chain) = rig_and_chain(a.rig_config.as_ref(), a.calibration.as_ref())?;
+            let (cfg, chain) = a.rig.load()?;
             let report = analyse(&cfg, &chain.coefficients).context("rig margins")?;
             let out = MarginsReport {
                 report,

@@ -25,12 +25,9 @@ pub enum SimCommand {
 /// Arguments of `kilotouch sim press`.
 #[derive(Debug, clap::Args)]
 pub struct PressArgs {
-    /// Rig file (default: the built-in rig).
-    #[arg(long)]
-    pub rig_config: Option<PathBuf>,
-    /// Calibration file whose chain D runs (default: the model's as-designed chain).
-    #[arg(long, value_name = "FILE")]
-    pub calibration: Option<PathBuf>,
+    /// Rig and chain.
+    #[command(flatten)]
+    pub rig: super::rig::LoopArgs,
     /// Condition: P or D.
     #[arg(long, default_value = "D", value_parser = ["P", "D"])]
     pub condition: String,
@@ -73,7 +70,7 @@ fn press(a: &PressArgs) -> anyhow::Result<()> {
     use anyhow::Context;
     use kilotouch_rig::haptic_loop::Clearance;
     use kilotouch_rig::press::{PressOptions, simulate_press};
-    let (cfg, chain) = super::rig::rig_and_chain(a.rig_config.as_ref(), a.calibration.as_ref())?;
+    let (cfg, chain) = a.rig.load()?;
     let condition: kilotouch_rig::Condition = a
         .condition
         .parse()
@@ -205,21 +202,13 @@ pub struct FrfReport {
     pub points: Vec<FrfPoint>,
 }
 
-/// Load the rig file named on the command line, or the built-in default.
-pub fn load_rig_config(path: Option<&PathBuf>) -> anyhow::Result<RigConfig> {
-    Ok(match path {
-        Some(p) => RigConfig::load(p)?,
-        None => RigConfig::default(),
-    })
-}
-
 /// Run a `sim` subcommand.
 pub fn run(cmd: &SimCommand) -> anyhow::Result<()> {
     match cmd {
         SimCommand::Press(a) => press(a),
         SimCommand::Frf(a) => {
             let freqs = parse_freqs(&a.freqs)?;
-            let cfg = load_rig_config(a.rig_config.as_ref())?;
+            let cfg = RigConfig::load_or_default(a.rig_config.as_ref())?;
             let channel: Channel = a.channel.parse()?;
             let report = simulate_frf(&cfg, channel, &freqs)?;
             let points = report

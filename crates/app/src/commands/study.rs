@@ -44,14 +44,11 @@ pub struct SimulateArgs {
     /// Worker threads (default: available cores). Results do not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Rig file of the simulated rig (default: the built-in rig).
-    #[arg(long)]
-    pub rig_config: Option<PathBuf>,
-    /// Calibration file (`kilotouch calibrate --out`) whose chain D runs,
-    /// recorded with its SHA-256 in session.json and the journal. Without
-    /// it, the model's as-designed chain (recorded as uncalibrated).
-    #[arg(long, value_name = "FILE")]
-    pub calibration: Option<PathBuf>,
+    /// The simulated rig and D's chain. A calibration is recorded with its
+    /// SHA-256 in session.json and the journal; without one, the model's
+    /// as-designed chain is recorded as uncalibrated.
+    #[command(flatten)]
+    pub rig: super::rig::LoopArgs,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -155,10 +152,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
     protocol
         .validate()
         .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
-    let rig = match &a.rig_config {
-        Some(p) => RigConfig::load(p)?,
-        None => RigConfig::default(),
-    };
+    let rig = RigConfig::load_or_default(a.rig.rig_config.as_ref())?;
     let threads = match a.threads {
         Some(0) => anyhow::bail!("--threads must be at least 1"),
         Some(t) => t,
@@ -173,7 +167,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         out: a.out.clone(),
         resume: a.resume,
         rig,
-        calibration: a.calibration.clone(),
+        calibration: a.rig.calibration.clone(),
         runner,
         threads,
     };

@@ -345,42 +345,37 @@ impl KilotouchApp {
         })
     }
 
+    /// Switch to the rig file `cfg` (read from `path`; `None`: the built-in
+    /// rig): the applied calibration is dropped (it belongs to the rig file
+    /// it was cleared for), the Explore scene reset, and a running engine
+    /// restarted on the new rig.
+    fn use_rig_file(&mut self, cfg: RigConfig, path: Option<PathBuf>) {
+        self.rig_config = cfg;
+        self.applied = None;
+        self.rig_config_path = path.clone();
+        self.settings.rig_file = path;
+        self.config_error = None;
+        let was = self.engine.is_some();
+        self.engine = None;
+        self.explore.reset(&self.rig_config);
+        if was {
+            self.connect();
+        }
+    }
+
     fn rig_action(&mut self, a: RigAction) {
         match a {
             RigAction::LoadConfig(p) => {
                 let path = PathBuf::from(&p);
                 match RigConfig::load(&path) {
                     Ok(c) => {
-                        self.rig_config = c;
-                        // A calibration belongs to the rig file it was cleared for.
-                        self.applied = None;
-                        self.rig_config_path = Some(path.clone());
-                        self.settings.rig_file = Some(path);
-                        self.config_error = None;
-                        let was = self.engine.is_some();
-                        self.engine = None;
-                        self.explore.reset(&self.rig_config);
-                        if was {
-                            self.connect();
-                        }
+                        self.use_rig_file(c, Some(path));
                         self.notify(format!("rig file loaded: {p}"), false);
                     }
                     Err(e) => self.config_error = Some(e.to_string()),
                 }
             }
-            RigAction::UseDefault => {
-                self.rig_config = RigConfig::default();
-                self.applied = None;
-                self.rig_config_path = None;
-                self.settings.rig_file = None;
-                self.config_error = None;
-                let was = self.engine.is_some();
-                self.engine = None;
-                self.explore.reset(&self.rig_config);
-                if was {
-                    self.connect();
-                }
-            }
+            RigAction::UseDefault => self.use_rig_file(RigConfig::default(), None),
             RigAction::Connect => self.connect(),
             RigAction::Reconnect => {
                 if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {

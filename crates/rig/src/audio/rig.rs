@@ -5,7 +5,7 @@ use super::{POLL_S, cpal_err, f32_config, find_device};
 use crate::config::RigConfig;
 use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
-    RigStatus, SensorFrame, StatusCounters, check_block_lengths,
+    RigStatus, SensorFrame, StatusCounters, open_block,
 };
 use crate::error::RigError;
 use crate::safety::{HardLimits, hard_limit};
@@ -568,21 +568,10 @@ impl Rig for AudioRig {
         commands: &[ActuatorFrame],
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError> {
-        if self.state != RigState::Running {
-            return Err(RigError::NotReady(
-                "call start() before process_block()".into(),
-            ));
-        }
-        check_block_lengths(commands, sensors)?;
+        let mut report = open_block(self.state, commands, sensors, self.seq)?;
         if self.shared.failed.load(Ordering::Acquire) {
             return Err(self.fail("the audio host reported a stream error"));
         }
-        let n = commands.len();
-        let mut report = BlockReport {
-            first_seq: self.seq,
-            frames: n,
-            ..Default::default()
-        };
         let timeout = Duration::from_secs_f64(self.cfg.timeout_s);
         let (hfs, pfs, afs) = (
             self.cfg.haptuator_full_scale_v,

@@ -39,7 +39,7 @@ use super::bands::band_centres;
 use super::config::CalibrationConfig;
 use super::error::{CalibrationError, Result};
 use super::identify::{HighChannelId, LowChannelId, gain_below};
-use super::measure::smooth_octave;
+use super::measure::{smooth_octave, smooth_octave_complex};
 use super::prediction::{predicted_max_abs_dev_db, unit_chain};
 use super::progress::{Step, StepContext};
 use kilotouch_dsp::C64;
@@ -96,20 +96,11 @@ fn high_errors(high: &HighChannelId, cfg: &CalibrationConfig) -> Vec<(f64, f64)>
         .zip(&frf.h)
         .map(|(&f, &h)| h / high.response(f))
         .collect();
-    let re = smooth_octave(
-        &frf.f_hz,
-        &ratio.iter().map(|r| r.re).collect::<Vec<_>>(),
-        w,
-    );
-    let im = smooth_octave(
-        &frf.f_hz,
-        &ratio.iter().map(|r| r.im).collect::<Vec<_>>(),
-        w,
-    );
+    let ratio = smooth_octave_complex(&frf.f_hz, &ratio, w);
     let coh = smooth_octave(&frf.f_hz, &frf.coherence, w);
     frf.range(0.0, high.reliable_band_hz[0] * (1.0 - 1e-12))
         .map(|i| {
-            let e = (C64::new(re[i], im[i]) - 1.0).norm();
+            let e = (ratio[i] - 1.0).norm();
             let e = if coh[i] >= cfg.analysis.coherence_min && e.is_finite() {
                 e
             } else {

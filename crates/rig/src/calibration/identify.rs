@@ -29,7 +29,7 @@ use super::config::CalibrationConfig;
 use super::error::{CalibrationError, Result};
 use super::interface::{CalibrationRig, Channel};
 use super::measure::{
-    ChannelFrf, ExcitationSummary, RawRecord, measure_channel, smooth_octave, smoothed,
+    ChannelFrf, ExcitationSummary, RawRecord, measure_channel, smooth_octave_complex, smoothed,
 };
 use super::progress::{Step, StepContext};
 use kilotouch_dsp::fit::{CoherenceWeighting, FitOptions, Mode, coherence_weights, fit_tf};
@@ -343,20 +343,11 @@ pub fn model_error_db(
         .map(|(&f, &h)| h / (model.response_hz(f) * C64::from_polar(1.0, -2.0 * PI * f * delay_s)))
         .collect();
     let w = cfg.analysis.smoothing_octaves;
-    let re = smooth_octave(
-        &frf.f_hz,
-        &ratio.iter().map(|r| r.re).collect::<Vec<_>>(),
-        w,
-    );
-    let im = smooth_octave(
-        &frf.f_hz,
-        &ratio.iter().map(|r| r.im).collect::<Vec<_>>(),
-        w,
-    );
+    let ratio = smooth_octave_complex(&frf.f_hz, &ratio, w);
     let e = frf
         .range(lo, hi)
         .filter(|&i| coh[i] >= cfg.analysis.coherence_min)
-        .map(|i| (C64::new(re[i], im[i]) - 1.0).norm())
+        .map(|i| (ratio[i] - 1.0).norm())
         .filter(|e| e.is_finite())
         .fold(0.0, f64::max);
     20.0 * (1.0 + e).log10()

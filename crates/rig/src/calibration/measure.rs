@@ -309,6 +309,18 @@ pub(crate) fn estimate_frf<R: CalibrationRig + ?Sized>(
     Ok(out)
 }
 
+/// [`smooth_octave`] of a complex response, real and imaginary parts apart.
+pub fn smooth_octave_complex(f_hz: &[f64], v: &[C64], width_octaves: f64) -> Vec<C64> {
+    let part = |g: fn(&C64) -> f64| {
+        smooth_octave(f_hz, &v.iter().map(g).collect::<Vec<_>>(), width_octaves)
+    };
+    let (re, im) = (part(|z| z.re), part(|z| z.im));
+    re.into_iter()
+        .zip(im)
+        .map(|(r, i)| C64::new(r, i))
+        .collect()
+}
+
 /// Fractional-octave moving average: value i is the mean of the values whose
 /// frequency lies within [f_i·2^(−w/2), f_i·2^(w/2)] (`f_hz` ascending, > 0).
 /// `width_octaves` = 0 returns the input.

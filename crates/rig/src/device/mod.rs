@@ -45,21 +45,35 @@ pub use spec::RigSpec;
 
 use crate::error::RigError;
 
-/// The block-length contract of [`Rig::process_block`], shared by every
-/// implementation: one sensor frame per command.
-pub fn check_block_lengths(
+/// The opening every backend's [`Rig::process_block`] shares: a rig that is
+/// not [`RigState::Running`] refuses ([`RigError::NotReady`]), and so does a
+/// block with a different number of commands and sensor frames (one sensor
+/// frame per command, [`RigError::InvalidInput`]); otherwise the block's
+/// report, starting at sequence number `first_seq`, with `commands.len()`
+/// frames and nothing else counted yet.
+pub fn open_block(
+    state: RigState,
     commands: &[ActuatorFrame],
     sensors: &[SensorFrame],
-) -> Result<(), RigError> {
-    if commands.len() == sensors.len() {
-        Ok(())
-    } else {
-        Err(RigError::InvalidInput(format!(
+    first_seq: u64,
+) -> Result<BlockReport, RigError> {
+    if state != RigState::Running {
+        return Err(RigError::NotReady(
+            "call start() before process_block()".into(),
+        ));
+    }
+    if commands.len() != sensors.len() {
+        return Err(RigError::InvalidInput(format!(
             "{} commands but {} sensor frames",
             commands.len(),
             sensors.len()
-        )))
+        )));
     }
+    Ok(BlockReport {
+        first_seq,
+        frames: commands.len(),
+        ..Default::default()
+    })
 }
 
 /// A haptic rig, simulated or live (module docs).

@@ -672,16 +672,13 @@ impl Instrument for DaqInstrument {
     const SAMPLE_TYPE: u8 = frame::ty::SAMPLES;
 
     fn hello(&self) -> Hello {
-        Hello {
-            version: PROTOCOL_VERSION,
-            sample_rate_hz: self.fs,
-            watchdog_ms: 0,
-            batch: 0,
-            caps: Caps::Daq(self.caps),
-            name: self.name.clone(),
-            serial: "emulator-0001".into(),
-            firmware: concat!("kilotouch emulate daq ", env!("CARGO_PKG_VERSION")).into(),
-        }
+        Hello::emulator(
+            self.fs,
+            Caps::Daq(self.caps),
+            &self.name,
+            "emulator-0001",
+            "daq",
+        )
     }
 
     fn step(&mut self, cmd: &DaqCommand, extra_flags: u8) -> DaqSample {

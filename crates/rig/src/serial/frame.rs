@@ -205,6 +205,22 @@ pub struct Hello {
 }
 
 impl Hello {
+    /// The handshake of one of kilotouch's own emulators (current protocol
+    /// version, no device watchdog, no batching): `tool` names it in the
+    /// firmware string (`kilotouch emulate daq 0.1.0`).
+    pub fn emulator(sample_rate_hz: u32, caps: Caps, name: &str, serial: &str, tool: &str) -> Self {
+        Self {
+            version: PROTOCOL_VERSION,
+            sample_rate_hz,
+            watchdog_ms: 0,
+            batch: 0,
+            caps,
+            name: name.to_owned(),
+            serial: serial.to_owned(),
+            firmware: format!("kilotouch emulate {tool} {}", env!("CARGO_PKG_VERSION")),
+        }
+    }
+
     /// Device kind.
     pub fn kind(&self) -> DeviceKind {
         match self.caps {

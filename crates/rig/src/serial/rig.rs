@@ -24,7 +24,7 @@ use super::frame::{
 };
 use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
-    RigStatus, SensorFrame, StatusCounters, check_block_lengths,
+    RigStatus, SensorFrame, StatusCounters, open_block,
 };
 use crate::error::RigError;
 use serialport::{ClearBuffer, SerialPort};
@@ -797,7 +797,6 @@ impl Rig for SerialRig {
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError> {
         match self.state {
-            RigState::Running => {}
             RigState::Disconnected => {
                 return Err(RigError::Disconnected(format!(
                     "{}: call reconnect() first",
@@ -809,19 +808,11 @@ impl Rig for SerialRig {
                     "the device watchdog tripped: call start() to resume".into(),
                 ));
             }
-            RigState::Idle => {
-                return Err(RigError::NotReady(
-                    "call start() before process_block()".into(),
-                ));
-            }
+            // Idle refuses in `open_block`.
+            RigState::Idle | RigState::Running => {}
         }
-        check_block_lengths(commands, sensors)?;
-        let n = commands.len();
-        let mut report = BlockReport {
-            first_seq: self.next_seq,
-            frames: n,
-            ..Default::default()
-        };
+        let mut report = open_block(self.state, commands, sensors, self.next_seq)?;
+        let n = report.frames;
         if n == 0 {
             return Ok(report);
         }

@@ -19,8 +19,8 @@
 
 use super::emulator::Instrument;
 use super::frame::{
-    self, Caps, DeviceKind, Hello, PROTOCOL_VERSION, TrapCommand, TweezerCaps, TweezerWireSample,
-    WireItem, tweezer_status as ts,
+    self, Caps, DeviceKind, Hello, TrapCommand, TweezerCaps, TweezerWireSample, WireItem,
+    tweezer_status as ts,
 };
 use super::rig::{Link, LinkErrorKind, LinkStats, SerialConfig};
 use crate::config::RigConfig;
@@ -70,18 +70,10 @@ impl Instrument for TweezerInstrument {
     const SAMPLE_TYPE: u8 = frame::ty::TWEEZER_SAMPLES;
 
     fn hello(&self) -> Hello {
-        Hello {
-            version: PROTOCOL_VERSION,
-            sample_rate_hz: self.fs,
-            watchdog_ms: 0,
-            batch: 0,
-            caps: Caps::Tweezer(TweezerCaps {
-                stiffness_n_per_m: self.tw.stiffness_n_per_m(),
-            }),
-            name: self.name.clone(),
-            serial: "emulator-0002".into(),
-            firmware: concat!("kilotouch emulate tweezer ", env!("CARGO_PKG_VERSION")).into(),
-        }
+        let caps = Caps::Tweezer(TweezerCaps {
+            stiffness_n_per_m: self.tw.stiffness_n_per_m(),
+        });
+        Hello::emulator(self.fs, caps, &self.name, "emulator-0002", "tweezer")
     }
 
     fn step(&mut self, cmd: &TrapCommand, extra_flags: u8) -> TweezerWireSample {

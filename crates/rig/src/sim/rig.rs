@@ -11,7 +11,7 @@ use crate::accel::Accelerometer;
 use crate::config::RigConfig;
 use crate::device::{
     ActuatorFrame, BlockReport, Clock, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
-    RigStatus, SensorFrame, StatusCounters, SystemClock, check_block_lengths, frame_as_block,
+    RigStatus, SensorFrame, StatusCounters, SystemClock, frame_as_block, open_block,
 };
 use crate::error::RigError;
 use crate::lti::Integrator;
@@ -297,18 +297,8 @@ impl<C: Clock> Rig for SimRig<C> {
         commands: &[ActuatorFrame],
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError> {
-        if self.state != RigState::Running {
-            return Err(RigError::NotReady(
-                "call start() before process_block()".into(),
-            ));
-        }
-        check_block_lengths(commands, sensors)?;
-        let n = commands.len();
-        let mut report = BlockReport {
-            first_seq: self.seq,
-            frames: n,
-            ..Default::default()
-        };
+        let mut report = open_block(self.state, commands, sensors, self.seq)?;
+        let n = report.frames;
         if n == 0 {
             return Ok(report);
         }

@@ -55,44 +55,24 @@ impl Dss {
 
     /// `self` followed by `next` (the outputs of `self` feed `next`).
     pub fn then(&self, next: &Dss) -> Dss {
-        let (n1, n2) = (self.n_states(), next.n_states());
-        let (m, p) = (self.b.ncols(), next.c.nrows());
-        let mut a = DMatrix::zeros(n1 + n2, n1 + n2);
-        a.view_mut((0, 0), (n1, n1)).copy_from(&self.a);
-        a.view_mut((n1, n1), (n2, n2)).copy_from(&next.a);
-        a.view_mut((n1, 0), (n2, n1))
+        let mut a = block_diag(&self.a, &next.a);
+        let n1 = self.n_states();
+        a.view_mut((n1, 0), (next.n_states(), n1))
             .copy_from(&(&next.b * &self.c));
-        let mut b = DMatrix::zeros(n1 + n2, m);
-        b.view_mut((0, 0), (n1, m)).copy_from(&self.b);
-        b.view_mut((n1, 0), (n2, m)).copy_from(&(&next.b * &self.d));
-        let mut c = DMatrix::zeros(p, n1 + n2);
-        c.view_mut((0, 0), (p, n1)).copy_from(&(&next.d * &self.c));
-        c.view_mut((0, n1), (p, n2)).copy_from(&next.c);
         Dss {
             a,
-            b,
-            c,
+            b: vstack(&self.b, &(&next.b * &self.d)),
+            c: hstack(&(&next.d * &self.c), &next.c),
             d: &next.d * &self.d,
         }
     }
 
     /// `self + other`: the same inputs, outputs added.
     pub fn plus(&self, other: &Dss) -> Dss {
-        let (n1, n2) = (self.n_states(), other.n_states());
-        let (m, p) = (self.b.ncols(), self.c.nrows());
-        let mut a = DMatrix::zeros(n1 + n2, n1 + n2);
-        a.view_mut((0, 0), (n1, n1)).copy_from(&self.a);
-        a.view_mut((n1, n1), (n2, n2)).copy_from(&other.a);
-        let mut b = DMatrix::zeros(n1 + n2, m);
-        b.view_mut((0, 0), (n1, m)).copy_from(&self.b);
-        b.view_mut((n1, 0), (n2, m)).copy_from(&other.b);
-        let mut c = DMatrix::zeros(p, n1 + n2);
-        c.view_mut((0, 0), (p, n1)).copy_from(&self.c);
-        c.view_mut((0, n1), (p, n2)).copy_from(&other.c);
         Dss {
-            a,
-            b,
-            c,
+            a: block_diag(&self.a, &other.a),
+            b: vstack(&self.b, &other.b),
+            c: hstack(&self.c, &other.c),
             d: &self.d + &other.d,
         }
     }
@@ -100,21 +80,12 @@ impl Dss {
     /// `self` and `other` side by side on the same input: outputs stacked
     /// (`self`'s first).
     pub fn stack(&self, other: &Dss) -> Dss {
-        let (n1, n2) = (self.n_states(), other.n_states());
-        let (m, p1, p2) = (self.b.ncols(), self.c.nrows(), other.c.nrows());
-        let mut a = DMatrix::zeros(n1 + n2, n1 + n2);
-        a.view_mut((0, 0), (n1, n1)).copy_from(&self.a);
-        a.view_mut((n1, n1), (n2, n2)).copy_from(&other.a);
-        let mut b = DMatrix::zeros(n1 + n2, m);
-        b.view_mut((0, 0), (n1, m)).copy_from(&self.b);
-        b.view_mut((n1, 0), (n2, m)).copy_from(&other.b);
-        let mut c = DMatrix::zeros(p1 + p2, n1 + n2);
-        c.view_mut((0, 0), (p1, n1)).copy_from(&self.c);
-        c.view_mut((p1, n1), (p2, n2)).copy_from(&other.c);
-        let mut d = DMatrix::zeros(p1 + p2, m);
-        d.view_mut((0, 0), (p1, m)).copy_from(&self.d);
-        d.view_mut((p1, 0), (p2, m)).copy_from(&other.d);
-        Dss { a, b, c, d }
+        Dss {
+            a: block_diag(&self.a, &other.a),
+            b: vstack(&self.b, &other.b),
+            c: block_diag(&self.c, &other.c),
+            d: vstack(&self.d, &other.d),
+        }
     }
 
     /// `self` times a scalar (outputs scaled).
@@ -137,6 +108,33 @@ impl Dss {
         }
         Some(&self.a + &self.b * &self.c / (1.0 - d))
     }
+}
+
+/// [[x, 0], [0, y]]. (nalgebra's `stack!` would do; it needs the crate's
+/// `macros` feature, which the workspace does not build.)
+fn block_diag(x: &DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
+    let (r1, c1) = x.shape();
+    let (r2, c2) = y.shape();
+    let mut m = DMatrix::zeros(r1 + r2, c1 + c2);
+    m.view_mut((0, 0), (r1, c1)).copy_from(x);
+    m.view_mut((r1, c1), (r2, c2)).copy_from(y);
+    m
+}
+
+/// [x; y]: `y`'s rows below `x`'s (equal column counts).
+fn vstack(x: &DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut m = DMatrix::zeros(x.nrows() + y.nrows(), x.ncols());
+    m.view_mut((0, 0), x.shape()).copy_from(x);
+    m.view_mut((x.nrows(), 0), y.shape()).copy_from(y);
+    m
+}
+
+/// [x, y]: `y`'s columns right of `x`'s (equal row counts).
+fn hstack(x: &DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut m = DMatrix::zeros(x.nrows(), x.ncols() + y.ncols());
+    m.view_mut((0, 0), x.shape()).copy_from(x);
+    m.view_mut((0, x.ncols()), y.shape()).copy_from(y);
+    m
 }
 
 #[cfg(test)]
