@@ -15,6 +15,7 @@
 
 use crate::condition::{Condition, PMode};
 use crate::error::RigError;
+use crate::toml_location::{field_at, line_col, locate};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -497,12 +498,13 @@ impl RigConfig {
         match issues.into_iter().next() {
             None => Ok(()),
             Some((section, key, message)) => {
-                let (line, column) = locate_key(text, section, key).unzip();
                 let field = if section.is_empty() {
                     key.to_string()
                 } else {
                     format!("{section}.{key}")
                 };
+                let (line, column) =
+                    locate(text, &field).map_or((None, None), |o| line_col(text, o));
                 Err(RigError::Config {
                     origin: origin.to_string(),
                     line,
@@ -516,12 +518,12 @@ impl RigConfig {
 
     /// All semantic problems as (section, key, message): each section
     /// checks itself (the sections that depend on the sample rate get it).
-    fn issues(&self) -> Vec<(&'static str, &'static str, String)> {
+    fn issues(&self) -> Vec<(String, &'static str, String)> {
         let fs = self.rig.sample_rate_hz;
         let mut v = Vec::new();
         let rate_ok = fs.is_finite() && fs > 0.0;
-        let mut add = |section: &'static str, issues: Vec<(&'static str, String)>| {
-            v.extend(issues.into_iter().map(|(k, m)| (section, k, m)));
+        let mut add = |section: &str, issues: Vec<(&'static str, String)>| {
+            v.extend(issues.into_iter().map(|(k, m)| (section.to_owned(), k, m)));
         };
         add("rig", self.rig.issues());
         add("plant", self.plant.issues());
@@ -536,8 +538,8 @@ impl RigConfig {
         add("haptuator", self.haptuator.issues(fs));
         add("accelerometer", self.accelerometer.issues(fs));
         add("tweezer", self.tweezer.issues());
-        for o in &self.tweezer.obstacles {
-            add("tweezer.obstacles", o.issues());
+        for (i, o) in self.tweezer.obstacles.iter().enumerate() {
+            add(&format!("tweezer.obstacles[{i}]"), o.issues());
         }
         add("coupling", self.coupling.issues(fs));
         add("limits", self.limits.issues());
@@ -833,59 +835,16 @@ impl LimitsConfig {
     }
 }
 
-/// Find the 1-based (line, column) of `key = …` inside `[section]` of a TOML
-/// text written in the plain style of the rig files (one key per line,
-/// `[section]` / `[[section]]` headers). Returns `None` if not found.
-pub fn locate_key(text: &str, section: &str, key: &str) -> Option<(usize, usize)> {
-    let mut current = String::new();
-    for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim_start();
-        if let Some(rest) = line.strip_prefix('[') {
-            let name = rest.trim_start_matches('[');
-            if let Some(end) = name.find(']') {
-                current = name[..end].trim().to_string();
-            }
-            continue;
-        }
-        if current == section
-            && let Some(after) = line.strip_prefix(key)
-            && after.trim_start().starts_with('=')
-        {
-            return Some((i + 1, raw.len() - line.len() + 1));
-        }
-    }
-    None
-}
-
 fn toml_error(text: &str, origin: &str, e: &toml::de::Error) -> RigError {
-    let (line, column, field) = match e.span() {
-        Some(span) => {
-            let (l, c) = line_col(text, span.start);
-            let snippet = text.get(span.clone()).unwrap_or("").trim();
-            let field = snippet
-                .split(['=', '\n'])
-                .next()
-                .unwrap_or("")
-                .trim()
-                .to_string();
-            (Some(l), Some(c), field)
-        }
-        None => (None, None, String::new()),
-    };
+    let offset = e.span().map(|span| span.start);
+    let (line, column) = offset.map_or((None, None), |o| line_col(text, o));
     RigError::Config {
         origin: origin.to_string(),
         line,
         column,
-        field,
+        field: offset.and_then(|o| field_at(text, o)).unwrap_or_default(),
         message: e.message().to_string(),
     }
-}
-
-fn line_col(text: &str, byte: usize) -> (usize, usize) {
-    let before = text.get(..byte).unwrap_or(text);
-    let line = before.matches('\n').count() + 1;
-    let col = before.rsplit('\n').next().map_or(0, |s| s.chars().count()) + 1;
-    (line, col)
 }
 
 #[cfg(test)]
@@ -921,11 +880,34 @@ mod tests {
             } => {
                 assert_eq!(origin, "my.toml");
                 assert_eq!(*line, Some(expected_line), "{msg}");
-                assert_eq!(field, "m_hh", "{msg}");
+                assert_eq!(field, "plant.m_hh", "{msg}");
             }
             other => panic!("wrong error {other:?}"),
         }
         assert!(msg.contains("my.toml:"), "{msg}");
+    }
+
+    #[test]
+    fn a_bad_obstacle_is_named_by_its_index_and_line() {
+        // The second obstacle's radius made negative.
+        let text = default_config_text().replacen(
+            "y_m = 14.0e-6\nradius_m = 5.0e-6",
+            "y_m = 14.0e-6\nradius_m = -5.0e-6",
+            1,
+        );
+        assert_ne!(text, default_config_text(), "the rig file changed");
+        let expected_line = text
+            .lines()
+            .position(|l| l.starts_with("radius_m = -5.0e-6"))
+            .unwrap()
+            + 1;
+        match RigConfig::from_toml_str(&text, "o.toml").unwrap_err() {
+            RigError::Config { line, field, .. } => {
+                assert_eq!(field, "tweezer.obstacles[1].radius_m");
+                assert_eq!(line, Some(expected_line));
+            }
+            other => panic!("wrong error {other:?}"),
+        }
     }
 
     #[test]

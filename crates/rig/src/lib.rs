@@ -30,6 +30,7 @@ pub mod safety;
 pub mod serial;
 pub mod sim;
 pub mod stability;
+pub mod toml_location;
 pub mod tweezer;
 
 pub use condition::{Condition, PMode};

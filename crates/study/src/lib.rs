@@ -7,7 +7,8 @@
 //!   orders ([`counterbalance`]) and the per-trial seed derivation
 //!   ([`seeds`]);
 //! * the two micro-bead tasks, their metrics and the stations they run on
-//!   ([`task`]); participants and the simulated operator ([`operator`]);
+//!   ([`task`]); the participant interface ([`participant`]) and the
+//!   simulated operator ([`operator`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
 //!   ([`simulate`]);
 //! * the crash-safe storage of a study's results: the output folder with
@@ -23,6 +24,7 @@ pub mod counterbalance;
 mod error;
 pub mod export;
 pub mod operator;
+pub mod participant;
 pub mod protocol;
 pub mod rawsig;
 pub mod runner;

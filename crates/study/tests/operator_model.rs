@@ -183,8 +183,8 @@ struct FrameSpy {
     frames: usize,
 }
 
-impl kilotouch_study::operator::Participant for FrameSpy {
-    fn act(&mut self, obs: &kilotouch_study::operator::Observation<'_>) -> [f64; 2] {
+impl kilotouch_study::participant::Participant for FrameSpy {
+    fn act(&mut self, obs: &kilotouch_study::participant::Observation<'_>) -> [f64; 2] {
         self.frames += usize::from(obs.frame.is_some());
         obs.handle_m
     }

@@ -235,7 +235,7 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
 /// holds back a newer one.
 #[test]
 fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
-    use kilotouch_study::operator::{Observation, Participant};
+    use kilotouch_study::participant::{Observation, Participant};
     use kilotouch_study::protocol::Condition;
     use kilotouch_study::runner::{NoRaw, TrialEngine};
     use kilotouch_study::seeds::TrialKey;

@@ -78,10 +78,9 @@ use kilotouch_study::export::{
     CalibrationRef, PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE,
     TrialRow, plan, read_session, read_trials,
 };
-use kilotouch_study::operator::VisualFrame;
-use kilotouch_study::operator::{
-    MouseParticipant, Observation, Participant, SimCohort, TrialBrief,
-};
+use kilotouch_study::operator::SimCohort;
+use kilotouch_study::participant::VisualFrame;
+use kilotouch_study::participant::{MouseParticipant, Observation, Participant, TrialBrief};
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::{RunError, RunnerConfig, RunnerEvents, RunnerState, SessionRunner};
 use kilotouch_study::seeds::TrialKey;

@@ -2,7 +2,7 @@
 //! participant that records what it observes (for telemetry and live
 //! metrics, allocation-free), and the validation of pseudonymous IDs.
 
-use kilotouch_study::operator::{Observation, Participant, TrialBrief, VisualFrame};
+use kilotouch_study::participant::{Observation, Participant, TrialBrief, VisualFrame};
 use kilotouch_study::protocol::AssignmentTable;
 use kilotouch_study::seeds::TrialKey;
 

@@ -4,7 +4,7 @@
 use kilotouch_rig::tweezer::{TweezerEvents, TweezerSample};
 
 use crate::error::RunError;
-use crate::operator::{Observation, Participant, VisualFrame};
+use crate::participant::{Observation, Participant, VisualFrame};
 use crate::protocol::Protocol;
 use crate::seeds::TrialKey;
 use crate::task::station::{Station, StationSample};

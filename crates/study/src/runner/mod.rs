@@ -34,8 +34,8 @@
 //! `write` system call every 64 KiB).
 //!
 //! [`Station`]: crate::task::station::Station
-//! [`Participant`]: crate::operator::Participant
-//! [`Observation`]: crate::operator::Observation
+//! [`Participant`]: crate::participant::Participant
+//! [`Observation`]: crate::participant::Observation
 //! [`StudyStore`]: crate::export::StudyStore
 
 mod config;

@@ -5,7 +5,7 @@ use std::fmt;
 
 use crate::error::RunError;
 use crate::export::{StudyStore, SummaryFiles, TrialRow, TrialTicket, UtcTime};
-use crate::operator::Participant;
+use crate::participant::Participant;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
 use crate::seeds::{Phase, TrialKey};

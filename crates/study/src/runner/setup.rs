@@ -3,7 +3,7 @@
 use kilotouch_rig::coupling::HandMapping;
 
 use crate::export::TaskKind;
-use crate::operator::TrialBrief;
+use crate::participant::TrialBrief;
 use crate::protocol::{Protocol, Task};
 use crate::seeds::{STREAM_PARTICIPANT, STREAM_RIG, STREAM_TASK, TrialKey};
 use crate::task::{Feedback, Scene, TaskParams, UM};
