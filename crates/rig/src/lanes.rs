@@ -1,7 +1,7 @@
 //! Pairs of f64 as lanes: element-wise arithmetic on `[f64; 2]` that the
 //! compiler turns into packed SSE2 instructions on baseline x86-64. Shared by
-//! the plant's modal kernel, the tweezer's near-obstacle step and the safety
-//! layer.
+//! the plant's modal kernel, the tweezer's near-obstacle step, the safety
+//! layer and the study's task geometry ([`norm2`]).
 
 /// Two adjacent states, processed together (packed SSE2 on baseline x86-64).
 pub type L2 = [f64; 2];

@@ -21,7 +21,7 @@ pub mod coupling;
 pub mod device;
 pub mod error;
 pub mod haptic_loop;
-pub(crate) mod lanes;
+pub mod lanes;
 pub mod lti;
 pub mod normal;
 pub mod plant;

@@ -3,16 +3,13 @@
 
 use std::f64::consts::PI;
 
-/// Euclidean norm of a 2-vector, √(x² + y²): several times cheaper than
-/// `f64::hypot` (a libm call, ≈ 5 % of a simulated study when it was used
-/// here). The task's positions (m) and forces (N) are far from the
+/// Euclidean norm of a 2-vector, √(x² + y²) (the rig crate's
+/// [`kilotouch_rig::lanes::norm2`]): several times cheaper than `f64::hypot`
+/// (a libm call). The task's positions (m) and forces (N) are far from the
 /// over- and underflow limits of the squares (|x| ≳ 1e154 gives +∞, which
 /// every comparison then treats as far or large; |x| ≲ 1e-154 loses relative
 /// accuracy but not the comparisons against µm and pN scales).
-#[inline]
-pub fn norm(v: [f64; 2]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1]).sqrt()
-}
+pub use kilotouch_rig::lanes::norm2 as norm;
 
 /// Wraps an angle difference to (−π, π].
 #[inline]
