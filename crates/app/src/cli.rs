@@ -50,6 +50,8 @@ pub enum Command {
     /// Studies: simulated runs of a protocol.
     #[command(subcommand)]
     Study(commands::study::StudyCommand),
+    /// Regenerate the paper's Figs. 4, 5, 7, 9–12 from the simulator and check its claims.
+    Paper(commands::paper::Args),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -111,6 +113,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Bench(a)) => commands::bench::run(&a),
         Some(Command::Emulate(c)) => commands::emulate::run(&c),
         Some(Command::Study(c)) => commands::study::run(&c),
+        Some(Command::Paper(a)) => commands::paper::run_cmd(&a),
     }
 }
 

@@ -5,6 +5,7 @@ pub mod calibrate;
 pub mod crossover;
 pub mod emulate;
 pub mod frf;
+pub mod paper;
 pub mod psd;
 pub mod rig;
 pub mod sim;

@@ -113,6 +113,12 @@ pub struct PressTrace {
     pub gap_m: Vec<f64>,
     /// Handle position along the pressing direction, m.
     pub handle_m: Vec<f64>,
+    /// True fingertip acceleration along the pressing direction (the
+    /// plant's output, before the sensor), m/s².
+    pub accel_m_s2: Vec<f64>,
+    /// The accelerometer's reading along the pressing direction (its
+    /// response, noise and quantisation), m/s².
+    pub accel_sensor_m_s2: Vec<f64>,
 }
 
 /// Where the hand goes: the scenario's geometry (module docs).
@@ -215,10 +221,36 @@ pub fn simulate_press(
     clearance: Clearance,
     opts: &PressOptions,
 ) -> Result<(PressReport, PressTrace), RigError> {
+    simulate_press_after_rest(cfg, chain, clearance, opts, 0.0)
+}
+
+/// [`simulate_press`] preceded by `rest_s` seconds with the hand still at
+/// its start (the bead trapped in free space): the trace starts with the
+/// rest, the verdict's analysis starts `rest_s` later (paper Fig. 9: free
+/// space, collision, pressing in one record).
+///
+/// # Errors
+/// Invalid options (also a `rest_s` outside [0, [`MAX_DURATION_S`]]) or
+/// configuration; rig errors.
+pub fn simulate_press_after_rest(
+    cfg: &RigConfig,
+    chain: &LoopChain,
+    clearance: Clearance,
+    opts: &PressOptions,
+    rest_s: f64,
+) -> Result<(PressReport, PressTrace), RigError> {
     let sc = scenario(cfg, opts)?;
+    if !(rest_s.is_finite() && (0.0..=MAX_DURATION_S).contains(&rest_s)) {
+        return Err(RigError::InvalidParameter {
+            name: "rest",
+            value: rest_s,
+            reason: format!("must be in [0, {MAX_DURATION_S}] s"),
+        });
+    }
     let fs = sc.cfg.rig.sample_rate_hz;
     let mut lp = HapticLoop::simulated(&sc.cfg, chain, clearance)?;
-    let n = crate::round_half_away(opts.duration_s * fs) as usize;
+    let n_rest = crate::round_half_away(rest_s * fs) as usize;
+    let n = n_rest + crate::round_half_away(opts.duration_s * fs) as usize;
     let n_approach = crate::round_half_away(APPROACH_S * fs) as usize;
     let mut trace = PressTrace::default();
     for v in [
@@ -226,6 +258,8 @@ pub fn simulate_press(
         &mut trace.force_n,
         &mut trace.gap_m,
         &mut trace.handle_m,
+        &mut trace.accel_m_s2,
+        &mut trace.accel_sensor_m_s2,
     ] {
         v.reserve_exact(n);
     }
@@ -233,7 +267,7 @@ pub fn simulate_press(
     let mut escaped = false;
     let mut contact = Vec::with_capacity(n);
     for k in 0..n {
-        let a = ((k + 1) as f64 / n_approach as f64).min(1.0);
+        let a = ((k + 1).saturating_sub(n_rest) as f64 / n_approach as f64).min(1.0);
         // Smooth (raised-cosine) approach: no velocity step at either end.
         let w = 0.5 - 0.5 * (std::f64::consts::PI * a).cos();
         lp.rig
@@ -246,10 +280,14 @@ pub fn simulate_press(
         trace.gap_m.push(s.tweezer.gap_m);
         let hm = s.sensors.handle_m;
         trace.handle_m.push(hm[0] * uh[0] + hm[1] * uh[1]);
+        let at = lp.rig.truth().accel_m_s2;
+        trace.accel_m_s2.push(at[0] * uh[0] + at[1] * uh[1]);
+        let am = s.sensors.accel_m_s2;
+        trace.accel_sensor_m_s2.push(am[0] * uh[0] + am[1] * uh[1]);
         escaped |= !s.tweezer.trapped;
         contact.push(s.tweezer.in_contact);
     }
-    let start = (crate::round_half_away((APPROACH_S + SETTLE_S) * fs) as usize).min(n);
+    let start = (n_rest + crate::round_half_away((APPROACH_S + SETTLE_S) * fs) as usize).min(n);
     let (mean, osc_rms, growth) = envelope(&trace.force_n, start, fs);
     let cf = contact[start..].iter().filter(|c| **c).count() as f64 / (n - start).max(1) as f64;
     let stable = !escaped

@@ -84,6 +84,17 @@ pub struct Verification {
     pub raw: Vec<RawRecord>,
 }
 
+/// Which outputs of the chain drive the rig in a band measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Paths {
+    /// Both channels (the verification).
+    Both,
+    /// The low path alone (Haptuator silent).
+    LowOnly,
+    /// The high path alone (Pantograph silent).
+    HighOnly,
+}
+
 /// Measure the tip acceleration amplitude of a sine of `f` through
 /// `coeffs`: returns (played frequency, amplitude m/s², record).
 fn measure_band<R: CalibrationRig + ?Sized>(
@@ -92,6 +103,24 @@ fn measure_band<R: CalibrationRig + ?Sized>(
     f: f64,
     cfg: &CalibrationConfig,
     label: String,
+) -> Result<(f64, f64, RawRecord)> {
+    measure_band_paths(rig, coeffs, f, cfg, label, Paths::Both)
+}
+
+/// [`verify`]'s measurement of one band with only some of the chain's
+/// outputs played (the others silent): (played frequency, tip acceleration
+/// amplitude m/s² as the sensor reported it, record). Divide by
+/// [`sensor_gain`] for the tip's own acceleration.
+///
+/// # Errors
+/// Excitation and rig errors.
+pub fn measure_band_paths<R: CalibrationRig + ?Sized>(
+    rig: &mut R,
+    coeffs: &ChainCoefficients,
+    f: f64,
+    cfg: &CalibrationConfig,
+    label: String,
+    paths: Paths,
 ) -> Result<(f64, f64, RawRecord)> {
     let fs = rig.sample_rate();
     let v = &cfg.verify;
@@ -109,6 +138,11 @@ fn measure_band<R: CalibrationRig + ?Sized>(
     let mut low = vec![0.0; x.len()];
     let mut high = vec![0.0; x.len()];
     chain.process_block(&x, &mut low, &mut high);
+    match paths {
+        Paths::Both => {}
+        Paths::LowOnly => high.fill(0.0),
+        Paths::HighOnly => low.fill(0.0),
+    }
     let rec = run_both(rig, &low, &high, label)?;
     let (amp, _) = sine_dft(&rec.accel[step.measure_range()], step.frequency, fs)
         .map_err(|e| CalibrationError::dsp("sine amplitude", e))?;
@@ -116,7 +150,7 @@ fn measure_band<R: CalibrationRig + ?Sized>(
 }
 
 /// |S(f)| of the rig's sensor when known, finite and non-zero.
-fn sensor_gain<R: CalibrationRig + ?Sized>(rig: &R, f: f64) -> Option<f64> {
+pub fn sensor_gain<R: CalibrationRig + ?Sized>(rig: &R, f: f64) -> Option<f64> {
     rig.sensor_response(f)
         .filter(|s| s.is_finite() && s.norm() > 0.0)
         .map(|s| s.norm())

@@ -291,6 +291,26 @@ impl ResultsPage {
             });
     }
 
+    /// **Export figures**: the selected metric's bar charts (and the
+    /// selected cell's trajectories), PNG and SVG, drawn by the code of
+    /// `kilotouch paper` ([`crate::paper::study_figs::export_results_figures`]).
+    pub fn export_figures(&mut self) {
+        let Some(d) = &self.data else { return };
+        let metric = self.view.as_ref().map_or(self.metric, |v| v.metric);
+        let cell = (!self.traj_participant.is_empty() && !self.traj_condition.is_empty())
+            .then(|| (self.traj_participant.as_str(), self.traj_condition.as_str()));
+        match crate::paper::study_figs::export_results_figures(d, metric, cell) {
+            Ok(files) => {
+                self.info = Some(format!(
+                    "exported {} files to {}",
+                    files.len(),
+                    d.dir.join("figures").display()
+                ));
+            }
+            Err(e) => self.error = Some(format!("export figures: {e}")),
+        }
+    }
+
     fn data_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
         let Some(d) = &self.data else { return };
         ui.label(format!(
@@ -308,6 +328,7 @@ impl ResultsPage {
         let metrics = d.metrics();
         let mut metric = self.view.as_ref().map_or(self.metric, |v| v.metric);
         let before = metric;
+        let mut export = false;
         ui.horizontal(|ui| {
             let l = ui.label("Metric");
             egui::ComboBox::from_id_salt("res-metric")
@@ -319,9 +340,21 @@ impl ResultsPage {
                 })
                 .response
                 .labelled_by(l.id);
+            if ui
+                .button("Export figures")
+                .on_hover_text(
+                    "PNG and SVG of the bar charts (and the selected trajectories) into figures/",
+                )
+                .clicked()
+            {
+                export = true;
+            }
         });
         if metric != before {
             self.set_metric(metric);
+        }
+        if export {
+            self.export_figures();
         }
         let Some(d) = &self.data else { return };
         let Some(view) = &self.view else { return };
