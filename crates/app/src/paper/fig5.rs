@@ -357,7 +357,7 @@ impl Fig5 {
             .y_desc(format!("Magnitude (dB re 1 {unit})"))
             .axis_desc_style(text(style::LABEL_PX))
             .label_style(text(style::TICK_PX))
-            .x_label_formatter(&|v| format!("{v:.0}"))
+            .x_label_formatter(&style::log_label)
             .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
@@ -414,7 +414,12 @@ impl Fig5 {
                 .label("G0_L")
                 .legend(legend_line(style::GREY, 1));
         }
-        legend(&mut chart, SeriesLabelPosition::LowerLeft)
+        let pos = if high {
+            SeriesLabelPosition::LowerRight
+        } else {
+            SeriesLabelPosition::LowerLeft
+        };
+        legend(&mut chart, pos)
     }
 }
 

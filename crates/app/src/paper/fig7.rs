@@ -201,7 +201,7 @@ impl Figure for Fig7 {
             .y_desc("Tip acceleration (dB re K_sys·A)")
             .axis_desc_style(text(style::LABEL_PX))
             .label_style(text(style::TICK_PX))
-            .x_label_formatter(&|v| format!("{v:.0}"))
+            .x_label_formatter(&style::log_label)
             .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;

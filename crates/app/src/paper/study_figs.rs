@@ -18,6 +18,7 @@ use kilotouch_study::export::Metric;
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::RunnerConfig;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -251,7 +252,7 @@ pub fn draw_participant_bars<DB: DrawingBackend>(
         .flatten()
         .map(|(m, sd)| m + sd.unwrap_or(0.0))
         .fold(0.0_f64, f64::max);
-    let top = if top > 0.0 { top * 1.15 } else { 1.0 };
+    let top = if top > 0.0 { top * 1.45 } else { 1.0 };
     let mut chart = ChartBuilder::on(area)
         .caption(title, text(style::LABEL_PX + 2.0))
         .margin(12)
@@ -259,19 +260,10 @@ pub fn draw_participant_bars<DB: DrawingBackend>(
         .y_label_area_size(78)
         .build_cartesian_2d(0.0..np as f64, 0.0..top)
         .map_err(err)?;
-    let names = bars.participants.clone();
     chart
         .configure_mesh()
         .disable_x_mesh()
-        .x_labels(np)
-        .x_label_formatter(&|x| {
-            let i = x.floor() as usize;
-            if (x - i as f64 - 0.5).abs() < 1e-6 {
-                names.get(i).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
+        .x_labels(0)
         .x_desc("Participant")
         .y_desc(y_desc)
         .axis_desc_style(text(style::LABEL_PX))
@@ -313,7 +305,23 @@ pub fn draw_participant_bars<DB: DrawingBackend>(
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 18, y + 6)], col.filled()));
         chart.draw_series(whiskers).map_err(err)?;
     }
+    group_labels(&mut chart, &bars.participants)?;
     style::legend(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// Names under the groups centred at x = i + 0.5.
+fn group_labels<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    names: &[String],
+) -> Result<(), String> {
+    chart
+        .draw_series(names.iter().enumerate().map(|(i, n)| {
+            let half = (n.chars().count() as f64 * style::TICK_PX * 0.3) as i32;
+            EmptyElement::at((i as f64 + 0.5, 0.0))
+                + Text::new(n.clone(), (-half, 8), text(style::TICK_PX))
+        }))
+        .map_err(err)?;
+    Ok(())
 }
 
 /// Bars with SD whiskers per condition, an annotation line under the title
@@ -343,24 +351,15 @@ pub fn draw_condition_bars<DB: DrawingBackend>(
         .y_label_area_size(78)
         .build_cartesian_2d(0.0..nc as f64, 0.0..top)
         .map_err(err)?;
-    let names = bars.conditions.clone();
-    let ns = bars.n.clone();
     chart
         .configure_mesh()
         .disable_x_mesh()
-        .x_labels(nc)
-        .x_label_formatter(&|x| {
-            let i = x.floor() as usize;
-            if (x - i as f64 - 0.5).abs() < 1e-6 {
-                names
-                    .get(i)
-                    .map(|c| format!("{c} (n = {})", ns.get(i).copied().unwrap_or(0)))
-                    .unwrap_or_default()
-            } else {
-                String::new()
-            }
+        .x_labels(0)
+        .x_desc(if annotation.is_empty() {
+            "Condition".to_owned()
+        } else {
+            format!("Condition — {annotation}")
         })
-        .x_desc("Condition")
         .y_desc(y_desc)
         .axis_desc_style(text(style::LABEL_PX))
         .label_style(text(style::TICK_PX))
@@ -395,18 +394,13 @@ pub fn draw_condition_bars<DB: DrawingBackend>(
             }
         }
     }
-    if !annotation.is_empty() {
-        let (w, _) = area.dim_in_pixel();
-        area.draw(&Text::new(
-            annotation.to_owned(),
-            (
-                (w as i32) / 2 - 3 * annotation.chars().count() as i32 * style::TICK_PX as i32 / 10,
-                36,
-            ),
-            text(style::TICK_PX),
-        ))
-        .map_err(err)?;
-    }
+    let names: Vec<String> = bars
+        .conditions
+        .iter()
+        .zip(&bars.n)
+        .map(|(c, n)| format!("{c} (n = {n})"))
+        .collect();
+    group_labels(&mut chart, &names)?;
     Ok(())
 }
 
@@ -417,10 +411,10 @@ pub fn stats_line(t: &StatsTable) -> String {
         .oneway
         .as_ref()
         .map_or("one-way ANOVA n/a".to_owned(), |o| {
-            format!("one-way ANOVA p = {:.3} {}", o.p, stars(o.p))
+            format!("one-way ANOVA p = {} {}", style::fmt_p(o.p), stars(o.p))
         });
     let rm = t.rm_anova.as_ref().map_or("RM-ANOVA n/a".to_owned(), |a| {
-        format!("RM-ANOVA p_GG = {:.3}", a.p_gg)
+        format!("RM-ANOVA p_GG = {}", style::fmt_p(a.p_gg))
     });
     format!("{one}; {rm}")
 }

@@ -180,3 +180,37 @@ pub fn legend<'a, 'b, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTransla
 pub fn legend_line(c: RGBColor, width: u32) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
     move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(width))
 }
+
+/// Tick label of a logarithmic frequency axis: only 1, 2 and 5 × 10ⁿ are
+/// written (the others stay as unlabelled grid lines, so labels never
+/// collide).
+pub fn log_label(v: &f64) -> String {
+    if !(v.is_finite() && *v > 0.0) {
+        return String::new();
+    }
+    let m = v / 10f64.powf(v.log10().floor());
+    if [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .any(|k| (m - k).abs() < 0.02 * k)
+    {
+        format!("{v:.0}")
+    } else {
+        String::new()
+    }
+}
+
+/// A p-value for a figure: three decimals, scientific below 0.001.
+pub fn fmt_p(p: f64) -> String {
+    if p < 0.001 {
+        format!("{p:.1e}")
+    } else {
+        format!("{p:.3}")
+    }
+}
+
+/// Tick label of a linear axis without "-0.0".
+pub fn lin_label(v: &f64) -> String {
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.').to_owned();
+    if s == "-0" { "0".into() } else { s }
+}
