@@ -181,7 +181,8 @@ impl Figure for Fig7 {
             .chain(&self.uncompensated_db)
             .copied();
         let (lo, _) = style::bounds(all, 0.05).unwrap_or((-40.0, 5.0));
-        let lo = lo.max(-60.0);
+        // Room under the curves for the legend.
+        let lo = (lo - 18.0).max(-75.0);
         let mut chart = ChartBuilder::on(root)
             .caption(
                 format!(

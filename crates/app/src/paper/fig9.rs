@@ -175,9 +175,9 @@ impl Fig9 {
         let (mut spike, mut spike_s) = (0.0_f64, f64::NAN);
         if let Some(c) = contact {
             let end = (c + (0.02 * fs) as usize).min(accel_felt.len());
-            for i in c..end {
-                if accel_felt[i].abs() > spike {
-                    spike = accel_felt[i].abs();
+            for (i, v) in accel_felt.iter().enumerate().take(end).skip(c) {
+                if v.abs() > spike {
+                    spike = v.abs();
                     spike_s = tr.t_s[i];
                 }
             }

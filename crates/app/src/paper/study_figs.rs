@@ -81,8 +81,10 @@ impl CirclingStudy {
         }
         let dir = opts.out.join("study-circling");
         super::fig10::fresh_study_dir(&dir)?;
-        let mut runner = RunnerConfig::default();
-        runner.raw = None;
+        let runner = RunnerConfig {
+            raw: None,
+            ..RunnerConfig::default()
+        };
         let sim = kilotouch_study::simulate::SimulateOptions {
             protocol: protocol.clone(),
             out: dir.clone(),

@@ -298,7 +298,7 @@ impl ResultsPage {
         let Some(d) = &self.data else { return };
         let metric = self.view.as_ref().map_or(self.metric, |v| v.metric);
         let cell = (!self.traj_participant.is_empty() && !self.traj_condition.is_empty())
-            .then(|| (self.traj_participant.as_str(), self.traj_condition.as_str()));
+            .then_some((self.traj_participant.as_str(), self.traj_condition.as_str()));
         match crate::paper::study_figs::export_results_figures(d, metric, cell) {
             Ok(files) => {
                 self.info = Some(format!(
