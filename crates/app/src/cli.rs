@@ -50,6 +50,9 @@ pub enum Command {
     /// Studies: simulated runs of a protocol.
     #[command(subcommand)]
     Study(commands::study::StudyCommand),
+    /// Optical trap: power-spectral calibration (κ, detector sensitivity) and detector records.
+    #[command(subcommand)]
+    Tweezer(commands::tweezer::TweezerCommand),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -111,6 +114,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Bench(a)) => commands::bench::run(&a),
         Some(Command::Emulate(c)) => commands::emulate::run(&c),
         Some(Command::Study(c)) => commands::study::run(&c),
+        Some(Command::Tweezer(c)) => commands::tweezer::run(&c),
     }
 }
 

@@ -11,3 +11,4 @@ pub mod sim;
 pub mod stats;
 pub mod study;
 pub mod tfest;
+pub mod tweezer;

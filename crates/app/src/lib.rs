@@ -11,4 +11,5 @@ pub mod engine;
 pub mod gui;
 pub mod output;
 pub mod session;
+pub mod tweezer_cal;
 pub mod tweezer_sim;

@@ -30,6 +30,7 @@ pub mod spectral;
 
 pub mod fit;
 pub mod lorentzian;
+pub mod trap_psd;
 pub mod thirdoctave;
 
 pub use error::DspError;
