@@ -100,7 +100,11 @@ fn calibrates_a_diode_record_like_pylake_and_plots_it() {
         assert!((a / b - 1.0).abs() < 0.01, "{ours}: {a} vs pylake {b}");
     }
     let img = std::fs::read(&png).expect("plot written");
-    assert!(img.starts_with(b"\x89PNG") && img.len() > 20_000, "{}", img.len());
+    assert!(
+        img.starts_with(b"\x89PNG") && img.len() > 20_000,
+        "{}",
+        img.len()
+    );
 }
 
 #[test]
@@ -125,7 +129,10 @@ fn plain_fit_has_no_diode_keys_and_errors_are_clear() {
     let mut args = base.to_vec();
     args.extend(["--column", "v", "--fit-range", "100,20000", "--json"]);
     let v = json_ok(&args);
-    assert!(v.get("f_diode_hz").is_none() && v.get("alpha").is_none(), "{v}");
+    assert!(
+        v.get("f_diode_hz").is_none() && v.get("alpha").is_none(),
+        "{v}"
+    );
     let py = pylake("plain");
     assert!((f(&v, "kappa_pn_um") / f(&py, "kappa_pn_um") - 1.0).abs() < 0.01);
 
@@ -142,7 +149,14 @@ fn plain_fit_has_no_diode_keys_and_errors_are_clear() {
     assert!(err.contains("Nyquist"), "{err}");
 
     let mut args = base.to_vec();
-    args.extend(["--column", "v", "--fit-range", "100,20000", "--aliased", "--diode"]);
+    args.extend([
+        "--column",
+        "v",
+        "--fit-range",
+        "100,20000",
+        "--aliased",
+        "--diode",
+    ]);
     let err = String::from_utf8_lossy(&run(&args).stderr).to_string();
     assert!(err.contains("--aliased"), "{err}");
 
@@ -207,5 +221,8 @@ fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
         kappa.push(f(&v, "kappa_pn_um"));
     }
     let mean = 0.5 * (kappa[0] + kappa[1]);
-    assert!((mean / 100.0 - 1.0).abs() < 0.02, "κ {kappa:?} pN/µm vs 100");
+    assert!(
+        (mean / 100.0 - 1.0).abs() < 0.02,
+        "κ {kappa:?} pN/µm vs 100"
+    );
 }

@@ -30,8 +30,8 @@ pub mod spectral;
 
 pub mod fit;
 pub mod lorentzian;
-pub mod trap_psd;
 pub mod thirdoctave;
+pub mod trap_psd;
 
 pub use error::DspError;
 pub use num_complex::Complex64 as C64;

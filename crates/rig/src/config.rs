@@ -232,10 +232,18 @@ impl DetectorConfig {
             return Err(bad("detector.diode_hz", f, "must be finite and > 0"));
         }
         if !(0.0..=1.0).contains(&self.diode_alpha) {
-            return Err(bad("detector.diode_alpha", self.diode_alpha, "must be in [0, 1]"));
+            return Err(bad(
+                "detector.diode_alpha",
+                self.diode_alpha,
+                "must be in [0, 1]",
+            ));
         }
         if !(self.noise_v_rms.is_finite() && self.noise_v_rms >= 0.0) {
-            return Err(bad("detector.noise_v_rms", self.noise_v_rms, "must be finite and ≥ 0"));
+            return Err(bad(
+                "detector.noise_v_rms",
+                self.noise_v_rms,
+                "must be finite and ≥ 0",
+            ));
         }
         Ok(())
     }

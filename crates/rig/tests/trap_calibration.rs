@@ -30,7 +30,8 @@ fn read_f32(name: &str) -> Vec<f64> {
 }
 
 fn num(v: &Value, k: &str) -> f64 {
-    v[k].as_f64().unwrap_or_else(|| panic!("{k} missing in {v}"))
+    v[k].as_f64()
+        .unwrap_or_else(|| panic!("{k} missing in {v}"))
 }
 
 fn settings_of(root: &Value, c: &Value) -> TrapCalibrationSettings {
@@ -72,18 +73,36 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
         let msg = format!("{name}: {cal:?}\npylake {py}");
         // The acceptance bound is 1 %; the same formulation agrees far closer.
         assert!(rel(cal.fc_hz, num(py, "fc")) < 1e-3, "f_c {msg}");
-        assert!(rel(cal.kappa_pn_um, num(py, "kappa_pn_um")) < 1e-3, "κ {msg}");
+        assert!(
+            rel(cal.kappa_pn_um, num(py, "kappa_pn_um")) < 1e-3,
+            "κ {msg}"
+        );
         assert!(rel(cal.rd_um_per_v, num(py, "Rd")) < 1e-3, "R_d {msg}");
         assert!(rel(cal.rf_pn_per_v, num(py, "Rf")) < 1e-3, "R_f {msg}");
         assert!(rel(cal.diffusion_v2_s, num(py, "D")) < 1e-3, "D {msg}");
         // Standard errors, goodness of fit.
         assert!(rel(cal.fc_se_hz, num(py, "err_fc")) < 1e-2, "σ f_c {msg}");
-        assert!(rel(cal.kappa_se_pn_um, num(py, "err_kappa_pn_um")) < 1e-2, "σ κ {msg}");
-        assert!(rel(cal.rd_se_um_per_v, num(py, "err_Rd")) < 1e-2, "σ R_d {msg}");
-        assert!(rel(cal.chi2_per_dof, num(py, "chi_squared_per_deg")) < 1e-3, "χ² {msg}");
-        assert!((cal.backing_pct - num(py, "backing")).abs() < 0.5, "backing {msg}");
+        assert!(
+            rel(cal.kappa_se_pn_um, num(py, "err_kappa_pn_um")) < 1e-2,
+            "σ κ {msg}"
+        );
+        assert!(
+            rel(cal.rd_se_um_per_v, num(py, "err_Rd")) < 1e-2,
+            "σ R_d {msg}"
+        );
+        assert!(
+            rel(cal.chi2_per_dof, num(py, "chi_squared_per_deg")) < 1e-3,
+            "χ² {msg}"
+        );
+        assert!(
+            (cal.backing_pct - num(py, "backing")).abs() < 0.5,
+            "backing {msg}"
+        );
         if s.diode {
-            assert!(rel(cal.f_diode_hz.unwrap(), num(py, "f_diode")) < 1e-2, "f_diode {msg}");
+            assert!(
+                rel(cal.f_diode_hz.unwrap(), num(py, "f_diode")) < 1e-2,
+                "f_diode {msg}"
+            );
             assert!(rel(cal.alpha.unwrap(), num(py, "alpha")) < 1e-2, "α {msg}");
         }
         // And the truth the records were made with, within 3.5 SE.
@@ -246,8 +265,14 @@ fn check_coverage(kind: Kind) {
     // within 3.5 points of nominal (docs/REFERENCE-VALUES.md).
     for (what, c) in ["f_c", "κ", "R_d"].iter().zip(cov) {
         eprintln!("{kind:?} {what}: ±1 SE {:.3}, ±2 SE {:.3}", c[0], c[1]);
-        assert!((c[0] - 0.6827).abs() < 0.099, "{kind:?} {what} ±1 SE: {c:?}");
-        assert!((c[1] - 0.9545).abs() < 0.044, "{kind:?} {what} ±2 SE: {c:?}");
+        assert!(
+            (c[0] - 0.6827).abs() < 0.099,
+            "{kind:?} {what} ±1 SE: {c:?}"
+        );
+        assert!(
+            (c[1] - 0.9545).abs() < 0.044,
+            "{kind:?} {what} ±2 SE: {c:?}"
+        );
     }
 }
 

@@ -214,7 +214,9 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
             )?)
         }
         RigSpec::Serial(cfg) => Box::new(LinkTweezer::open(&cfg)?),
-        RigSpec::Audio(_) => anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH"),
+        RigSpec::Audio(_) => {
+            anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH")
+        }
     };
     let fs = tw.sample_rate_hz();
     let n = (a.duration_s * fs).round();
@@ -236,8 +238,8 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
         tw.step(trap);
     }
     let [x, y] = record_detector(tw.as_mut(), trap, n, &mut |_| {})?;
-    let file = std::fs::File::create(&a.out)
-        .with_context(|| format!("creating {}", a.out.display()))?;
+    let file =
+        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut w = std::io::BufWriter::new(file);
     writeln!(w, "t_s,x_v,y_v")?;
     for (i, (xv, yv)) in x.iter().zip(&y).enumerate() {

@@ -128,7 +128,11 @@ pub fn fit_analytical_lorentzian(
     } else {
         0.5 * f.get(1).copied().unwrap_or(1.0)
     };
-    let d = if b > 0.0 { PI * PI / b } else { PI * PI * fc * fc * p[0] };
+    let d = if b > 0.0 {
+        PI * PI / b
+    } else {
+        PI * PI * fc * fc * p[0]
+    };
     let fmin = f.iter().copied().fold(f64::INFINITY, f64::min);
     let fmax = f.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let (x0, x1) = (fmin / fc, fmax / fc);
@@ -338,7 +342,10 @@ mod tests {
     fn analytical_fit_is_exact_on_a_lorentzian() {
         let (fc, d) = (437.0, 0.0123);
         let f: Vec<f64> = (1..400).map(|k| k as f64 * 25.0).collect();
-        let p: Vec<f64> = f.iter().map(|&f| d / (PI * PI * (fc * fc + f * f))).collect();
+        let p: Vec<f64> = f
+            .iter()
+            .map(|&f| d / (PI * PI * (fc * fc + f * f)))
+            .collect();
         let a = fit_analytical_lorentzian(&f, &p, 10.0).unwrap();
         assert!((a.fc_hz / fc - 1.0).abs() < 1e-9, "{a:?}");
         assert!((a.d / d - 1.0).abs() < 1e-9, "{a:?}");
@@ -358,8 +365,16 @@ mod tests {
     fn exact_periodogram(model: &PsdModel, theta: &[f64], n: usize, fs: f64) -> Periodogram {
         let df = fs / n as f64;
         let f: Vec<f64> = (0..=n / 2).map(|k| k as f64 * df).collect();
-        let p = f.iter().map(|&fi| if fi > 0.0 { model.eval(fi, theta) } else { 0.0 }).collect();
-        Periodogram { f, p, fs_hz: fs, n_samples: n }
+        let p = f
+            .iter()
+            .map(|&fi| if fi > 0.0 { model.eval(fi, theta) } else { 0.0 })
+            .collect();
+        Periodogram {
+            f,
+            p,
+            fs_hz: fs,
+            n_samples: n,
+        }
     }
 
     #[test]
@@ -377,10 +392,34 @@ mod tests {
             distance_to_surface_m: Some(6e-6),
         };
         let cases: [(PsdModel, Vec<f64>); 4] = [
-            (PsdModel { shape: SpectrumShape::Lorentzian, diode: false }, vec![650.0, 0.3]),
-            (PsdModel { shape: SpectrumShape::Lorentzian, diode: true }, vec![650.0, 0.3, 7000.0, 0.4]),
-            (PsdModel { shape: SpectrumShape::AliasedLorentzian { fs_hz: 50e3 }, diode: false }, vec![2400.0, 1.7]),
-            (PsdModel { shape: SpectrumShape::Hydrodynamic(hydro), diode: false }, vec![900.0, 0.05]),
+            (
+                PsdModel {
+                    shape: SpectrumShape::Lorentzian,
+                    diode: false,
+                },
+                vec![650.0, 0.3],
+            ),
+            (
+                PsdModel {
+                    shape: SpectrumShape::Lorentzian,
+                    diode: true,
+                },
+                vec![650.0, 0.3, 7000.0, 0.4],
+            ),
+            (
+                PsdModel {
+                    shape: SpectrumShape::AliasedLorentzian { fs_hz: 50e3 },
+                    diode: false,
+                },
+                vec![2400.0, 1.7],
+            ),
+            (
+                PsdModel {
+                    shape: SpectrumShape::Hydrodynamic(hydro),
+                    diode: false,
+                },
+                vec![900.0, 0.05],
+            ),
         ];
         for (m, theta) in cases {
             // One bin per block: the data are the model exactly (blocks would
@@ -392,7 +431,11 @@ mod tests {
                 assert!((a / b - 1.0).abs() < 1e-7, "{m:?} θ{j}: {a} vs {b}");
             }
             assert!(fit.chi2 < 1e-10, "{m:?}: χ² {}", fit.chi2);
-            assert!(fit.se.iter().all(|s| s.is_finite() && *s > 0.0), "{:?}", fit.se);
+            assert!(
+                fit.se.iter().all(|s| s.is_finite() && *s > 0.0),
+                "{:?}",
+                fit.se
+            );
         }
     }
 

@@ -30,6 +30,8 @@ pub mod model;
 pub mod periodogram;
 pub mod synth;
 
-pub use fit::{AnalyticalFit, PsdFit, PsdFitOptions, fit_analytical_lorentzian, fit_power_spectrum};
+pub use fit::{
+    AnalyticalFit, PsdFit, PsdFitOptions, fit_analytical_lorentzian, fit_power_spectrum,
+};
 pub use model::{Hydrodynamics, PsdModel, SpectrumShape, diode_filter};
 pub use periodogram::{BlockedSpectrum, Periodogram};

@@ -152,7 +152,9 @@ impl TrapCalibrationSettings {
             )));
         }
         if self.points_per_block == 0 {
-            return Err(RigError::InvalidInput("points per block must be ≥ 1".into()));
+            return Err(RigError::InvalidInput(
+                "points per block must be ≥ 1".into(),
+            ));
         }
         Ok(())
     }
@@ -336,7 +338,10 @@ mod tests {
         );
         assert!((c.fc_hz - p.corner_hz()).abs() < 3.5 * c.fc_se_hz, "{c:?}");
         let rd = 1e6 / det.sensitivity_v_per_m;
-        assert!((c.rd_um_per_v - rd).abs() < 3.5 * c.rd_se_um_per_v, "{c:?} vs {rd}");
+        assert!(
+            (c.rd_um_per_v - rd).abs() < 3.5 * c.rd_se_um_per_v,
+            "{c:?} vs {rd}"
+        );
         assert!(c.kappa_se_pn_um / c.kappa_pn_um < 0.03, "{c:?}");
     }
 

@@ -22,9 +22,9 @@
 //! trap x is no longer that OU process; the filter then stays a smooth
 //! approximation.
 
-pub use crate::config::DetectorConfig;
 use super::sim::SimTweezer;
 use super::{Tweezer, TweezerParams, TweezerSample};
+pub use crate::config::DetectorConfig;
 use crate::error::RigError;
 use crate::normal::NormalStream;
 use std::f64::consts::PI;
@@ -243,6 +243,16 @@ mod tests {
         };
         let mut d = Detector::new(&plain, fc, fs).unwrap();
         assert_eq!(d.output([1e-7, -2e-7], sd), [2e-7, -4e-7]);
-        assert!(Detector::new(&DetectorConfig { diode_alpha: 1.5, ..plain }, fc, fs).is_err());
+        assert!(
+            Detector::new(
+                &DetectorConfig {
+                    diode_alpha: 1.5,
+                    ..plain
+                },
+                fc,
+                fs
+            )
+            .is_err()
+        );
     }
 }

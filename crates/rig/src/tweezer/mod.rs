@@ -50,12 +50,12 @@ pub mod drag;
 pub mod sim;
 pub mod table;
 
+pub use calibration::{TrapCalibration, TrapCalibrationSettings, calibrate_trap};
+pub use detector::{DetectedTweezer, Detector, DetectorConfig};
 pub use drag::{
     DRAG_CLAMP_GAP_OVER_R, brenner_perpendicular, faxen_parallel, perpendicular_mobility,
     perpendicular_mobility_ds, stokes_drag,
 };
-pub use calibration::{TrapCalibration, TrapCalibrationSettings, calibrate_trap};
-pub use detector::{DetectedTweezer, Detector, DetectorConfig};
 pub use sim::SimTweezer;
 pub use table::DRAG_TABLE_PIECES;
 
