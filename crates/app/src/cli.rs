@@ -52,6 +52,9 @@ pub enum Command {
     Study(commands::study::StudyCommand),
     /// Regenerate the paper's Figs. 4, 5, 7, 9–12 from the simulator and check its claims.
     Paper(commands::paper::Args),
+    /// Optical trap: power-spectral calibration (κ, detector sensitivity) and detector records.
+    #[command(subcommand)]
+    Tweezer(commands::tweezer::TweezerCommand),
 }
 
 /// Parse arguments, run, and map errors to exit codes.
@@ -114,6 +117,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Emulate(c)) => commands::emulate::run(&c),
         Some(Command::Study(c)) => commands::study::run(&c),
         Some(Command::Paper(a)) => commands::paper::run_cmd(&a),
+        Some(Command::Tweezer(c)) => commands::tweezer::run(&c),
     }
 }
 

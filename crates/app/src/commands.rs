@@ -12,3 +12,4 @@ pub mod sim;
 pub mod stats;
 pub mod study;
 pub mod tfest;
+pub mod tweezer;

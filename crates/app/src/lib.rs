@@ -12,4 +12,5 @@ pub mod gui;
 pub mod output;
 pub mod paper;
 pub mod session;
+pub mod tweezer_cal;
 pub mod tweezer_sim;

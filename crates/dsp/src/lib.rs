@@ -31,6 +31,7 @@ pub mod spectral;
 pub mod fit;
 pub mod lorentzian;
 pub mod thirdoctave;
+pub mod trap_psd;
 
 pub use error::DspError;
 pub use num_complex::Complex64 as C64;

@@ -176,6 +176,77 @@ pub struct TweezerConfig {
     /// Fixed spherical obstacles (paper: 10 µm glass beads on the coverslip).
     #[serde(default)]
     pub obstacles: Vec<ObstacleConfig>,
+    /// Position detector between the bead and the reported signal.
+    #[serde(default)]
+    pub detector: DetectorConfig,
+}
+
+/// `[tweezer.detector]`: the simulated position detector
+/// (`crate::tweezer::detector`; every key has a default).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// Sensitivity S, V/m (default 5e5 V/m = 0.5 V/µm, i.e. R_d = 2 µm/V).
+    pub sensitivity_v_per_m: f64,
+    /// Photodiode roll-off f_diode, Hz (absent: a fast detector, no filter).
+    pub diode_hz: Option<f64>,
+    /// Fraction α of the signal the photodiode passes at once (0 … 1; used
+    /// with `diode_hz`).
+    pub diode_alpha: f64,
+    /// White noise of amplifier and converter, V rms per sample.
+    pub noise_v_rms: f64,
+    /// Seed of the detector's own noise stream.
+    pub seed: u64,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        Self {
+            sensitivity_v_per_m: 5.0e5,
+            diode_hz: None,
+            diode_alpha: 0.3,
+            noise_v_rms: 1.0e-5,
+            seed: 7,
+        }
+    }
+}
+
+impl DetectorConfig {
+    /// Check every field.
+    pub fn validate(&self) -> Result<(), RigError> {
+        let bad = |name: &'static str, value: f64, reason: &str| RigError::InvalidParameter {
+            name,
+            value,
+            reason: reason.into(),
+        };
+        if !(self.sensitivity_v_per_m.is_finite() && self.sensitivity_v_per_m != 0.0) {
+            return Err(bad(
+                "detector.sensitivity_v_per_m",
+                self.sensitivity_v_per_m,
+                "must be finite and non-zero",
+            ));
+        }
+        if let Some(f) = self.diode_hz
+            && !(f.is_finite() && f > 0.0)
+        {
+            return Err(bad("detector.diode_hz", f, "must be finite and > 0"));
+        }
+        if !(0.0..=1.0).contains(&self.diode_alpha) {
+            return Err(bad(
+                "detector.diode_alpha",
+                self.diode_alpha,
+                "must be in [0, 1]",
+            ));
+        }
+        if !(self.noise_v_rms.is_finite() && self.noise_v_rms >= 0.0) {
+            return Err(bad(
+                "detector.noise_v_rms",
+                self.noise_v_rms,
+                "must be finite and ≥ 0",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// A fixed spherical obstacle in the focal plane.
@@ -733,6 +804,9 @@ impl TweezerConfig {
                 "wall_distance_m",
                 format!("must exceed the bead radius {} m (got {hw})", self.radius_m),
             ));
+        }
+        if let Err(e) = self.detector.validate() {
+            v.push(("detector", e.to_string()));
         }
         v
     }

@@ -41,7 +41,7 @@ pub const MAX_PAYLOAD: usize = 1024;
 /// Largest frame, bytes.
 pub const MAX_FRAME: usize = HEADER + MAX_PAYLOAD + TRAILER;
 /// Protocol version spoken by this implementation.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Frame types (`docs/PROTOCOL.md`, "Frame types"). Host → device types
 /// are 0x01–0x3F, device → host types 0x81–0xBF.
@@ -350,6 +350,9 @@ pub struct TweezerWireSample {
     pub bead_m: [f64; 2],
     /// Position-detector sum signal, V.
     pub sum_v: f32,
+    /// Position-detector difference signals (x, y), V: the raw signal a
+    /// trap calibration fits (`crate::tweezer::calibration`).
+    pub detector_v: [f32; 2],
     /// Status bits ([`tweezer_status`]).
     pub status: u8,
 }
@@ -414,18 +417,21 @@ impl WireItem for TrapCommand {
 }
 
 impl WireItem for TweezerWireSample {
-    const SIZE: usize = 21;
+    const SIZE: usize = 29;
     fn put(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.bead_m[0].to_le_bytes());
         out.extend_from_slice(&self.bead_m[1].to_le_bytes());
         out.extend_from_slice(&self.sum_v.to_le_bytes());
+        out.extend_from_slice(&self.detector_v[0].to_le_bytes());
+        out.extend_from_slice(&self.detector_v[1].to_le_bytes());
         out.push(self.status);
     }
     fn get(b: &[u8]) -> Self {
         Self {
             bead_m: [f64::from_le_bytes(rd(b, 0)), f64::from_le_bytes(rd(b, 8))],
             sum_v: f32::from_le_bytes(rd(b, 16)),
-            status: b.get(20).copied().unwrap_or(0),
+            detector_v: [f32::from_le_bytes(rd(b, 20)), f32::from_le_bytes(rd(b, 24))],
+            status: b.get(28).copied().unwrap_or(0),
         }
     }
 }
@@ -871,6 +877,7 @@ mod tests {
         let t = TweezerWireSample {
             bead_m: [1e-8, -3.5e-7],
             sum_v: 0.75,
+            detector_v: [0.125, -2.5],
             status: tweezer_status::TRAPPED,
         };
         let mut out = Vec::new();

@@ -21,4 +21,4 @@ pub mod tweezer_link;
 
 pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection};
 pub use rig::{LinkStats, SerialConfig, SerialRig};
-pub use tweezer_link::{LinkTweezer, TweezerInstrument};
+pub use tweezer_link::{LinkCalibration, LinkTweezer, TweezerInstrument};

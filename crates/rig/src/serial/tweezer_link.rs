@@ -15,7 +15,16 @@
 //! The emulator's detector sum models a quadrant photodiode behind a bead
 //! in a Gaussian beam: S = S₀·exp(−|b − t|²/w²) with S₀ = 1 V and w the
 //! trap's escape distance (an emulated quantity, for link tests and
-//! displays; it is not used by the loop).
+//! displays; it is not used by the loop). Its difference signals (x, y)
+//! come from the simulated position detector of the rig file
+//! ([`crate::tweezer::Detector`]: sensitivity, photodiode filter, noise)
+//! fed with the bead's displacement from the trap.
+//!
+//! **Calibration.** Until [`LinkTweezer::apply_calibration`] the host uses
+//! the instrument's bead position and its announced κ. A passive
+//! calibration of the detector signals ([`crate::tweezer::calibration`])
+//! gives κ and the displacement sensitivity R_d; once applied, the bead is
+//! placed at trap + R_d·V and the force is κ_cal (trap − bead).
 
 use super::emulator::Instrument;
 use super::frame::{
@@ -25,12 +34,14 @@ use super::frame::{
 use super::rig::{Link, LinkErrorKind, LinkStats, SerialConfig};
 use crate::config::RigConfig;
 use crate::error::RigError;
-use crate::tweezer::{SimTweezer, Tweezer, TweezerEvents, TweezerParams, TweezerSample};
+use crate::tweezer::{
+    DetectedTweezer, SimTweezer, Tweezer, TweezerEvents, TweezerParams, TweezerSample,
+};
 
 /// The simulated tweezer as a protocol instrument.
 #[derive(Debug)]
 pub struct TweezerInstrument {
-    tw: SimTweezer,
+    tw: DetectedTweezer,
     fs: u32,
     name: String,
     waist_m: f64,
@@ -50,7 +61,7 @@ impl TweezerInstrument {
         let p = TweezerParams::from_config(&cfg.tweezer);
         let waist_m = p.escape_distance_m;
         Ok(Self {
-            tw: SimTweezer::new(p, fs)?,
+            tw: DetectedTweezer::new(p, &cfg.tweezer.detector, fs)?,
             fs: fs as u32,
             name: format!("{} (tweezer)", cfg.rig.name),
             waist_m,
@@ -59,7 +70,7 @@ impl TweezerInstrument {
 
     /// The simulated tweezer.
     pub fn tweezer(&self) -> &SimTweezer {
-        &self.tw
+        self.tw.tweezer()
     }
 }
 
@@ -95,9 +106,11 @@ impl Instrument for TweezerInstrument {
         if extra_flags & frame::flag::WATCHDOG != 0 {
             status |= ts::WATCHDOG;
         }
+        let v = self.tw.detector_v().unwrap_or_default();
         TweezerWireSample {
             bead_m: s.bead_m,
             sum_v: (-d2 / (self.waist_m * self.waist_m)).exp() as f32,
+            detector_v: [v[0] as f32, v[1] as f32],
             status,
         }
     }
@@ -122,8 +135,19 @@ pub struct LinkTweezer {
     seq: u64,
     running: bool,
     last: TweezerSample,
+    last_v: [f64; 2],
+    calibration: Option<LinkCalibration>,
     failures: u64,
     last_error: Option<LinkErrorKind>,
+}
+
+/// A trap calibration applied to a live tweezer (module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkCalibration {
+    /// Trap stiffness κ, N/m.
+    pub stiffness_n_per_m: f64,
+    /// Displacement sensitivity R_d per axis (x, y), m/V.
+    pub rd_m_per_v: [f64; 2],
 }
 
 impl LinkTweezer {
@@ -152,9 +176,33 @@ impl LinkTweezer {
                 trapped: true,
                 ..TweezerSample::default()
             },
+            last_v: [0.0; 2],
+            calibration: None,
             failures: 0,
             last_error: None,
         })
+    }
+
+    /// Use a trap calibration from now on: bead = trap + R_d·V and force
+    /// κ (trap − bead). Non-finite or non-positive κ, or non-finite R_d, is
+    /// refused.
+    pub fn apply_calibration(&mut self, c: LinkCalibration) -> Result<(), RigError> {
+        if !(c.stiffness_n_per_m.is_finite() && c.stiffness_n_per_m > 0.0)
+            || !c.rd_m_per_v.iter().all(|r| r.is_finite() && *r != 0.0)
+        {
+            return Err(RigError::InvalidInput(format!(
+                "calibration {c:?}: κ must be finite and > 0, R_d finite and non-zero"
+            )));
+        }
+        self.kappa = c.stiffness_n_per_m;
+        self.calibration = Some(c);
+        Ok(())
+    }
+
+    /// The calibration in use (None: the instrument's own bead position
+    /// and κ).
+    pub fn calibration(&self) -> Option<LinkCalibration> {
+        self.calibration
     }
 
     /// Steps that failed (link error, watchdog).
@@ -210,6 +258,10 @@ impl Tweezer for LinkTweezer {
         self.kappa
     }
 
+    fn detector_v(&self) -> Option<[f64; 2]> {
+        Some(self.last_v)
+    }
+
     fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample {
         let trap = if trap_m.iter().all(|v| v.is_finite()) {
             trap_m
@@ -242,10 +294,21 @@ impl Tweezer for LinkTweezer {
             };
         };
         let trapped = w.status & ts::TRAPPED != 0;
+        let v = [f64::from(w.detector_v[0]), f64::from(w.detector_v[1])];
+        if v.iter().all(|x| x.is_finite()) {
+            self.last_v = v;
+        }
+        let bead = match self.calibration {
+            Some(c) if trapped => [
+                trap[0] + c.rd_m_per_v[0] * self.last_v[0],
+                trap[1] + c.rd_m_per_v[1] * self.last_v[1],
+            ],
+            _ => w.bead_m,
+        };
         let force = if trapped {
             [
-                self.kappa * (trap[0] - w.bead_m[0]),
-                self.kappa * (trap[1] - w.bead_m[1]),
+                self.kappa * (trap[0] - bead[0]),
+                self.kappa * (trap[1] - bead[1]),
             ]
         } else {
             [0.0; 2]
@@ -254,7 +317,7 @@ impl Tweezer for LinkTweezer {
         // The device reports no obstacle geometry. Pressed against an
         // obstacle, the contact force balances the optical force, so the
         // bead's displacement from the trap points along the contact normal.
-        let d = [w.bead_m[0] - trap[0], w.bead_m[1] - trap[1]];
+        let d = [bead[0] - trap[0], bead[1] - trap[1]];
         let dn = (d[0] * d[0] + d[1] * d[1]).sqrt();
         let normal = if in_contact && dn > 0.0 && dn.is_finite() {
             [d[0] / dn, d[1] / dn]
@@ -262,7 +325,7 @@ impl Tweezer for LinkTweezer {
             [0.0; 2]
         };
         self.last = TweezerSample {
-            bead_m: w.bead_m,
+            bead_m: bead,
             trap_m: trap,
             force_n: force,
             gap_m: f64::INFINITY,

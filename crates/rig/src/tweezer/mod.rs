@@ -44,10 +44,14 @@
 //! range, default ≈ R) the bead is lost: no optical force, free diffusion,
 //! until the trap comes back within half that distance (recapture).
 
+pub mod calibration;
+pub mod detector;
 pub mod drag;
 pub mod sim;
 pub mod table;
 
+pub use calibration::{TrapCalibration, TrapCalibrationSettings, calibrate_trap};
+pub use detector::{DetectedTweezer, Detector, DetectorConfig};
 pub use drag::{
     DRAG_CLAMP_GAP_OVER_R, brenner_perpendicular, faxen_parallel, perpendicular_mobility,
     perpendicular_mobility_ds, stokes_drag,
@@ -309,4 +313,9 @@ pub trait Tweezer {
     fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample;
     /// Put the trap at `trap_m` and the bead in it (trapped, no contact).
     fn reset(&mut self, trap_m: [f64; 2]);
+    /// Position-detector signals (x, y) of the last sample, V, when the
+    /// tweezer reports them (live tweezers; [`detector::Detector`]).
+    fn detector_v(&self) -> Option<[f64; 2]> {
+        None
+    }
 }

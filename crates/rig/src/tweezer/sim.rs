@@ -145,6 +145,11 @@ impl SimTweezer {
         self.bead
     }
 
+    /// Current trap centre, m.
+    pub fn trap(&self) -> [f64; 2] {
+        self.trap
+    }
+
     /// Place the bead (tests, scenes). Non-finite → unchanged.
     pub fn set_bead(&mut self, bead: [f64; 2]) {
         if bead.iter().all(|v| v.is_finite()) {

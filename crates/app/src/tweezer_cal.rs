@@ -1,0 +1,127 @@
+//! `kilotouch tweezer calibrate` and `record`: passive power-spectral
+//! calibration of a trap from a detector record
+//! (`kilotouch_rig::tweezer::calibration`) and the plot of its spectrum
+//! and fit (PNG, plotters with an embedded font: no system font lookup).
+
+use kilotouch_dsp::trap_psd::PsdFit;
+use kilotouch_rig::tweezer::calibration::{TrapCalibration, TrapCalibrationSettings};
+use plotters::prelude::*;
+use std::path::Path;
+use std::sync::OnceLock;
+
+/// DejaVu Sans (Bitstream Vera licence: `assets/fonts/DejaVuSans-LICENSE.txt`).
+static DEJAVU_SANS: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+/// Font family of the plot.
+const FONT: &str = "sans-serif";
+
+fn ensure_font() -> anyhow::Result<()> {
+    static DONE: OnceLock<Result<(), String>> = OnceLock::new();
+    DONE.get_or_init(|| {
+        for style in [FontStyle::Normal, FontStyle::Bold] {
+            plotters::style::register_font(FONT, style, DEJAVU_SANS)
+                .map_err(|_| "the embedded DejaVu Sans font could not be read".to_owned())?;
+        }
+        Ok(())
+    })
+    .clone()
+    .map_err(anyhow::Error::msg)
+}
+
+/// A short description of the model fitted, e.g. "Lorentzian + diode".
+pub fn model_name(s: &TrapCalibrationSettings) -> String {
+    let mut m = if s.hydro {
+        "hydrodynamic".to_owned()
+    } else if s.aliased {
+        "aliased Lorentzian".to_owned()
+    } else {
+        "Lorentzian".to_owned()
+    };
+    if s.diode {
+        m += " × diode";
+    }
+    if let (false, Some(h)) = (s.hydro, s.distance_to_surface_m) {
+        m += &format!(", Faxén at {:.2} µm", h * 1e6);
+    }
+    m
+}
+
+/// Draw the blocked spectrum and the fitted model (log–log) to a PNG.
+pub fn plot_fit(
+    path: &Path,
+    fit: &PsdFit,
+    cal: &TrapCalibration,
+    s: &TrapCalibrationSettings,
+) -> anyhow::Result<()> {
+    ensure_font()?;
+    let spec = &fit.spectrum;
+    let (f0, f1) = (
+        spec.f.first().copied().unwrap_or(1.0),
+        spec.f.last().copied().unwrap_or(10.0),
+    );
+    let model: Vec<(f64, f64)> = (0..=400)
+        .map(|i| {
+            let f = f0 * (f1 / f0).powf(i as f64 / 400.0);
+            (f, fit.model_at(f))
+        })
+        .collect();
+    let all = spec.p.iter().copied().chain(model.iter().map(|m| m.1));
+    let (pmin, pmax) = all.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    if !(pmin.is_finite() && pmin > 0.0 && pmax > pmin) {
+        anyhow::bail!("nothing to plot: the spectrum is not positive");
+    }
+    let root = BitMapBackend::new(path, (960, 640)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let title = format!(
+        "κ = {:.3} ± {:.3} pN/µm   f_c = {:.1} ± {:.1} Hz   R_d = {:.4} µm/V",
+        cal.kappa_pn_um, cal.kappa_se_pn_um, cal.fc_hz, cal.fc_se_hz, cal.rd_um_per_v
+    );
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT, 22).into_font())
+        .margin(16)
+        .x_label_area_size(56)
+        .y_label_area_size(90)
+        .build_cartesian_2d(
+            ((f0 * 0.8)..(f1 * 1.25)).log_scale(),
+            ((pmin * 0.5)..(pmax * 2.0)).log_scale(),
+        )?;
+    chart
+        .configure_mesh()
+        .x_desc("frequency (Hz)")
+        .y_desc("power spectral density (V²/Hz)")
+        .label_style((FONT, 17))
+        .axis_desc_style((FONT, 20))
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .draw()?;
+    let blue = RGBColor(31, 119, 180);
+    let red = RGBColor(214, 39, 40);
+    chart
+        .draw_series(
+            spec.f
+                .iter()
+                .zip(&spec.p)
+                .map(|(&f, &p)| Circle::new((f, p), 3, blue.filled())),
+        )?
+        .label(format!(
+            "blocked periodogram ({} points per block)",
+            spec.points_per_block
+        ))
+        .legend(move |(x, y)| Circle::new((x + 10, y), 4, blue.filled()));
+    chart
+        .draw_series(LineSeries::new(model, red.stroke_width(3)))?
+        .label(format!(
+            "fit: {} (χ²/dof {:.2}, backing {:.0} %)",
+            model_name(s),
+            cal.chi2_per_dof,
+            cal.backing_pct
+        ))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red.stroke_width(3)));
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 17))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerLeft)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}

@@ -1,0 +1,363 @@
+//! Passive power-spectral calibration of a trap (Berg-Sørensen & Flyvbjerg
+//! 2004; pylake's formulation, `kilotouch_dsp::trap_psd`): a record of the
+//! position detector's output (volts) with the trap held still →
+//! corner frequency f_c and diffusion coefficient D (V²/s) → trap stiffness
+//! κ = 2πγ f_c, displacement sensitivity R_d = √(k_BT/(γ D)) and force
+//! sensitivity R_f = R_d κ, with standard errors by Gaussian propagation
+//! (the drag γ taken as exact, as pylake does).
+//!
+//! The drag γ is Stokes' 6πηR, times Faxén's parallel factor when a
+//! distance to the coverslip is given ([`super::faxen_parallel`]); the
+//! hydrodynamically correct spectrum carries the wall in its frequency-
+//! dependent drag instead, and its f_c and D refer to the bulk drag γ₀.
+
+use super::{BOLTZMANN, faxen_parallel, stokes_drag};
+use crate::error::RigError;
+use kilotouch_dsp::trap_psd::{
+    Hydrodynamics, Periodogram, PsdFit, PsdFitOptions, PsdModel, SpectrumShape, fit_power_spectrum,
+};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Fluid density used when none is given, kg/m³ (water; pylake's default).
+pub const DEFAULT_FLUID_DENSITY_KG_M3: f64 = 997.0;
+/// Bead density used when none is given, kg/m³ (polystyrene; pylake's
+/// default).
+pub const DEFAULT_BEAD_DENSITY_KG_M3: f64 = 1060.0;
+
+/// What a trap calibration assumes (SI units).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrapCalibrationSettings {
+    /// Sample rate of the record, Hz.
+    pub fs_hz: f64,
+    /// Bead radius R, m.
+    pub radius_m: f64,
+    /// Viscosity η, Pa·s.
+    pub viscosity_pa_s: f64,
+    /// Temperature T, K.
+    pub temperature_k: f64,
+    /// Fit range (low, high], Hz.
+    pub fit_range_hz: (f64, f64),
+    /// Periodogram bins per block.
+    pub points_per_block: usize,
+    /// Fit the hydrodynamically correct spectrum.
+    pub hydro: bool,
+    /// Fit the slow-photodiode filter (f_diode, α).
+    pub diode: bool,
+    /// Fit the aliased Lorentzian of a point-sampled record.
+    pub aliased: bool,
+    /// Fluid density, kg/m³ (hydrodynamic model).
+    pub fluid_density_kg_m3: f64,
+    /// Bead density, kg/m³ (hydrodynamic model).
+    pub bead_density_kg_m3: f64,
+    /// Bead-centre to coverslip distance, m (None: far from it).
+    pub distance_to_surface_m: Option<f64>,
+}
+
+/// Result of a trap calibration (units in the names; the JSON of
+/// `kilotouch tweezer calibrate`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrapCalibration {
+    /// Corner frequency f_c, Hz.
+    pub fc_hz: f64,
+    /// Its standard error, Hz.
+    pub fc_se_hz: f64,
+    /// Diffusion coefficient of the detector signal, V²/s.
+    pub diffusion_v2_s: f64,
+    /// Its standard error, V²/s.
+    pub diffusion_se_v2_s: f64,
+    /// Trap stiffness κ, pN/µm.
+    pub kappa_pn_um: f64,
+    /// Its standard error, pN/µm.
+    pub kappa_se_pn_um: f64,
+    /// Displacement sensitivity R_d, µm/V.
+    pub rd_um_per_v: f64,
+    /// Its standard error, µm/V.
+    pub rd_se_um_per_v: f64,
+    /// Force sensitivity R_f = R_d κ, pN/V.
+    pub rf_pn_per_v: f64,
+    /// χ² per degree of freedom of the fit (≈ 1 for a good fit).
+    pub chi2_per_dof: f64,
+    /// Statistical backing P(χ² ≥ observed), %.
+    pub backing_pct: f64,
+    /// Diode roll-off frequency, Hz (with the diode filter).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub f_diode_hz: Option<f64>,
+    /// Its standard error, Hz.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub f_diode_se_hz: Option<f64>,
+    /// Diode relaxation factor α (with the diode filter).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
+    /// Its standard error.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alpha_se: Option<f64>,
+    /// Drag used for κ and R_d, N·s/m.
+    pub drag_n_s_m: f64,
+    /// Blocked points fitted.
+    pub n_points: usize,
+    /// Fit iterations.
+    pub iterations: usize,
+}
+
+impl TrapCalibrationSettings {
+    /// Check every setting (errors name the option as the CLI spells it).
+    pub fn validate(&self) -> Result<(), RigError> {
+        let pos = |name: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(RigError::InvalidParameter {
+                    name,
+                    value: v,
+                    reason: "must be finite and > 0".into(),
+                })
+            }
+        };
+        pos("fs", self.fs_hz)?;
+        pos("radius", self.radius_m)?;
+        pos("viscosity", self.viscosity_pa_s)?;
+        pos("temperature", self.temperature_k)?;
+        pos("fluid-density", self.fluid_density_kg_m3)?;
+        pos("bead-density", self.bead_density_kg_m3)?;
+        if let Some(h) = self.distance_to_surface_m
+            && !(h.is_finite() && h > self.radius_m)
+        {
+            return Err(RigError::InvalidParameter {
+                name: "distance-to-surface",
+                value: h,
+                reason: format!(
+                    "the bead centre must be farther from the surface than its radius {} m",
+                    self.radius_m
+                ),
+            });
+        }
+        if self.aliased && (self.hydro || self.diode) {
+            return Err(RigError::InvalidInput(
+                "--aliased fits the aliased Lorentzian of a point-sampled record and cannot be \
+                 combined with --hydro or --diode (those assume an anti-aliased record)"
+                    .into(),
+            ));
+        }
+        let (lo, hi) = self.fit_range_hz;
+        if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {
+            return Err(RigError::InvalidInput(format!(
+                "fit range {lo},{hi} Hz: need 0 ≤ LO < HI"
+            )));
+        }
+        if hi > 0.5 * self.fs_hz * (1.0 + 1e-12) {
+            return Err(RigError::InvalidInput(format!(
+                "fit range ends at {hi} Hz, above the Nyquist frequency {} Hz",
+                0.5 * self.fs_hz
+            )));
+        }
+        if self.points_per_block == 0 {
+            return Err(RigError::InvalidInput(
+                "points per block must be ≥ 1".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Bulk Stokes drag γ₀, N·s/m.
+    pub fn gamma0(&self) -> f64 {
+        stokes_drag(self.viscosity_pa_s, self.radius_m)
+    }
+
+    /// Drag that converts f_c and D: γ₀ with the hydrodynamic model, else γ₀
+    /// times Faxén's factor at the given distance, N·s/m.
+    pub fn drag(&self) -> f64 {
+        match (self.hydro, self.distance_to_surface_m) {
+            (false, Some(h)) => self.gamma0() * faxen_parallel(self.radius_m / h),
+            _ => self.gamma0(),
+        }
+    }
+
+    /// The spectrum model these settings fit.
+    pub fn model(&self) -> PsdModel {
+        let shape = if self.hydro {
+            SpectrumShape::Hydrodynamic(Hydrodynamics {
+                gamma0_n_s_m: self.gamma0(),
+                radius_m: self.radius_m,
+                fluid_density_kg_m3: self.fluid_density_kg_m3,
+                bead_density_kg_m3: self.bead_density_kg_m3,
+                distance_to_surface_m: self.distance_to_surface_m,
+            })
+        } else if self.aliased {
+            SpectrumShape::AliasedLorentzian { fs_hz: self.fs_hz }
+        } else {
+            SpectrumShape::Lorentzian
+        };
+        PsdModel {
+            shape,
+            diode: self.diode,
+        }
+    }
+}
+
+/// Calibrate from a detector record `volts` (V, trap held still): the fit
+/// and the calibration it gives.
+pub fn calibrate_trap(
+    volts: &[f64],
+    s: &TrapCalibrationSettings,
+) -> Result<(TrapCalibration, PsdFit), RigError> {
+    s.validate()?;
+    let pg = Periodogram::new(volts, s.fs_hz)?;
+    calibrate_periodogram(&pg, s)
+}
+
+/// [`calibrate_trap`] from a periodogram already computed.
+pub fn calibrate_periodogram(
+    pg: &Periodogram,
+    s: &TrapCalibrationSettings,
+) -> Result<(TrapCalibration, PsdFit), RigError> {
+    s.validate()?;
+    let fit = fit_power_spectrum(
+        pg,
+        s.fit_range_hz.0,
+        s.fit_range_hz.1,
+        s.points_per_block,
+        &s.model(),
+        &PsdFitOptions::default(),
+    )?;
+    Ok((from_fit(&fit, s), fit))
+}
+
+/// κ, R_d and R_f from a fit (module docs).
+pub fn from_fit(fit: &PsdFit, s: &TrapCalibrationSettings) -> TrapCalibration {
+    let gamma = s.drag();
+    let kt = BOLTZMANN * s.temperature_k;
+    let (fc, d) = (fit.theta[0], fit.theta[1]);
+    let (fc_se, d_se) = (fit.se[0], fit.se[1]);
+    let kappa = 2.0 * PI * gamma * fc * 1e6; // N/m → pN/µm
+    let rd = (kt / (gamma * d)).sqrt() * 1e6; // m/V → µm/V
+    TrapCalibration {
+        fc_hz: fc,
+        fc_se_hz: fc_se,
+        diffusion_v2_s: d,
+        diffusion_se_v2_s: d_se,
+        kappa_pn_um: kappa,
+        kappa_se_pn_um: kappa / fc * fc_se,
+        rd_um_per_v: rd,
+        rd_se_um_per_v: rd / (2.0 * d) * d_se,
+        rf_pn_per_v: rd * kappa,
+        chi2_per_dof: fit.chi2_per_dof(),
+        backing_pct: fit.backing_pct,
+        f_diode_hz: s.diode.then(|| fit.theta[2]),
+        f_diode_se_hz: s.diode.then(|| fit.se[2]),
+        alpha: s.diode.then(|| fit.theta[3]),
+        alpha_se: s.diode.then(|| fit.se[3]),
+        drag_n_s_m: gamma,
+        n_points: fit.spectrum.f.len(),
+        iterations: fit.iterations,
+    }
+}
+
+/// Largest record [`record_detector`] takes, samples per axis (10⁸: 100 s
+/// at 1 MHz, 1.6 GB for both axes).
+pub const MAX_RECORD_SAMPLES: usize = 100_000_000;
+
+/// Record `n` samples of a tweezer's detector signals (V, x and y) with the
+/// trap held at `trap_m` (m); `progress` is called with the samples done
+/// every 10⁴ samples. Fails if the tweezer reports no detector signals, the
+/// bead escapes, or the size is out of bounds.
+pub fn record_detector(
+    tw: &mut dyn super::Tweezer,
+    trap_m: [f64; 2],
+    n: usize,
+    progress: &mut dyn FnMut(usize),
+) -> Result<[Vec<f64>; 2], RigError> {
+    if !(16..=MAX_RECORD_SAMPLES).contains(&n) {
+        return Err(RigError::InvalidInput(format!(
+            "a detector record of {n} samples; need between 16 and {MAX_RECORD_SAMPLES}"
+        )));
+    }
+    let (mut x, mut y) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let s = tw.step(trap_m);
+        if !s.trapped {
+            return Err(RigError::Device(format!(
+                "the bead was not trapped at sample {i}: a calibration needs a trapped bead"
+            )));
+        }
+        let v = tw.detector_v().ok_or_else(|| {
+            RigError::Device("this tweezer reports no position-detector signals".into())
+        })?;
+        x.push(v[0]);
+        y.push(v[1]);
+        if (i + 1) % 10_000 == 0 {
+            progress(i + 1);
+        }
+    }
+    Ok([x, y])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::DetectorConfig;
+    use crate::tweezer::{DetectedTweezer, Tweezer, TweezerParams};
+
+    fn settings(fs: f64) -> TrapCalibrationSettings {
+        TrapCalibrationSettings {
+            fs_hz: fs,
+            radius_m: 1.5e-6,
+            viscosity_pa_s: 1.0016e-3,
+            temperature_k: 293.15,
+            fit_range_hz: (20.0, 0.5 * fs),
+            points_per_block: 50,
+            hydro: false,
+            diode: false,
+            aliased: true,
+            fluid_density_kg_m3: DEFAULT_FLUID_DENSITY_KG_M3,
+            bead_density_kg_m3: DEFAULT_BEAD_DENSITY_KG_M3,
+            distance_to_surface_m: Some(5e-6),
+        }
+    }
+
+    #[test]
+    fn simulated_detector_calibrates_to_the_simulated_trap() {
+        // The simulated tweezer at 5 µm from the coverslip, point-sampled at
+        // 10 kHz behind a detector of 0.5 V/µm: κ, R_d and f_c within 3.5 SE.
+        let fs = 10e3;
+        let p = TweezerParams {
+            wall_distance_m: Some(5e-6),
+            stiffness_n_per_m: 5e-5,
+            seed: 4,
+            ..TweezerParams::paper_default()
+        };
+        let det = DetectorConfig::default();
+        let mut tw = DetectedTweezer::new(p.clone(), &det, fs).unwrap();
+        tw.start_stationary();
+        let [x, _] = record_detector(&mut tw, [0.0; 2], 200_000, &mut |_| {}).unwrap();
+        let (c, _) = calibrate_trap(&x, &settings(fs)).unwrap();
+        let kappa = p.stiffness_n_per_m * 1e6;
+        assert!(
+            (c.kappa_pn_um - kappa).abs() < 3.5 * c.kappa_se_pn_um,
+            "{c:?} vs κ {kappa}"
+        );
+        assert!((c.fc_hz - p.corner_hz()).abs() < 3.5 * c.fc_se_hz, "{c:?}");
+        let rd = 1e6 / det.sensitivity_v_per_m;
+        assert!(
+            (c.rd_um_per_v - rd).abs() < 3.5 * c.rd_se_um_per_v,
+            "{c:?} vs {rd}"
+        );
+        assert!(c.kappa_se_pn_um / c.kappa_pn_um < 0.03, "{c:?}");
+    }
+
+    #[test]
+    fn settings_are_checked() {
+        let mut s = settings(1e4);
+        s.diode = true;
+        assert!(s.validate().is_err(), "--aliased with --diode");
+        let mut s = settings(1e4);
+        s.fit_range_hz = (10.0, 6e3);
+        assert!(s.validate().unwrap_err().to_string().contains("Nyquist"));
+        let mut s = settings(1e4);
+        s.distance_to_surface_m = Some(1e-6);
+        assert!(s.validate().is_err());
+        let mut tw = crate::tweezer::SimTweezer::new(TweezerParams::paper_default(), 1e4).unwrap();
+        assert!(record_detector(&mut tw, [0.0; 2], 100, &mut |_| {}).is_err());
+        assert!(tw.detector_v().is_none());
+    }
+}
