@@ -172,14 +172,21 @@ def study_reference():
     # Every row averaged, as the command did before the row rule.
     a_all = pg.rm_anova(data=t, dv="time_s", within="condition", subject="participant")
     out["F_all_rows"] = float(a_all["F"][0])
+    cells = used.groupby(["participant", "condition"]).size().unstack()
+    incomplete = sorted(cells.index[cells.isna().any(axis=1)])
+    # Participants without a successful test trial in some condition:
+    # pingouin drops them (listwise deletion).
+    out["participants_dropped"] = [str(x) for x in incomplete]
+    out["participants_used"] = int(len(cells.index) - len(incomplete))
     fr = pg.friedman(data=used, dv="time_s", within="condition", subject="participant")
     out["friedman_q"] = float(fr["Q"].iloc[0])
     # One participant without successful V test trials: pingouin drops it.
-    first = sorted(t["participant"].unique())[0]
+    first = sorted(p for p in t["participant"].unique() if p not in incomplete)[0]
     drop = (used["participant"] == first) & (used["condition"] == "V")
     partial = used[~drop]
     b = pg.rm_anova(data=partial, dv="time_s", within="condition", subject="participant")
     out["dropped_participant"] = str(first)
+    out["participants_dropped_then"] = sorted([str(x) for x in incomplete] + [str(first)])
     out["F_dropped"] = float(b["F"][0])
     out["p_dropped"] = float(b["p_unc"][0] if "p_unc" in b else b["p-unc"][0])
     pt = pg.pairwise_tests(data=partial.groupby(["participant", "condition"], as_index=False)["time_s"].mean(),
