@@ -1,5 +1,7 @@
 //! `kilotouch stats` against the public test vectors of docs/REFERENCE-VALUES.md.
 
+#![allow(clippy::unwrap_used)]
+
 use serde_json::Value;
 use std::process::Command;
 
