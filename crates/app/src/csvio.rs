@@ -127,6 +127,26 @@ pub fn read_table(
     read_table_from(file, path, text, required, optional)
 }
 
+/// The column names of a CSV file's header row.
+pub fn read_header(path: &Path) -> Result<Vec<String>, CsvError> {
+    let file = std::fs::File::open(path).map_err(|source| CsvError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(file);
+    let headers = rdr.headers().map_err(|e| CsvError::Malformed {
+        path: path.to_owned(),
+        line: e.position().map(|p| p.line()).unwrap_or(0),
+        msg: e.to_string(),
+    })?;
+    Ok(headers.iter().map(str::to_owned).collect())
+}
+
 /// As [`read_columns`], from any reader; `path` is used in messages only.
 pub fn read_columns_from<R: std::io::Read>(
     reader: R,

@@ -258,15 +258,24 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     assert!((direct_rm.p_hf - rm.p_hf).abs() < 1e-12);
     assert!((direct_rm.p - rm.p).abs() < 1e-12);
     let direct_pairs = stats::pairwise_t(&m).unwrap();
-    let pairs = page_stats.pairwise_t.as_ref().unwrap();
+    let direct_w = stats::pairwise_wilcoxon(&m, stats::WilcoxonOptions::default()).unwrap();
+    let pairs = &page_stats.pairwise.as_ref().unwrap().pairs;
     assert_eq!(pairs.len(), 3);
-    for (a, b) in pairs.iter().zip(&direct_pairs) {
+    for ((a, b), w) in pairs.iter().zip(&direct_pairs).zip(&direct_w) {
         assert_eq!((&a.a, &a.b), (&b.a, &b.b));
-        assert!((a.p_holm - b.p_holm).abs() < 1e-12);
+        assert!((a.p_holm.unwrap() - b.p_holm).abs() < 1e-12);
+        assert!((a.wilcoxon_p_holm.unwrap() - w.p_holm).abs() < 1e-12);
         // Holm never lowers a p-value.
-        assert!(a.p_holm >= a.p);
+        assert!(a.p_holm.unwrap() >= a.p.unwrap());
     }
-    assert!(page_stats.pairwise_wilcoxon.is_some());
+    // The rows used are stated: 36 successful test trials of 4 × 3 × 3,
+    // one rejected, plus the practice trials.
+    assert_eq!(page_stats.rows.excluded(stats::Exclusion::Rejected), 1);
+    assert!(page_stats.rows.excluded(stats::Exclusion::Practice) > 0);
+    h.get_by_label_contains(&format!(
+        "rows of trials.csv: used {} of",
+        page_stats.rows.rows_used
+    ));
     // …and they are on the page.
     h.get_by_label(&format!("{:.4}", rm.f));
     h.get_by_label(&format!("{:.4}", one.f));
@@ -306,15 +315,14 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     let st = h.state().page.stats().unwrap();
     assert_eq!(st.metric, "force_mean_pn");
     assert!((st.rm_anova.as_ref().unwrap().f / f_rm_force - 1.0).abs() < 1e-10);
-    // P − D is the same for every participant: the paired t-tests are
-    // undefined, and the page says why instead of failing the whole table.
-    assert!(st.pairwise_t.is_none());
-    assert!(
-        st.errors
-            .iter()
-            .any(|(t, e)| t == "paired_t" && e.contains("`P` vs `D`"))
-    );
-    h.get_by_label_contains("`P` vs `D`");
+    // P − D is the same for every participant: that pair's t-test is
+    // undefined, and the page says why while the other pairs keep theirs.
+    let pw = &st.pairwise.as_ref().unwrap().pairs;
+    let pd = pw.iter().find(|p| p.a == "P" && p.b == "D").unwrap();
+    assert!(pd.t.is_none() && pd.undefined.iter().any(|u| u.starts_with("t-test")));
+    assert_eq!(pw.iter().filter(|p| p.t.is_some()).count(), 2);
+    assert!(pw.iter().all(|p| p.wilcoxon_p.is_some()));
+    h.get_by_label_contains("undefined: t-test");
 
     // Export: stats.csv / stats.json next to the data, every metric.
     h.get_by_label("Export statistics (stats.csv, stats.json)")

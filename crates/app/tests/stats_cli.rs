@@ -1,5 +1,7 @@
 //! `kilotouch stats` against the public test vectors of docs/REFERENCE-VALUES.md.
 
+#![allow(clippy::unwrap_used)]
+
 use serde_json::Value;
 use std::process::Command;
 
@@ -168,11 +170,307 @@ fn malformed_inputs_name_the_problem() {
         &write("ragged.csv", "participant,condition,score\ns1,A,1\ns1,B\n"),
         "ragged.csv:3",
     );
+    // Nobody has every condition: the missing cells are named.
     check(
         &write(
             "incomplete.csv",
-            "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,3\ns3,A,1\ns3,B,5\n",
+            "participant,condition,score\ns1,A,1\ns2,B,2\ns3,A,1\n",
         ),
-        "s2",
+        "subject `s1` lacks `B`",
     );
+    check(
+        &write(
+            "badphase.csv",
+            "participant,condition,score,phase\ns1,A,1,test\ns1,B,2,warmup\n",
+        ),
+        "badphase.csv:3: column `phase`",
+    );
+}
+
+// ------------------------------------------------- a simulated study's trials.csv
+
+/// `tests/data/study_small/trials.csv` (written by `kilotouch study simulate
+/// --participants 6 --seed 1 --no-raw`) and its pingouin values
+/// (`crates/study/tests/pingouin_reference.py`).
+fn study_reference() -> (String, Value) {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/study_small");
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../study/tests/data/pingouin_reference.json"
+    ))
+    .unwrap();
+    let r: Value = serde_json::from_str(&text).unwrap();
+    (format!("{dir}/trials.csv"), r["study_small"].clone())
+}
+
+fn study_stats(path: &str, test: &str, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "stats",
+        path,
+        "--dv",
+        "time_s",
+        "--within",
+        "condition",
+        "--subject",
+        "participant",
+        "--test",
+        test,
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    let out = run(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("json")
+}
+
+fn rel(v: &Value, k: &str, want: &Value) {
+    let got = v[k]
+        .as_f64()
+        .unwrap_or_else(|| panic!("missing {k} in {v}"));
+    let want = want.as_f64().unwrap();
+    assert!(
+        (got - want).abs() <= 1e-6 * want.abs().max(1.0),
+        "{k}: {got} vs {want}"
+    );
+}
+
+#[test]
+fn study_trials_use_successful_test_rows_like_pingouin() {
+    let (path, r) = study_reference();
+    let v = study_stats(&path, "rm", &[]);
+    rel(&v, "F", &r["F"]);
+    rel(&v, "p", &r["p"]);
+    assert_eq!(v["rows_used"], r["rows_used"]);
+    assert_eq!(v["rows_excluded"]["practice"], r["rows_excluded_practice"]);
+    assert_eq!(v["rows_excluded"]["rejected"], r["rows_excluded_rejected"]);
+    // Two simulated participants never succeeded in V: dropped and named,
+    // as pingouin does.
+    assert_eq!(v["participants_dropped"], r["participants_dropped"]);
+    assert_eq!(v["participants_used"], r["participants_used"]);
+    let used = v["rows_used"].as_u64().unwrap();
+    let excluded: u64 = v["rows_excluded"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|x| x.as_u64().unwrap())
+        .sum();
+    assert_eq!(used + excluded, r["rows_total"].as_u64().unwrap());
+    // Every row, as before the row rule: a different F (pingouin agrees).
+    let all = study_stats(&path, "rm", &["--include-practice", "--include-rejected"]);
+    rel(&all, "F", &r["F_all_rows"]);
+    assert_eq!(all["rows_excluded"]["practice"], 0);
+    let f = study_stats(&path, "friedman", &[]);
+    rel(&f, "chi2", &r["friedman_q"]);
+    // The human output says what was used.
+    let out = run(&[
+        "stats",
+        &path,
+        "--dv",
+        "time_s",
+        "--within",
+        "condition",
+        "--subject",
+        "participant",
+        "--test",
+        "rm",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains(&format!("used {used} of")) && text.contains("practice trials"),
+        "{text}"
+    );
+    assert!(text.contains("successful test trials"), "{text}");
+    assert!(
+        text.contains("dropped (a condition without data): P01, P02"),
+        "{text}"
+    );
+}
+
+#[test]
+fn participant_without_a_cell_is_dropped_and_named() {
+    let (path, r) = study_reference();
+    let who = r["dropped_participant"].as_str().unwrap();
+    // Remove that participant's successful V test trials.
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let cols: Vec<&str> = header.split(',').collect();
+    let idx = |n: &str| cols.iter().position(|c| *c == n).unwrap();
+    let (pi, ci, phi, si) = (
+        idx("participant"),
+        idx("condition"),
+        idx("phase"),
+        idx("success"),
+    );
+    let mut out = String::from(header) + "\n";
+    for l in lines {
+        let f: Vec<&str> = l.split(',').collect();
+        if f[pi] == who && f[ci] == "V" && f[phi] == "test" && f[si] == "1" {
+            continue;
+        }
+        out += l;
+        out.push('\n');
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("trials.csv");
+    std::fs::write(&p, out).unwrap();
+    let p = p.to_string_lossy().into_owned();
+    let v = study_stats(&p, "rm", &[]);
+    assert_eq!(v["participants_dropped"], r["participants_dropped_then"]);
+    rel(&v, "F", &r["F_dropped"]);
+    rel(&v, "p", &r["p_dropped"]);
+    let pw = study_stats(&p, "pairwise", &[]);
+    assert_eq!(pw["participants_dropped"], r["participants_dropped_then"]);
+    // pingouin orders the conditions alphabetically, the file by first
+    // appearance: match the pairs, flipping t's sign for a reversed pair.
+    let pairs = pw["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 3);
+    for w in r["pairs_dropped"].as_array().unwrap() {
+        let g = pairs
+            .iter()
+            .find(|g| {
+                (g["a"] == w["a"] && g["b"] == w["b"]) || (g["a"] == w["b"] && g["b"] == w["a"])
+            })
+            .unwrap();
+        let sign = if g["a"] == w["a"] { 1.0 } else { -1.0 };
+        let t = g["t"].as_f64().unwrap() * sign;
+        let want = w["t"].as_f64().unwrap();
+        assert!(
+            (t - want).abs() <= 1e-6 * want.abs().max(1.0),
+            "t {t} vs {want}"
+        );
+        rel(g, "p_holm", &w["p_holm"]);
+    }
+    let human = run(&[
+        "stats",
+        &p,
+        "--dv",
+        "time_s",
+        "--within",
+        "condition",
+        "--subject",
+        "participant",
+        "--test",
+        "rm",
+    ]);
+    let text = String::from_utf8_lossy(&human.stdout);
+    assert!(
+        text.contains(&format!(
+            "dropped (a condition without data): P01, P02, {who}"
+        )),
+        "{text}"
+    );
+}
+
+/// The 8 × 3 case of the reference file as a long CSV: V–P differ by a
+/// constant (t undefined), the others are ordinary.
+fn constant_pair_csv(dir: &tempfile::TempDir) -> (String, Value) {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../study/tests/data/pingouin_reference.json"
+    ))
+    .unwrap();
+    let r: Value = serde_json::from_str(&text).unwrap();
+    let case = r["cases"]["n8_constant_pair"].clone();
+    let conds = case["matrix"]["conditions"].as_array().unwrap();
+    let mut t = String::from("participant,condition,score\n");
+    for (i, row) in case["matrix"]["values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+    {
+        for (c, v) in conds.iter().zip(row.as_array().unwrap()) {
+            t += &format!("s{i},{},{}\n", c.as_str().unwrap(), v.as_f64().unwrap());
+        }
+    }
+    let p = dir.path().join("pairs.csv");
+    std::fs::write(&p, t).unwrap();
+    (p.to_string_lossy().into_owned(), case)
+}
+
+#[test]
+fn pairwise_reports_every_pair_and_an_undefined_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (p, case) = constant_pair_csv(&dir);
+    let v = stats_json(&p, "pairwise");
+    let pairs = v["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 3);
+    for key in [
+        "a",
+        "b",
+        "t",
+        "df",
+        "p",
+        "p_holm",
+        "wilcoxon_w",
+        "wilcoxon_p",
+        "wilcoxon_p_holm",
+        "dz",
+        "dz_ci",
+        "mean_diff",
+        "mean_diff_ci",
+    ] {
+        assert!(pairs[0].get(key).is_some(), "key {key} in {}", pairs[0]);
+    }
+    for (g, w) in pairs.iter().zip(case["pairs"].as_array().unwrap()) {
+        for k in ["t", "p", "p_holm", "wilcoxon_p", "wilcoxon_p_holm", "dz"] {
+            if w[k].is_null() {
+                assert!(g[k].is_null(), "{k}: {g}");
+            } else {
+                rel(g, k, &w[k]);
+            }
+        }
+        if let Some(ci) = w["mean_diff_ci"].as_array() {
+            let got = g["mean_diff_ci"].as_array().unwrap();
+            assert!((got[0].as_f64().unwrap() - ci[0].as_f64().unwrap()).abs() < 1e-6);
+            assert!((got[1].as_f64().unwrap() - ci[1].as_f64().unwrap()).abs() < 1e-6);
+            let dz = g["dz_ci"].as_array().unwrap();
+            let d = g["dz"].as_f64().unwrap();
+            assert!(dz[0].as_f64().unwrap() < d && d < dz[1].as_f64().unwrap());
+        }
+    }
+    // V–P: t undefined (constant difference), named; Wilcoxon defined.
+    assert!(pairs[0]["t"].is_null());
+    assert!(pairs[0]["wilcoxon_p"].is_number());
+    assert!(
+        pairs[0]["undefined"][0]
+            .as_str()
+            .unwrap()
+            .contains("t-test")
+    );
+    let human = stats(&p, "pairwise", &[]);
+    let text = String::from_utf8_lossy(&human.stdout);
+    assert!(text.contains("V–P undefined: t-test"), "{text}");
+}
+
+#[test]
+fn describe_gives_per_condition_summaries() {
+    let dir = tempfile::tempdir().unwrap();
+    let (p, case) = constant_pair_csv(&dir);
+    let v = stats_json(&p, "describe");
+    for (g, w) in v["conditions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(case["describe"].as_array().unwrap())
+    {
+        assert_eq!(g["condition"], w["condition"]);
+        assert_eq!(g["n"], w["n"]);
+        for k in ["mean", "sd", "median", "q1", "q3", "iqr"] {
+            rel(g, k, &w[k]);
+        }
+    }
+    let rm = stats_json(&p, "rm");
+    let ci = rm["np2_ci"].as_array().unwrap();
+    let np2 = rm["np2"].as_f64().unwrap();
+    assert!(ci[0].as_f64().unwrap() <= np2 && np2 <= ci[1].as_f64().unwrap());
+    rel(&rm, "F", &case["rm"]["F"]);
+    let want = case["rm"]["np2_ci"].as_array().unwrap();
+    assert!((ci[0].as_f64().unwrap() - want[0].as_f64().unwrap()).abs() < 1e-6);
+    assert!((ci[1].as_f64().unwrap() - want[1].as_f64().unwrap()).abs() < 1e-6);
 }

@@ -140,8 +140,8 @@ pub fn standard_channels() -> Vec<Channel> {
         ),
         Channel::new(
             "out_high",
-            "N",
-            "high channel output C_H·H (Haptuator command, force-equivalent)",
+            "V",
+            "high channel output C_H·H: Haptuator drive voltage",
         ),
         Channel::new("accel_x", "m/s^2", "handle accelerometer, x"),
         Channel::new("accel_y", "m/s^2", "handle accelerometer, y"),

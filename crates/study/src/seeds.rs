@@ -266,6 +266,45 @@ pub fn parse_seed(s: &str) -> Option<u64> {
     }
 }
 
+/// Serde form of a 64-bit seed in JSON files read by other tools: a
+/// decimal **string** (`"18446744073709551615"`), because JSON readers that
+/// hold numbers as doubles (pandas, JavaScript) round integers above 2⁵³.
+/// Reading accepts that string, [`format_seed`]'s `0x…` form and, for files
+/// written before, a JSON number. Use with `#[serde(with = "seed_string")]`.
+pub mod seed_string {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// Writes the seed as a decimal string.
+    ///
+    /// # Errors
+    /// Those of the serializer.
+    pub fn serialize<S: Serializer>(seed: &u64, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&seed.to_string())
+    }
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Repr {
+        Number(u64),
+        Text(String),
+    }
+
+    /// Reads a decimal or `0x` string, or a (legacy) JSON number.
+    ///
+    /// # Errors
+    /// A string that is not a seed, a negative or fractional number.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+        match Repr::deserialize(d)? {
+            Repr::Number(n) => Ok(n),
+            Repr::Text(t) => super::parse_seed(t.trim()).ok_or_else(|| {
+                serde::de::Error::custom(format!(
+                    "`{t}` is not a seed (a decimal or 0x-hexadecimal 64-bit integer)"
+                ))
+            }),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

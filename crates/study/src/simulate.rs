@@ -29,7 +29,9 @@ use crate::export::{
 use crate::operator::SimCohort;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
-use crate::runner::{NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout};
+use crate::runner::{
+    NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout, with_scene,
+};
 use crate::task::sim_station::SimStation;
 
 /// Options of [`simulate`].
@@ -115,7 +117,11 @@ pub fn run_planned(
     };
     let outcome = match cfg.raw {
         Some(dtype) => {
-            let layout = raw_layout_for(planned, started, raw_layout(fs, dtype));
+            let layout = raw_layout_for(
+                planned,
+                started,
+                with_scene(raw_layout(fs, dtype), &setup.scene),
+            );
             let mut w = NpyWriter::create(&dir.join(raw_file_name(planned)), layout)?;
             let o = engine.run_trial(&setup, &mut op, &mut w)?;
             setup_ok(&op)?;

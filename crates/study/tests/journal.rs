@@ -281,3 +281,47 @@ fn damage_before_valid_lines_is_an_error_not_a_torn_tail() {
         "{err}"
     );
 }
+
+/// The study seed is written as a decimal string (a double-based reader
+/// such as pandas would round 2⁶⁴ − 1 to 2⁶⁴); journals written before,
+/// with a JSON number, still read.
+#[test]
+fn study_seed_is_text_and_old_numeric_seeds_still_read() {
+    let Record::SessionStarted(mut start) = all_records().remove(0) else {
+        panic!("first record is session_started")
+    };
+    start.study_seed = u64::MAX;
+    let entry = Entry {
+        seq: 0,
+        utc: UtcTime::from_unix_millis(1_767_225_600_000),
+        record: Record::SessionStarted(start),
+    };
+    let line = encode_line(&entry).unwrap();
+    assert!(
+        line.contains("\"study_seed\":\"18446744073709551615\""),
+        "{line}"
+    );
+    assert_eq!(decode_line(line.trim_end().as_bytes()).unwrap(), entry);
+    // The same record as an older version wrote it: a JSON number, with
+    // its own checksum.
+    let body = line.trim_end();
+    let body = &body[..body.len() - 20];
+    let old_json = format!("{body}}}").replace(
+        "\"study_seed\":\"18446744073709551615\"",
+        "\"study_seed\":18446744073709551615",
+    );
+    let crc = crc32(old_json.as_bytes());
+    let old_line = format!(
+        "{},\"crc32\":\"{crc:08x}\"}}",
+        old_json.strip_suffix('}').unwrap()
+    );
+    assert_eq!(decode_line(old_line.as_bytes()).unwrap(), entry);
+    // A seed that is no number is refused as an invalid record.
+    let bad_json = format!("{body}}}").replace("18446744073709551615", "seventeen");
+    let crc = crc32(bad_json.as_bytes());
+    let bad_line = format!(
+        "{},\"crc32\":\"{crc:08x}\"}}",
+        bad_json.strip_suffix('}').unwrap()
+    );
+    assert!(decode_line(bad_line.as_bytes()).is_err());
+}

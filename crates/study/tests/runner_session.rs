@@ -132,8 +132,20 @@ fn runs_a_session_through_its_states_and_stores_every_trial() {
         let npy = dir.join(&row.raw_file);
         let a = read_npy(&npy).unwrap();
         assert_eq!(a.cols, RAW_CHANNELS);
-        // One raw row per sample: the last sample is the trial's end.
-        assert!((a.rows as f64 / 10_000.0 - row.time_s.unwrap()).abs() < 1e-9);
+        // One raw row per sample up to the trial's end; when the ending
+        // sample carries its own event (an escape), the end code follows on
+        // one more sample.
+        let n = a.rows as usize;
+        let ended_on_event = n >= 2 && {
+            let e = a.row(n - 2)[16];
+            a.row(n - 1)[16] == 9.0 && e != 0.0 && e != 5.0
+        };
+        let samples = a.rows as f64 - if ended_on_event { 1.0 } else { 0.0 };
+        assert!((samples / 10_000.0 - row.time_s.unwrap()).abs() < 1e-9);
+        if row.reject_reason == "escaped" {
+            assert!(ended_on_event, "an escape ending the trial keeps code 3");
+            assert_eq!(a.row(n - 2)[16], 3.0);
+        }
         let side = read_sidecar(&sidecar_path(&npy)).unwrap();
         assert_eq!(side.channels.len(), RAW_CHANNELS);
         assert_eq!(side.channels[17].name, "hand_x");

@@ -67,7 +67,9 @@ pub struct SessionStart {
     pub protocol_sha256: String,
     /// Software version of the writer.
     pub software_version: String,
-    /// Study seed (`seeds.study`).
+    /// Study seed (`seeds.study`), written as a decimal string (read also
+    /// from a number: journals written before).
+    #[serde(with = "crate::seeds::seed_string")]
     pub study_seed: u64,
     /// Rig identity (free text, e.g. `simulated` or a serial number).
     pub rig: String,

@@ -9,6 +9,8 @@
 //!   journal.jsonl     append-only session journal (CRC per line)
 //!   cells_long.csv    participant × condition means (regenerated)
 //!   cells_wide.csv    one row per participant (regenerated)
+//!   datapackage.json  Frictionless data package: the three tables' fields,
+//!                     types, units, constraints (regenerated with them)
 //!   raw/<P>_<C>_<phase>_<trial>.npy + .json   full-rate signals per trial
 //!   recovery/         copies of torn tails cut on resume
 //! ```
@@ -51,6 +53,7 @@
 //! [`NpyWriter::finish`]: crate::rawsig::NpyWriter::finish
 
 pub mod checksum;
+pub mod datapackage;
 pub mod journal;
 mod open;
 mod plan;
@@ -62,6 +65,7 @@ pub mod trials;
 
 pub use crate::storage::{error, fsutil, utc};
 
+pub use datapackage::{DATAPACKAGE_FILE, SummaryLayout, write_datapackage};
 pub use error::{ExportError, Position, Result};
 pub use fsutil::TornTail;
 pub use open::RECOVERY_DIR;

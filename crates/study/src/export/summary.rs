@@ -30,6 +30,7 @@ use std::path::{Path, PathBuf};
 use super::trials::{Metric, TRIALS_FILE, TrialRow, read_trials};
 use crate::protocol::Condition;
 use crate::seeds::Phase;
+use crate::stats::rows::{LongRow, RowCounts, RowRule, select_rows};
 use crate::storage::error::{ExportError, Position, Result, io_err};
 use crate::storage::fsutil::{TornTail, write_atomic};
 
@@ -55,7 +56,8 @@ pub struct SummaryFiles {
 
 /// Regenerates `cells_long.csv` and `cells_wide.csv` of `dir` from its
 /// `trials.csv` (read-only on `trials.csv`; a torn tail is ignored and
-/// reported). Both files are replaced atomically.
+/// reported), and `datapackage.json` describing the three tables
+/// ([`super::datapackage`]). The files are replaced atomically.
 ///
 /// # Errors
 /// Those of [`read_trials`] and [`summarize`]; I/O errors.
@@ -68,6 +70,17 @@ pub fn regenerate_summaries(dir: &Path) -> Result<SummaryFiles> {
     let cells_wide = dir.join(CELLS_WIDE_FILE);
     write_atomic(&cells_long, long.as_bytes())?;
     write_atomic(&cells_wide, wide.as_bytes())?;
+    let value_columns = summary.value_columns();
+    super::datapackage::write_datapackage(
+        dir,
+        super::datapackage::SummaryLayout {
+            long_file: CELLS_LONG_FILE,
+            wide_file: CELLS_WIDE_FILE,
+            value_columns: &value_columns,
+            conditions: &summary.conditions,
+        },
+        "kilotouch study",
+    )?;
     Ok(SummaryFiles {
         cells_long,
         cells_wide,
@@ -170,7 +183,11 @@ pub fn summarize(rows: &[TrialRow]) -> Result<Summary> {
             .map(|m| {
                 let v: Vec<f64> = rs
                     .iter()
-                    .filter(|r| r.success)
+                    .filter(|r| {
+                        RowRule::default()
+                            .exclusion(Some(r.phase), Some(r.success), true)
+                            .is_none()
+                    })
                     .filter_map(|r| m.get(r))
                     .collect();
                 (!v.is_empty()).then(|| compensated_mean(&v))
@@ -416,14 +433,28 @@ impl Table {
 /// Long-format triples `(participant, condition, value)` of one metric over
 /// the successful test trials — the trial-level input that
 /// [`crate::stats::Design::from_long`] averages into the same cells as
-/// `cells_long.csv`.
+/// `cells_long.csv` ([`trial_selection`] with the default rule).
 pub fn trial_triples(rows: &[TrialRow], metric: Metric) -> Vec<(String, String, f64)> {
-    rows.iter()
-        .filter(|r| r.phase == Phase::Test && r.success)
-        .filter_map(|r| {
-            metric
-                .get(r)
-                .map(|v| (r.participant.clone(), r.condition.code().to_owned(), v))
-        })
-        .collect()
+    trial_selection(rows, metric, RowRule::default()).0
+}
+
+/// The triples of `metric` over the trials `rule` admits
+/// ([`crate::stats::rows`], the one row rule) and the counts of used and
+/// excluded rows.
+pub fn trial_selection(
+    rows: &[TrialRow],
+    metric: Metric,
+    rule: RowRule,
+) -> (Vec<(String, String, f64)>, RowCounts) {
+    let codes: Vec<&'static str> = rows.iter().map(|r| r.condition.code()).collect();
+    select_rows(
+        rule,
+        rows.iter().zip(&codes).map(|(r, c)| LongRow {
+            subject: &r.participant,
+            condition: c,
+            value: metric.get(r),
+            phase: Some(r.phase),
+            success: Some(r.success),
+        }),
+    )
 }

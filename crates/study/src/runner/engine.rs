@@ -65,6 +65,9 @@ pub struct TrialEngine<S: Station> {
     handle: [f64; 2],
     row: [f64; RAW_CHANNELS],
     end: Option<TrialEnd>,
+    // A trial that ended on a sample with its own event: the end code is
+    // written on the next sample, then the trial reports its end.
+    pending_end: Option<TrialEnd>,
 }
 
 impl<S: Station> TrialEngine<S> {
@@ -120,6 +123,7 @@ impl<S: Station> TrialEngine<S> {
             handle: [0.0; 2],
             row: [0.0; RAW_CHANNELS],
             end: None,
+            pending_end: None,
         })
     }
 
@@ -186,6 +190,7 @@ impl<S: Station> TrialEngine<S> {
         self.trajectory.push(setup.scene.start_m);
         self.handle = [0.0; 2];
         self.end = None;
+        self.pending_end = None;
         participant.begin_trial(&setup.brief);
         Ok(())
     }
@@ -207,6 +212,10 @@ impl<S: Station> TrialEngine<S> {
 
     /// Ends the current trial as aborted (its metrics so far are kept).
     pub fn abort(&mut self) {
+        if let Some(e) = self.pending_end.take() {
+            self.end = Some(e);
+            return;
+        }
         if let Some(acc) = &mut self.acc
             && self.end.is_none()
         {
@@ -260,16 +269,29 @@ impl<S: Station> TrialEngine<S> {
                 force_hand_n: ss.force_hand_n,
                 trapped: tw.trapped,
             };
+            if let Some(e) = self.pending_end.take() {
+                // The sample after an event that ended the trial carries
+                // the end code (the event keeps its own sample).
+                self.fill_row(&ss, hand, event::END);
+                raw.push(&self.row)?;
+                self.end = Some(e);
+                return Ok(Some(e));
+            }
             let end = self.acc.as_mut().and_then(|acc| acc.push(&sample));
             if self.k.is_multiple_of(self.cfg.trajectory_every as u64) {
                 self.keep_trajectory_point(tw.bead_m);
             }
-            self.fill_row(&ss, hand, event_code(&tw.events, captured, end.is_some()));
+            let code = event_code(&tw.events, captured);
+            let end_here = end.is_some() && (code == 0.0 || code == event::FRAME);
+            self.fill_row(&ss, hand, if end_here { event::END } else { code });
             raw.push(&self.row)?;
             if let Some(e) = end {
                 self.keep_trajectory_point(tw.bead_m);
-                self.end = Some(e);
-                return Ok(Some(e));
+                if end_here {
+                    self.end = Some(e);
+                    return Ok(Some(e));
+                }
+                self.pending_end = Some(e);
             }
         }
         Ok(None)
@@ -435,13 +457,13 @@ impl<S: Station> TrialEngine<S> {
 }
 
 /// The `event` channel's code at a sample: its most significant event —
-/// trial end, escape, recapture, contact end, contact start, camera frame —
-/// or 0 for none ([`event`]).
+/// escape, recapture, contact end, contact start, camera frame — or 0 for
+/// none ([`event`]). The trial-end code goes on the sample where the trial
+/// ends when nothing but a camera frame happened there, else on the next
+/// sample (so an escape that ends a trial keeps its code 3).
 #[inline]
-fn event_code(events: &TweezerEvents, frame_captured: bool, ended: bool) -> f64 {
-    if ended {
-        event::END
-    } else if events.escaped {
+fn event_code(events: &TweezerEvents, frame_captured: bool) -> f64 {
+    if events.escaped {
         event::ESCAPED
     } else if events.recaptured {
         event::RECAPTURED

@@ -48,6 +48,6 @@ mod setup;
 pub use crate::error::RunError;
 pub use config::RunnerConfig;
 pub use engine::{TrialEngine, TrialOutcome};
-pub use raw::{NoRaw, RAW_CHANNELS, RawSink, raw_channels, raw_layout};
+pub use raw::{NoRaw, RAW_CHANNELS, RawSink, raw_channels, raw_layout, with_scene};
 pub use session::{RunnerEvents, RunnerState, SessionRunner};
 pub use setup::TrialSetup;

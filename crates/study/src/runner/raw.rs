@@ -3,6 +3,7 @@
 
 use crate::rawsig::{Channel, Dtype, NpyWriter, RawLayout, standard_channels};
 use crate::storage::error::ExportError;
+use crate::task::Scene;
 
 /// Channels of a trial's raw file: the standard 17
 /// ([`standard_channels`]) plus the participant's hand target.
@@ -40,6 +41,27 @@ pub fn raw_layout(sample_rate_hz: f64, dtype: Dtype) -> RawLayout {
         channels: raw_channels(),
         attrs,
     }
+}
+
+/// `layout` with the trial's scene in its attributes (`attrs.scene`, sample
+/// plane, m): obstacle centre and radius, bead radius, contact radius
+/// R_c = R_o + R_b, start position and instructed heading — what is needed
+/// to recompute the bead–obstacle gap and `disp_err_mean_um` from the
+/// `bead_x`, `bead_y` channels.
+pub fn with_scene(mut layout: RawLayout, scene: &Scene) -> RawLayout {
+    let g = &scene.geometry;
+    layout.attrs.insert(
+        "scene".into(),
+        serde_json::json!({
+            "obstacle_centre_m": g.obstacle_m,
+            "obstacle_radius_m": g.obstacle_radius_m,
+            "bead_radius_m": g.bead_radius_m,
+            "contact_radius_m": g.contact_radius_m(),
+            "start_m": scene.start_m,
+            "heading": scene.heading,
+        }),
+    );
+    layout
 }
 
 /// Where a trial's full-rate rows go.

@@ -14,7 +14,7 @@ use crate::task::station::Station;
 
 use super::config::RunnerConfig;
 use super::engine::TrialEngine;
-use super::raw::raw_layout;
+use super::raw::{raw_layout, with_scene};
 
 /// States of a session (see the [`super`] module documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -163,13 +163,15 @@ impl<S: Station> SessionRunner<S> {
         let store = self.store_mut()?;
         let mut ticket = store.begin_trial(key, UtcTime::now())?;
         let raw = match dtype {
-            Some(d) => match store.raw_writer(&mut ticket, raw_layout(fs, d)) {
-                Ok(w) => Some(w),
-                Err(e) => {
-                    store.abort_trial(ticket, "raw file could not be created")?;
-                    return Err(e.into());
+            Some(d) => {
+                match store.raw_writer(&mut ticket, with_scene(raw_layout(fs, d), &setup.scene)) {
+                    Ok(w) => Some(w),
+                    Err(e) => {
+                        store.abort_trial(ticket, "raw file could not be created")?;
+                        return Err(e.into());
+                    }
                 }
-            },
+            }
             None => None,
         };
         if let Err(e) = self.engine.start(&setup, participant) {

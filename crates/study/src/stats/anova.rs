@@ -11,6 +11,7 @@ use serde::Serialize;
 
 use super::design::{CellMatrix, Design};
 use super::dist::{chi2_sf, f_sf};
+use super::effect::eta2_ci_from_f;
 use super::error::{Result, StatsError};
 
 /// True when a sum of squares of `terms` residuals is indistinguishable from
@@ -39,6 +40,9 @@ pub struct OneWayAnova {
     pub ss_within: f64,
     /// η² = SS_between / SS_total.
     pub eta2: f64,
+    /// 95 % noncentral-F interval of η² ([`super::effect`]); `None` when it
+    /// cannot be computed.
+    pub eta2_ci: Option<[f64; 2]>,
     /// Number of groups k.
     pub n_groups: usize,
     /// Total number of observations N.
@@ -115,6 +119,7 @@ pub fn one_way_anova<G: AsRef<[f64]>>(groups: &[G]) -> Result<OneWayAnova> {
         ss_between,
         ss_within,
         eta2: ss_between / (ss_between + ss_within),
+        eta2_ci: eta2_ci_from_f(f, df1, df2).ok(),
         n_groups: k,
         n_total,
     })
@@ -179,6 +184,9 @@ pub struct RmAnova {
     pub mauchly_p: Option<f64>,
     /// Partial η² = SS_cond / (SS_cond + SS_error).
     pub np2: f64,
+    /// 95 % noncentral-F interval of partial η² from the uncorrected F and
+    /// df ([`super::effect`]); `None` when it cannot be computed.
+    pub np2_ci: Option<[f64; 2]>,
     /// Generalised η² (Olejnik & Algina 2003) for one manipulated within
     /// factor: SS_cond / (SS_cond + SS_subjects + SS_error).
     pub ng2: f64,
@@ -336,6 +344,7 @@ pub fn rm_anova(m: &CellMatrix) -> Result<RmAnova> {
         mauchly_df,
         mauchly_p,
         np2: ss_conditions / (ss_conditions + ss_error),
+        np2_ci: eta2_ci_from_f(f, df1, df2).ok(),
         ng2: ss_conditions / (ss_conditions + ss_subjects + ss_error),
         ss_conditions,
         ss_subjects,

@@ -8,8 +8,11 @@ use serde::Serialize;
 
 use super::design::CellMatrix;
 use super::dist::{chi2_sf, f_sf};
+use super::effect::{BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, CONFIDENCE, quantile_sorted};
 use super::error::{Result, StatsError};
 use super::rank::{doubled_ranks, tie_term};
+use rand_chacha::ChaCha8Rng;
+use rand_chacha::rand_core::{Rng, SeedableRng};
 
 /// Result of Friedman's test.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -23,6 +26,9 @@ pub struct Friedman {
     /// Kendall's coefficient of concordance W = χ²_F / (n (k − 1)), in [0, 1]
     /// (with ties this equals Kendall's tie-corrected W).
     pub kendall_w: f64,
+    /// 95 % percentile-bootstrap interval of W over participants
+    /// ([`super::effect`]); `None` when the bootstrap cannot run.
+    pub kendall_w_ci: Option<[f64; 2]>,
     /// Iman–Davenport F = (n − 1) χ²_F / (n (k − 1) − χ²_F); `None` when
     /// W = 1 (perfect concordance), where F is unbounded.
     pub f_iman_davenport: Option<f64>,
@@ -49,6 +55,44 @@ pub struct Friedman {
 /// Fewer than 2 subjects or 2 conditions; every subject's values tied
 /// across all conditions ([`StatsError::ZeroVariance`]).
 pub fn friedman(m: &CellMatrix) -> Result<Friedman> {
+    let mut f = friedman_core(m)?;
+    f.kendall_w_ci = kendall_w_ci(m).ok();
+    Ok(f)
+}
+
+/// Percentile-bootstrap interval of Kendall's W: participants (rows)
+/// resampled with replacement, [`BOOTSTRAP_RESAMPLES`] times with the fixed
+/// seed [`BOOTSTRAP_SEED`]; a resample in which every participant ties all
+/// conditions counts as W = 0.
+fn kendall_w_ci(m: &CellMatrix) -> Result<[f64; 2]> {
+    let n = m.n_subjects();
+    let k = m.n_conditions();
+    let mut rng = ChaCha8Rng::seed_from_u64(BOOTSTRAP_SEED);
+    let mut ws = Vec::with_capacity(BOOTSTRAP_RESAMPLES);
+    let subjects: Vec<String> = (0..n).map(|i| i.to_string()).collect();
+    let mut values = vec![0.0; n * k];
+    for _ in 0..BOOTSTRAP_RESAMPLES {
+        for i in 0..n {
+            // Modulo bias < n / 2⁶⁴: negligible.
+            let s = usize::try_from(rng.next_u64() % n as u64).unwrap_or(0);
+            values[i * k..(i + 1) * k].copy_from_slice(m.row(s));
+        }
+        let r = CellMatrix::new(subjects.clone(), m.conditions().to_vec(), values.clone())?;
+        ws.push(match friedman_core(&r) {
+            Ok(f) => f.kendall_w,
+            Err(StatsError::ZeroVariance { .. }) => 0.0,
+            Err(e) => return Err(e),
+        });
+    }
+    ws.sort_by(f64::total_cmp);
+    let alpha = 1.0 - CONFIDENCE;
+    Ok([
+        quantile_sorted(&ws, alpha / 2.0),
+        quantile_sorted(&ws, 1.0 - alpha / 2.0),
+    ])
+}
+
+fn friedman_core(m: &CellMatrix) -> Result<Friedman> {
     const TEST: &str = "Friedman test";
     let (n, k) = m.require_at_least_2x2(TEST)?;
     // Doubled rank sums stay exact integers.
@@ -89,6 +133,7 @@ pub fn friedman(m: &CellMatrix) -> Result<Friedman> {
         df,
         p: chi2_sf(chi2, df)?,
         kendall_w,
+        kendall_w_ci: None,
         f_iman_davenport,
         df1_f,
         df2_f,

@@ -438,6 +438,151 @@ pub fn pairwise_wilcoxon(m: &CellMatrix, opts: WilcoxonOptions) -> Result<Vec<Pa
     with_holm(rows)
 }
 
+/// One condition pair of [`pairwise_tests`]: the paired t-test and
+/// Wilcoxon's signed-rank test of d = a − b over participants, with effect
+/// sizes. A statistic that is undefined for this pair (zero variance of the
+/// differences, all differences zero) is `None` and its reason is in
+/// `undefined`; the other pairs are unaffected.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PairTest {
+    /// First condition (x in d = x − y).
+    pub a: String,
+    /// Second condition.
+    pub b: String,
+    /// Participants (pairs).
+    pub n: usize,
+    /// Paired t.
+    pub t: Option<f64>,
+    /// Degrees of freedom n − 1.
+    pub df: Option<f64>,
+    /// Two-sided p of the t-test.
+    pub p: Option<f64>,
+    /// Holm-adjusted p over the pairs whose t is defined.
+    pub p_holm: Option<f64>,
+    /// Wilcoxon's statistic min(R⁺, R⁻) (scipy's two-sided statistic).
+    pub wilcoxon_w: Option<f64>,
+    /// Two-sided p of Wilcoxon's test (scipy defaults).
+    pub wilcoxon_p: Option<f64>,
+    /// Holm-adjusted Wilcoxon p over the pairs whose test is defined.
+    pub wilcoxon_p_holm: Option<f64>,
+    /// How the Wilcoxon p was computed.
+    pub wilcoxon_method: Option<WilcoxonMethodUsed>,
+    /// Cohen's d_z = mean(d) / sd(d).
+    pub dz: Option<f64>,
+    /// 95 % interval of d_z ([`super::effect::dz_ci`]).
+    pub dz_ci: Option<[f64; 2]>,
+    /// Mean difference mean(a − b), in the unit of the dependent variable.
+    pub mean_diff: f64,
+    /// 95 % t interval of the mean difference: mean ± t₀.₉₇₅(n−1) sd/√n.
+    pub mean_diff_ci: Option<[f64; 2]>,
+    /// Why a statistic of this pair is undefined (empty: all defined).
+    pub undefined: Vec<String>,
+}
+
+/// All condition pairs of a complete cell matrix (the post-hoc table).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PairwiseTests {
+    /// Pairs in column order: (0,1), (0,2), …, (1,2), …
+    pub pairs: Vec<PairTest>,
+}
+
+/// Holm over the defined entries of `p` (undefined ones stay `None`).
+fn holm_defined(p: &[Option<f64>]) -> Result<Vec<Option<f64>>> {
+    let defined: Vec<f64> = p.iter().flatten().copied().collect();
+    let mut adj = holm(&defined)?.into_iter();
+    Ok(p.iter().map(|v| v.and_then(|_| adj.next())).collect())
+}
+
+/// Paired t and Wilcoxon tests for every pair of conditions of `m`, each
+/// family Holm-corrected, with d_z and the mean difference and their 95 %
+/// intervals. A pair where a test is undefined keeps its row with `None`
+/// values and the reason (reference: pingouin `pairwise_tests(...,
+/// padjust="holm")`, scipy `wilcoxon`).
+///
+/// # Errors
+/// Fewer than 2 subjects or conditions.
+pub fn pairwise_tests(m: &CellMatrix, opts: WilcoxonOptions) -> Result<PairwiseTests> {
+    m.require_at_least_2x2("pairwise tests")?;
+    let c = m.conditions();
+    let n = m.n_subjects();
+    let q = t_quantile_975(n as f64 - 1.0)?;
+    let mut rows = Vec::new();
+    for (i, j) in pairs(m.n_conditions()) {
+        let (x, y) = (m.column(i), m.column(j));
+        let d = differences(&x, &y)?;
+        let mut row = PairTest {
+            a: c[i].clone(),
+            b: c[j].clone(),
+            n,
+            t: None,
+            df: None,
+            p: None,
+            p_holm: None,
+            wilcoxon_w: None,
+            wilcoxon_p: None,
+            wilcoxon_p_holm: None,
+            wilcoxon_method: None,
+            dz: None,
+            dz_ci: None,
+            mean_diff: super::design::compensated_mean(&d),
+            mean_diff_ci: None,
+            undefined: Vec::new(),
+        };
+        match one_sample_t(&d, 0.0) {
+            Ok(t) => {
+                let half = q * t.sd / (n as f64).sqrt();
+                row.t = Some(t.t);
+                row.df = Some(t.df);
+                row.p = Some(t.p);
+                row.dz = Some(t.cohen_d);
+                row.dz_ci = Some(super::effect::dz_ci(t.cohen_d, n));
+                row.mean_diff_ci = Some([t.mean - half, t.mean + half]);
+            }
+            Err(e) => row.undefined.push(format!("t-test: {e}")),
+        }
+        match wilcoxon_signed_rank_diffs(&d, opts) {
+            Ok(w) => {
+                row.wilcoxon_w = Some(w.statistic);
+                row.wilcoxon_p = Some(w.p);
+                row.wilcoxon_method = Some(w.method);
+            }
+            Err(e) => row.undefined.push(format!("Wilcoxon: {e}")),
+        }
+        rows.push(row);
+    }
+    let pt: Vec<Option<f64>> = rows.iter().map(|r| r.p).collect();
+    let pw: Vec<Option<f64>> = rows.iter().map(|r| r.wilcoxon_p).collect();
+    for ((r, a), b) in rows
+        .iter_mut()
+        .zip(holm_defined(&pt)?)
+        .zip(holm_defined(&pw)?)
+    {
+        r.p_holm = a;
+        r.wilcoxon_p_holm = b;
+    }
+    Ok(PairwiseTests { pairs: rows })
+}
+
+/// t₀.₉₇₅ of Student's t with `df` degrees of freedom.
+fn t_quantile_975(df: f64) -> Result<f64> {
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    let t = StudentsT::new(0.0, 1.0, df).map_err(|e| StatsError::Numerical {
+        what: "t distribution",
+        detail: e.to_string(),
+    })?;
+    // statrs inverts numerically; one Newton step on the accurate tail
+    // function polishes the root: f(q) = p(|T| > q) − 0.05.
+    let mut q = t.inverse_cdf(0.975);
+    for _ in 0..3 {
+        let f = t_two_sided(q, df)? - 0.05;
+        let dens = 2.0 * statrs::distribution::Continuous::pdf(&t, q);
+        if dens > 0.0 {
+            q += f / dens;
+        }
+    }
+    Ok(q)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -325,6 +325,18 @@ impl ResultsPage {
             d.n_test_trials(),
             d.rows.len()
         ));
+        let package = d.dir.join(kilotouch_study::export::DATAPACKAGE_FILE);
+        ui.label(if package.is_file() {
+            format!(
+                "data dictionary: {} (Frictionless data package: every column's type, unit and \
+                 missing-value code)",
+                package.display()
+            )
+        } else {
+            "no datapackage.json yet: Regenerate summaries writes it with cells_long.csv and \
+             cells_wide.csv"
+                .to_owned()
+        });
         let metrics = d.metrics();
         let mut metric = self.view.as_ref().map_or(self.metric, |v| v.metric);
         let before = metric;
@@ -573,6 +585,11 @@ fn stats_ui(ui: &mut egui::Ui, t: &StatsTable) {
                 t.dropped_participants.join(", ")
             )
         }
+    ));
+    ui.label(format!(
+        "rows of trials.csv: {} — the analysis uses {} (the rule of `kilotouch stats`)",
+        t.rows.sentence(),
+        t.row_rule.describe()
     ));
     egui::Grid::new("res-stats")
         .striped(true)

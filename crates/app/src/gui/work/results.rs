@@ -17,7 +17,11 @@
 //!   ANOVA (Greenhouse–Geisser, Huynh–Feldt), Friedman (Kendall's W),
 //!   one-way ANOVA (the paper's test, conditions as independent groups of
 //!   cell means) and post-hoc paired t and Wilcoxon tests with Holm's
-//!   correction. Within-subject tests drop participants missing a condition
+//!   correction (a pair where a test is undefined, e.g. zero variance of
+//!   the differences, keeps its row with the reason; the others are
+//!   shown). The rows come from the study crate's row rule
+//!   ([`kilotouch_study::stats::rows`], the one `kilotouch stats` uses) and
+//!   the table says how many were used and excluded. Within-subject tests drop participants missing a condition
 //!   (listwise deletion, reported); each test's failure (too few
 //!   participants, zero variance…) is shown in its row, the others still
 //!   run.
@@ -27,7 +31,7 @@
 //!   [`kilotouch_study::export::regenerate_summaries`].
 
 use kilotouch_study::export::fsutil::write_atomic;
-use kilotouch_study::export::summary::trial_triples;
+use kilotouch_study::export::summary::trial_selection;
 use kilotouch_study::export::{
     Metric, Summary, TRIALS_FILE, TornTail, TrialRow, read_trials, summarize,
 };
@@ -35,7 +39,8 @@ use kilotouch_study::protocol::Condition;
 use kilotouch_study::rawsig::{read_npy, read_sidecar, sidecar_path};
 use kilotouch_study::seeds::Phase;
 use kilotouch_study::stats::{
-    self, Design, Friedman, OneWayAnova, PairwiseComparison, RmAnova, WilcoxonOptions,
+    self, Design, Friedman, OneWayAnova, PairwiseTests, RmAnova, RowCounts, RowRule,
+    WilcoxonOptions,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -138,16 +143,18 @@ pub struct StatsTable {
     /// Participants dropped from the within-subject tests (missing a
     /// condition).
     pub dropped_participants: Vec<String>,
+    /// Rows of `trials.csv` used and excluded (by reason) for this metric.
+    pub rows: RowCounts,
+    /// The row rule applied.
+    pub row_rule: RowRule,
     /// Repeated-measures ANOVA.
     pub rm_anova: Option<RmAnova>,
     /// Friedman's test.
     pub friedman: Option<Friedman>,
     /// One-way ANOVA on the cell means.
     pub oneway: Option<OneWayAnova>,
-    /// Paired t-tests, Holm-corrected.
-    pub pairwise_t: Option<Vec<PairwiseComparison>>,
-    /// Wilcoxon signed-rank tests, Holm-corrected.
-    pub pairwise_wilcoxon: Option<Vec<PairwiseComparison>>,
+    /// Paired t and Wilcoxon signed-rank tests per pair, Holm-corrected.
+    pub pairwise: Option<PairwiseTests>,
     /// Why a test has no result.
     pub errors: Vec<(String, String)>,
 }
@@ -183,6 +190,10 @@ pub struct StatsRow {
     pub effect: Option<f64>,
     /// Remarks (ε values, errors).
     pub note: String,
+}
+
+fn fmt_ci(c: Option<[f64; 2]>) -> String {
+    c.map_or("n/a".into(), |[lo, hi]| format!("[{lo:.3}, {hi:.3}]"))
 }
 
 fn row(metric: &str, test: &str) -> StatsRow {
@@ -243,7 +254,9 @@ impl StatsTable {
             r.effect_name = "partial η²".into();
             r.effect = Some(a.np2);
             r.note = format!(
-                "ε_GG = {:.4}, ε_HF = {:.4}, Mauchly p = {}, generalised η² = {:.4}",
+                "partial η² 95% CI {}; ε_GG = {:.4}, ε_HF = {:.4}, Mauchly p = {}, \
+                 generalised η² = {:.4}",
+                fmt_ci(a.np2_ci),
                 a.eps_gg,
                 a.eps_hf,
                 a.mauchly_p.map_or("n/a".into(), |p| format!("{p:.4}")),
@@ -255,12 +268,14 @@ impl StatsTable {
             let mut r = omnibus(m, "friedman", "χ²", f.chi2, (f.df, None), f.p);
             r.effect_name = "Kendall's W".into();
             r.effect = Some(f.kendall_w);
+            r.note = format!("Kendall's W 95% CI {} (bootstrap)", fmt_ci(f.kendall_w_ci));
             r
         });
         let one = self.oneway.as_ref().map(|o| {
             let mut r = omnibus(m, "oneway_anova", "F", o.f, (o.df1, Some(o.df2)), o.p);
             r.effect_name = "η²".into();
             r.effect = Some(o.eta2);
+            r.note = format!("η² 95% CI {}", fmt_ci(o.eta2_ci));
             r
         });
         for (name, r) in [("rm_anova", rm), ("friedman", fr), ("oneway_anova", one)] {
@@ -270,39 +285,61 @@ impl StatsTable {
                 r
             }));
         }
-        for (name, table) in [
-            ("paired_t", &self.pairwise_t),
-            ("wilcoxon", &self.pairwise_wilcoxon),
-        ] {
-            match table {
-                Some(rows) => {
-                    for c in rows {
+        match &self.pairwise {
+            Some(table) => {
+                for name in ["paired_t", "wilcoxon"] {
+                    for c in &table.pairs {
                         let mut r = row(m, name);
                         r.comparison = format!("{} vs {}", c.a, c.b);
-                        r.statistic_name = if c.test == "paired_t" { "t" } else { "T" }.into();
-                        r.statistic = Some(c.statistic);
-                        r.df1 = c.df;
-                        r.p = Some(c.p);
-                        r.p_holm = Some(c.p_holm);
-                        r.effect_name = if c.test == "paired_t" {
-                            "mean difference"
+                        if name == "paired_t" {
+                            r.statistic_name = "t".into();
+                            r.statistic = c.t;
+                            r.df1 = c.df;
+                            r.p = c.p;
+                            r.p_holm = c.p_holm;
+                            r.effect_name = "d_z".into();
+                            r.effect = c.dz;
+                            r.note = match (c.dz_ci, c.mean_diff_ci) {
+                                (Some([a, b]), Some([lo, hi])) => format!(
+                                    "d_z 95% CI [{a:.3}, {b:.3}]; mean difference {:.4} \
+                                     [{lo:.4}, {hi:.4}]",
+                                    c.mean_diff
+                                ),
+                                _ => undefined_note(&c.undefined, "t-test"),
+                            };
                         } else {
-                            "median difference"
+                            r.statistic_name = "W".into();
+                            r.statistic = c.wilcoxon_w;
+                            r.p = c.wilcoxon_p;
+                            r.p_holm = c.wilcoxon_p_holm;
+                            r.effect_name = "mean difference".into();
+                            r.effect = Some(c.mean_diff);
+                            if c.wilcoxon_p.is_none() {
+                                r.note = undefined_note(&c.undefined, "Wilcoxon");
+                            }
                         }
-                        .into();
-                        r.effect = Some(c.estimate);
                         out.push(r);
                     }
                 }
-                None => {
+            }
+            None => {
+                for name in ["paired_t", "wilcoxon"] {
                     let mut r = row(m, name);
-                    r.note = err(name);
+                    r.note = err("pairwise");
                     out.push(r);
                 }
             }
         }
         out
     }
+}
+
+/// The reason a pair's `test` is undefined ("undefined: …").
+fn undefined_note(reasons: &[String], test: &str) -> String {
+    reasons
+        .iter()
+        .find(|r| r.starts_with(test))
+        .map_or_else(|| "undefined".to_owned(), |r| format!("undefined: {r}"))
 }
 
 /// Conditions present in `design`, in V, P, D order (others after, as
@@ -363,21 +400,38 @@ impl StudyResults {
     /// Long-format (participant, condition, value) triples of `metric`:
     /// the successful test trials' values, or one count per cell.
     pub fn triples(&self, metric: ResultMetric) -> Vec<(String, String, f64)> {
+        self.selection(metric).0
+    }
+
+    /// [`StudyResults::triples`] and the rows used / excluded: the study
+    /// crate's row rule ([`RowRule::default`]: successful test trials) for a
+    /// column; for the success count, every test trial counts (practice
+    /// excluded).
+    pub fn selection(&self, metric: ResultMetric) -> (Vec<(String, String, f64)>, RowCounts) {
         match metric {
-            ResultMetric::Column(m) => trial_triples(&self.rows, m),
-            ResultMetric::SuccessCount => self
-                .summary
-                .cells
-                .iter()
-                .map(|c| {
-                    (
-                        c.participant.clone(),
-                        c.condition.code().to_owned(),
-                        f64::from(c.n_success),
-                    )
-                })
-                .collect(),
+            ResultMetric::Column(m) => trial_selection(&self.rows, m, RowRule::default()),
+            ResultMetric::SuccessCount => {
+                let mut counts = RowCounts::default();
+                for r in &self.rows {
+                    counts.record(RowRule::default().exclusion(Some(r.phase), None, true));
+                }
+                (self.success_counts(), counts)
+            }
         }
+    }
+
+    fn success_counts(&self) -> Vec<(String, String, f64)> {
+        self.summary
+            .cells
+            .iter()
+            .map(|c| {
+                (
+                    c.participant.clone(),
+                    c.condition.code().to_owned(),
+                    f64::from(c.n_success),
+                )
+            })
+            .collect()
     }
 
     fn design(&self, metric: ResultMetric) -> Result<Design, String> {
@@ -443,23 +497,18 @@ impl StudyResults {
             conditions: Vec::new(),
             participants: Vec::new(),
             dropped_participants: Vec::new(),
+            rows: self.selection(metric).1,
+            row_rule: RowRule::default(),
             rm_anova: None,
             friedman: None,
             oneway: None,
-            pairwise_t: None,
-            pairwise_wilcoxon: None,
+            pairwise: None,
             errors: Vec::new(),
         };
         let design = match self.design(metric) {
             Ok(d) => d,
             Err(e) => {
-                for name in [
-                    "rm_anova",
-                    "friedman",
-                    "oneway_anova",
-                    "paired_t",
-                    "wilcoxon",
-                ] {
+                for name in ["rm_anova", "friedman", "oneway_anova", "pairwise"] {
                     t.errors.push((name.into(), e.clone()));
                 }
                 return t;
@@ -488,17 +537,13 @@ impl StudyResults {
                     Ok(f) => t.friedman = Some(f),
                     Err(e) => t.errors.push(("friedman".into(), e.to_string())),
                 }
-                match stats::pairwise_t(&m) {
-                    Ok(p) => t.pairwise_t = Some(p),
-                    Err(e) => t.errors.push(("paired_t".into(), e.to_string())),
-                }
-                match stats::pairwise_wilcoxon(&m, WilcoxonOptions::default()) {
-                    Ok(p) => t.pairwise_wilcoxon = Some(p),
-                    Err(e) => t.errors.push(("wilcoxon".into(), e.to_string())),
+                match stats::pairwise_tests(&m, WilcoxonOptions::default()) {
+                    Ok(p) => t.pairwise = Some(p),
+                    Err(e) => t.errors.push(("pairwise".into(), e.to_string())),
                 }
             }
             Err(e) => {
-                for name in ["rm_anova", "friedman", "paired_t", "wilcoxon"] {
+                for name in ["rm_anova", "friedman", "pairwise"] {
                     t.errors.push((name.into(), e.clone()));
                 }
             }
