@@ -10,4 +10,5 @@ pub mod rig;
 pub mod sim;
 pub mod stats;
 pub mod study;
+pub mod study_power;
 pub mod tfest;

@@ -10,5 +10,6 @@ pub mod csvio;
 pub mod engine;
 pub mod gui;
 pub mod output;
+pub mod power_plot;
 pub mod session;
 pub mod tweezer_sim;
