@@ -50,7 +50,10 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
     let x_hi = f64::from(n_max) + 1.0;
     let m = &r.model;
     let title = if r.test == "paired_t" {
-        format!("{}: {} − {}, effect {:.3}", m.dv, m.conditions[0], m.conditions[1], r.effect)
+        format!(
+            "{}: {} − {}, effect {:.3}",
+            m.dv, m.conditions[0], m.conditions[1], r.effect
+        )
     } else {
         format!("{}: RM-ANOVA (GG), range {:.3}", m.dv, r.effect)
     };
@@ -86,7 +89,9 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
         ))
         .map_err(err)?
         .label(format!("α = {}", r.alpha))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], GREY.mix(0.6).stroke_width(1)));
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 24, y)], GREY.mix(0.6).stroke_width(1))
+        });
     chart
         .draw_series(r.points.iter().map(|p| {
             let x = f64::from(p.n);
@@ -99,7 +104,10 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
             CURVE.stroke_width(3),
         ))
         .map_err(err)?
-        .label(format!("simulated power ({} studies per n, 95 % CI)", r.replications))
+        .label(format!(
+            "simulated power ({} studies per n, 95 % CI)",
+            r.replications
+        ))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], CURVE.stroke_width(3)));
     chart
         .draw_series(
@@ -113,7 +121,10 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
     {
         let x = f64::from(n);
         chart
-            .draw_series(LineSeries::new([(x, 0.0), (x, p.power)], HIT.stroke_width(2)))
+            .draw_series(LineSeries::new(
+                [(x, 0.0), (x, p.power)],
+                HIT.stroke_width(2),
+            ))
             .map_err(err)?
             .label(format!("n for target: {n}"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], HIT.stroke_width(2)));
@@ -152,6 +163,7 @@ pub fn save(r: &PowerReport, path: &Path) -> Result<(), String> {
             let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
             draw(r, &root)?;
         }
-        image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8).map_err(|e| e.to_string())
+        image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8)
+            .map_err(|e| e.to_string())
     }
 }

@@ -9,7 +9,10 @@ use std::process::{Command, Output};
 const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
 
 fn run(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().expect("run kilotouch")
+    Command::new(BIN)
+        .args(args)
+        .output()
+        .expect("run kilotouch")
 }
 
 /// A pilot: 6 simulated participants × V/P/D × 3 test trials, no raw files.
@@ -62,10 +65,16 @@ fn power_from_a_simulated_pilot() {
     let pilot = pilot(tmp.path());
 
     // JSON: the contract's keys, sane values.
-    let o = run(&power_args(&pilot, &["--contrast", "V-P", "--json", "--threads", "1"]));
+    let o = run(&power_args(
+        &pilot,
+        &["--contrast", "V-P", "--json", "--threads", "1"],
+    ));
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(stderr.contains("noisy") && stderr.contains("95 % CI"), "{stderr}");
+    assert!(
+        stderr.contains("noisy") && stderr.contains("95 % CI"),
+        "{stderr}"
+    );
     let v: Value = serde_json::from_slice(&o.stdout).expect("json");
     let points = v["points"].as_array().expect("points");
     assert_eq!(points.len(), 3);
@@ -83,7 +92,10 @@ fn power_from_a_simulated_pilot() {
     assert_eq!(v["trials_per_condition"].as_u64(), Some(3));
 
     // Same seed, two threads: the same bytes.
-    let o2 = run(&power_args(&pilot, &["--contrast", "V-P", "--json", "--threads", "2"]));
+    let o2 = run(&power_args(
+        &pilot,
+        &["--contrast", "V-P", "--json", "--threads", "2"],
+    ));
     assert!(o2.status.success());
     assert_eq!(o.stdout, o2.stdout);
 
@@ -97,8 +109,14 @@ fn power_from_a_simulated_pilot() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table = String::from_utf8_lossy(&o.stdout);
     assert!(table.contains("repeated-measures ANOVA"), "{table}");
-    assert!(table.contains("95 % CI") && table.contains("noisy"), "{table}");
-    assert!(table.lines().any(|l| l.trim_start().starts_with("12 ")), "{table}");
+    assert!(
+        table.contains("95 % CI") && table.contains("noisy"),
+        "{table}"
+    );
+    assert!(
+        table.lines().any(|l| l.trim_start().starts_with("12 ")),
+        "{table}"
+    );
     let bytes = std::fs::read(&png).expect("png");
     assert!(bytes.starts_with(b"\x89PNG") && bytes.len() > 10_000);
     let o = run(&power_args(
@@ -121,27 +139,72 @@ fn power_from_a_simulated_pilot() {
 fn power_errors_name_the_problem() {
     let tmp = tempfile::tempdir().expect("tmp");
     let csv = tmp.path().join("p.csv");
-    std::fs::write(&csv, "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,1.5\ns2,B,x\n")
-        .expect("write");
+    std::fs::write(
+        &csv,
+        "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,1.5\ns2,B,x\n",
+    )
+    .expect("write");
     let path = csv.to_str().expect("utf-8");
     let o = run(&[
-        "study", "power", "--pilot", path, "--dv", "score", "--contrast", "A-B", "--n", "4",
-        "--replications", "10", "--seed", "1",
+        "study",
+        "power",
+        "--pilot",
+        path,
+        "--dv",
+        "score",
+        "--contrast",
+        "A-B",
+        "--n",
+        "4",
+        "--replications",
+        "10",
+        "--seed",
+        "1",
     ]);
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("line 5") && e.contains("`x`"), "{e}");
     let o = run(&[
-        "study", "power", "--pilot", path, "--dv", "nope", "--contrast", "A-B", "--n", "4",
-        "--replications", "10", "--seed", "1",
+        "study",
+        "power",
+        "--pilot",
+        path,
+        "--dv",
+        "nope",
+        "--contrast",
+        "A-B",
+        "--n",
+        "4",
+        "--replications",
+        "10",
+        "--seed",
+        "1",
     ]);
     let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("`nope`") && e.contains("score"), "{e}");
-    std::fs::write(&csv, "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,1.5\ns2,B,2.1\n")
-        .expect("write");
+    assert!(
+        !o.status.success() && e.contains("`nope`") && e.contains("score"),
+        "{e}"
+    );
+    std::fs::write(
+        &csv,
+        "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,1.5\ns2,B,2.1\n",
+    )
+    .expect("write");
     let o = run(&[
-        "study", "power", "--pilot", path, "--dv", "score", "--contrast", "A-C", "--n", "4",
-        "--replications", "10", "--seed", "1",
+        "study",
+        "power",
+        "--pilot",
+        path,
+        "--dv",
+        "score",
+        "--contrast",
+        "A-C",
+        "--n",
+        "4",
+        "--replications",
+        "10",
+        "--seed",
+        "1",
     ]);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("A-C"), "{e}");

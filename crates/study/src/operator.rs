@@ -196,19 +196,7 @@ impl OperatorParams {
     /// seed, participant) only — never from the condition or the trial — so
     /// every trial of a participant uses the same person.
     pub fn for_participant(study_seed: u64, index: u32) -> Self {
-        // TEMP-EXPERIMENT
-        let mut sp = TraitSpread::default();
-        if let Ok(v) = std::env::var("KT_SPREAD") {
-            let f: Vec<f64> = v.split(',').filter_map(|x| x.parse().ok()).collect();
-            if f.len() == 5 {
-                sp.motor_noise_ln_sd = f[0];
-                sp.force_goal_ln_sd = f[1];
-                sp.force_gain_ln_sd = f[2];
-                sp.force_threshold_ln_sd = f[3];
-                sp.vibration_threshold_ln_sd = f[4];
-            }
-        }
-        Self::for_participant_with(study_seed, index, &sp)
+        Self::for_participant_with(study_seed, index, &TraitSpread::default())
     }
 
     /// [`OperatorParams::for_participant`] with a given spread.

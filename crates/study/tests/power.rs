@@ -55,7 +55,11 @@ fn pilot(
                 let ok = success(i, j, t);
                 let value = ok.then(|| {
                     let c = resid * (0.6 + 0.1 * f64::from(kept / 2));
-                    let v = if kept % 2 == 0 { means[j] + c } else { means[j] - c };
+                    let v = if kept % 2 == 0 {
+                        means[j] + c
+                    } else {
+                        means[j] - c
+                    };
                     kept += 1;
                     v
                 });
@@ -85,7 +89,9 @@ fn paired_pilot() -> PilotTable {
     let n = 12;
     let d = exact_sample(n, 0.5, 1.0, 0.0);
     let u = exact_sample(n, 0.0, 3.0, 1.1);
-    let means: Vec<Vec<f64>> = (0..n).map(|i| vec![10.0 + u[i] + d[i], 10.0 + u[i]]).collect();
+    let means: Vec<Vec<f64>> = (0..n)
+        .map(|i| vec![10.0 + u[i] + d[i], 10.0 + u[i]])
+        .collect();
     pilot(&["A", "B"], &means, 10, 0.5, |_, _, _| true)
 }
 
@@ -130,7 +136,11 @@ fn paired_contrast_matches_the_noncentral_t_closed_form() {
     // The pilot's own estimates, and the model reproduces them at K = 10.
     assert!((rep.pilot_effect.estimate - 0.5).abs() < 1e-9);
     assert!((rep.pilot_effect.sd_diff - 1.0).abs() < 1e-9);
-    assert!((rep.sd_diff_model - 1.0).abs() < 1e-9, "{}", rep.sd_diff_model);
+    assert!(
+        (rep.sd_diff_model - 1.0).abs() < 1e-9,
+        "{}",
+        rep.sd_diff_model
+    );
     assert!((rep.effect - 0.5).abs() < 1e-9);
     assert!(!rep.model.clipped);
     assert_eq!(rep.trials_per_condition, 10);
@@ -237,7 +247,10 @@ fn power_is_monotone_in_n_and_in_the_effect() {
             let mut o = opts(test.clone(), &[8], 2000, 4);
             o.effect = EffectSpec::Scale(scale);
             let p = run(&table, &o).points[0].power;
-            assert!(p > last, "{test:?}: power {p} at scale {scale} after {last}");
+            assert!(
+                p > last,
+                "{test:?}: power {p} at scale {scale} after {last}"
+            );
             last = p;
         }
     }
@@ -305,6 +318,8 @@ fn bad_options_and_pilots_are_refused_with_clear_errors() {
     assert!(e.to_string().contains("--n 1"), "{e}");
     let e = power(&table, &opts(contrast(), &[4], 0, 1), &never_cancel).expect_err("0 reps");
     assert!(e.to_string().contains("--replications"), "{e}");
-    let cancelled = power(&table, &opts(contrast(), &[4, 8], 100_000, 1), &|_, _| false);
+    let cancelled = power(&table, &opts(contrast(), &[4, 8], 100_000, 1), &|_, _| {
+        false
+    });
     assert!(cancelled.is_err());
 }

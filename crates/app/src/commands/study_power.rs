@@ -167,10 +167,7 @@ pub fn human(r: &PowerReport) -> String {
     let m = &r.model;
     let mut s = String::new();
     let what = match r.test {
-        "paired_t" => format!(
-            "paired t-test of {} − {}",
-            m.conditions[0], m.conditions[1]
-        ),
+        "paired_t" => format!("paired t-test of {} − {}", m.conditions[0], m.conditions[1]),
         _ => format!(
             "repeated-measures ANOVA (Greenhouse–Geisser) over {}",
             m.conditions.join(", ")

@@ -40,11 +40,15 @@ pub enum PowerError {
         available: Vec<String>,
     },
     /// A malformed `--contrast`.
-    #[error("--contrast `{0}`: expected two condition labels joined by `-`, e.g. `P-D` (conditions in the pilot: {1})")]
+    #[error(
+        "--contrast `{0}`: expected two condition labels joined by `-`, e.g. `P-D` (conditions in the pilot: {1})"
+    )]
     BadContrast(String, String),
     /// Too few complete participants to estimate the between-participant
     /// variability.
-    #[error("the pilot has {got} participant(s) with every analysed condition; at least 2 are needed to estimate how participants vary")]
+    #[error(
+        "the pilot has {got} participant(s) with every analysed condition; at least 2 are needed to estimate how participants vary"
+    )]
     TooFewParticipants {
         /// Complete participants.
         got: usize,
@@ -53,7 +57,9 @@ pub enum PowerError {
     #[error("{0}")]
     InvalidOption(String),
     /// The pilot's means show no difference to scale.
-    #[error("the pilot's condition means are all equal, so there is no effect to scale; give the assumed effect with --effect")]
+    #[error(
+        "the pilot's condition means are all equal, so there is no effect to scale; give the assumed effect with --effect"
+    )]
     NoPilotEffect,
     /// A statistics error on the pilot.
     #[error(transparent)]

@@ -23,7 +23,9 @@ use statrs::distribution::{Beta, ContinuousCDF, StudentsT};
 
 pub use error::PowerError;
 pub use model::{PilotModel, SuccessModel};
-pub use pilot::{PilotRow, PilotRows, PilotTable, TrialCount, pilot_file, pilot_rows, read_pilot, trial_counts};
+pub use pilot::{
+    PilotRow, PilotRows, PilotTable, TrialCount, pilot_file, pilot_rows, read_pilot, trial_counts,
+};
 pub use simulate::{Analysis, Outcome, Scenario, Tally};
 
 /// Largest number of sample sizes in one run.
@@ -125,7 +127,9 @@ impl PowerOptions {
         if let Some(k) = self.trials
             && !(1..=MAX_TRIALS).contains(&k)
         {
-            return bad(format!("--trials-per-condition must be in 1..={MAX_TRIALS}"));
+            return bad(format!(
+                "--trials-per-condition must be in 1..={MAX_TRIALS}"
+            ));
         }
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return bad(format!("--alpha {} must be in (0, 1)", self.alpha));
@@ -257,7 +261,10 @@ pub fn parse_contrast(spec: &str, available: &[String]) -> Result<(String, Strin
         .collect();
     match found.as_slice() {
         [one] => Ok(one.clone()),
-        _ => Err(PowerError::BadContrast(spec.to_owned(), available.join(", "))),
+        _ => Err(PowerError::BadContrast(
+            spec.to_owned(),
+            available.join(", "),
+        )),
     }
 }
 
@@ -272,9 +279,16 @@ pub fn conditions_of(table: &PilotTable) -> Vec<String> {
     out
 }
 
-fn pilot_effect(model: &PilotModel, rows: &PilotRows, a: usize, b: usize) -> Result<PilotEffect, PowerError> {
+fn pilot_effect(
+    model: &PilotModel,
+    rows: &PilotRows,
+    a: usize,
+    b: usize,
+) -> Result<PilotEffect, PowerError> {
     let m = rows.design.cell_matrix()?;
-    let d: Vec<f64> = (0..m.n_subjects()).map(|i| m.row(i)[a] - m.row(i)[b]).collect();
+    let d: Vec<f64> = (0..m.n_subjects())
+        .map(|i| m.row(i)[a] - m.row(i)[b])
+        .collect();
     let n = d.len();
     let mean = d.iter().sum::<f64>() / n as f64;
     let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n as f64 - 1.0)).sqrt();
@@ -342,7 +356,13 @@ pub fn power(
         Analysis::PairedT => (0, 1),
         Analysis::RmGg => {
             let by = |f: fn(f64, f64) -> bool| {
-                (0..k).fold(0, |best, j| if f(pilot_means[j], pilot_means[best]) { j } else { best })
+                (0..k).fold(0, |best, j| {
+                    if f(pilot_means[j], pilot_means[best]) {
+                        j
+                    } else {
+                        best
+                    }
+                })
             };
             (by(|x, y| x > y), by(|x, y| x < y))
         }
@@ -371,7 +391,10 @@ pub fn power(
                     x / effect_now
                 }
             };
-            pilot_means.iter().map(|m| grand + f * (m - grand)).collect()
+            pilot_means
+                .iter()
+                .map(|m| grand + f * (m - grand))
+                .collect()
         }
     };
     let effect = means[ia] - means[ib];
@@ -395,7 +418,14 @@ pub fn power(
         alpha: opts.alpha,
     };
     let tallies = scenario
-        .run_grid(&opts.ns, trials, opts.replications, opts.seed, opts.threads, progress)
+        .run_grid(
+            &opts.ns,
+            trials,
+            opts.replications,
+            opts.seed,
+            opts.threads,
+            progress,
+        )
         .ok_or_else(|| PowerError::InvalidOption("cancelled".into()))?;
     let points: Vec<PowerPoint> = opts
         .ns
@@ -461,9 +491,18 @@ mod tests {
 
     #[test]
     fn contrast_parsing_handles_dashes_in_labels() {
-        let av: Vec<String> = ["V", "P", "D", "P-2"].iter().map(|s| (*s).to_owned()).collect();
-        assert_eq!(parse_contrast("P-D", &av).ok(), Some(("P".into(), "D".into())));
-        assert_eq!(parse_contrast("P-2-D", &av).ok(), Some(("P-2".into(), "D".into())));
+        let av: Vec<String> = ["V", "P", "D", "P-2"]
+            .iter()
+            .map(|s| (*s).to_owned())
+            .collect();
+        assert_eq!(
+            parse_contrast("P-D", &av).ok(),
+            Some(("P".into(), "D".into()))
+        );
+        assert_eq!(
+            parse_contrast("P-2-D", &av).ok(),
+            Some(("P-2".into(), "D".into()))
+        );
         assert!(parse_contrast("P-X", &av).is_err());
         assert!(parse_contrast("P-P", &av).is_err());
     }

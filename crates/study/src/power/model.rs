@@ -168,7 +168,12 @@ impl PilotModel {
     /// # Errors
     /// [`PowerError::TooFewParticipants`] with fewer than 2 complete
     /// participants; statistics errors of the cell matrix.
-    pub fn fit(dv: &str, rows: &PilotRows, counts: &[Vec<TrialCount>], dv_is_success: bool) -> Result<Self, PowerError> {
+    pub fn fit(
+        dv: &str,
+        rows: &PilotRows,
+        counts: &[Vec<TrialCount>],
+        dv_is_success: bool,
+    ) -> Result<Self, PowerError> {
         let design = &rows.design;
         let m = design.cell_matrix()?;
         let (n, k) = (m.n_subjects(), m.n_conditions());
@@ -222,7 +227,10 @@ impl PilotModel {
         }
         let eig = SymmetricEigen::new(s);
         let lmax = eig.eigenvalues.iter().fold(0.0_f64, |a, l| a.max(l.abs()));
-        let clipped = eig.eigenvalues.iter().any(|&l| l < -1e-12 * lmax.max(f64::MIN_POSITIVE));
+        let clipped = eig
+            .eigenvalues
+            .iter()
+            .any(|&l| l < -1e-12 * lmax.max(f64::MIN_POSITIVE));
         let sqrt_l = DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0).sqrt()));
         let factor = &eig.eigenvectors * sqrt_l;
         let cov = &factor * factor.transpose();
@@ -251,7 +259,9 @@ impl PilotModel {
             means,
             cov_participant: (0..k * k).map(|q| cov[(q / k, q % k)]).collect(),
             sd_participant: sd_u2.max(0.0).sqrt(),
-            sd_participant_condition: (0..k).map(|j| (cov[(j, j)] - sd_u2).max(0.0).sqrt()).collect(),
+            sd_participant_condition: (0..k)
+                .map(|j| (cov[(j, j)] - sd_u2).max(0.0).sqrt())
+                .collect(),
             sd_residual: var_e.iter().map(|v| v.sqrt()).collect(),
             trials_per_cell: 1.0 / total_cells,
             planned_trials,
@@ -299,12 +309,20 @@ mod tests {
 
     #[test]
     fn beta_binomial_icc_is_zero_for_equal_rates_and_large_for_split_rates() {
-        let same: Vec<TrialCount> = (0..8).map(|_| TrialCount { trials: 10, successes: 7 }).collect();
+        let same: Vec<TrialCount> = (0..8)
+            .map(|_| TrialCount {
+                trials: 10,
+                successes: 7,
+            })
+            .collect();
         let s = SuccessModel::fit(&same);
         assert!((s.p - 0.7).abs() < 1e-12);
         assert_eq!(s.icc, 0.0);
         let split: Vec<TrialCount> = (0..8)
-            .map(|i| TrialCount { trials: 10, successes: if i % 2 == 0 { 10 } else { 4 } })
+            .map(|i| TrialCount {
+                trials: 10,
+                successes: if i % 2 == 0 { 10 } else { 4 },
+            })
             .collect();
         let s = SuccessModel::fit(&split);
         assert!((s.p - 0.7).abs() < 1e-12);

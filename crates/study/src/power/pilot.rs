@@ -82,7 +82,12 @@ fn parse_success(cell: &str) -> Option<Option<bool>> {
 /// [`PowerError::Read`] for an unreadable file or a malformed cell (naming
 /// the line and column), [`PowerError::MissingColumn`] naming the columns
 /// the file has.
-pub fn read_pilot(path: &Path, dv: &str, within: &str, subject: &str) -> Result<PilotTable, PowerError> {
+pub fn read_pilot(
+    path: &Path,
+    dv: &str,
+    within: &str,
+    subject: &str,
+) -> Result<PilotTable, PowerError> {
     let file = pilot_file(path);
     let read_err = |line: Option<u64>, detail: String| PowerError::Read {
         path: file.clone(),
@@ -168,7 +173,11 @@ pub fn read_pilot(path: &Path, dv: &str, within: &str, subject: &str) -> Result<
         if subject.is_empty() || condition.is_empty() {
             return Err(read_err(
                 Some(line),
-                format!("empty `{}` or `{}` cell", headers[i_subject].trim(), headers[i_within].trim()),
+                format!(
+                    "empty `{}` or `{}` cell",
+                    headers[i_subject].trim(),
+                    headers[i_within].trim()
+                ),
             ));
         }
         rows.push(PilotRow {

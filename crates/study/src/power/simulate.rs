@@ -116,8 +116,7 @@ impl Scenario<'_> {
             }
             let mut complete = true;
             for j in 0..k {
-                let b = self.means[j]
-                    + (0..k).map(|q| m.factor[j * k + q] * z[q]).sum::<f64>();
+                let b = self.means[j] + (0..k).map(|q| m.factor[j * k + q] * z[q]).sum::<f64>();
                 let p = match &betas[j] {
                     Some(beta) => beta.sample(rng),
                     None => self.success[j].p,

@@ -10,9 +10,7 @@ use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use egui_plot::{HLine, Legend, Line, Plot, PlotPoints, Points};
-use kilotouch_study::power::{
-    EffectSpec, PowerOptions, PowerReport, PowerTest, power_from_path,
-};
+use kilotouch_study::power::{EffectSpec, PowerOptions, PowerReport, PowerTest, power_from_path};
 
 use crate::commands::study_power::{parse_ns, pilot_warning};
 use crate::gui::charts::FAIL_COLOR;
@@ -193,10 +191,22 @@ fn curve(ui: &mut egui::Ui, r: &PowerReport) {
                 );
             }
             let pts: Vec<[f64; 2]> = r.points.iter().map(|q| [f64::from(q.n), q.power]).collect();
-            p.line(Line::new("power (95 % CI)", PlotPoints::new(pts.clone())).color(color).width(2.5));
-            p.points(Points::new("", PlotPoints::new(pts)).color(color).radius(3.5));
-            p.hline(HLine::new(format!("target {}", r.target), r.target).color(egui::Color32::GRAY));
-            p.hline(HLine::new(format!("α = {}", r.alpha), r.alpha).color(egui::Color32::DARK_GRAY));
+            p.line(
+                Line::new("power (95 % CI)", PlotPoints::new(pts.clone()))
+                    .color(color)
+                    .width(2.5),
+            );
+            p.points(
+                Points::new("", PlotPoints::new(pts))
+                    .color(color)
+                    .radius(3.5),
+            );
+            p.hline(
+                HLine::new(format!("target {}", r.target), r.target).color(egui::Color32::GRAY),
+            );
+            p.hline(
+                HLine::new(format!("α = {}", r.alpha), r.alpha).color(egui::Color32::DARK_GRAY),
+            );
         });
 }
 
@@ -204,8 +214,10 @@ fn curve(ui: &mut egui::Ui, r: &PowerReport) {
 /// once per frame from the Results page).
 pub fn plan_panel(ui: &mut egui::Ui, dir: &Path) {
     let id = ui.make_persistent_id("plan-next-study");
-    let state: Arc<Mutex<PlanState>> =
-        ui.data_mut(|d| d.get_temp_mut_or_default::<Arc<Mutex<PlanState>>>(id).clone());
+    let state: Arc<Mutex<PlanState>> = ui.data_mut(|d| {
+        d.get_temp_mut_or_default::<Arc<Mutex<PlanState>>>(id)
+            .clone()
+    });
     let Ok(mut s) = state.lock() else { return };
     if s.folder != dir {
         s.folder = dir.to_path_buf();
