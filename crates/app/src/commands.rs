@@ -11,5 +11,6 @@ pub mod rig;
 pub mod sim;
 pub mod stats;
 pub mod study;
+pub mod study_power;
 pub mod tfest;
 pub mod tweezer;

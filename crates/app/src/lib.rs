@@ -11,6 +11,7 @@ pub mod engine;
 pub mod gui;
 pub mod output;
 pub mod paper;
+pub mod power_plot;
 pub mod session;
 pub mod tweezer_cal;
 pub mod tweezer_sim;

@@ -14,7 +14,8 @@
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
-//! * the statistics used to compare the V / P / D conditions ([`stats`]).
+//! * the statistics used to compare the V / P / D conditions ([`stats`]);
+//! * simulation-based power analysis from a pilot ([`power`]).
 //!
 //! Equations, references and the protocol format are documented in
 //! `docs/THEORY.md`; the output folder and its formats in
@@ -25,6 +26,7 @@ mod error;
 pub mod export;
 pub mod operator;
 pub mod participant;
+pub mod power;
 pub mod protocol;
 pub mod rawsig;
 pub mod runner;

@@ -151,20 +151,74 @@ impl Default for OperatorParams {
 /// Domain tag of the participant-trait generator ("kt-pers").
 const TRAIT_DOMAIN: u64 = 0x6b74_2d70_6572_7300;
 
+/// Between-participant spread of the operator's traits: each trait of
+/// participant i is its default times a factor drawn once from (study seed,
+/// i). Log-normal factors exp(σ z), z ~ N(0, 1), have median 1; uniform ones
+/// are U(lo, hi). Sources in `docs/STUDY.md` §13.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TraitSpread {
+    /// Movement speeds (approach, circling, blind, retreat): U(lo, hi).
+    pub speed: (f64, f64),
+    /// Motor noise floor ("skill"): log-normal σ.
+    pub motor_noise_ln_sd: f64,
+    /// Force goal ("push lightly" as each person understands it): log-normal σ.
+    pub force_goal_ln_sd: f64,
+    /// Force-servo gain (force control): log-normal σ.
+    pub force_gain_ln_sd: f64,
+    /// Force detection threshold: log-normal σ.
+    pub force_threshold_ln_sd: f64,
+    /// Vibrotactile detection threshold: log-normal σ.
+    pub vibration_threshold_ln_sd: f64,
+    /// Visual push gain: U(lo, hi).
+    pub visual_gain: (f64, f64),
+    /// Visuomotor delay, s: U(lo, hi) (absolute, not a factor).
+    pub visual_delay_s: (f64, f64),
+}
+
+impl Default for TraitSpread {
+    fn default() -> Self {
+        Self {
+            speed: (0.75, 1.25),
+            motor_noise_ln_sd: 0.35,
+            force_goal_ln_sd: 0.35,
+            force_gain_ln_sd: 0.3,
+            force_threshold_ln_sd: 0.45,
+            vibration_threshold_ln_sd: 0.46,
+            visual_gain: (0.8, 1.25),
+            visual_delay_s: (0.12, 0.20),
+        }
+    }
+}
+
 impl OperatorParams {
     /// Parameters of participant `index` of a study: the defaults with
-    /// individual differences drawn from (study seed, participant) only —
-    /// never from the condition or the trial — so every trial of a
-    /// participant uses the same person: speeds ×U(0.75, 1.25), motor noise
-    /// ×U(0.7, 1.3), force goal ×U(0.8, 1.2), visual gain ×U(0.8, 1.25).
+    /// individual differences ([`TraitSpread::default`]) drawn from (study
+    /// seed, participant) only — never from the condition or the trial — so
+    /// every trial of a participant uses the same person.
     pub fn for_participant(study_seed: u64, index: u32) -> Self {
+        Self::for_participant_with(study_seed, index, &TraitSpread::default())
+    }
+
+    /// [`OperatorParams::for_participant`] with a given spread.
+    pub fn for_participant_with(study_seed: u64, index: u32, spread: &TraitSpread) -> Self {
         let mut g = SplitMix64::new(splitmix64_mix(study_seed ^ TRAIT_DOMAIN) ^ u64::from(index));
         let mut u = || (g.next_u64() >> 11) as f64 / (1_u64 << 53) as f64;
         let d = Self::default();
-        let speed = 0.75 + 0.5 * u();
-        let noise = 0.7 + 0.6 * u();
-        let force = 0.8 + 0.4 * u();
-        let vision = 0.8 + 0.45 * u();
+        let uniform = |u: f64, (lo, hi): (f64, f64)| lo + (hi - lo) * u;
+        let speed = uniform(u(), spread.speed);
+        let vision = uniform(u(), spread.visual_gain);
+        let visual_delay_s = uniform(u(), spread.visual_delay_s);
+        // Box–Muller from two uniforms; u1 in (0, 1].
+        let mut ln_factor = |sd: f64| {
+            let u1 = 1.0 - u();
+            let u2 = u();
+            (sd * (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()).exp()
+        };
+        let noise = ln_factor(spread.motor_noise_ln_sd);
+        let force = ln_factor(spread.force_goal_ln_sd);
+        let gain = ln_factor(spread.force_gain_ln_sd);
+        let threshold = ln_factor(spread.force_threshold_ln_sd);
+        let vibration = ln_factor(spread.vibration_threshold_ln_sd);
         Self {
             approach_speed_m_s: d.approach_speed_m_s * speed,
             circling_speed_m_s: d.circling_speed_m_s * speed,
@@ -172,7 +226,11 @@ impl OperatorParams {
             retreat_speed_m_s: d.retreat_speed_m_s * speed,
             motor_noise_m: d.motor_noise_m * noise,
             force_goal_n: d.force_goal_n * force,
+            force_gain_m_per_n_s: d.force_gain_m_per_n_s * gain,
+            force_threshold_n: d.force_threshold_n * threshold,
+            vibration_threshold_m_s2: d.vibration_threshold_m_s2 * vibration,
             visual_gain: d.visual_gain * vision,
+            visual_delay_s,
             ..d
         }
     }

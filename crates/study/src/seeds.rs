@@ -250,6 +250,36 @@ impl fmt::Display for TrialKey {
     }
 }
 
+/// Domain tag of the power-analysis replications, ASCII `kt-power` read
+/// big-endian.
+pub const POWER_DOMAIN: u64 = 0x6b74_2d70_6f77_6572;
+
+/// Independent ChaCha20 generator of one simulated study of a power
+/// analysis (`kilotouch study power`): replication `replication` at `n`
+/// participants and `trials` trials per condition, for the analysis seed
+/// `seed`. The key is the injective encoding
+///
+/// ```text
+/// key[0..8]   = seed, little-endian
+/// key[8..16]  = 0x6b742d706f776572 ("kt-power"), little-endian
+/// key[16..20] = n, u32 LE
+/// key[20..24] = trials, u32 LE
+/// key[24..32] = replication, u64 LE
+/// ```
+///
+/// so a replication's draws depend on nothing else (not on the thread that
+/// runs it, nor on the other sample sizes of the run), and the domain tag
+/// keeps these keys disjoint from the trial keys of [`TrialKey::chacha_key`].
+pub fn replication_rng(seed: u64, n: u32, trials: u32, replication: u64) -> ChaCha20Rng {
+    let mut key = [0_u8; 32];
+    key[0..8].copy_from_slice(&seed.to_le_bytes());
+    key[8..16].copy_from_slice(&POWER_DOMAIN.to_le_bytes());
+    key[16..20].copy_from_slice(&n.to_le_bytes());
+    key[20..24].copy_from_slice(&trials.to_le_bytes());
+    key[24..32].copy_from_slice(&replication.to_le_bytes());
+    ChaCha20Rng::from_seed(key)
+}
+
 /// `0x` + 16 lowercase hex digits: the `seed` column's text form (a string
 /// in every reader, so no precision is lost to doubles or signed 64-bit
 /// integers).

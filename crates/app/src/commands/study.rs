@@ -18,6 +18,8 @@ use crate::output::emit;
 pub enum StudyCommand {
     /// Run a whole study with simulated participants on the simulated rig.
     Simulate(SimulateArgs),
+    /// How many participants? Power of the planned analysis, simulated from a pilot.
+    Power(super::study_power::PowerArgs),
 }
 
 /// Arguments of `kilotouch study simulate`.
@@ -58,6 +60,7 @@ pub struct SimulateArgs {
 pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
     match c {
         StudyCommand::Simulate(a) => run_simulate(a),
+        StudyCommand::Power(a) => super::study_power::run(a),
     }
 }
 
@@ -77,13 +80,15 @@ fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
 
 /// Progress on stderr: a bar redrawn in place on a terminal, a line per
 /// 10 % otherwise.
-struct Bar {
-    tty: bool,
-    last_decile: Option<usize>,
+pub(crate) struct Bar {
+    pub(crate) tty: bool,
+    pub(crate) last_decile: Option<usize>,
+    /// What is counted ("trials", "simulated studies").
+    pub(crate) unit: &'static str,
 }
 
 impl Bar {
-    fn report(&mut self, done: usize, total: usize) {
+    pub(crate) fn report(&mut self, done: usize, total: usize) {
         let f = if total == 0 {
             1.0
         } else {
@@ -95,10 +100,11 @@ impl Bar {
             let filled = ((f * width as f64).round() as usize).min(width);
             let _ = write!(
                 err,
-                "\r\x1b[2K[{}{}] {:3.0}% {done}/{total} trials",
+                "\r\x1b[2K[{}{}] {:3.0}% {done}/{total} {}",
                 "#".repeat(filled),
                 " ".repeat(width - filled),
-                f * 100.0
+                f * 100.0,
+                self.unit
             );
             if done >= total {
                 let _ = writeln!(err);
@@ -106,7 +112,7 @@ impl Bar {
         } else {
             let decile = (f * 10.0).floor() as usize;
             if self.last_decile != Some(decile) {
-                let _ = writeln!(err, "[{:3.0}%] {done}/{total} trials", f * 100.0);
+                let _ = writeln!(err, "[{:3.0}%] {done}/{total} {}", f * 100.0, self.unit);
                 self.last_decile = Some(decile);
             }
         }
@@ -174,6 +180,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
     let mut bar = Bar {
         tty: std::io::stderr().is_terminal(),
         last_decile: None,
+        unit: "trials",
     };
     let report = simulate(&opts, &mut |done, total| bar.report(done, total))
         .with_context(|| format!("study simulate into {}", a.out.display()))?;

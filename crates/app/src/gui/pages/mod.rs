@@ -4,6 +4,7 @@
 
 pub mod calibration;
 pub mod explore;
+pub mod plan_study;
 pub mod results;
 pub mod rig;
 pub mod study;

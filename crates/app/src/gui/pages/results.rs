@@ -440,6 +440,7 @@ impl ResultsPage {
         egui::CollapsingHeader::new("Statistics")
             .default_open(true)
             .show(ui, |ui| stats_ui(ui, &view.stats));
+        super::plan_study::plan_panel(ui, &d.dir);
         ui.horizontal(|ui| {
             if ui
                 .button("Export statistics (stats.csv, stats.json)")

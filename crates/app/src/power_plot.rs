@@ -1,0 +1,169 @@
+//! The power curve of `kilotouch study power --plot` (PNG or SVG, by the
+//! file's extension): power against the number of participants with the
+//! Clopper–Pearson 95 % interval of each point, the target power, α, and
+//! the smallest n reaching the target.
+//!
+//! Text goes through `ab_glyph` with DejaVu Sans compiled into the binary
+//! (`assets/fonts/DejaVuSans.ttf`, licence beside it), so the plot renders
+//! the same on a machine without system fonts.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use kilotouch_study::power::PowerReport;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// DejaVu Sans (Bitstream Vera licence: `assets/fonts/DejaVuSans-LICENSE.txt`).
+static DEJAVU_SANS: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+
+/// Font family of the plot.
+const FONT: &str = "sans-serif";
+/// Size of the plot, px (PNG) or user units (SVG).
+const SIZE: (u32, u32) = (900, 600);
+/// Curve colour.
+const CURVE: RGBColor = RGBColor(31, 119, 180);
+/// Reference lines.
+const GREY: RGBColor = RGBColor(120, 120, 120);
+/// The n reaching the target.
+const HIT: RGBColor = RGBColor(214, 39, 40);
+
+fn ensure_font() -> Result<(), String> {
+    static DONE: OnceLock<Result<(), String>> = OnceLock::new();
+    DONE.get_or_init(|| {
+        plotters::style::register_font(FONT, FontStyle::Normal, DEJAVU_SANS)
+            .map_err(|_| "the embedded DejaVu Sans font could not be read".to_owned())
+    })
+    .clone()
+}
+
+fn err<E: std::fmt::Debug>(e: E) -> String {
+    format!("drawing failed: {e:?}")
+}
+
+/// Draws the curve on any backend.
+fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    root.fill(&WHITE).map_err(err)?;
+    let n_max = r.points.iter().map(|p| p.n).max().unwrap_or(2);
+    let n_min = r.points.iter().map(|p| p.n).min().unwrap_or(0);
+    let x_lo = f64::from(n_min.saturating_sub(1));
+    let x_hi = f64::from(n_max) + 1.0;
+    let m = &r.model;
+    let title = if r.test == "paired_t" {
+        format!(
+            "{}: {} − {}, effect {:.3}",
+            m.dv, m.conditions[0], m.conditions[1], r.effect
+        )
+    } else {
+        format!("{}: RM-ANOVA (GG), range {:.3}", m.dv, r.effect)
+    };
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, (FONT, 24).into_font())
+        .margin(16)
+        .x_label_area_size(50)
+        .y_label_area_size(64)
+        .build_cartesian_2d(x_lo..x_hi, 0.0..1.0)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("participants (n)")
+        .y_desc("power")
+        .axis_desc_style((FONT, 20).into_font())
+        .label_style((FONT, 16).into_font())
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(err)?;
+    let target = r.target;
+    chart
+        .draw_series(LineSeries::new(
+            [(x_lo, target), (x_hi, target)],
+            GREY.stroke_width(2),
+        ))
+        .map_err(err)?
+        .label(format!("target {target}"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], GREY.stroke_width(2)));
+    chart
+        .draw_series(LineSeries::new(
+            [(x_lo, r.alpha), (x_hi, r.alpha)],
+            GREY.mix(0.6).stroke_width(1),
+        ))
+        .map_err(err)?
+        .label(format!("α = {}", r.alpha))
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 24, y)], GREY.mix(0.6).stroke_width(1))
+        });
+    chart
+        .draw_series(r.points.iter().map(|p| {
+            let x = f64::from(p.n);
+            PathElement::new(vec![(x, p.ci[0]), (x, p.ci[1])], CURVE.stroke_width(2))
+        }))
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new(
+            r.points.iter().map(|p| (f64::from(p.n), p.power)),
+            CURVE.stroke_width(3),
+        ))
+        .map_err(err)?
+        .label(format!(
+            "simulated power ({} studies per n, 95 % CI)",
+            r.replications
+        ))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], CURVE.stroke_width(3)));
+    chart
+        .draw_series(
+            r.points
+                .iter()
+                .map(|p| Circle::new((f64::from(p.n), p.power), 5, CURVE.filled())),
+        )
+        .map_err(err)?;
+    if let Some(n) = r.n_for_target
+        && let Some(p) = r.points.iter().find(|p| p.n == n)
+    {
+        let x = f64::from(n);
+        chart
+            .draw_series(LineSeries::new(
+                [(x, 0.0), (x, p.power)],
+                HIT.stroke_width(2),
+            ))
+            .map_err(err)?
+            .label(format!("n for target: {n}"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], HIT.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .label_font((FONT, 16).into_font())
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)
+}
+
+/// Writes the power curve to `path`: SVG for a `.svg` name, PNG otherwise.
+///
+/// # Errors
+/// Drawing or file errors, as text.
+pub fn save(r: &PowerReport, path: &Path) -> Result<(), String> {
+    ensure_font()?;
+    let svg = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    if svg {
+        let mut text = String::new();
+        {
+            let root = SVGBackend::with_string(&mut text, SIZE).into_drawing_area();
+            draw(r, &root)?;
+        }
+        std::fs::write(path, text).map_err(|e| e.to_string())
+    } else {
+        let (w, h) = SIZE;
+        let mut buf = vec![255_u8; (w as usize) * (h as usize) * 3];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
+            draw(r, &root)?;
+        }
+        image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8)
+            .map_err(|e| e.to_string())
+    }
+}
