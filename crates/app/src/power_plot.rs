@@ -8,17 +8,12 @@
 //! the same on a machine without system fonts.
 
 use std::path::Path;
-use std::sync::OnceLock;
 
 use kilotouch_study::power::PowerReport;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-/// DejaVu Sans (Bitstream Vera licence: `assets/fonts/DejaVuSans-LICENSE.txt`).
-static DEJAVU_SANS: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
-
-/// Font family of the plot.
-const FONT: &str = "sans-serif";
+use crate::paper::style::{ensure_font, FONT};
 /// Size of the plot, px (PNG) or user units (SVG).
 const SIZE: (u32, u32) = (900, 600);
 /// Curve colour.
@@ -27,15 +22,6 @@ const CURVE: RGBColor = RGBColor(31, 119, 180);
 const GREY: RGBColor = RGBColor(120, 120, 120);
 /// The n reaching the target.
 const HIT: RGBColor = RGBColor(214, 39, 40);
-
-fn ensure_font() -> Result<(), String> {
-    static DONE: OnceLock<Result<(), String>> = OnceLock::new();
-    DONE.get_or_init(|| {
-        plotters::style::register_font(FONT, FontStyle::Normal, DEJAVU_SANS)
-            .map_err(|_| "the embedded DejaVu Sans font could not be read".to_owned())
-    })
-    .clone()
-}
 
 fn err<E: std::fmt::Debug>(e: E) -> String {
     format!("drawing failed: {e:?}")

@@ -7,24 +7,12 @@ use kilotouch_dsp::trap_psd::PsdFit;
 use kilotouch_rig::tweezer::calibration::{TrapCalibration, TrapCalibrationSettings};
 use plotters::prelude::*;
 use std::path::Path;
-use std::sync::OnceLock;
 
-/// DejaVu Sans (Bitstream Vera licence: `assets/fonts/DejaVuSans-LICENSE.txt`).
-static DEJAVU_SANS: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
-/// Font family of the plot.
-const FONT: &str = "sans-serif";
+use crate::paper::style::FONT;
 
+/// The one embedded font of every plot ([`crate::paper::style::ensure_font`]).
 fn ensure_font() -> anyhow::Result<()> {
-    static DONE: OnceLock<Result<(), String>> = OnceLock::new();
-    DONE.get_or_init(|| {
-        for style in [FontStyle::Normal, FontStyle::Bold] {
-            plotters::style::register_font(FONT, style, DEJAVU_SANS)
-                .map_err(|_| "the embedded DejaVu Sans font could not be read".to_owned())?;
-        }
-        Ok(())
-    })
-    .clone()
-    .map_err(anyhow::Error::msg)
+    crate::paper::style::ensure_font().map_err(anyhow::Error::msg)
 }
 
 /// A short description of the model fitted, e.g. "Lorentzian + diode".

@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 
 use super::error::PowerError;
 use crate::export::TRIALS_FILE;
+use crate::seeds::Phase;
+use crate::stats::rows::RowRule;
 use crate::stats::Design;
 
 /// Largest number of data rows read from a pilot file (a pilot has tens of
@@ -66,12 +68,13 @@ pub fn pilot_file(path: &Path) -> PathBuf {
     }
 }
 
+/// A `success` cell: empty (no outcome recorded) or the flag read by the
+/// row rule's [`crate::stats::rows::parse_success`]; `None` when malformed.
 fn parse_success(cell: &str) -> Option<Option<bool>> {
-    match cell.trim() {
-        "" => Some(None),
-        "1" | "true" | "TRUE" | "True" => Some(Some(true)),
-        "0" | "false" | "FALSE" | "False" => Some(Some(false)),
-        _ => None,
+    if cell.trim().is_empty() {
+        Some(None)
+    } else {
+        crate::stats::rows::parse_success(cell).ok().map(Some)
     }
 }
 
@@ -212,9 +215,8 @@ pub struct PilotRows {
     pub dropped: Vec<String>,
 }
 
-/// The row rule of `kilotouch stats` applied to a pilot: **this must equal
-/// the rule `stats` uses** (it stands for it here and is to be replaced by
-/// it, not diverge from it). Keeps test-phase rows (`phase = test` when the
+/// The row rule of `kilotouch stats` ([`RowRule`], default: successful test
+/// trials) applied to a pilot. Keeps test-phase rows (`phase = test` when the
 /// file has a phase column) that succeeded (`success = 1` when the file has
 /// a success column — except when the DV *is* `success`, whose value of a
 /// trial is its outcome) and have a value; restricts them to `conditions`;
@@ -224,12 +226,19 @@ pub struct PilotRows {
 /// [`PowerError::UnknownCondition`] for a condition absent from the kept
 /// rows; [`PowerError::TooFewParticipants`] with no complete participant.
 pub fn pilot_rows(table: &PilotTable, conditions: &[String]) -> Result<PilotRows, PowerError> {
+    // The DV `success` is a trial's outcome: as in `stats`, the success
+    // column then does not filter rows.
     let dv_is_success = table.dv_is_success();
+    let rule = RowRule::default();
     let rows: Vec<(String, String, f64)> = table
         .rows
         .iter()
-        .filter(|r| r.test)
-        .filter(|r| dv_is_success || r.success != Some(false))
+        .filter(|r| {
+            let phase = if r.test { Phase::Test } else { Phase::Practice };
+            let success = if dv_is_success { None } else { r.success };
+            rule.exclusion(Some(phase), success, r.value.is_some())
+                .is_none()
+        })
         .filter(|r| conditions.contains(&r.condition))
         .filter_map(|r| r.value.map(|v| (r.subject.clone(), r.condition.clone(), v)))
         .collect();
