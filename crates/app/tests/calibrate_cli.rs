@@ -82,7 +82,15 @@ fn calibrate_refuses_to_overwrite_without_the_flag() {
     std::fs::write(&out_path, "keep me").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
         .current_dir(dir.path())
-        .args(["calibrate", "--rig", "sim", "--seed", "1", "--out", "cal.toml"])
+        .args([
+            "calibrate",
+            "--rig",
+            "sim",
+            "--seed",
+            "1",
+            "--out",
+            "cal.toml",
+        ])
         .output()
         .expect("run kilotouch");
     assert!(!out.status.success());

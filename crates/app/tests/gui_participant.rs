@@ -116,7 +116,10 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
         Routine::Instructions { .. }
     )));
     h.step();
-    assert!(h.query_by_label_contains("INSTRUCTIONS: go around").is_some());
+    assert!(
+        h.query_by_label_contains("INSTRUCTIONS: go around")
+            .is_some()
+    );
     assert!(h.query_by_label_contains("D-TEXT").is_none());
     // Nothing begins before the participant: 0.5 s later still waiting.
     let t0 = Instant::now();
@@ -141,7 +144,13 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
         Some(Routine::Trial(k)) => k,
         r => panic!("{r:?}"),
     };
-    let counter = h.state().study.participant_screen().unwrap().counter(first).0;
+    let counter = h
+        .state()
+        .study
+        .participant_screen()
+        .unwrap()
+        .counter(first)
+        .0;
     assert_eq!(counter, "Session 1 of 2 — trial 1 of 2");
     // The trial times out; the interval is blank and lasts iti_s.
     assert!(step_until_routine(&mut h, 5.0, |r| *r == Routine::Iti));
@@ -247,11 +256,15 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         Some(RunnerState::Paused(None))
     ));
     h.get_by_label("Reset emergency stop…").click();
+    // The dialog's first frame is a sizing pass.
+    h.step();
+    h.step();
     h.step();
     h.get_by_label("Re-enable outputs (ramped)").click();
     h.step();
     assert!(h.state().study.estop_latched(), "not without the tick");
-    h.get_by_label("I have checked that the rig is safe").click();
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
     h.step();
     h.get_by_label("Re-enable outputs (ramped)").click();
     h.step();

@@ -54,15 +54,33 @@ fn the_wheel_scrolls_the_calibration_page_not_its_plots() {
     for _ in 0..5 {
         h.step();
     }
-    // The low channel's Bode plot: scroll it into view first.
+    // The low channel's Bode plot: scroll the page until it is in view.
+    for _ in 0..40 {
+        let top = h
+            .get_all_by_label("Reset view")
+            .next()
+            .unwrap()
+            .rect()
+            .top();
+        if top < 300.0 {
+            break;
+        }
+        wheel(&mut h, egui::pos2(550.0, 400.0), -150.0);
+    }
     let reset = h.get_all_by_label("Reset view").next().unwrap().rect();
+    assert!(reset.top() < 300.0, "the page does not scroll to the plots");
     let plot_at = reset.center() + egui::vec2(200.0, 90.0);
     let before = bounds(&h, "cal-low-mag");
     let top_before = reset.top();
     wheel(&mut h, plot_at, -120.0);
     let after = bounds(&h, "cal-low-mag");
     assert_eq!(before, after, "the wheel moved the plot");
-    let top_after = h.get_all_by_label("Reset view").next().unwrap().rect().top();
+    let top_after = h
+        .get_all_by_label("Reset view")
+        .next()
+        .unwrap()
+        .rect()
+        .top();
     assert!(
         top_after < top_before - 20.0,
         "the page did not scroll: {top_before} → {top_after}"

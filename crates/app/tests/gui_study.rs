@@ -201,7 +201,10 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
         .is_some()));
     h.step();
     h.step();
-    assert!(h.query_by_label_contains("participant P01 finished").is_some());
+    assert!(
+        h.query_by_label_contains("participant P01 finished")
+            .is_some()
+    );
     assert!(h.query_by_label_contains("Finished trials: 3").is_some());
     let resume_after = h.get_by_label_contains("Resume at trial P02").rect();
     assert_eq!(resume_before.top(), resume_after.top());
@@ -211,7 +214,10 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
     h.state_mut().study.participant_text = "P02".into();
     h.step();
     h.step();
-    assert!(h.query_by_label_contains("participant P01 finished").is_none());
+    assert!(
+        h.query_by_label_contains("participant P01 finished")
+            .is_none()
+    );
     assert!(h.query_by_label_contains("Finished trials: 0").is_some());
     // P01's sitting was closed: resuming reports no crash.
     h.get_by_label_contains("Resume at trial P02").click();

@@ -39,7 +39,10 @@ pub fn researcher_words(message: &str) -> String {
         ("expected i64", "expected a whole number"),
         ("expected a boolean", "expected true or false"),
         ("expected a string", "expected a text in quotes"),
-        ("expected a sequence", "expected a list in brackets, e.g. [1, 2]"),
+        (
+            "expected a sequence",
+            "expected a list in brackets, e.g. [1, 2]",
+        ),
         ("invalid type: string ", "got the text "),
         ("invalid type: integer ", "got the whole number "),
         ("invalid type: floating point ", "got the number "),

@@ -120,8 +120,7 @@ impl Screens {
                 ),
             ));
         }
-        if !(self.break_min_s.is_finite() && (0.0..=MAX_BREAK_MIN_S).contains(&self.break_min_s))
-        {
+        if !(self.break_min_s.is_finite() && (0.0..=MAX_BREAK_MIN_S).contains(&self.break_min_s)) {
             return Err(bad(
                 "break_min_s",
                 format!(
@@ -320,7 +319,10 @@ mod tests {
     fn counter_positions() {
         use Condition::{D, P, V};
         let order = [P, D, V];
-        assert_eq!(position(key(Phase::Test, D, 4), &order, 10, 3), (4, 10, 2, 3));
+        assert_eq!(
+            position(key(Phase::Test, D, 4), &order, 10, 3),
+            (4, 10, 2, 3)
+        );
         assert_eq!(
             position(key(Phase::Practice, V, 2), &order, 10, 3),
             (2, 3, 0, 3)

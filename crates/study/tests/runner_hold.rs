@@ -59,7 +59,10 @@ fn a_held_runner_waits_for_proceed_between_trials() {
     let ev = r.proceed(&mut who).unwrap();
     assert_eq!(ev.started, Some(first));
     assert_eq!(r.state(), RunnerState::Trial(first));
-    assert!(r.proceed(&mut who).is_err(), "nothing waits while a trial runs");
+    assert!(
+        r.proceed(&mut who).is_err(),
+        "nothing waits while a trial runs"
+    );
     // Run the trial out: the row is committed, then the runner waits again.
     loop {
         let ev = r.advance(&mut who, 500).unwrap();
@@ -82,7 +85,8 @@ fn a_held_runner_waits_for_proceed_between_trials() {
     // The held trial begins on proceed; stop the sitting in the middle.
     r.proceed(&mut who).unwrap();
     r.advance(&mut who, 100).unwrap();
-    r.end_sitting("sitting stopped by the experimenter").unwrap();
+    r.end_sitting("sitting stopped by the experimenter")
+        .unwrap();
     assert!(r.store().is_none());
     let entries = read_journal(&dir.join(JOURNAL_FILE)).unwrap().entries;
     assert!(matches!(

@@ -342,8 +342,9 @@ pub fn nav_bar(ui: &mut Ui, id: &str) -> PlotNav {
     let mut free = ui.data(|d| d.get_temp::<bool>(key)).unwrap_or(false);
     let mut reset = false;
     ui.horizontal(|ui| {
-        ui.checkbox(&mut free, "zoom / pan")
-            .on_hover_text("on: the wheel and a drag move this plot; off: the wheel scrolls the page");
+        ui.checkbox(&mut free, "zoom / pan").on_hover_text(
+            "on: the wheel and a drag move this plot; off: the wheel scrolls the page",
+        );
         reset = ui
             .small_button("Reset view")
             .on_hover_text("back to the automatic bounds (also: double-click the plot)")
@@ -388,12 +389,13 @@ pub fn freq_chart(
     extra: impl FnOnce(&mut PlotUi<'_>),
 ) {
     let nav = nav_bar(ui, id);
-    nav.apply(log_freq_plot(id, y_label, height), id).show(ui, |p| {
-        extra(p);
-        for s in series {
-            p.line(s.line());
-        }
-    });
+    nav.apply(log_freq_plot(id, y_label, height), id)
+        .show(ui, |p| {
+            extra(p);
+            for s in series {
+                p.line(s.line());
+            }
+        });
 }
 
 /// Bode plot of frequency responses: magnitude (dB) over phase (deg), and
@@ -402,36 +404,39 @@ pub fn bode(ui: &mut Ui, id: &str, magnitude: &[Series], phase: &[Series], coher
     let link = egui::Id::unique((id, "bode-x"));
     let x_link = egui::Vec2b::new(true, false);
     let nav = nav_bar(ui, id);
-    nav.apply(log_freq_plot(&format!("{id}-mag"), "dB", 180.0), &format!("{id}-mag"))
-        .link_axis(link, x_link)
-        .show(ui, |p| {
-            for s in magnitude {
-                p.line(s.line());
-            }
-        });
+    nav.apply(
+        log_freq_plot(&format!("{id}-mag"), "dB", 180.0),
+        &format!("{id}-mag"),
+    )
+    .link_axis(link, x_link)
+    .show(ui, |p| {
+        for s in magnitude {
+            p.line(s.line());
+        }
+    });
     nav.apply(
         log_freq_plot(&format!("{id}-phase"), "deg", 120.0),
         &format!("{id}-phase"),
     )
-        .link_axis(link, x_link)
-        .show(ui, |p| {
-            for s in phase {
-                p.line(s.line());
-            }
-        });
+    .link_axis(link, x_link)
+    .show(ui, |p| {
+        for s in phase {
+            p.line(s.line());
+        }
+    });
     if !coherence.is_empty() {
         nav.apply(
             log_freq_plot(&format!("{id}-coh"), "γ²", 90.0),
             &format!("{id}-coh"),
         )
-            .link_axis(link, x_link)
-            .include_y(0.0)
-            .include_y(1.0)
-            .show(ui, |p| {
-                for s in coherence {
-                    p.line(s.line());
-                }
-            });
+        .link_axis(link, x_link)
+        .include_y(0.0)
+        .include_y(1.0)
+        .show(ui, |p| {
+            for s in coherence {
+                p.line(s.line());
+            }
+        });
     }
 }
 

@@ -207,8 +207,7 @@ impl ParticipantScreen {
             width,
             egui::TextStyle::Body,
         );
-        let inner = egui::Rect::from_center_size(rect.center(), galley.size())
-            .intersect(rect);
+        let inner = egui::Rect::from_center_size(rect.center(), galley.size()).intersect(rect);
         ui.put(
             inner,
             egui::Label::new(rich)
@@ -249,7 +248,11 @@ mod tests {
     fn screen() -> ParticipantScreen {
         let mut p = Protocol::builtin("paper").unwrap_or_else(|e| panic!("{e}"));
         p.screens.break_min_s = 0.0;
-        ParticipantScreen::new(p, vec![vec![Condition::P, Condition::D, Condition::V]], true)
+        ParticipantScreen::new(
+            p,
+            vec![vec![Condition::P, Condition::D, Condition::V]],
+            true,
+        )
     }
 
     #[test]

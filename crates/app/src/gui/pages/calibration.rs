@@ -934,10 +934,7 @@ impl CalibrationPage {
                         "G0_L = {:.5} (m/s²)/N over the flat band {:.0}–{:.0} Hz; C_L uses \
                          G0_L = {:.5} (m/s²)/N, the flat band below the crossover (the CLI's \
                          `low_gain`)",
-                        f.low.g0,
-                        f.low.flat_band_hz[0],
-                        f.low.flat_band_hz[1],
-                        f.compensators.g0_l
+                        f.low.g0, f.low.flat_band_hz[0], f.low.flat_band_hz[1], f.compensators.g0_l
                     ),
                 );
                 row(

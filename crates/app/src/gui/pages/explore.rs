@@ -271,11 +271,8 @@ impl ExplorePage {
             // Fixed width: the toolbar wraps the same way in V, P and D, so
             // the scene below does not jump when the condition changes.
             let desc = current.map(|c| c.description()).unwrap_or_default();
-            ui.add_sized(
-                [300.0, 18.0],
-                egui::Label::new(desc).truncate(),
-            )
-            .on_hover_text(desc);
+            ui.add_sized([300.0, 18.0], egui::Label::new(desc).truncate())
+                .on_hover_text(desc);
             ui.separator();
             ui.label(RichText::new("Tool").strong());
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");

@@ -847,7 +847,7 @@ impl StudyPage {
                 "participant view in a separate window",
             );
             ui.add_enabled_ui(self.separate_window, |ui| {
-                ui.label("on");
+                let l = ui.label("on");
                 egui::ComboBox::from_id_salt("participant-monitor")
                     .selected_text(match self.monitor {
                         Monitor::Same => "this monitor",
@@ -866,7 +866,9 @@ impl StudyPage {
                             Monitor::Left,
                             "the monitor to the left",
                         );
-                    });
+                    })
+                    .response
+                    .labelled_by(l.id);
                 ui.checkbox(&mut self.fullscreen, "full screen");
             });
         });
@@ -920,8 +922,7 @@ impl StudyPage {
         if run_all {
             self.run_all = true;
             let resume = next.is_some();
-            if !resume
-                && let Some(first) = self.table.as_ref().and_then(|t| t.participants.first())
+            if !resume && let Some(first) = self.table.as_ref().and_then(|t| t.participants.first())
             {
                 self.participant_text = first.id.clone();
             }
@@ -1155,6 +1156,9 @@ impl StudyPage {
             sense
         };
         let resp = ui.allocate_rect(rect, sense);
+        resp.widget_info(|| {
+            egui::WidgetInfo::labeled(egui::Role::Button, true, "participant screen")
+        });
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, Color32::from_gray(8));
         if let Some(sc) = &self.screen {
