@@ -28,6 +28,7 @@ pub mod participant;
 pub mod protocol;
 pub mod rawsig;
 pub mod runner;
+mod screen_texts;
 pub mod screens;
 pub mod seeds;
 pub mod simulate;

@@ -326,7 +326,7 @@ pub struct Protocol {
     /// The participant's screens: texts and timings (see
     /// [`crate::screens`]).
     #[serde(default)]
-    pub screens: crate::screens::Screens,
+    pub screens: crate::screen_texts::Screens,
 }
 
 // -------------------------------------------------------------- validation
