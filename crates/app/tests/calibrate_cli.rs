@@ -71,3 +71,36 @@ fn calibrate_rejects_an_unknown_rig_clearly() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--rig") && !err.contains("panicked"), "{err}");
 }
+
+/// `--out` never replaces an existing file silently (the GUI's rule): the
+/// run is refused before calibrating, with the full path and the flag to
+/// use, and the file is left as it was.
+#[test]
+fn calibrate_refuses_to_overwrite_without_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_path = dir.path().join("cal.toml");
+    std::fs::write(&out_path, "keep me").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_kilotouch"))
+        .current_dir(dir.path())
+        .args([
+            "calibrate",
+            "--rig",
+            "sim",
+            "--seed",
+            "1",
+            "--out",
+            "cal.toml",
+        ])
+        .output()
+        .expect("run kilotouch");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--overwrite"), "{err}");
+    // The full path, however the temporary directory is spelled.
+    let full = [
+        out_path.display().to_string(),
+        out_path.canonicalize().unwrap().display().to_string(),
+    ];
+    assert!(full.iter().any(|f| err.contains(f.as_str())), "{err}");
+    assert_eq!(std::fs::read_to_string(&out_path).unwrap(), "keep me");
+}

@@ -176,3 +176,88 @@ fn study_page_records_the_chosen_calibration() {
         }
     }
 }
+
+/// After P01 finishes normally: the folder reopens without a false crash
+/// report; switching the participant clears the last sitting's rows and
+/// messages; the Resume button and the controls under it keep their place
+/// whether or not there is something to resume.
+#[test]
+fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, tiny()).unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "P01", &out);
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    h.step();
+    h.step();
+    let resume_before = h.get_by_label("Resume").rect();
+    let radio_before = h.get_by_label("person (mouse)").rect();
+    open_session(&mut h);
+    h.get_by_label("Start").click();
+    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+        .study
+        .finished()
+        .is_some()));
+    h.step();
+    h.step();
+    assert!(
+        h.query_by_label_contains("participant P01 finished")
+            .is_some()
+    );
+    assert!(h.query_by_label_contains("Finished trials: 3").is_some());
+    let resume_after = h.get_by_label_contains("Resume at trial P02").rect();
+    assert_eq!(resume_before.top(), resume_after.top());
+    assert_eq!(resume_before.left(), resume_after.left());
+    assert_eq!(radio_before, h.get_by_label("person (mouse)").rect());
+    // Another participant: nothing of P01's sitting stays on screen.
+    h.state_mut().study.participant_text = "P02".into();
+    h.step();
+    h.step();
+    assert!(
+        h.query_by_label_contains("participant P01 finished")
+            .is_none()
+    );
+    assert!(h.query_by_label_contains("Finished trials: 0").is_some());
+    // P01's sitting was closed: resuming reports no crash.
+    h.get_by_label_contains("Resume at trial P02").click();
+    h.step();
+    h.step();
+    assert!(h.state().study.is_running());
+    assert!(h.query_by_label_contains("resumed:").is_some());
+    assert!(
+        h.query_by_label_contains("without closing").is_none(),
+        "false crash report after a normal finish"
+    );
+}
+
+/// "Run all remaining participants" (simulated dry run): one click runs
+/// every pending trial of every participant in one sitting.
+#[test]
+fn run_all_remaining_participants_finishes_the_study() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, tiny()).unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "", &out);
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    h.step();
+    h.step();
+    h.get_by_label("Run all remaining participants").click();
+    assert!(step_until_every(&mut h, POLL, 30.0, |a| a
+        .study
+        .finished()
+        .is_some()));
+    assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));
+    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(rows.len(), 6, "2 participants × 3 conditions × 1 trial");
+    assert_eq!(rows.iter().filter(|r| r.participant == "P02").count(), 3);
+    h.step();
+    h.step();
+    assert!(h.query_by_label_contains("study complete").is_some());
+    // Another folder: the stale "study complete" goes.
+    h.state_mut().study.out_text = dir.path().join("other").display().to_string();
+    h.step();
+    h.step();
+    assert!(h.query_by_label_contains("study complete").is_none());
+}

@@ -917,7 +917,7 @@ fn toml_error(text: &str, origin: &str, e: &toml::de::Error) -> RigError {
         line,
         column,
         field: offset.and_then(|o| field_at(text, o)).unwrap_or_default(),
-        message: e.message().to_string(),
+        message: crate::toml_location::researcher_words(e.message()),
     }
 }
 

@@ -20,6 +20,45 @@ pub fn line_col(src: &str, offset: usize) -> (Option<usize>, Option<usize>) {
     (Some(line), Some(col))
 }
 
+/// A deserialisation message of toml/serde in a researcher's words:
+/// Rust type names become what they mean (`f64` → "a number", `u32` → "a
+/// whole number ≥ 0"), `invalid type: string "x"` → `got the text "x"`,
+/// `unknown field` → `unknown key`, `missing field` → `the key … is
+/// missing`. Anything else is kept as it is.
+pub fn researcher_words(message: &str) -> String {
+    let mut m = message.trim().to_owned();
+    for (from, to) in [
+        ("expected f64", "expected a number"),
+        ("expected f32", "expected a number"),
+        ("expected u8", "expected a whole number ≥ 0"),
+        ("expected u16", "expected a whole number ≥ 0"),
+        ("expected u32", "expected a whole number ≥ 0"),
+        ("expected u64", "expected a whole number ≥ 0"),
+        ("expected usize", "expected a whole number ≥ 0"),
+        ("expected i32", "expected a whole number"),
+        ("expected i64", "expected a whole number"),
+        ("expected a boolean", "expected true or false"),
+        ("expected a string", "expected a text in quotes"),
+        (
+            "expected a sequence",
+            "expected a list in brackets, e.g. [1, 2]",
+        ),
+        ("invalid type: string ", "got the text "),
+        ("invalid type: integer ", "got the whole number "),
+        ("invalid type: floating point ", "got the number "),
+        ("invalid type: boolean ", "got "),
+        ("invalid type: sequence", "got a list"),
+        ("invalid type: map", "got a table"),
+        ("invalid value: integer ", "got "),
+        ("unknown field ", "unknown key "),
+        ("unknown variant ", "unknown value "),
+        ("missing field ", "missing key "),
+    ] {
+        m = m.replace(from, to);
+    }
+    m.replace(", expected one of ", "; allowed here: ")
+}
+
 enum Seg<'a> {
     Key(&'a str),
     Index(usize),

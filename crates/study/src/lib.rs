@@ -30,6 +30,8 @@ pub mod power;
 pub mod protocol;
 pub mod rawsig;
 pub mod runner;
+mod screen_texts;
+pub mod screens;
 pub mod seeds;
 pub mod simulate;
 pub mod stats;

@@ -15,7 +15,7 @@
 use std::fmt;
 use std::path::Path;
 
-use kilotouch_rig::toml_location::{field_at, line_col, locate};
+use kilotouch_rig::toml_location::{field_at, line_col, locate, researcher_words};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -323,6 +323,10 @@ pub struct Protocol {
     /// Seeds.
     #[serde(default)]
     pub seeds: Seeds,
+    /// The participant's screens: texts and timings (see
+    /// [`crate::screens`]).
+    #[serde(default)]
+    pub screens: crate::screen_texts::Screens,
 }
 
 // -------------------------------------------------------------- validation
@@ -445,6 +449,7 @@ impl Protocol {
                 format!("must be a finite, non-negative distance in µm, got {gap}"),
             ));
         }
+        self.screens.validate(&self.conditions)?;
         Ok(())
     }
 
@@ -471,7 +476,7 @@ impl Protocol {
                         column,
                     },
                     field,
-                    message: e.message().trim().to_owned(),
+                    message: researcher_words(e.message()),
                 });
             }
         };

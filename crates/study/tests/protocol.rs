@@ -327,14 +327,14 @@ fn parse_errors_name_file_line_and_field() {
         "trials_per_session = 10\ntrials = 3",
         Some("trials"),
         "trials = 3",
-        "unknown field `trials`",
+        "unknown key `trials`",
     );
     assert_parse(
         "revolutions = 1.0",
         "revolutions = 1.0\nradius_um = 3.0",
         Some("task.circling.radius_um"),
         "radius_um = 3.0",
-        "unknown field `radius_um`",
+        "unknown key `radius_um`",
     );
     // Unknown condition code.
     assert_parse(
@@ -342,7 +342,7 @@ fn parse_errors_name_file_line_and_field() {
         "conditions = [\"V\", \"X\", \"D\"]",
         Some("conditions[1]"),
         "conditions = ",
-        "unknown variant `X`",
+        "unknown value `X`",
     );
     // Negative count and wrong type.
     assert_parse(
@@ -357,7 +357,7 @@ fn parse_errors_name_file_line_and_field() {
         "timeout_s = \"long\"",
         Some("task.circling.timeout_s"),
         "timeout_s = \"long\"",
-        "",
+        "got the text \"long\", expected a number",
     );
     // Unknown task.
     assert_parse(
@@ -365,7 +365,7 @@ fn parse_errors_name_file_line_and_field() {
         "[task.juggling]",
         Some("task.juggling"),
         "[task.juggling]",
-        "unknown variant `juggling`",
+        "unknown value `juggling`",
     );
     // Syntax error.
     let (src, err) = paper_with("participants = 8", "participants = = 8");

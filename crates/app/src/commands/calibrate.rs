@@ -31,9 +31,13 @@ pub struct Args {
     /// Seed of the simulated sensor noise.
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Write the calibration file (TOML) here.
+    /// Write the calibration file (TOML) here; an existing file is kept
+    /// unless --overwrite is given (as on the Calibration page).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Replace an existing --out file.
+    #[arg(long, requires = "out")]
+    pub overwrite: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -111,6 +115,21 @@ fn calibrate_serial(
 /// Run the command.
 pub fn run(a: &Args) -> anyhow::Result<()> {
     let spec: RigSpec = a.rig.parse()?;
+    // Messages name the full path; an existing file is refused before the
+    // calibration runs (the same rule as the GUI's "overwrite" box).
+    let out = a
+        .out
+        .as_ref()
+        .map(|p| std::path::absolute(p).unwrap_or_else(|_| p.clone()));
+    if let Some(p) = &out
+        && p.exists()
+        && !a.overwrite
+    {
+        anyhow::bail!(
+            "{} exists; add --overwrite to replace it (nothing was calibrated)",
+            p.display()
+        );
+    }
     let cal_cfg = CalibrationConfig::default();
     let cancel = AtomicBool::new(false);
     let mut bar = StderrProgress {
@@ -124,7 +143,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             a.rig_config.as_deref(),
             a.seed,
             &cal_cfg,
-            a.out.as_deref(),
+            out.as_deref(),
             &mut progress,
             &cancel,
         )?,
@@ -132,7 +151,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             cfg,
             a.rig_config.as_deref(),
             &cal_cfg,
-            a.out.as_deref(),
+            out.as_deref(),
             &mut progress,
             &cancel,
         )
@@ -142,7 +161,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
         }
     };
     let report = outcome.report();
-    if let Some(p) = &a.out {
+    if let Some(p) = &out {
         eprintln!("calibration file written to {}", p.display());
     }
     emit(a.json, &report, || report.table())

@@ -37,6 +37,10 @@ pub struct AppOptions {
     pub connect: bool,
     /// Engine options.
     pub engine: EngineOptions,
+    /// Study output folder (Study and Results pages).
+    pub study_dir: Option<PathBuf>,
+    /// Start a simulated real-time sitting on the Study page.
+    pub simulate_sitting: bool,
 }
 
 impl Default for AppOptions {
@@ -47,6 +51,8 @@ impl Default for AppOptions {
             fresh_settings: false,
             connect: true,
             engine: EngineOptions::default(),
+            study_dir: None,
+            simulate_sitting: false,
         }
     }
 }
@@ -149,6 +155,9 @@ impl KilotouchApp {
         if let Some(p) = opts.page {
             settings.page = p;
         }
+        if let Some(d) = &opts.study_dir {
+            settings.output_dir = Some(d.clone());
+        }
         let mut notices = VecDeque::new();
         let path = opts
             .rig_config
@@ -203,6 +212,9 @@ impl KilotouchApp {
                 }
             }
             _ => {}
+        }
+        if opts.simulate_sitting {
+            study.simulate_sitting();
         }
         let mut app = Self {
             page: settings.page,
@@ -326,15 +338,26 @@ impl KilotouchApp {
 
     /// THE emergency stop of the GUI (button and Esc): never blocks.
     pub fn emergency_stop(&mut self) {
+        let sitting = self.study.is_running();
         self.study.emergency_stop();
         match &self.engine {
             Some(e) => e.emergency_stop(),
+            None if sitting => self.notify(
+                "emergency stop: the study's trial was aborted and the sitting paused; \
+                 outputs held at zero until the stop is reset",
+                true,
+            ),
             None => self.notify(
                 "emergency stop: no rig connected (outputs already off)",
                 false,
             ),
         }
         self.reset_dialog = None;
+    }
+
+    /// Is an emergency stop latched, the engine's or a study sitting's?
+    pub fn any_estop_latched(&self) -> bool {
+        self.estop_latched() || self.study.estop_latched()
     }
 
     /// Is the engine's emergency stop latched (per the last health report)?
@@ -486,7 +509,7 @@ impl KilotouchApp {
                 {
                     self.emergency_stop();
                 }
-                if self.estop_latched() {
+                if self.any_estop_latched() {
                     if ui
                         .add(
                             egui::Button::new("Reset emergency stop…")
@@ -509,12 +532,19 @@ impl KilotouchApp {
     fn status_bar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             match &self.engine {
-                None => match &self.connecting {
-                    Some(p) => {
+                None => match (&self.connecting, self.study.status_line()) {
+                    (Some(p), _) => {
                         ui.spinner();
                         ui.label(format!("connecting to {}…", p.label));
                     }
-                    None => {
+                    (None, Some(line)) => {
+                        if self.study.estop_latched() {
+                            ui.colored_label(Color32::RED, "EMERGENCY STOP");
+                            ui.separator();
+                        }
+                        ui.label(line);
+                    }
+                    (None, None) => {
                         ui.colored_label(Color32::GRAY, "disconnected");
                     }
                 },
@@ -604,6 +634,13 @@ impl KilotouchApp {
             {
                 self.notify("reset not sent (command queue full), try again", true);
             }
+            if self.study.estop_latched() {
+                self.study.release_emergency_stop();
+                self.notify(
+                    "emergency stop reset: press Resume on the Study page to go on",
+                    false,
+                );
+            }
             close = true;
         }
         if close {
@@ -659,7 +696,24 @@ impl KilotouchApp {
                     e.shutdown();
                 }
             }
-            EngineTransition::Restart => self.connect(),
+            EngineTransition::Restart => {
+                // The engine takes the rig back stopped: the experimenter
+                // arms it (Rig page), and a stop of the sitting that was
+                // never reset stays latched.
+                self.connect();
+                let latched = self.study.take_estop_latch();
+                if let Some(e) = &mut self.engine {
+                    let _ = e.send(crate::engine::Command::Stop);
+                    if latched {
+                        e.emergency_stop();
+                    }
+                }
+                self.notify(
+                    "the study released the rig: the Explore engine is back, stopped \
+                     (Resume on the Rig page arms it)",
+                    false,
+                );
+            }
             EngineTransition::Keep => {}
         }
         self.reset_dialog_ui(&ctx);

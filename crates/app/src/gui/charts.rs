@@ -14,6 +14,15 @@
 //! Only 1-2-5 marks get a label, in Hz with k/M prefixes ("20", "500",
 //! "1k", "2k").
 //!
+//! # Zoom and pan
+//! Plots sit on scrolling pages, so the mouse wheel scrolls the page: a
+//! chart zooms with **Ctrl + wheel** (or a pinch) and the right-drag box,
+//! and pans with the wheel and a drag only while its "zoom / pan" toggle is
+//! on; **Reset view** (or a double-click) restores the automatic bounds.
+//! [`nav_bar`] draws that toggle and button once per chart and
+//! [`PlotNav::apply`] sets the plot up accordingly — every chart of this
+//! module goes through it.
+//!
 //! The pure parts (mark generation, labels, mapping, whisker geometry, mean
 //! and SD) are unit-tested; the drawing functions only hand their output to
 //! egui_plot.
@@ -295,6 +304,57 @@ impl Series {
     }
 }
 
+/// How a chart may be moved this frame ([`nav_bar`], module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PlotNav {
+    /// The wheel and a drag pan the plot (else the wheel scrolls the page).
+    pub free: bool,
+    /// Restore the automatic bounds this frame.
+    pub reset: bool,
+}
+
+impl PlotNav {
+    /// The plot `id` with this navigation: Ctrl + wheel zoom, box zoom and
+    /// double-click reset always; wheel and drag pan only when `free`. Its
+    /// egui id is [`chart_plot_id`]`(id)` wherever it is drawn.
+    pub fn apply<'a>(self, plot: Plot<'a>, id: &str) -> Plot<'a> {
+        let p = plot
+            .id(chart_plot_id(id))
+            .allow_zoom(true)
+            .allow_boxed_zoom(true)
+            .allow_double_click_reset(true)
+            .allow_scroll(self.free)
+            .allow_drag(self.free);
+        if self.reset { p.reset() } else { p }
+    }
+}
+
+/// The egui id of the chart plot `id` (e.g. `cal-low-mag`): where its
+/// bounds live in egui's memory (`egui_plot::PlotMemory::load`).
+pub fn chart_plot_id(id: &str) -> egui::Id {
+    egui::Id::unique(("kilotouch-chart", id))
+}
+
+/// The toggle "zoom / pan" and the "Reset view" button above the chart
+/// `id` (the toggle is remembered per chart for the run of the app).
+pub fn nav_bar(ui: &mut Ui, id: &str) -> PlotNav {
+    let key = egui::Id::unique(("kilotouch-plot-nav", id));
+    let mut free = ui.data(|d| d.get_temp::<bool>(key)).unwrap_or(false);
+    let mut reset = false;
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut free, "zoom / pan").on_hover_text(
+            "on: the wheel and a drag move this plot; off: the wheel scrolls the page",
+        );
+        reset = ui
+            .small_button("Reset view")
+            .on_hover_text("back to the automatic bounds (also: double-click the plot)")
+            .clicked();
+        ui.weak("Ctrl + wheel: zoom");
+    });
+    ui.data_mut(|d| d.insert_temp(key, free));
+    PlotNav { free, reset }
+}
+
 /// A plot with a log-frequency x axis (module documentation): grid, tick
 /// labels in Hz, hover label "f Hz, y unit".
 pub fn log_freq_plot<'a>(id: &str, y_label: &'a str, height: f32) -> Plot<'a> {
@@ -328,12 +388,14 @@ pub fn freq_chart(
     series: &[Series],
     extra: impl FnOnce(&mut PlotUi<'_>),
 ) {
-    log_freq_plot(id, y_label, height).show(ui, |p| {
-        extra(p);
-        for s in series {
-            p.line(s.line());
-        }
-    });
+    let nav = nav_bar(ui, id);
+    nav.apply(log_freq_plot(id, y_label, height), id)
+        .show(ui, |p| {
+            extra(p);
+            for s in series {
+                p.line(s.line());
+            }
+        });
 }
 
 /// Bode plot of frequency responses: magnitude (dB) over phase (deg), and
@@ -341,30 +403,40 @@ pub fn freq_chart(
 pub fn bode(ui: &mut Ui, id: &str, magnitude: &[Series], phase: &[Series], coherence: &[Series]) {
     let link = egui::Id::unique((id, "bode-x"));
     let x_link = egui::Vec2b::new(true, false);
-    log_freq_plot(&format!("{id}-mag"), "dB", 180.0)
-        .link_axis(link, x_link)
-        .show(ui, |p| {
-            for s in magnitude {
-                p.line(s.line());
-            }
-        });
-    log_freq_plot(&format!("{id}-phase"), "deg", 120.0)
-        .link_axis(link, x_link)
-        .show(ui, |p| {
-            for s in phase {
-                p.line(s.line());
-            }
-        });
+    let nav = nav_bar(ui, id);
+    nav.apply(
+        log_freq_plot(&format!("{id}-mag"), "dB", 180.0),
+        &format!("{id}-mag"),
+    )
+    .link_axis(link, x_link)
+    .show(ui, |p| {
+        for s in magnitude {
+            p.line(s.line());
+        }
+    });
+    nav.apply(
+        log_freq_plot(&format!("{id}-phase"), "deg", 120.0),
+        &format!("{id}-phase"),
+    )
+    .link_axis(link, x_link)
+    .show(ui, |p| {
+        for s in phase {
+            p.line(s.line());
+        }
+    });
     if !coherence.is_empty() {
-        log_freq_plot(&format!("{id}-coh"), "γ²", 90.0)
-            .link_axis(link, x_link)
-            .include_y(0.0)
-            .include_y(1.0)
-            .show(ui, |p| {
-                for s in coherence {
-                    p.line(s.line());
-                }
-            });
+        nav.apply(
+            log_freq_plot(&format!("{id}-coh"), "γ²", 90.0),
+            &format!("{id}-coh"),
+        )
+        .link_axis(link, x_link)
+        .include_y(0.0)
+        .include_y(1.0)
+        .show(ui, |p| {
+            for s in coherence {
+                p.line(s.line());
+            }
+        });
     }
 }
 
@@ -418,7 +490,8 @@ pub fn third_octave_bars(ui: &mut Ui, id: &str, bands: &[BandBars], tolerance_db
     } else {
         None
     };
-    log_freq_plot(id, "deviation (dB)", 220.0)
+    let nav = nav_bar(ui, id);
+    nav.apply(log_freq_plot(id, "deviation (dB)", 220.0), id)
         .include_y(-3.0)
         .include_y(3.0)
         .show(ui, |p| {
@@ -471,9 +544,15 @@ pub fn bars_with_whiskers(
     let n = series.len();
     let labels = groups.to_vec();
     let top = bars_top(series).unwrap_or(0.0);
-    Plot::new(id.to_owned())
+    let nav = nav_bar(ui, id);
+    nav.apply(Plot::new(id.to_owned()), id)
         .height(height)
-        .legend(Legend::default().position(Corner::RightTop))
+        // The legend lists the series in the order of the bars.
+        .legend(
+            Legend::default()
+                .position(Corner::RightTop)
+                .follow_insertion_order(true),
+        )
         .y_axis_label(y_label.to_owned())
         .include_y(0.0)
         .include_y(1.08 * top)
@@ -538,7 +617,8 @@ pub struct Trace {
 
 /// Trajectories in the sample plane with equal axis scales (Fig. 10).
 pub fn trajectories(ui: &mut Ui, id: &str, traces: &[Trace], height: f32) {
-    Plot::new(id.to_owned())
+    let nav = nav_bar(ui, id);
+    nav.apply(Plot::new(id.to_owned()), id)
         .height(height)
         .data_aspect(1.0)
         .legend(Legend::default().position(Corner::RightTop))

@@ -11,6 +11,7 @@ pub mod app;
 pub mod charts;
 pub mod env;
 pub mod pages;
+pub mod participant_screen;
 pub mod plot;
 pub mod scene;
 pub mod scene_wgpu;
@@ -46,6 +47,15 @@ pub struct GuiArgs {
     /// PNG, e.g. 5 for the README images).
     #[arg(long, value_name = "BITS", default_value_t = 8, value_parser = clap::value_parser!(u8).range(1..=8))]
     pub screenshot_bits: u8,
+    /// Study output folder for the Study and Results pages (the Results
+    /// page opens it when it holds a study).
+    #[arg(long, value_name = "DIR")]
+    pub study_dir: Option<PathBuf>,
+    /// Open a sitting of the next pending participant with the simulated
+    /// participant in real time and start it (a dry run on the Study page,
+    /// participant view inline; how the README's Study image is made).
+    #[arg(long)]
+    pub simulate_sitting: bool,
     /// Window size in points, WxH (default 1100x700).
     #[arg(long, value_name = "WxH", default_value = "1100x700")]
     pub size: String,
@@ -98,6 +108,8 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         page: args.page,
         rig_config: args.rig_config.clone(),
         fresh_settings: shot,
+        study_dir: args.study_dir.clone(),
+        simulate_sitting: args.simulate_sitting,
         ..Default::default()
     };
     let native = eframe::NativeOptions {

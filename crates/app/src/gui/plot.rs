@@ -162,12 +162,34 @@ pub fn nice_range(x: f32) -> f32 {
     10.0 * base
 }
 
+/// A tick label with as many decimals as the tick spacing needs (egui_plot's
+/// default rounds small values such as 0.002 m/s² to "0"): the spacing's
+/// leading digit is kept, values below 10⁻³ or above 10⁵ in scientific
+/// notation.
+pub fn tick_label(mark: egui_plot::GridMark, _range: &std::ops::RangeInclusive<f64>) -> String {
+    let v = mark.value;
+    let step = mark.step_size.abs();
+    if v == 0.0 {
+        return "0".into();
+    }
+    if !(v.is_finite() && step.is_finite() && step > 0.0) {
+        return String::new();
+    }
+    let a = v.abs();
+    if !(1e-3..1e5).contains(&a) {
+        return format!("{v:.1e}");
+    }
+    let decimals = (-step.log10().floor()).clamp(0.0, 6.0) as usize;
+    format!("{v:.decimals$}")
+}
+
 /// Names of the live traces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Trace {
-    /// Handle force x, N.
+    /// Pantograph force sent to the device x (after the condition and the
+    /// safety layer: 0 in V and while the outputs are held at zero), N.
     ForceX,
-    /// Handle force y, N.
+    /// Pantograph force sent y, N.
     ForceY,
     /// Haptuator drive, V.
     Haptuator,
@@ -218,8 +240,8 @@ impl LiveTraces {
     /// Append one telemetry sample.
     pub fn push(&mut self, s: &crate::engine::TelemetrySample) {
         let v = [
-            s.handle_force_n[0],
-            s.handle_force_n[1],
+            s.output.force_n[0],
+            s.output.force_n[1],
             s.output.haptuator_v,
             s.accel_m_s2[0],
             s.accel_m_s2[1],
@@ -281,6 +303,8 @@ pub fn trace_plot(
     Plot::new(id.to_owned())
         .height(height)
         .y_axis_label(y_label.to_owned())
+        .y_axis_formatter(tick_label)
+        .y_axis_min_width(44.0)
         .x_axis_label("time (s)")
         .allow_scroll(false)
         .allow_drag(false)
@@ -318,6 +342,7 @@ pub fn histogram_plot(ui: &mut egui::Ui, id: &str, height: f32, samples: &[f32],
     Plot::new(id.to_owned())
         .height(height)
         .x_axis_label("tip acceleration x (m/s²)")
+        .x_axis_formatter(tick_label)
         .y_axis_label("density (s²/m)")
         .allow_scroll(false)
         .allow_drag(false)

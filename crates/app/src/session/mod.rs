@@ -60,7 +60,20 @@
 //! trial is aborted at once (no further sample is computed, so the
 //! simulated station's outputs stop), its row is committed with
 //! `reject_reason = aborted`, the event is journaled as a note and the
-//! session stays paused until the experimenter resumes.
+//! session stays paused until the experimenter resumes (also between
+//! trials: a held trial does not begin).
+//!
+//! **Participant screens** ([`SessionOptions::screens`], the Study page's
+//! participant view): the runner holds every next trial
+//! ([`RunnerState::Waiting`]); which routine runs is
+//! [`kilotouch_study::screens::gate`] of the last and the next trial.
+//! Within a block the protocol's inter-trial interval (`screens.iti_s`,
+//! wall clock) elapses here, then the trial begins by itself; a new block
+//! (first trial of the sitting, a new session or training condition)
+//! waits for [`SessionCommand::Proceed`], sent by the GUI when the
+//! participant leaves the ready screen. The sitting ends cleanly
+//! (`session_done` in the journal) when its participant is done or the
+//! experimenter stops it; only a crash or kill leaves it unclosed.
 
 mod participant;
 
@@ -159,7 +172,18 @@ pub struct SessionOptions {
     /// SHA-256 in `session.json` and the journal. `None`: the model's
     /// as-designed chain, recorded as uncalibrated.
     pub calibration: Option<PathBuf>,
+    /// Run the participant's screens (module docs, "Participant screens"):
+    /// every block waits for [`SessionCommand::Proceed`] (the participant's
+    /// key or click on the ready screen; the simulated participant "reads"
+    /// for [`SIM_READ_S`] in real time), and trials within a block are
+    /// separated by the protocol's inter-trial interval. Default `false`
+    /// (trials follow one another at once).
+    pub screens: bool,
 }
+
+/// How long the simulated participant takes on an instructions / ready
+/// screen in real time, s (0 at [`Speed::Fast`]).
+pub const SIM_READ_S: f64 = 1.5;
 
 impl SessionOptions {
     /// Defaults: mouse participant, real time, blocks of 10 samples,
@@ -177,6 +201,7 @@ impl SessionOptions {
             block: 10,
             telemetry_every: 20,
             calibration: None,
+            screens: false,
         }
     }
 }
@@ -196,8 +221,11 @@ pub enum SessionCommand {
     Note(String),
     /// Emergency stop (module docs).
     EmergencyStop,
-    /// End the sitting now (the trial in progress stays open and runs
-    /// again on resume).
+    /// The participant is ready: begin the trial the runner holds
+    /// ([`RunnerState::Waiting`]); ignored otherwise.
+    Proceed,
+    /// End the sitting now: the trial in progress is journaled as aborted
+    /// (no row; it runs again on resume) and the sitting closes cleanly.
     Stop,
 }
 
@@ -472,6 +500,7 @@ impl SessionHandle {
                 worst_lateness_s: f64::NEG_INFINITY,
                 ..Default::default()
             },
+            last_ended: None,
         };
         let handle = std::thread::Builder::new()
             .name("kilotouch-session".into())
@@ -580,6 +609,8 @@ struct SessionThread {
     opts: SessionOptions,
     fs: f64,
     health: SessionHealth,
+    /// The last trial that ended (what the next one's screens follow).
+    last_ended: Option<TrialKey>,
 }
 
 /// Slots kept free in the event queue for events that must not be lost.
@@ -627,6 +658,7 @@ impl SessionThread {
 
     fn report(&mut self, ev: &RunnerEvents) {
         if let Some((k, e)) = ev.ended {
+            self.last_ended = Some(k);
             self.emit(SessionEvent::TrialEnded(k, e));
         }
         if let Some(row) = &ev.committed {
@@ -664,10 +696,23 @@ impl SessionThread {
     }
 
     fn run(mut self) {
-        let reason = match self.run_loop() {
+        let mut reason = match self.run_loop() {
             Ok(r) => r,
             Err(e) => FinishReason::Failed(e.to_string()),
         };
+        // A participant finished or the experimenter stopped: the sitting
+        // ends cleanly (journal `session_done`), so the next opening does
+        // not report a crash.
+        let why = match &reason {
+            FinishReason::ParticipantDone(id) => Some(format!("participant {id} finished")),
+            FinishReason::Stopped => Some("sitting stopped by the experimenter".to_owned()),
+            _ => None,
+        };
+        if let Some(why) = why
+            && let Err(e) = self.runner.end_sitting(&why)
+        {
+            reason = FinishReason::Failed(format!("ending the sitting: {e}"));
+        }
         self.emit(SessionEvent::Health(self.health));
         self.emit(SessionEvent::Finished(reason));
         // Deliver what is left while the GUI drains (bounded wait).
@@ -689,6 +734,10 @@ impl SessionThread {
         let mut window_start = Instant::now();
         let mut window_busy = 0.0f64;
         let mut was_running = false;
+        let screens = self.opts.screens;
+        self.runner.set_hold(screens);
+        let iti_s = self.runner.protocol().screens.iti_s;
+        let mut waiting_since: Option<Instant> = None;
         loop {
             // Commands.
             while let Ok(cmd) = self.cmd_rx.pop() {
@@ -709,6 +758,30 @@ impl SessionThread {
             let state = self.runner.state();
             if state == RunnerState::Done {
                 return Ok(FinishReason::StudyDone);
+            }
+            if let RunnerState::Waiting(next) = state {
+                // The participant's screens: the inter-trial interval runs
+                // here; a new block waits for the participant (Proceed).
+                let since = *waiting_since.get_or_insert_with(Instant::now);
+                let fast = !paced;
+                let wait_s = match (
+                    kilotouch_study::screens::gate(self.last_ended, next),
+                    &self.tap.inner,
+                ) {
+                    _ if fast => Some(0.0),
+                    (kilotouch_study::screens::Gate::Iti, _) => Some(iti_s),
+                    (_, Who::Sim(_)) => Some(SIM_READ_S),
+                    (_, Who::Mouse(_)) => None,
+                };
+                if wait_s.is_some_and(|w| since.elapsed().as_secs_f64() >= w) {
+                    waiting_since = None;
+                    let ev = self.runner.proceed(&mut self.tap)?;
+                    self.report(&ev);
+                    self.emit_state(&mut last_state);
+                    continue;
+                }
+            } else {
+                waiting_since = None;
             }
             let running = matches!(state, RunnerState::Training(_) | RunnerState::Trial(_));
             if !running {
@@ -783,6 +856,12 @@ impl SessionThread {
             }
             SessionCommand::Pause => self.runner.pause("experimenter")?,
             SessionCommand::Resume => {
+                if self.runner.state() == RunnerState::Paused(None) {
+                    // After a pause between trials (or an emergency stop)
+                    // the next trial starts a new block: instructions and
+                    // the ready screen again, not a bare interval.
+                    self.last_ended = None;
+                }
                 let ev = self.runner.resume(&mut self.tap)?;
                 self.report(&ev);
             }
@@ -819,6 +898,17 @@ impl SessionThread {
                     {
                         return Ok(Some(FinishReason::ParticipantDone(self.participant_id(k))));
                     }
+                }
+                if matches!(self.runner.state(), RunnerState::Waiting(_)) {
+                    // Between trials: nothing begins until the experimenter
+                    // resumes.
+                    self.runner.pause("emergency stop")?;
+                }
+            }
+            SessionCommand::Proceed => {
+                if matches!(self.runner.state(), RunnerState::Waiting(_)) {
+                    let ev = self.runner.proceed(&mut self.tap)?;
+                    self.report(&ev);
                 }
             }
             SessionCommand::Stop => return Ok(Some(FinishReason::Stopped)),

@@ -123,8 +123,12 @@ impl CalibrationReport {
         let _ = writeln!(s, "Calibration of rig {}", self.rig);
         let _ = writeln!(
             s,
-            "  low channel   G0_L = {:.5} (m/s²)/N, flat {:.1}–{:.1} Hz",
-            self.low_gain, self.low_flat_band_hz[0], self.low_flat_band_hz[1]
+            "  low channel   G0_L = {:.5} (m/s²)/N over the flat band {:.1}–{:.1} Hz; \
+             C_L uses G0_L = {:.5} (m/s²)/N (flat band below the crossover)",
+            self.low_gain_flat_band,
+            self.low_flat_band_hz[0],
+            self.low_flat_band_hz[1],
+            self.low_gain
         );
         let _ = writeln!(
             s,

@@ -514,6 +514,29 @@ impl StudyStore {
         Ok(files)
     }
 
+    /// Ends this sitting without closing the study (a participant finished,
+    /// or the experimenter stopped the sitting): journals `session_done`
+    /// with the progress so far and rewrites `session.json`; the next
+    /// opening resumes the folder and reports no unclosed sitting. The
+    /// summaries are written by [`StudyStore::close`] when the study ends.
+    ///
+    /// # Errors
+    /// [`ExportError::Trial`] when a trial is still open; I/O errors.
+    pub fn end_sitting(mut self) -> Result<()> {
+        if let Some(key) = self.open_trial {
+            return Err(ExportError::Trial {
+                key,
+                message: "still open: commit or abort it before ending the sitting".into(),
+            });
+        }
+        self.journal.append(Record::SessionDone {
+            completed: self.completed.len() as u64,
+            planned: self.plan.len() as u64,
+        })?;
+        self.write_session_info()?;
+        Ok(())
+    }
+
     /// Closes the sitting: regenerates the summaries and journals
     /// `session_done`. (Dropping the store without `close` is equivalent to
     /// a crash between trials: nothing is lost; the next open reports an

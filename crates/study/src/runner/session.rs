@@ -27,6 +27,11 @@ pub enum RunnerState {
     Trial(TrialKey),
     /// Paused by the experimenter (the trial in progress, if any, waits).
     Paused(Option<TrialKey>),
+    /// Between two trials, the next one (this key) waits for the
+    /// participant: inter-trial interval, break, instructions or ready
+    /// screen ([`SessionRunner::set_hold`]); [`SessionRunner::proceed`]
+    /// begins it. Not journaled (no pause).
+    Waiting(TrialKey),
     /// Every trial of the plan has its row; the store is closed.
     Done,
 }
@@ -39,6 +44,7 @@ impl fmt::Display for RunnerState {
             RunnerState::Trial(k) => write!(f, "trial {k}"),
             RunnerState::Paused(Some(k)) => write!(f, "paused in {k}"),
             RunnerState::Paused(None) => f.write_str("paused between trials"),
+            RunnerState::Waiting(k) => write!(f, "waiting for the participant before {k}"),
             RunnerState::Done => f.write_str("done"),
         }
     }
@@ -77,6 +83,7 @@ pub struct SessionRunner<S: Station> {
     before_pause: Option<RunnerState>,
     active: Option<Active>,
     summaries: Option<SummaryFiles>,
+    hold: bool,
 }
 
 impl<S: Station> SessionRunner<S> {
@@ -94,7 +101,72 @@ impl<S: Station> SessionRunner<S> {
             before_pause: None,
             active: None,
             summaries: None,
+            hold: false,
         })
+    }
+
+    /// Hold before every trial (`true`): [`SessionRunner::start`], a
+    /// committed trial and the end of a pause between trials go to
+    /// [`RunnerState::Waiting`] instead of beginning the next trial, so
+    /// that the participant's screens (instructions, ready, inter-trial
+    /// interval, break) run first; [`SessionRunner::proceed`] begins it.
+    /// Default `false` (headless runs go straight on).
+    pub fn set_hold(&mut self, hold: bool) {
+        self.hold = hold;
+    }
+
+    /// Begins the trial a [`RunnerState::Waiting`] state holds.
+    ///
+    /// # Errors
+    /// [`RunError::State`] when not waiting; storage and station errors.
+    pub fn proceed<P: Participant + ?Sized>(
+        &mut self,
+        participant: &mut P,
+    ) -> Result<RunnerEvents, RunError> {
+        if !matches!(self.state, RunnerState::Waiting(_)) {
+            return Err(RunError::State(format!(
+                "nothing waits to begin while {}",
+                self.state
+            )));
+        }
+        let mut ev = RunnerEvents::default();
+        self.begin_next(participant, &mut ev)?;
+        Ok(ev)
+    }
+
+    /// Goes to [`RunnerState::Waiting`] for the next pending trial when
+    /// holding and one is left; otherwise begins it (or closes the study).
+    fn next_or_wait<P: Participant + ?Sized>(
+        &mut self,
+        participant: &mut P,
+        ev: &mut RunnerEvents,
+    ) -> Result<(), RunError> {
+        if self.hold
+            && let Some(key) = self.store_mut()?.next_pending().map(|p| p.key)
+        {
+            self.state = RunnerState::Waiting(key);
+            return Ok(());
+        }
+        self.begin_next(participant, ev)
+    }
+
+    /// Ends this sitting cleanly without closing the study (the next
+    /// participant, or a later sitting, resumes the folder): a trial in
+    /// progress is journaled as aborted with `reason` (no row; it runs
+    /// again on resume) and the sitting's `session_done` is written, so the
+    /// next opening does not report an unclosed sitting. The runner is
+    /// closed afterwards (no store).
+    ///
+    /// # Errors
+    /// I/O errors.
+    pub fn end_sitting(&mut self, reason: &str) -> Result<(), RunError> {
+        if let Some(active) = self.active.take() {
+            self.store_mut()?.abort_trial(active.ticket, reason)?;
+        }
+        if let Some(store) = self.store.take() {
+            store.end_sitting()?;
+        }
+        Ok(())
     }
 
     /// Current state.
@@ -105,6 +177,11 @@ impl<S: Station> SessionRunner<S> {
     /// The store (`None` once closed).
     pub fn store(&self) -> Option<&StudyStore> {
         self.store.as_ref()
+    }
+
+    /// The protocol the runner runs.
+    pub fn protocol(&self) -> &Protocol {
+        &self.protocol
     }
 
     /// The trial engine (station, current trial).
@@ -139,7 +216,7 @@ impl<S: Station> SessionRunner<S> {
             )));
         }
         let mut ev = RunnerEvents::default();
-        self.begin_next(participant, &mut ev)?;
+        self.next_or_wait(participant, &mut ev)?;
         Ok(ev)
     }
 
@@ -245,7 +322,7 @@ impl<S: Station> SessionRunner<S> {
             ev.committed = Some(row);
             match self.state {
                 RunnerState::Paused(_) => self.state = RunnerState::Paused(None),
-                _ => self.begin_next(participant, &mut ev)?,
+                _ => self.next_or_wait(participant, &mut ev)?,
             }
         }
         Ok(ev)
@@ -258,6 +335,7 @@ impl<S: Station> SessionRunner<S> {
     pub fn pause(&mut self, reason: &str) -> Result<(), RunError> {
         let trial = match self.state {
             RunnerState::Training(k) | RunnerState::Trial(k) => Some(k),
+            RunnerState::Waiting(_) => None,
             s => return Err(RunError::State(format!("cannot pause while {s}"))),
         };
         self.store_mut()?.pause(reason)?;
@@ -290,7 +368,7 @@ impl<S: Station> SessionRunner<S> {
             }
             None => {
                 self.before_pause = None;
-                self.begin_next(participant, &mut ev)?;
+                self.next_or_wait(participant, &mut ev)?;
             }
         }
         Ok(ev)
@@ -352,6 +430,9 @@ impl<S: Station> SessionRunner<S> {
                 RunnerState::Done => return Ok(()),
                 RunnerState::Paused(_) => {
                     return Err(RunError::State("paused: resume before run_to_end".into()));
+                }
+                RunnerState::Waiting(_) => {
+                    self.proceed(participant)?;
                 }
                 _ => {}
             }

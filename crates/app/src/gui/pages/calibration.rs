@@ -444,11 +444,14 @@ impl CalibrationPage {
         let Some(shown) = self.shown.as_mut() else {
             return;
         };
-        let path = PathBuf::from(self.save_path.trim());
-        if path.as_os_str().is_empty() {
+        let typed = PathBuf::from(self.save_path.trim());
+        if typed.as_os_str().is_empty() {
             self.status = Some(Status::Error("type a file name to save to".into()));
             return;
         }
+        // Messages name the full path (a bare name lands in the working
+        // directory, which the user may not know).
+        let path = std::path::absolute(&typed).unwrap_or(typed);
         if path.exists() && !self.overwrite {
             self.status = Some(Status::Error(format!(
                 "{} exists; tick \"overwrite\" to replace it",
@@ -928,8 +931,10 @@ impl CalibrationPage {
                 row(
                     "low channel",
                     format!(
-                        "G0_L = {:.4} (m/s²)/N, flat {:.0}–{:.0} Hz",
-                        f.low.g0, f.low.flat_band_hz[0], f.low.flat_band_hz[1]
+                        "G0_L = {:.5} (m/s²)/N over the flat band {:.0}–{:.0} Hz; C_L uses \
+                         G0_L = {:.5} (m/s²)/N, the flat band below the crossover (the CLI's \
+                         `low_gain`)",
+                        f.low.g0, f.low.flat_band_hz[0], f.low.flat_band_hz[1], f.compensators.g0_l
                     ),
                 );
                 row(

@@ -63,6 +63,8 @@ pub struct ExplorePage {
     spectrum: Option<Spectrum>,
     spectrum_age: f64,
     hist_range: f32,
+    /// Why the Pantograph force sent is zero (outputs held, condition V).
+    force_note: Option<&'static str>,
     escapes: u64,
     contacts: u64,
     message: Option<String>,
@@ -123,6 +125,7 @@ impl ExplorePage {
             spectrum: None,
             spectrum_age: f64::INFINITY,
             hist_range: 1.0,
+            force_note: None,
             escapes: 0,
             contacts: 0,
             message: None,
@@ -265,9 +268,11 @@ impl ExplorePage {
                     e.set_condition(c);
                 }
             }
-            if let Some(c) = current {
-                ui.label(c.description());
-            }
+            // Fixed width: the toolbar wraps the same way in V, P and D, so
+            // the scene below does not jump when the condition changes.
+            let desc = current.map(|c| c.description()).unwrap_or_default();
+            ui.add_sized([300.0, 18.0], egui::Label::new(desc).truncate())
+                .on_hover_text(desc);
             ui.separator();
             ui.label(RichText::new("Tool").strong());
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
@@ -432,6 +437,14 @@ impl ExplorePage {
             .as_ref()
             .and_then(|e| e.health())
             .is_some_and(|h| h.safety == crate::engine::SafetyState::EStop);
+        self.force_note = match engine.as_ref().and_then(|e| e.health()) {
+            None => Some("no rig: no force"),
+            Some(h) if h.safety != crate::engine::SafetyState::Enabled || !h.running => {
+                Some("OUTPUTS HELD AT ZERO: no force is sent")
+            }
+            Some(h) if !h.condition.haptic() => Some("V (vision only): no force is sent"),
+            Some(_) => None,
+        };
         let shown = self.camera.visible();
         let painter = ui.painter_at(rect);
         let Some(snap) = shown else {
@@ -527,11 +540,14 @@ impl ExplorePage {
         let h = ((height - 40.0) / 3.0).max(80.0);
         let fx = self.traces.last(Trace::ForceX, secs).to_vec();
         let fy = self.traces.last(Trace::ForceY, secs).to_vec();
+        if let Some(n) = self.force_note {
+            ui.colored_label(Color32::from_rgb(230, 150, 40), n);
+        }
         plot::trace_plot(
             ui,
             "force",
             h,
-            "handle force (N)",
+            "Pantograph force sent (N)",
             &[
                 ("x", Color32::from_rgb(90, 170, 255), &fx),
                 ("y", Color32::from_rgb(255, 150, 60), &fy),

@@ -394,9 +394,14 @@ impl ResultsPage {
                     &label,
                     220.0,
                 );
-                ui.label(
-                    "bars: mean over the participant's successful test trials; whiskers: ±1 SD",
-                );
+                ui.label(match view.metric {
+                    ResultMetric::SuccessCount => {
+                        "bars: the participant's number of successful test trials"
+                    }
+                    ResultMetric::Column(_) => {
+                        "bars: mean over the participant's successful test trials; whiskers: ±1 SD"
+                    }
+                });
             });
         egui::CollapsingHeader::new("Per condition (Fig. 12)")
             .default_open(true)

@@ -22,6 +22,7 @@ use kilotouch_study::task::Scene;
 use kilotouch_study::task::station::HandMapping;
 
 use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::participant_screen::{ParticipantScreen, Routine};
 use crate::gui::scene::{self, SceneFrame, View};
 use crate::gui::scene_wgpu::SceneCallback;
 use crate::session::{
@@ -66,6 +67,19 @@ pub enum CalibrationChoice {
     File,
 }
 
+/// Where the participant's window opens.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Monitor {
+    /// The experimenter's monitor (the window opens over this one).
+    #[default]
+    Same,
+    /// The monitor to the right of the experimenter's (the window is placed
+    /// one screen width to the right; full screen then fills that monitor).
+    Right,
+    /// The monitor to the left.
+    Left,
+}
+
 /// Study sessions.
 #[derive(Debug)]
 pub struct StudyPage {
@@ -90,6 +104,15 @@ pub struct StudyPage {
     pub calibration_file: String,
     /// Draw the scene with wgpu (set by the shell when installed).
     pub gpu: bool,
+    /// Monitor of the participant's window.
+    pub monitor: Monitor,
+    /// Participant's window full screen.
+    pub fullscreen: bool,
+    screen: Option<ParticipantScreen>,
+    estop_latched: bool,
+    run_all: bool,
+    shown_for: Option<(String, String)>,
+    autostart: bool,
     protocol: Option<Protocol>,
     table: Option<AssignmentTable>,
     protocol_error: Option<String>,
@@ -135,6 +158,13 @@ impl StudyPage {
             calibration: CalibrationChoice::default(),
             calibration_file: String::new(),
             gpu: false,
+            monitor: Monitor::Same,
+            fullscreen: false,
+            screen: None,
+            estop_latched: false,
+            run_all: false,
+            shown_for: None,
+            autostart: false,
             protocol: None,
             table: None,
             protocol_error: None,
@@ -208,8 +238,13 @@ impl StudyPage {
         EngineTransition::Keep
     }
 
-    /// The shell's emergency stop: abort the running trial and pause.
+    /// The shell's emergency stop: abort the running trial and pause; the
+    /// sitting cannot resume until the stop is reset through the shell's
+    /// confirmation ([`StudyPage::release_emergency_stop`]).
     pub fn emergency_stop(&mut self) {
+        if self.session.is_some() {
+            self.estop_latched = true;
+        }
         if let Some(s) = &mut self.session
             && !s.send(SessionCommand::EmergencyStop)
         {
@@ -219,23 +254,103 @@ impl StudyPage {
         }
     }
 
+    /// On the first draw, open a sitting of the folder's next pending
+    /// participant (or P01 of a new folder) with the simulated participant
+    /// in real time, participant view inline, and start it.
+    pub fn simulate_sitting(&mut self) {
+        self.kind = ParticipantKind::Simulated;
+        self.speed = Speed::RealTime;
+        self.separate_window = false;
+        self.autostart = true;
+    }
+
+    /// An emergency stop of this sitting waits for its reset.
+    pub fn estop_latched(&self) -> bool {
+        self.estop_latched
+    }
+
+    /// Hands an unresolved emergency stop of a finished sitting to the
+    /// shell (the engine that takes the rig back starts latched).
+    pub fn take_estop_latch(&mut self) -> bool {
+        self.session.is_none() && std::mem::take(&mut self.estop_latched)
+    }
+
+    /// The experimenter confirmed that the rig is safe (the shell's reset
+    /// dialog): Resume is possible again (it is not pressed for them).
+    pub fn release_emergency_stop(&mut self) {
+        self.estop_latched = false;
+    }
+
+    /// One line for the shell's status bar while a sitting owns the rig:
+    /// participant and runner state.
+    pub fn status_line(&self) -> Option<String> {
+        self.session.as_ref()?;
+        let id = self
+            .sitting_id
+            .as_ref()
+            .map(|p| p.id.clone())
+            .unwrap_or_default();
+        let state = self.state.unwrap_or(RunnerState::Idle);
+        Some(format!("rig in use by the study sitting: {id} · {state}"))
+    }
+
+    /// The participant's screen (while a sitting runs, and its end screen
+    /// until closed).
+    pub fn participant_screen(&self) -> Option<&ParticipantScreen> {
+        self.screen.as_ref()
+    }
+
+    /// The participant's key press or click (what the participant window
+    /// does on Space, Enter or a click).
+    pub fn participant_input(&mut self) {
+        if let Some(sc) = &mut self.screen
+            && sc.input()
+        {
+            self.send(SessionCommand::Proceed);
+        }
+    }
+
+    /// Forget what the last sitting showed (after switching participant or
+    /// folder): rows, metrics, messages, the end screen.
+    fn clear_sitting_state(&mut self) {
+        self.rows.clear();
+        self.telemetry = None;
+        self.current = None;
+        self.state = None;
+        self.finished = None;
+        self.error = None;
+        self.recovery_text = None;
+        self.log.clear();
+        self.health = SessionHealth::default();
+        self.committed = 0;
+        self.planned = 0;
+        self.screen = None;
+    }
+
     /// Drains the session's events and shows the participant window (when
     /// separate). Call every frame, whatever page is shown.
     pub fn background(&mut self, ctx: &egui::Context) {
         self.poll();
         if self.session.is_some() {
             ctx.request_repaint();
-            if self.separate_window {
-                let id = egui::ViewportId::from_hash_of("kilotouch-participant");
-                let builder = egui::ViewportBuilder::default()
-                    .with_title("kilotouch — participant")
-                    .with_inner_size([720.0, 720.0]);
-                ctx.show_viewport_immediate(id, builder, |ui, _class| {
-                    egui::CentralPanel::default()
-                        .frame(egui::Frame::NONE.fill(Color32::BLACK))
-                        .show(ui, |ui| self.participant_view(ui, true));
-                });
+        }
+        if (self.session.is_some() || self.screen.is_some()) && self.separate_window {
+            let id = egui::ViewportId::from_hash_of("kilotouch-participant");
+            let mut builder = egui::ViewportBuilder::default()
+                .with_title("kilotouch — participant")
+                .with_inner_size([720.0, 720.0])
+                .with_fullscreen(self.fullscreen);
+            let monitor_w = ctx.input(|i| i.viewport().monitor_size.map_or(1920.0, |m| m.x));
+            match self.monitor {
+                Monitor::Same => {}
+                Monitor::Right => builder = builder.with_position([monitor_w + 40.0, 40.0]),
+                Monitor::Left => builder = builder.with_position([-monitor_w + 40.0, 40.0]),
             }
+            ctx.show_viewport_immediate(id, builder, |ui, _class| {
+                egui::CentralPanel::default()
+                    .frame(egui::Frame::NONE.fill(Color32::BLACK))
+                    .show(ui, |ui| self.participant_view(ui, true));
+            });
         }
     }
 
@@ -247,7 +362,12 @@ impl StudyPage {
         let mut end = None;
         for e in events {
             match e {
-                SessionEvent::State(st) => self.state = Some(st),
+                SessionEvent::State(st) => {
+                    self.state = Some(st);
+                    if let Some(sc) = &mut self.screen {
+                        sc.on_state(st);
+                    }
+                }
                 SessionEvent::TrialStarted { key, scene } => {
                     self.current = Some((key, scene));
                     self.telemetry = None;
@@ -258,7 +378,12 @@ impl StudyPage {
                     }
                     self.log.push(format!("started {key}"));
                 }
-                SessionEvent::TrialEnded(k, e) => self.log.push(format!("ended {k}: {e:?}")),
+                SessionEvent::TrialEnded(k, e) => {
+                    if let Some(sc) = &mut self.screen {
+                        sc.on_trial_ended(k);
+                    }
+                    self.log.push(format!("ended {k}: {e:?}"));
+                }
                 SessionEvent::Committed(row) => {
                     self.committed += 1;
                     self.rows.push(*row);
@@ -281,10 +406,19 @@ impl StudyPage {
             if let FinishReason::Failed(m) = &r {
                 self.error = Some(m.clone());
             }
+            // The end screen stays (participant done, study done); a
+            // stopped or failed sitting closes the participant's window.
+            match (&r, &mut self.screen) {
+                (FinishReason::StudyDone | FinishReason::ParticipantDone(_), Some(sc)) => {
+                    sc.on_finished();
+                }
+                _ => self.screen = None,
+            }
             self.finished = Some(r);
             self.session = None;
             self.current = None;
             self.folder = None;
+            self.run_all = false;
         }
     }
 
@@ -395,6 +529,7 @@ impl StudyPage {
     fn open_session(&mut self, env: &mut PageEnv<'_>, resume: bool) {
         self.error = None;
         self.finished = None;
+        self.screen = None;
         let out = PathBuf::from(self.out_text.trim());
         if self.out_text.trim().is_empty() {
             self.error = Some("choose an output folder".into());
@@ -443,7 +578,11 @@ impl StudyPage {
         } else {
             Speed::RealTime
         };
-        opts.only_participant = Some(pid.index);
+        opts.only_participant = (!self.run_all).then_some(pid.index);
+        // The participant's screens run in real time (a person, or the
+        // simulated participant paced like one); a fast dry run skips them.
+        opts.screens = opts.speed == Speed::RealTime;
+        let opts_screens = opts.screens;
         match SessionHandle::spawn(opts) {
             Ok(mut h) => {
                 let info = h.info().clone();
@@ -460,8 +599,21 @@ impl StudyPage {
                 if let Ok(t) = info.protocol.assignment() {
                     self.table = Some(t);
                 }
+                if opts_screens {
+                    let orders = self
+                        .table
+                        .as_ref()
+                        .map(|t| t.participants.iter().map(|r| r.sessions.clone()).collect())
+                        .unwrap_or_default();
+                    self.screen = Some(ParticipantScreen::new(
+                        info.protocol.clone(),
+                        orders,
+                        self.kind == ParticipantKind::Mouse,
+                    ));
+                }
                 self.protocol = Some(info.protocol);
                 self.participant_text = pid.id.clone();
+                self.shown_for = Some((pid.id.clone(), self.out_text.trim().to_owned()));
                 self.sitting_id = Some(pid);
                 self.state = Some(RunnerState::Idle);
                 self.log.clear();
@@ -495,6 +647,26 @@ impl StudyPage {
             }
         }
         self.poll();
+        if self.autostart && self.session.is_none() {
+            self.load_protocol();
+            self.autostart = false;
+            let next = match self.folder_status() {
+                Some(FolderStatus::Study { next: Some(n), .. }) => Some(n.participant.clone()),
+                _ => None,
+            };
+            let resume = next.is_some();
+            self.participant_text = match next {
+                Some(n) => n,
+                None => self
+                    .table
+                    .as_ref()
+                    .and_then(|t| t.participants.first())
+                    .map(|p| p.id.clone())
+                    .unwrap_or_default(),
+            };
+            self.open_session(env, resume);
+            self.send(SessionCommand::Start);
+        }
         ui.heading("Study");
         egui::ScrollArea::vertical()
             .id_salt("study-scroll")
@@ -504,7 +676,7 @@ impl StudyPage {
                 } else {
                     self.running_ui(ui);
                 }
-                if self.session.is_some() && !self.separate_window {
+                if (self.session.is_some() || self.screen.is_some()) && !self.separate_window {
                     ui.separator();
                     ui.label(RichText::new("Participant view (inline)").strong());
                     let side = ui.available_width().min(420.0);
@@ -609,7 +781,21 @@ impl StudyPage {
             }
         });
         let status = self.folder_status().cloned();
-        let mut resume = false;
+        // What the last sitting showed belongs to its participant and
+        // folder: switching either clears it.
+        let now = (
+            self.participant_text.trim().to_owned(),
+            self.out_text.trim().to_owned(),
+        );
+        if self.shown_for.as_ref().is_some_and(|s| *s != now) {
+            self.clear_sitting_state();
+        }
+        self.shown_for = Some(now);
+        // One line, whatever the folder holds (the controls below never move).
+        let next = match &status {
+            Some(FolderStatus::Study { next, .. }) => next.clone(),
+            _ => None,
+        };
         match &status {
             Some(FolderStatus::Empty) => {
                 ui.weak("new study folder (created when the session opens)");
@@ -620,22 +806,20 @@ impl StudyPage {
                 planned,
                 next,
             }) => {
+                let tail = match next {
+                    Some(n) => format!("next: trial {} ({})", n.key, n.participant),
+                    None => "complete".to_owned(),
+                };
                 ui.label(format!(
-                    "this folder holds `{protocol}`: {completed} of {planned} trials done"
+                    "this folder holds `{protocol}`: {completed} of {planned} trials done; {tail}"
                 ));
-                if let Some(n) = next
-                    && ui
-                        .button(format!("Resume at trial {} ({})", n.key, n.participant))
-                        .on_hover_text("reopen the folder (crash-safe: an interrupted trial runs again from its seeds)")
-                        .clicked()
-                {
-                    resume = true;
-                }
             }
             Some(FolderStatus::Unreadable(e)) => {
                 ui.colored_label(Color32::from_rgb(235, 80, 70), format!("folder: {e}"));
             }
-            None => {}
+            None => {
+                ui.weak("choose an output folder");
+            }
         }
         ui.horizontal(|ui| {
             ui.label("At the handle:");
@@ -645,17 +829,52 @@ impl StudyPage {
                 ParticipantKind::Simulated,
                 "simulated participant",
             );
-            if self.kind == ParticipantKind::Simulated {
-                ui.separator();
-                ui.radio_value(&mut self.speed, Speed::RealTime, "real time");
-                ui.radio_value(&mut self.speed, Speed::Fast, "as fast as possible");
+            ui.separator();
+            let fast_ok = self.kind == ParticipantKind::Simulated;
+            if !fast_ok {
+                self.speed = Speed::RealTime;
             }
+            ui.radio_value(&mut self.speed, Speed::RealTime, "real time");
+            ui.add_enabled_ui(fast_ok, |ui| {
+                ui.radio_value(&mut self.speed, Speed::Fast, "as fast as possible")
+                    .on_disabled_hover_text("for the simulated participant only");
+            });
         });
         self.calibration_ui(ui, env);
-        ui.checkbox(
-            &mut self.separate_window,
-            "participant view in a separate window",
-        );
+        ui.horizontal(|ui| {
+            ui.checkbox(
+                &mut self.separate_window,
+                "participant view in a separate window",
+            );
+            ui.add_enabled_ui(self.separate_window, |ui| {
+                let l = ui.label("on");
+                egui::ComboBox::from_id_salt("participant-monitor")
+                    .selected_text(match self.monitor {
+                        Monitor::Same => "this monitor",
+                        Monitor::Right => "the monitor to the right",
+                        Monitor::Left => "the monitor to the left",
+                    })
+                    .show_ui(ui, |ui| {
+                        ui.selectable_value(&mut self.monitor, Monitor::Same, "this monitor");
+                        ui.selectable_value(
+                            &mut self.monitor,
+                            Monitor::Right,
+                            "the monitor to the right",
+                        );
+                        ui.selectable_value(
+                            &mut self.monitor,
+                            Monitor::Left,
+                            "the monitor to the left",
+                        );
+                    })
+                    .response
+                    .labelled_by(l.id);
+                ui.checkbox(&mut self.fullscreen, "full screen");
+            });
+        });
+        // The actions, always in this order and place.
+        let mut resume = false;
+        let mut run_all = false;
         ui.horizontal(|ui| {
             let can = self.protocol.is_some() && matches!(pid, Some(Ok(_)));
             if ui
@@ -667,9 +886,60 @@ impl StudyPage {
             {
                 self.open_session(env, false);
             }
+            let resume_text = match &next {
+                Some(n) => format!("Resume at trial {} ({})", n.key, n.participant),
+                None => "Resume".to_owned(),
+            };
+            if ui
+                .add_enabled(next.is_some(), egui::Button::new(resume_text))
+                .on_hover_text(
+                    "reopen the folder at its next pending trial (crash-safe: an interrupted \
+                     trial runs again from its seeds)",
+                )
+                .clicked()
+            {
+                resume = true;
+            }
+            let sim = self.kind == ParticipantKind::Simulated;
+            let pending = next.is_some() || matches!(status, Some(FolderStatus::Empty));
+            if ui
+                .add_enabled(
+                    sim && pending && self.protocol.is_some(),
+                    egui::Button::new("Run all remaining participants"),
+                )
+                .on_hover_text(
+                    "simulated dry run: every pending trial of every participant in one sitting",
+                )
+                .on_disabled_hover_text("for the simulated participant, with trials pending")
+                .clicked()
+            {
+                run_all = true;
+            }
         });
         if resume {
             self.open_session(env, true);
+        }
+        if run_all {
+            self.run_all = true;
+            let resume = next.is_some();
+            if !resume && let Some(first) = self.table.as_ref().and_then(|t| t.participants.first())
+            {
+                self.participant_text = first.id.clone();
+            }
+            self.open_session(env, resume);
+            if self.session.is_some() {
+                self.send(SessionCommand::Start);
+            } else {
+                self.run_all = false;
+            }
+        }
+        if self.screen.is_some() {
+            ui.horizontal(|ui| {
+                ui.label("The participant's screen shows the end screen.");
+                if ui.button("Close participant screen").clicked() {
+                    self.screen = None;
+                }
+            });
         }
         self.messages_ui(ui);
     }
@@ -713,6 +983,29 @@ impl StudyPage {
         if let Some(r) = &self.recovery_text {
             ui.weak(format!("folder: {r}"));
         }
+        if self.run_all {
+            ui.weak("running every remaining participant in this sitting (simulated dry run)");
+        }
+        if self.estop_latched {
+            ui.colored_label(
+                Color32::from_rgb(235, 80, 70),
+                "EMERGENCY STOP: the trial was aborted (its row is kept as `aborted`) and the \
+                 sitting is paused. Reset the stop (top right) once the rig is safe, then Resume.",
+            );
+        }
+        if let Some(sc) = &self.screen {
+            let what = match sc.routine {
+                Routine::Wait => "please wait".to_owned(),
+                Routine::Break { .. } => "break".to_owned(),
+                Routine::Instructions { .. } => "instructions".to_owned(),
+                Routine::Ready { .. } => "ready screen (waits for the participant)".to_owned(),
+                Routine::Starting => "starting".to_owned(),
+                Routine::Trial(k) => format!("trial — {}", sc.counter(k).0),
+                Routine::Iti => "inter-trial interval".to_owned(),
+                Routine::End => "end screen".to_owned(),
+            };
+            ui.label(format!("participant's screen: {what}"));
+        }
         ui.horizontal(|ui| {
             let idle = state == RunnerState::Idle;
             let running = matches!(state, RunnerState::Training(_) | RunnerState::Trial(_));
@@ -726,8 +1019,15 @@ impl StudyPage {
             {
                 self.send(SessionCommand::Pause);
             }
+            let latched = self.estop_latched;
             if ui
-                .add_enabled(paused, egui::Button::new("Resume"))
+                .add_enabled(paused && !latched, egui::Button::new("Resume"))
+                .on_disabled_hover_text(if latched {
+                    "after an emergency stop: reset it first (top right: \"Reset emergency \
+                     stop…\", confirm that the rig is safe), then Resume"
+                } else {
+                    "the sitting is not paused"
+                })
                 .clicked()
             {
                 self.send(SessionCommand::Resume);
@@ -850,9 +1150,34 @@ impl StudyPage {
         } else {
             Sense::hover()
         };
+        let sense = if self.screen.is_some() {
+            sense.union(Sense::click())
+        } else {
+            sense
+        };
         let resp = ui.allocate_rect(rect, sense);
+        resp.widget_info(|| {
+            egui::WidgetInfo::labeled(egui::Role::Button, true, "participant screen")
+        });
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, Color32::from_gray(8));
+        if let Some(sc) = &self.screen {
+            // The participant's routines: text screens advance on Space,
+            // Enter or a click (keys only while no text field has focus).
+            let key = interactive
+                && ui.memory(|m| m.focused().is_none())
+                && ui.input(|i| i.key_pressed(egui::Key::Space) || i.key_pressed(egui::Key::Enter));
+            let text_shown = sc.paint_text(ui, rect);
+            let in_trial = matches!(sc.routine, Routine::Trial(_));
+            if text_shown && interactive && (key || resp.clicked()) {
+                self.participant_input();
+            }
+            if !in_trial {
+                // Text screens, the inter-trial interval and the start of a
+                // trial (blank): no scene.
+                return;
+            }
+        }
         let Some((_, scene)) = self.current else {
             painter.text(
                 rect.center(),
@@ -903,5 +1228,8 @@ impl StudyPage {
             }
         }
         // Blind task (or before the first frame): the screen stays dark.
+        if let Some(sc) = &self.screen {
+            sc.counter_ui(ui, rect);
+        }
     }
 }

@@ -1,0 +1,332 @@
+//! The participant's screens and the experimenter console during a sitting,
+//! driven through egui_kittest as a person would: the protocol file's
+//! texts and timings, Space and clicks on the participant's screen, the
+//! emergency stop (Esc) and its confirmed reset before Resume.
+
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use common::{engine_reporting, step_until_every};
+use egui_kittest::kittest::Queryable;
+use kilotouch::gui::Page;
+use kilotouch::gui::pages::study::ProtocolSource;
+use kilotouch::gui::participant_screen::Routine;
+use kilotouch::session::{FinishReason, ParticipantKind, Speed};
+use kilotouch_study::export::{TRIALS_FILE, read_trials};
+use kilotouch_study::runner::RunnerState;
+use std::time::{Duration, Instant};
+
+type H = egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>;
+
+/// One participant, sessions V then D (fixed order), two 0.6 s trials
+/// each, no practice; every screen text recognisable, a 0.4 s
+/// inter-trial interval.
+const PROTOCOL: &str = r#"
+name = "screens"
+participants = 1
+conditions = ["V", "D"]
+trials_per_session = 2
+
+[training]
+practice_trials = 0
+
+[task.circling]
+timeout_s = 0.6
+
+[counterbalance]
+scheme = "fixed"
+
+[screens]
+instructions = "INSTRUCTIONS: go around the sphere."
+ready = "READY: press space or click."
+break = "BREAK: rest a moment."
+end = "END: thank you."
+iti_s = 0.4
+break_min_s = 0.0
+[screens.condition_instructions]
+D = "D-TEXT: you will feel the contact."
+"#;
+
+const POLL: Duration = Duration::from_millis(5);
+
+fn open(dir: &std::path::Path) -> H {
+    let proto = dir.join("screens.toml");
+    std::fs::write(&proto, PROTOCOL).unwrap();
+    let app = common::fresh_app(Some(Page::Study));
+    let mut h = common::app_harness(app, 1100.0, 1400.0, None);
+    {
+        let s = &mut h.state_mut().study;
+        s.source = ProtocolSource::File;
+        s.protocol_file = proto.display().to_string();
+        s.participant_text = "P01".into();
+        s.out_text = dir.join("out").display().to_string();
+        s.kind = ParticipantKind::Mouse;
+        s.speed = Speed::RealTime;
+        s.separate_window = false;
+    }
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    h.step();
+    h.get_by_label("Open session").click();
+    h.step();
+    assert!(
+        h.state().study.is_running(),
+        "{:?}",
+        h.state().study.error()
+    );
+    h.step();
+    h.get_by_label("Start").click();
+    h.step();
+    h
+}
+
+fn routine(h: &H) -> Option<Routine> {
+    h.state().study.participant_screen().map(|s| s.routine)
+}
+
+fn step_until_routine(h: &mut H, secs: f64, want: impl Fn(&Routine) -> bool) -> bool {
+    step_until_every(h, POLL, secs, |a| {
+        a.study
+            .participant_screen()
+            .is_some_and(|s| want(&s.routine))
+    })
+}
+
+/// Clears egui's keyboard focus (a clicked button keeps it), as a
+/// participant's window never has a focused field.
+fn press_space(h: &mut H) {
+    h.ctx.memory_mut(|m| {
+        if let Some(id) = m.focused() {
+            m.surrender_focus(id);
+        }
+    });
+    h.step();
+    h.key_press(egui::Key::Space);
+    h.step();
+    h.step();
+}
+
+#[test]
+fn a_person_goes_through_every_screen_of_the_protocol() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = open(dir.path());
+    // Instructions of the first block (V: no condition text).
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Instructions { .. }
+    )));
+    h.step();
+    assert!(
+        h.query_by_label_contains("INSTRUCTIONS: go around")
+            .is_some()
+    );
+    assert!(h.query_by_label_contains("D-TEXT").is_none());
+    // Nothing begins before the participant: 0.5 s later still waiting.
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(500) {
+        h.step();
+        std::thread::sleep(POLL);
+    }
+    assert!(matches!(
+        h.state().study.runner_state(),
+        Some(RunnerState::Waiting(_))
+    ));
+    press_space(&mut h);
+    assert!(matches!(routine(&h), Some(Routine::Ready { .. })));
+    assert!(h.query_by_label_contains("READY: press space").is_some());
+    // A click on the ready screen begins the trial.
+    h.get_by_label_contains("READY: press space").click();
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Trial(_)
+    )));
+    let first = match routine(&h) {
+        Some(Routine::Trial(k)) => k,
+        r => panic!("{r:?}"),
+    };
+    let counter = h
+        .state()
+        .study
+        .participant_screen()
+        .unwrap()
+        .counter(first)
+        .0;
+    assert_eq!(counter, "Session 1 of 2 — trial 1 of 2");
+    // The trial times out; the interval is blank and lasts iti_s.
+    assert!(step_until_routine(&mut h, 5.0, |r| *r == Routine::Iti));
+    let iti_start = Instant::now();
+    assert!(h.query_by_label_contains("READY").is_none());
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Trial(k) if k.trial == 2
+    )));
+    let iti = iti_start.elapsed().as_secs_f64();
+    assert!(iti >= 0.4 - 0.02, "inter-trial interval {iti} s < 0.4 s");
+    // After the session: the break, then D's instructions with its text.
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Break { .. }
+    )));
+    h.step();
+    assert!(h.query_by_label_contains("BREAK: rest").is_some());
+    press_space(&mut h);
+    assert!(matches!(routine(&h), Some(Routine::Instructions { .. })));
+    assert!(h.query_by_label_contains("D-TEXT: you will feel").is_some());
+    press_space(&mut h);
+    assert!(matches!(routine(&h), Some(Routine::Ready { .. })));
+    press_space(&mut h);
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Trial(k) if k.trial == 1
+    )));
+    let d1 = match routine(&h) {
+        Some(Routine::Trial(k)) => k,
+        r => panic!("{r:?}"),
+    };
+    assert_eq!(d1.condition.code(), "D");
+    assert_eq!(
+        h.state().study.participant_screen().unwrap().counter(d1).0,
+        "Session 2 of 2 — trial 1 of 2"
+    );
+    // Last trial → the study is done → the end screen stays.
+    assert!(step_until_every(&mut h, POLL, 10.0, |a| a
+        .study
+        .finished()
+        .is_some()));
+    assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));
+    h.step();
+    h.step();
+    assert_eq!(routine(&h), Some(Routine::End));
+    assert!(h.query_by_label_contains("END: thank you").is_some());
+    let rows = read_trials(&dir.path().join("out").join(TRIALS_FILE))
+        .unwrap()
+        .rows;
+    assert_eq!(rows.len(), 4);
+    // The experimenter closes the participant's screen.
+    h.get_by_label("Close participant screen").click();
+    h.step();
+    assert!(h.state().study.participant_screen().is_none());
+}
+
+#[test]
+fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = open(dir.path());
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Instructions { .. }
+    )));
+    press_space(&mut h);
+    press_space(&mut h);
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Trial(_)
+    )));
+    // Esc: the trial is aborted (its row kept), the sitting paused.
+    h.key_press(egui::Key::Escape);
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
+        a.study.runner_state(),
+        Some(RunnerState::Paused(None))
+    )));
+    h.step();
+    h.step();
+    assert!(h.state().study.estop_latched());
+    // The shell says what happened to the study, not "no rig connected".
+    assert!(h.query_by_label_contains("no rig connected").is_none());
+    assert!(
+        h.query_by_label_contains("the study's trial was aborted")
+            .is_some()
+    );
+    assert!(
+        h.query_by_label_contains("rig in use by the study sitting")
+            .is_some()
+    );
+    assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
+    let rows = read_trials(&dir.path().join("out").join(TRIALS_FILE))
+        .unwrap()
+        .rows;
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].reject_reason, "aborted");
+    // Resume is refused until the stop is reset with the confirmation.
+    h.get_by_label("Resume").click();
+    h.step();
+    h.step();
+    assert!(matches!(
+        h.state().study.runner_state(),
+        Some(RunnerState::Paused(None))
+    ));
+    h.get_by_label("Reset emergency stop…").click();
+    // The dialog's first frame is a sizing pass.
+    h.step();
+    h.step();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    h.step();
+    assert!(h.state().study.estop_latched(), "not without the tick");
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    h.step();
+    h.step();
+    assert!(!h.state().study.estop_latched());
+    // Resume: the next trial waits for the participant's ready screen.
+    h.get_by_label("Resume").click();
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Instructions { .. }
+    )));
+    assert!(matches!(
+        h.state().study.runner_state(),
+        Some(RunnerState::Waiting(_))
+    ));
+    // Stop sitting: the Explore engine takes the rig back, not armed.
+    h.get_by_label("Stop sitting").click();
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| a
+        .engine
+        .as_ref()
+        .and_then(|e| e.health())
+        .is_some()));
+    // Give it time to (wrongly) arm itself.
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(300) {
+        h.step();
+        std::thread::sleep(POLL);
+    }
+    let health = *h.state().engine.as_ref().unwrap().health().unwrap();
+    assert!(!health.running, "the engine came back running: {health:?}");
+    // The sitting ended cleanly: reopening reports no crash.
+    let status = kilotouch::session::inspect_folder(&dir.path().join("out"));
+    assert!(matches!(
+        status,
+        kilotouch::session::FolderStatus::Study { completed: 1, .. }
+    ));
+    h.get_by_label_contains("Resume at trial").click();
+    h.step();
+    assert!(h.state().study.is_running());
+    h.step();
+    assert!(
+        h.query_by_label_contains("without closing").is_none(),
+        "a stopped sitting is not a crash"
+    );
+}
+
+/// An emergency stop that is never reset outlives the sitting: the engine
+/// that takes the rig back starts latched.
+#[test]
+fn an_unreset_stop_keeps_the_engine_latched_after_the_sitting() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = open(dir.path());
+    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+        r,
+        Routine::Instructions { .. }
+    )));
+    h.key_press(egui::Key::Escape);
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
+        a.study.runner_state(),
+        Some(RunnerState::Paused(None))
+    )));
+    h.get_by_label("Stop sitting").click();
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()));
+    assert!(h.state().any_estop_latched());
+}
