@@ -57,7 +57,28 @@ pub fn plot_fit(
     if !(pmin.is_finite() && pmin > 0.0 && pmax > pmin) {
         anyhow::bail!("nothing to plot: the spectrum is not positive");
     }
-    let root = BitMapBackend::new(path, (960, 640)).into_drawing_area();
+    const W: u32 = 960;
+    const H: u32 = 640;
+    let mut buf = vec![255_u8; (W as usize) * (H as usize) * 3];
+    draw_fit(&mut buf, (W, H), spec, &model, cal, s, (f0, f1), (pmin, pmax))?;
+    image::save_buffer(path, &buf, W, H, image::ExtendedColorType::Rgb8)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
+/// The drawing of [`plot_fit`] into an RGB buffer.
+#[allow(clippy::too_many_arguments)]
+fn draw_fit(
+    buf: &mut [u8],
+    size: (u32, u32),
+    spec: &kilotouch_dsp::trap_psd::BlockedSpectrum,
+    model: &[(f64, f64)],
+    cal: &TrapCalibration,
+    s: &TrapCalibrationSettings,
+    (f0, f1): (f64, f64),
+    (pmin, pmax): (f64, f64),
+) -> anyhow::Result<()> {
+    let root = BitMapBackend::with_buffer(buf, size).into_drawing_area();
     root.fill(&WHITE)?;
     let title = format!(
         "κ = {:.3} ± {:.3} pN/µm   f_c = {:.1} ± {:.1} Hz   R_d = {:.4} µm/V",
@@ -95,7 +116,7 @@ pub fn plot_fit(
         ))
         .legend(move |(x, y)| Circle::new((x + 10, y), 4, blue.filled()));
     chart
-        .draw_series(LineSeries::new(model, red.stroke_width(3)))?
+        .draw_series(LineSeries::new(model.iter().copied(), red.stroke_width(3)))?
         .label(format!(
             "fit: {} (χ²/dof {:.2}, backing {:.0} %)",
             model_name(s),

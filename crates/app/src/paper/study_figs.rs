@@ -494,13 +494,15 @@ impl Fig12 {
                 |c: &str| cond(&bars.conditions, c).map_or(f64::NAN, |i| mean_of(&bars.values[i]));
             let diff = get("D") - get("P");
             let p = t
-                .pairwise_t
+                .pairwise
                 .as_ref()
                 .and_then(|r| {
-                    r.iter()
+                    r.pairs
+                        .iter()
                         .find(|c| (c.a == "P" && c.b == "D") || (c.a == "D" && c.b == "P"))
                 })
-                .map_or(f64::NAN, |c| c.p);
+                .and_then(|c| c.p)
+                .unwrap_or(f64::NAN);
             v.push(Claim::new(
                 "12",
                 "D lowers the displacement error relative to P: mean D − P",
