@@ -23,7 +23,13 @@ fn each_misbehaving_device_ends_rig_check_promptly_with_a_clear_error() {
         let emu = Emulator::spawn("daq", &["--misbehave", mode]);
         let t = Instant::now();
         let o = run(&[
-            "rig", "check", "--rig", &emu.rig(), "--duration", "1", "--json",
+            "rig",
+            "check",
+            "--rig",
+            &emu.rig(),
+            "--duration",
+            "1",
+            "--json",
         ]);
         let took = t.elapsed();
         let err = String::from_utf8_lossy(&o.stderr);
@@ -40,7 +46,10 @@ fn each_misbehaving_device_ends_rig_check_promptly_with_a_clear_error() {
         assert_eq!(v["passed"].as_bool(), Some(false), "{mode}: {v}");
         assert_eq!(v["received"].as_u64(), Some(0), "{mode}: {v}");
         assert!(v["failure"].as_str().unwrap().contains(said), "{mode}: {v}");
-        eprintln!("{mode}: ended after {took:?}: {}", err.lines().next().unwrap_or(""));
+        eprintln!(
+            "{mode}: ended after {took:?}: {}",
+            err.lines().next().unwrap_or("")
+        );
     }
 }
 
@@ -50,7 +59,13 @@ fn each_misbehaving_device_ends_rig_check_promptly_with_a_clear_error() {
 fn rig_check_fails_above_the_loss_limit_and_always_prints_counters() {
     let emu = Emulator::spawn("daq", &["--corrupt-rate", "1e-2", "--seed", "5"]);
     let o = run(&[
-        "rig", "check", "--rig", &emu.rig(), "--duration", "1", "--json",
+        "rig",
+        "check",
+        "--rig",
+        &emu.rig(),
+        "--duration",
+        "1",
+        "--json",
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
@@ -58,11 +73,17 @@ fn rig_check_fails_above_the_loss_limit_and_always_prints_counters() {
     let (frames, lost) = (v["frames"].as_u64().unwrap(), v["lost"].as_u64().unwrap());
     assert!(frames > 5_000 && lost > frames / 2, "{v}");
     assert_eq!(v["passed"].as_bool(), Some(false));
-    assert!(err.contains("of the frames lost") && err.contains("--max-loss"), "{err}");
+    assert!(
+        err.contains("of the frames lost") && err.contains("--max-loss"),
+        "{err}"
+    );
     // Human output: the counters and the verdict line.
     let o = run(&["rig", "check", "--rig", &emu.rig(), "--duration", "0.5"]);
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(out.contains("verdict   FAIL") && out.contains("lost"), "{out}");
+    assert!(
+        out.contains("verdict   FAIL") && out.contains("lost"),
+        "{out}"
+    );
     assert_eq!(o.status.code(), Some(1));
 }
 

@@ -11,16 +11,16 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use kilotouch_study::export::{QUARANTINE_DIR, RECOVERY_DIR, TRIALS_FILE, read_trials};
 use kilotouch_study::export::journal::{JOURNAL_FILE, Record, read_journal};
 use kilotouch_study::export::lock::LOCK_FILE;
+use kilotouch_study::export::{QUARANTINE_DIR, RECOVERY_DIR, TRIALS_FILE, read_trials};
 use serde_json::Value;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kilotouch"))
 }
 
-fn run(args: &[&str]) -> Output {
+fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
     bin().args(args).output().expect("run kilotouch")
 }
 
@@ -181,7 +181,11 @@ fn a_resume_with_another_rig_file_or_raw_setting_is_refused() {
     let changed = text.replace(&line, &format!("k_1 = {}", v * 1.1));
     std::fs::write(&rig, changed).unwrap();
     let rig_arg = rig.to_string_lossy().into_owned();
-    let o = run(&simulate(&proto, &out, &["--resume", "--rig-config", &rig_arg]));
+    let o = run(&simulate(
+        &proto,
+        &out,
+        &["--resume", "--rig-config", &rig_arg],
+    ));
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
     assert!(e.contains("rig file was content hash"), "{e}");
@@ -195,7 +199,13 @@ fn a_resume_with_another_rig_file_or_raw_setting_is_refused() {
     let o = run(&simulate(
         &proto,
         &out,
-        &["--resume", "--rig-config", &rig_arg, "--new-sitting", "spring replaced"],
+        &[
+            "--resume",
+            "--rig-config",
+            &rig_arg,
+            "--new-sitting",
+            "spring replaced",
+        ],
     ));
     assert!(o.status.success(), "{}", stderr(&o));
     let j = read_journal(&out.join(JOURNAL_FILE)).unwrap();
@@ -204,12 +214,19 @@ fn a_resume_with_another_rig_file_or_raw_setting_is_refused() {
         _ => None,
     });
     let note = note.expect("the change is journaled");
-    assert!(note.contains("rig file was") && note.contains("spring replaced"), "{note}");
+    assert!(
+        note.contains("rig file was") && note.contains("spring replaced"),
+        "{note}"
+    );
     // From now on the new rig file is the study's.
     assert!(
-        run(&simulate(&proto, &out, &["--resume", "--rig-config", &rig_arg]))
-            .status
-            .success()
+        run(&simulate(
+            &proto,
+            &out,
+            &["--resume", "--rig-config", &rig_arg]
+        ))
+        .status
+        .success()
     );
 }
 
@@ -225,7 +242,10 @@ fn a_damaged_raw_file_is_reported_by_name_and_quarantined() {
     let (cut, gone) = (rows[1].raw_file.clone(), rows[3].raw_file.clone());
     let cut_path = out.join(&cut);
     let len = std::fs::metadata(&cut_path).unwrap().len();
-    let f = std::fs::OpenOptions::new().write(true).open(&cut_path).unwrap();
+    let f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(&cut_path)
+        .unwrap();
     f.set_len(len - 100).unwrap();
     drop(f);
     std::fs::remove_file(out.join(&gone)).unwrap();
@@ -254,9 +274,18 @@ fn a_damaged_raw_file_is_reported_by_name_and_quarantined() {
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
-    let base = |p: &str| Path::new(p).file_name().unwrap().to_string_lossy().into_owned();
+    let base = |p: &str| {
+        Path::new(p)
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned()
+    };
     assert!(moved.iter().any(|m| m.ends_with(&base(&cut))), "{moved:?}");
-    assert!(moved.iter().any(|m| m.ends_with(&base(&flipped))), "{moved:?}");
+    assert!(
+        moved.iter().any(|m| m.ends_with(&base(&flipped))),
+        "{moved:?}"
+    );
     assert!(!cut_path.exists());
     // The intact files pass: a second resume finds nothing damaged left
     // other than the files already quarantined (still missing, reported).
@@ -285,7 +314,10 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
-    assert!(e.contains("participants") && e.contains("at most 10000"), "{e}");
+    assert!(
+        e.contains("participants") && e.contains("at most 10000"),
+        "{e}"
+    );
 
     let p = tmp.path().join("huge.toml");
     std::fs::write(
@@ -305,7 +337,9 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(
-        e.contains("trials_per_session") && e.contains("at most 10000") && e.contains("line 4"),
+        e.contains("trials_per_session")
+            && e.contains("at most 10000")
+            && e.contains("huge.toml:4:"),
         "{e}"
     );
 
@@ -325,7 +359,10 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
     ]);
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
-    assert!(e.contains("task.circling.timeout_s") && e.contains("at most 600"), "{e}");
+    assert!(
+        e.contains("task.circling.timeout_s") && e.contains("at most 600"),
+        "{e}"
+    );
 
     let t = Instant::now();
     let o = run(&[
@@ -339,7 +376,10 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
     assert_eq!(o.status.code(), Some(1));
     assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
     let e = stderr(&o);
-    assert!(e.contains("/dev/zero") && e.contains("16777216 bytes"), "{e}");
+    assert!(
+        e.contains("/dev/zero") && e.contains("16777216 bytes"),
+        "{e}"
+    );
     assert!(!out.exists(), "nothing was written");
 }
 
@@ -366,7 +406,12 @@ fn an_absurd_rig_value_is_refused_naming_the_field() {
         &rig.to_string_lossy(),
         "--json",
     ]);
-    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stdout));
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
     let e = stderr(&o);
     assert!(e.contains("plant.k_1") && e.contains("at most 1e10"), "{e}");
 }
@@ -381,7 +426,15 @@ fn json_output_survives_a_non_utf8_folder_name() {
     let proto = write_protocol(tmp.path(), 1);
     let out = tmp.path().join(std::ffi::OsStr::from_bytes(b"st\xffudy"));
     let o = bin()
-        .args(["study", "simulate", "--protocol", &proto, "--no-raw", "--json", "--out"])
+        .args([
+            "study",
+            "simulate",
+            "--protocol",
+            &proto,
+            "--no-raw",
+            "--json",
+            "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();
@@ -390,7 +443,14 @@ fn json_output_survives_a_non_utf8_folder_name() {
     assert!(j["out"].as_str().unwrap().contains("st\u{fffd}udy"), "{j}");
     // A failing resume of it: each cause once.
     let o = bin()
-        .args(["study", "simulate", "--protocol", &proto, "--no-raw", "--out"])
+        .args([
+            "study",
+            "simulate",
+            "--protocol",
+            &proto,
+            "--no-raw",
+            "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();

@@ -467,10 +467,12 @@ impl RigConfig {
     /// Read, parse and validate a rig file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, RigError> {
         let path = path.as_ref();
-        let text = crate::input::read_text_capped(path, crate::input::MAX_CONFIG_BYTES).map_err(|source| RigError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
+        let text = crate::input::read_text_capped(path, crate::input::MAX_CONFIG_BYTES).map_err(
+            |source| RigError::Io {
+                path: path.display().to_string(),
+                source,
+            },
+        )?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
@@ -606,7 +608,13 @@ impl RigSection {
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
         positive(&mut v, "sample_rate_hz", self.sample_rate_hz, "sample rate");
-        at_most(&mut v, "sample_rate_hz", self.sample_rate_hz, MAX_SAMPLE_RATE_HZ, "Hz");
+        at_most(
+            &mut v,
+            "sample_rate_hz",
+            self.sample_rate_hz,
+            MAX_SAMPLE_RATE_HZ,
+            "Hz",
+        );
         non_negative(&mut v, "encoder_resolution_m", self.encoder_resolution_m);
         v
     }
@@ -654,9 +662,21 @@ impl BranchConfig {
         positive(&mut v, "mass", self.mass, "mass");
         at_most(&mut v, "mass", self.mass, MAX_MASS_KG, "kg");
         positive(&mut v, "stiffness", self.stiffness, "stiffness");
-        at_most(&mut v, "stiffness", self.stiffness, MAX_STIFFNESS_N_PER_M, "N/m");
+        at_most(
+            &mut v,
+            "stiffness",
+            self.stiffness,
+            MAX_STIFFNESS_N_PER_M,
+            "N/m",
+        );
         non_negative(&mut v, "damping", self.damping);
-        at_most(&mut v, "damping", self.damping, MAX_DAMPING_N_S_PER_M, "N·s/m");
+        at_most(
+            &mut v,
+            "damping",
+            self.damping,
+            MAX_DAMPING_N_S_PER_M,
+            "N·s/m",
+        );
         v
     }
 }

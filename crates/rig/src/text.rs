@@ -42,7 +42,10 @@ mod tests {
 
     #[test]
     fn controls_are_escaped_and_long_text_cut() {
-        assert_eq!(printable("DAQ\u{1b}[2J\r\u{7}", 50), "DAQ\\u{1b}[2J\\r\\u{7}");
+        assert_eq!(
+            printable("DAQ\u{1b}[2J\r\u{7}", 50),
+            "DAQ\\u{1b}[2J\\r\\u{7}"
+        );
         assert_eq!(printable("a\u{202e}b", 50), "a\\u{202e}b");
         assert_eq!(printable("plain", 50), "plain");
         let long = "x".repeat(20_000);

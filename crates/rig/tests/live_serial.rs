@@ -323,7 +323,10 @@ fn valid_frames_that_never_advance_the_stream_end_in_a_stall() {
         assert!(took < Duration::from_millis(400), "{mode:?}: {took:?}");
         let text = err.to_string();
         assert!(matches!(err, RigError::Disconnected(_)), "{text}");
-        assert!(text.contains("did not advance") && text.contains(said), "{mode:?}: {text}");
+        assert!(
+            text.contains("did not advance") && text.contains(said),
+            "{mode:?}: {text}"
+        );
         assert_eq!(rig.status().state, RigState::Disconnected);
 
         // A 60 s timeout: the caller's deadline still ends the wait.

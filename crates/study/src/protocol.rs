@@ -462,7 +462,12 @@ impl Protocol {
                     t.bead_radius_um,
                     t.escape_distance_um,
                 )?;
-                positive_at_most(&format!("{p}.timeout_s"), t.timeout_s, MAX_TIMEOUT_S, "seconds")?;
+                positive_at_most(
+                    &format!("{p}.timeout_s"),
+                    t.timeout_s,
+                    MAX_TIMEOUT_S,
+                    "seconds",
+                )?;
                 positive_at_most(
                     &format!("{p}.revolutions"),
                     t.revolutions,
@@ -490,7 +495,12 @@ impl Protocol {
                     t.retreat_distance_um,
                     "µm",
                 )?;
-                positive_at_most(&format!("{p}.timeout_s"), t.timeout_s, MAX_TIMEOUT_S, "seconds")?;
+                positive_at_most(
+                    &format!("{p}.timeout_s"),
+                    t.timeout_s,
+                    MAX_TIMEOUT_S,
+                    "seconds",
+                )?;
                 if !(t.success_angle_deg > 0.0 && t.success_angle_deg <= 90.0) {
                     return Err(invalid(
                         format!("{p}.success_angle_deg"),
@@ -564,11 +574,12 @@ impl Protocol {
     /// I/O errors and those of [`Protocol::from_toml_str`].
     pub fn load(path: &Path) -> Result<Self, ProtocolError> {
         let file = path.display().to_string();
-        let src = kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
-            .map_err(|source| ProtocolError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let src =
+            kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
+                .map_err(|source| ProtocolError::Io {
+                    file: file.clone(),
+                    source,
+                })?;
         Self::from_toml_str(&src, &file)
     }
 

@@ -173,24 +173,25 @@ impl CheckReport {
             ),
             Some(why) => format!("  verdict   FAIL: {why}\n"),
         };
-        verdict + &format!(
-            "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
+        verdict
+            + &format!(
+                "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
              crc errors {} ({} bytes skipped)\n  late commands {}\n  rate      {:.1} Hz \
              (nominal {:.0} Hz) over {:.2} s, longest block {:.2} ms\n",
-            self.rig,
-            self.device,
-            self.firmware,
-            self.frames,
-            self.received,
-            self.lost,
-            self.crc_errors,
-            self.bytes_skipped,
-            self.late_commands,
-            self.rate_hz,
-            self.nominal_rate_hz,
-            self.duration_s,
-            self.max_block_ms
-        )
+                self.rig,
+                self.device,
+                self.firmware,
+                self.frames,
+                self.received,
+                self.lost,
+                self.crc_errors,
+                self.bytes_skipped,
+                self.late_commands,
+                self.rate_hz,
+                self.nominal_rate_hz,
+                self.duration_s,
+                self.max_block_ms
+            )
     }
 }
 
@@ -271,7 +272,10 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
     if !(1..=65_536).contains(&a.block) {
         anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
     }
-    for (name, v) in [("--max-loss", a.max_loss), ("--max-crc-errors", a.max_crc_errors)] {
+    for (name, v) in [
+        ("--max-loss", a.max_loss),
+        ("--max-crc-errors", a.max_crc_errors),
+    ] {
         if !(0.0..=1.0).contains(&v) {
             anyhow::bail!("{name} must be a fraction in [0, 1], got {v}");
         }

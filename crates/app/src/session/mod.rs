@@ -72,11 +72,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::device::SystemClock;
 use kilotouch_study::export::{
-    CalibrationRef, PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE,
-    TrialRow, plan, read_session, read_trials,
+    PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow, plan, read_session,
+    read_trials,
 };
 use kilotouch_study::operator::SimCohort;
 use kilotouch_study::participant::VisualFrame;

@@ -21,11 +21,11 @@
 //! converted to codes in a fixed array.
 
 use super::emulator::value_to_code;
-use super::watch::{Activity, RateWindow, Stall};
 use super::frame::{
     self, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DeviceKind, DeviceState, Hello,
     PROTOCOL_VERSION, WireItem, fault, flag,
 };
+use super::watch::{Activity, RateWindow, Stall};
 use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
     RigStatus, SensorFrame, StatusCounters, open_block,
@@ -238,9 +238,9 @@ impl Link {
 
     fn map_err(&self, e: LinkErr) -> RigError {
         match e {
-            LinkErr::Stalled(why) => self.disconnected(&format!(
-                "{why}; outputs commanded to zero"
-            )),
+            LinkErr::Stalled(why) => {
+                self.disconnected(&format!("{why}; outputs commanded to zero"))
+            }
             LinkErr::Io(e) => self.disconnected(&format!("the device vanished ({e})")),
             LinkErr::Watchdog { seq, .. } => RigError::Device(format!(
                 "{}: the device watchdog tripped at sample {seq} (no host frame within {} ms); \
@@ -568,7 +568,9 @@ impl Link {
                 (cfg.timeout - idle).min(Duration::from_millis(20))
             };
             let wait = match deadline {
-                Some(d) => wait.min(d.saturating_duration_since(now)).max(Duration::from_millis(1)),
+                Some(d) => wait
+                    .min(d.saturating_duration_since(now))
+                    .max(Duration::from_millis(1)),
                 None => wait,
             };
             read_into(port, rx, decoder, stats, wait)?;

@@ -68,7 +68,10 @@ impl std::fmt::Display for Activity {
             }
         }
         if parts.is_empty() {
-            parts.push(format!("{} frame(s) that carried no new sample", self.frames));
+            parts.push(format!(
+                "{} frame(s) that carried no new sample",
+                self.frames
+            ));
         }
         // "STATUS frame(s) only" reads wrong next to other kinds.
         let text = parts.join(", ");
@@ -232,7 +235,10 @@ mod tests {
             .add(Duration::from_millis(600), &trickle, 10_000)
             .unwrap_err();
         let text = e.to_string();
-        assert!(text.contains("only 10 new sample(s)") && text.contains("600"), "{text}");
+        assert!(
+            text.contains("only 10 new sample(s)") && text.contains("600"),
+            "{text}"
+        );
         assert!(text.contains("390 STATUS frame(s)"), "{text}");
     }
 

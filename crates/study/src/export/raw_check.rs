@@ -36,7 +36,10 @@ pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
     };
     let [rows, cols] = sidecar.shape;
     let Ok(cols) = usize::try_from(cols) else {
-        return Some(format!("its sidecar gives an impossible shape {:?}", sidecar.shape));
+        return Some(format!(
+            "its sidecar gives an impossible shape {:?}",
+            sidecar.shape
+        ));
     };
     let header = npy_header(sidecar.dtype, rows, cols);
     let expected = rows
@@ -44,7 +47,10 @@ pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
         .and_then(|n| n.checked_mul(sidecar.dtype.size() as u64))
         .and_then(|n| n.checked_add(header.len() as u64));
     let Some(expected) = expected else {
-        return Some(format!("its sidecar gives an impossible shape {:?}", sidecar.shape));
+        return Some(format!(
+            "its sidecar gives an impossible shape {:?}",
+            sidecar.shape
+        ));
     };
     if meta.len() != expected {
         return Some(format!(
@@ -66,7 +72,9 @@ pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
         return None;
     };
     let Some(stored) = parse_crc32_hex(stored) else {
-        return Some(format!("its sidecar's data_crc32 `{stored}` is not 8 hex digits"));
+        return Some(format!(
+            "its sidecar's data_crc32 `{stored}` is not 8 hex digits"
+        ));
     };
     match data_crc32(&mut file, header.len() as u64) {
         Ok(c) if c == stored => None,

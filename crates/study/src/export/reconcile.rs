@@ -88,7 +88,10 @@ impl fmt::Display for Recovery {
             f.write_str("; the previous sitting ended without closing (crash or kill)")?;
         }
         if let Some(h) = &self.stale_lock {
-            write!(f, "; the previous writer, {h}, ended without releasing the folder")?;
+            write!(
+                f,
+                "; the previous writer, {h}, ended without releasing the folder"
+            )?;
         }
         for t in [&self.journal_torn, &self.trials_torn]
             .into_iter()

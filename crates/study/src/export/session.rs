@@ -115,8 +115,9 @@ impl CalibrationRef {
     /// # Errors
     /// The file cannot be read.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
-            .map_err(io_err(path, "read calibration file"))?;
+        let text =
+            kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
+                .map_err(io_err(path, "read calibration file"))?;
         let bytes = text.as_bytes();
         Ok(Self {
             path: path.display().to_string(),

@@ -12,12 +12,12 @@ use super::journal::{Journal, Record, SessionStart, read_journal, sittings};
 use super::open::{self, FolderRead, NewStudy};
 use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
 use super::reconcile::{DamagedRaw, Expected, Recovery, reconcile};
-use super::{raw_check, settings};
 use super::session::{
     self, OrderRow, Progress, SESSION_FILE, SessionInfo, StudyMeta, read_session, write_session,
 };
 use super::summary::{SummaryFiles, regenerate_summaries};
 use super::trials::{IDENTITY_COLUMNS, TaskKind, TrialRow, TrialsWriter, first_difference};
+use super::{raw_check, settings};
 use crate::protocol::Protocol;
 use crate::rawsig::{NpyWriter, RawLayout, sidecar_path};
 use crate::seeds::{TrialKey, format_seed};
@@ -626,9 +626,10 @@ fn journal_checks(
                 d.trial,
                 d.file,
                 d.reason,
-                d.quarantined_to
-                    .as_ref()
-                    .map_or_else(|| "nothing to quarantine".to_owned(), |q| format!("moved to {q}"))
+                d.quarantined_to.as_ref().map_or_else(
+                    || "nothing to quarantine".to_owned(),
+                    |q| format!("moved to {q}")
+                )
             ),
         })?;
     }

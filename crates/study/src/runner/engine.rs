@@ -470,4 +470,3 @@ fn timeout_error(timeout_s: f64, fs: f64) -> RunError {
         crate::protocol::MAX_TIMEOUT_S
     ))
 }
-

@@ -83,7 +83,10 @@ pub struct FolderLock {
 fn read_record(file: &mut File) -> Option<Holder> {
     let mut bytes = Vec::new();
     file.seek(SeekFrom::Start(0)).ok()?;
-    Read::by_ref(file).take(MAX_RECORD).read_to_end(&mut bytes).ok()?;
+    Read::by_ref(file)
+        .take(MAX_RECORD)
+        .read_to_end(&mut bytes)
+        .ok()?;
     serde_json::from_slice(&bytes).ok()
 }
 
