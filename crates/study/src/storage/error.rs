@@ -189,8 +189,9 @@ pub enum ExportError {
     Locked {
         /// The folder.
         dir: PathBuf,
-        /// The holder's record, when it could be read.
-        holder: Option<crate::storage::lock::Holder>,
+        /// The holder (PID, host, program, since), when its record could
+        /// be read.
+        holder: Option<String>,
     },
     /// The protocol is invalid or cannot be serialised.
     #[error("protocol: {0}")]

@@ -113,7 +113,7 @@ impl FolderLock {
             Err(TryLockError::WouldBlock) => {
                 return Err(ExportError::Locked {
                     dir: dir.to_path_buf(),
-                    holder: read_record(&mut file),
+                    holder: read_record(&mut file).map(|h| h.to_string()),
                 });
             }
             Err(TryLockError::Error(e)) => return Err(io_err(&path, "lock")(e)),
