@@ -87,13 +87,37 @@ pub fn main_entry() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("kilotouch: error: {e}");
-            for cause in e.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
-            }
+            eprint!("{}", error_text(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// Characters of one error message shown (a 20 MB CSV cell in a message
+/// is cut, with the count of what was left out).
+const ERROR_MAX_CHARS: usize = 2_000;
+
+/// The error and its causes, one per line: each cause printed once (a
+/// cause whose text the messages above already contain is skipped), each
+/// made printable and cut at [`ERROR_MAX_CHARS`].
+pub fn error_text(e: &anyhow::Error) -> String {
+    use kilotouch_rig::text::printable;
+    let mut shown: Vec<String> = Vec::new();
+    let mut out = String::new();
+    for (i, cause) in e.chain().enumerate() {
+        let text = cause.to_string();
+        if shown.iter().any(|s| s.contains(&text)) {
+            continue;
+        }
+        let line = printable(&text, ERROR_MAX_CHARS);
+        if i == 0 {
+            out.push_str(&format!("kilotouch: error: {line}\n"));
+        } else {
+            out.push_str(&format!("  caused by: {line}\n"));
+        }
+        shown.push(text);
+    }
+    out
 }
 
 /// Run a parsed command line.

@@ -12,8 +12,11 @@ pub fn emit<T: Serialize>(
 ) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
     if json {
-        serde_json::to_writer(&mut out, value)?;
-        writeln!(out)?;
+        // Serialised whole before anything is written: a value that
+        // cannot be encoded is an error, never a truncated object.
+        let mut text = serde_json::to_vec(value)?;
+        text.push(b'\n');
+        out.write_all(&text)?;
     } else {
         write!(out, "{}", human())?;
     }

@@ -90,7 +90,21 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
             "3",
         ],
     );
-    let v = rig_check(&emu, "2");
+    // ≈ 6 % of the frames lost: above the default verdict limit, so the
+    // limits are loosened to see the counters of a passing run.
+    let v = json_ok(&[
+        "rig",
+        "check",
+        "--rig",
+        &emu.rig(),
+        "--duration",
+        "2",
+        "--max-loss",
+        "0.25",
+        "--max-crc-errors",
+        "0.25",
+        "--json",
+    ]);
     let (frames, lost) = (v["frames"].as_u64().unwrap(), v["lost"].as_u64().unwrap());
     // ≈ 1 − (1 − 4e-4)^162 ≈ 6 % of the frames of 10 samples are hit.
     assert!(lost > 100 && lost < frames / 4, "{v}");
@@ -139,7 +153,10 @@ fn a_stalled_emulator_is_reported_promptly() {
     assert!(!out.status.success());
     assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("no data from the device"), "{err}");
+    assert!(
+        err.contains("did not advance") && err.contains("nothing at all"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -538,10 +538,12 @@ impl RigConfig {
     /// Read, parse and validate a rig file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, RigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
+        let text = crate::input::read_text_capped(path, crate::input::MAX_CONFIG_BYTES).map_err(
+            |source| RigError::Io {
+                path: path.display().to_string(),
+                source,
+            },
+        )?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
@@ -636,6 +638,26 @@ fn positive(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, what
     }
 }
 
+/// A problem when `x` exceeds `max` (a physical bound far beyond any real
+/// rig, stated so that absurd values — `k_1 = 1e308` — are refused here,
+/// naming the field, instead of overflowing a computation later).
+fn at_most(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, max: f64, unit: &str) {
+    if x.is_finite() && x > max {
+        v.push((key, format!("must be at most {max:e} {unit} (got {x:e})")));
+    }
+}
+
+/// Highest sample rate of a rig, Hz.
+pub const MAX_SAMPLE_RATE_HZ: f64 = 1e6;
+/// Largest mass of the plant model, kg.
+pub const MAX_MASS_KG: f64 = 1e3;
+/// Largest stiffness of the plant model, N/m.
+pub const MAX_STIFFNESS_N_PER_M: f64 = 1e10;
+/// Largest damping of the plant model, N·s/m.
+pub const MAX_DAMPING_N_S_PER_M: f64 = 1e6;
+/// Most obstacles in a tweezer scene.
+pub const MAX_OBSTACLES: usize = 1_000;
+
 /// A problem unless `x` is finite and ≥ 0.
 fn non_negative(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64) {
     if !(x.is_finite() && x >= 0.0) {
@@ -657,6 +679,13 @@ impl RigSection {
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
         positive(&mut v, "sample_rate_hz", self.sample_rate_hz, "sample rate");
+        at_most(
+            &mut v,
+            "sample_rate_hz",
+            self.sample_rate_hz,
+            MAX_SAMPLE_RATE_HZ,
+            "Hz",
+        );
         non_negative(&mut v, "encoder_resolution_m", self.encoder_resolution_m);
         v
     }
@@ -673,6 +702,7 @@ impl PlantConfig {
             ("m_2", self.m_2),
         ] {
             positive(&mut v, k, x, "mass");
+            at_most(&mut v, k, x, MAX_MASS_KG, "kg");
         }
         for (k, x) in [
             ("k_v", self.k_v),
@@ -681,6 +711,7 @@ impl PlantConfig {
             ("k_f", self.k_f),
         ] {
             positive(&mut v, k, x, "stiffness");
+            at_most(&mut v, k, x, MAX_STIFFNESS_N_PER_M, "N/m");
         }
         for (k, x) in [
             ("b_v", self.b_v),
@@ -689,6 +720,7 @@ impl PlantConfig {
             ("b_f", self.b_f),
         ] {
             non_negative(&mut v, k, x);
+            at_most(&mut v, k, x, MAX_DAMPING_N_S_PER_M, "N·s/m");
         }
         v
     }
@@ -699,8 +731,23 @@ impl BranchConfig {
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
         positive(&mut v, "mass", self.mass, "mass");
+        at_most(&mut v, "mass", self.mass, MAX_MASS_KG, "kg");
         positive(&mut v, "stiffness", self.stiffness, "stiffness");
+        at_most(
+            &mut v,
+            "stiffness",
+            self.stiffness,
+            MAX_STIFFNESS_N_PER_M,
+            "N/m",
+        );
         non_negative(&mut v, "damping", self.damping);
+        at_most(
+            &mut v,
+            "damping",
+            self.damping,
+            MAX_DAMPING_N_S_PER_M,
+            "N·s/m",
+        );
         v
     }
 }
@@ -771,6 +818,15 @@ impl TweezerConfig {
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
         positive(&mut v, "radius_m", self.radius_m, "bead radius");
+        if self.obstacles.len() > MAX_OBSTACLES {
+            v.push((
+                "obstacles",
+                format!(
+                    "at most {MAX_OBSTACLES} obstacles (got {})",
+                    self.obstacles.len()
+                ),
+            ));
+        }
         positive(&mut v, "viscosity_pa_s", self.viscosity_pa_s, "viscosity");
         positive(&mut v, "temperature_k", self.temperature_k, "temperature");
         positive(

@@ -21,6 +21,7 @@ pub mod coupling;
 pub mod device;
 pub mod error;
 pub mod haptic_loop;
+pub mod input;
 pub mod lanes;
 pub mod lti;
 pub mod normal;
@@ -30,6 +31,7 @@ pub mod safety;
 pub mod serial;
 pub mod sim;
 pub mod stability;
+pub mod text;
 pub mod toml_location;
 pub mod tweezer;
 
@@ -61,6 +63,16 @@ pub fn round_half_away(x: f64) -> f64 {
 
 /// 2⁵².
 const TWO52: f64 = 4_503_599_627_370_496.0;
+
+/// `x` (a count computed in floating point, e.g. seconds × Hz, already
+/// rounded as the caller wants) as an integer when it is finite, ≥ 0 and
+/// below 2⁵² (where every integer is exact): the checked form of `x as
+/// u64`, which saturates silently. `None` otherwise — the caller names the
+/// field.
+pub fn checked_count(x: f64) -> Option<u64> {
+    // The range check makes the conversion exact.
+    (x.is_finite() && (0.0..TWO52).contains(&x)).then_some(x as u64)
+}
 
 /// [`round_half_away`] for |x| < 2⁵² (the caller guarantees it; for
 /// larger or non-finite x the result is wrong). The tie correction is added

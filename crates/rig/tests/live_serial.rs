@@ -11,7 +11,8 @@ use kilotouch_rig::device::{
 };
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::serial::emulator::{
-    DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Instrument, code_to_value,
+    DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
+    code_to_value,
 };
 use kilotouch_rig::serial::frame::DaqCommand;
 use kilotouch_rig::serial::pty::{Pty, serve};
@@ -274,7 +275,7 @@ fn a_stall_is_reported_promptly_and_the_rig_reconnects() {
         }
     };
     assert!(matches!(err, RigError::Disconnected(_)), "{err}");
-    assert!(err.to_string().contains("no data from the device"), "{err}");
+    assert!(err.to_string().contains("nothing at all"), "{err}");
     assert_eq!(rig.status().state, RigState::Disconnected);
     assert!(matches!(
         rig.process_block(&cmds, &mut out),
@@ -289,6 +290,58 @@ fn a_stall_is_reported_promptly_and_the_rig_reconnects() {
     assert_eq!(r.lost_frames, 0);
     assert!(out.windows(2).all(|w| w[1].seq == w[0].seq + 1));
     assert!(out.iter().all(|f| !f.flags.has(FrameFlags::LOST)));
+}
+
+/// A device that keeps sending valid frames which never advance the
+/// sample stream is declared stalled by the host's progress watchdog
+/// within its timeout, whatever it sends; the error says what it sent, the
+/// rig is disconnected (outputs commanded to zero). With a long timeout,
+/// the deadline bounds the wait instead.
+#[test]
+fn valid_frames_that_never_advance_the_stream_end_in_a_stall() {
+    for (mode, said) in [
+        (Misbehaviour::StatusOnly, "STATUS frame(s) only"),
+        (Misbehaviour::UnknownFrames, "of unknown type"),
+        (Misbehaviour::StraySequence, "stray sequence numbers"),
+    ] {
+        let dev = daq(EmulatorConfig {
+            faults: FaultInjection {
+                misbehave: Some(mode),
+                ..FaultInjection::default()
+            },
+            ..emu_cfg()
+        });
+        let mut cfg = SerialConfig::new(&dev.path);
+        cfg.timeout = Duration::from_millis(100);
+        let mut rig = SerialRig::open(&cfg).unwrap();
+        rig.start().unwrap();
+        let cmds = commands(50, 0);
+        let mut out = vec![SensorFrame::default(); 50];
+        let t = Instant::now();
+        let err = rig.process_block(&cmds, &mut out).unwrap_err();
+        let took = t.elapsed();
+        assert!(took < Duration::from_millis(400), "{mode:?}: {took:?}");
+        let text = err.to_string();
+        assert!(matches!(err, RigError::Disconnected(_)), "{text}");
+        assert!(
+            text.contains("did not advance") && text.contains(said),
+            "{mode:?}: {text}"
+        );
+        assert_eq!(rig.status().state, RigState::Disconnected);
+
+        // A 60 s timeout: the caller's deadline still ends the wait.
+        drop(rig);
+        cfg.timeout = Duration::from_secs(60);
+        let mut rig = SerialRig::open(&cfg).unwrap();
+        rig.start().unwrap();
+        rig.set_deadline(Some(Instant::now() + Duration::from_millis(300)));
+        let t = Instant::now();
+        let err = rig.process_block(&cmds, &mut out).unwrap_err();
+        let took = t.elapsed();
+        // The deadline, or the rate check after 500 ms of waiting.
+        assert!(took < Duration::from_millis(700), "{mode:?}: {took:?}");
+        assert!(err.to_string().contains(said), "{mode:?}: {err}");
+    }
 }
 
 #[test]

@@ -339,6 +339,45 @@ fn invalid(field: impl Into<String>, message: impl Into<String>) -> Invalid {
 }
 
 /// Finite and > 0.
+/// Most participants in one study folder.
+pub const MAX_PARTICIPANTS: u32 = 10_000;
+/// Most test trials per condition and participant.
+pub const MAX_TRIALS_PER_SESSION: u32 = 10_000;
+/// Most practice trials per condition.
+pub const MAX_PRACTICE_TRIALS: u32 = 1_000;
+/// Most trials (practice and test, every participant and condition) in one
+/// study plan: its plan, order table and row index stay in memory.
+pub const MAX_PLANNED_TRIALS: u64 = 1_000_000;
+/// Longest trial time-out, s.
+pub const MAX_TIMEOUT_S: f64 = 600.0;
+/// Longest training block, minutes.
+pub const MAX_TRAINING_MIN: f64 = 24.0 * 60.0;
+/// Most revolutions of a circling trial.
+pub const MAX_REVOLUTIONS: f64 = 1_000.0;
+
+/// A count in `1 ..= max`.
+fn count_in(field: &str, v: u32, min: u32, max: u32) -> Result<(), Invalid> {
+    if v < min {
+        return Err(invalid(field, format!("must be at least {min}, got {v}")));
+    }
+    if v > max {
+        return Err(invalid(field, format!("must be at most {max}, got {v}")));
+    }
+    Ok(())
+}
+
+/// A positive, finite value no larger than `max`.
+fn positive_at_most(field: &str, v: f64, max: f64, unit: &str) -> Result<(), Invalid> {
+    positive(field, v, unit)?;
+    if v > max {
+        return Err(invalid(
+            field,
+            format!("must be at most {max} {unit}, got {v}"),
+        ));
+    }
+    Ok(())
+}
+
 fn positive(field: &str, v: f64, unit: &str) -> Result<(), Invalid> {
     if v.is_finite() && v > 0.0 {
         Ok(())
@@ -369,12 +408,19 @@ impl Protocol {
         if self.name.trim().is_empty() {
             return Err(invalid("name", "must not be empty"));
         }
-        if self.participants == 0 {
-            return Err(invalid("participants", "must be at least 1"));
-        }
-        if self.trials_per_session == 0 {
-            return Err(invalid("trials_per_session", "must be at least 1"));
-        }
+        count_in("participants", self.participants, 1, MAX_PARTICIPANTS)?;
+        count_in(
+            "trials_per_session",
+            self.trials_per_session,
+            1,
+            MAX_TRIALS_PER_SESSION,
+        )?;
+        count_in(
+            "training.practice_trials",
+            self.training.practice_trials,
+            0,
+            MAX_PRACTICE_TRIALS,
+        )?;
         if self.conditions.is_empty() {
             return Err(invalid(
                 "conditions",
@@ -389,9 +435,26 @@ impl Protocol {
                 ));
             }
         }
-        positive(
+        let planned = u64::from(self.participants)
+            * self.conditions.len() as u64
+            * (u64::from(self.trials_per_session) + u64::from(self.training.practice_trials));
+        if planned > MAX_PLANNED_TRIALS {
+            return Err(invalid(
+                "participants",
+                format!(
+                    "{} participants × {} condition(s) × ({} test + {} practice) trials = \
+                     {planned} trials, more than the {MAX_PLANNED_TRIALS} a study may plan",
+                    self.participants,
+                    self.conditions.len(),
+                    self.trials_per_session,
+                    self.training.practice_trials
+                ),
+            ));
+        }
+        positive_at_most(
             "training.max_duration_min",
             self.training.max_duration_min,
+            MAX_TRAINING_MIN,
             "minutes",
         )?;
         match &self.task {
@@ -403,8 +466,18 @@ impl Protocol {
                     t.bead_radius_um,
                     t.escape_distance_um,
                 )?;
-                positive(&format!("{p}.timeout_s"), t.timeout_s, "seconds")?;
-                positive(&format!("{p}.revolutions"), t.revolutions, "revolutions")?;
+                positive_at_most(
+                    &format!("{p}.timeout_s"),
+                    t.timeout_s,
+                    MAX_TIMEOUT_S,
+                    "seconds",
+                )?;
+                positive_at_most(
+                    &format!("{p}.revolutions"),
+                    t.revolutions,
+                    MAX_REVOLUTIONS,
+                    "revolutions",
+                )?;
                 if !(t.min_contact_fraction > 0.0 && t.min_contact_fraction <= 1.0) {
                     return Err(invalid(
                         format!("{p}.min_contact_fraction"),
@@ -426,7 +499,12 @@ impl Protocol {
                     t.retreat_distance_um,
                     "µm",
                 )?;
-                positive(&format!("{p}.timeout_s"), t.timeout_s, "seconds")?;
+                positive_at_most(
+                    &format!("{p}.timeout_s"),
+                    t.timeout_s,
+                    MAX_TIMEOUT_S,
+                    "seconds",
+                )?;
                 if !(t.success_angle_deg > 0.0 && t.success_angle_deg <= 90.0) {
                     return Err(invalid(
                         format!("{p}.success_angle_deg"),
@@ -501,10 +579,12 @@ impl Protocol {
     /// I/O errors and those of [`Protocol::from_toml_str`].
     pub fn load(path: &Path) -> Result<Self, ProtocolError> {
         let file = path.display().to_string();
-        let src = std::fs::read_to_string(path).map_err(|source| ProtocolError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let src =
+            kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
+                .map_err(|source| ProtocolError::Io {
+                    file: file.clone(),
+                    source,
+                })?;
         Self::from_toml_str(&src, &file)
     }
 

@@ -208,6 +208,11 @@ pub struct Sidecar {
     pub non_finite_values: u64,
     /// Free attributes.
     pub attrs: serde_json::Map<String, serde_json::Value>,
+    /// CRC-32 (IEEE, 8 hex digits) of the data bytes after the header,
+    /// checked when a study is resumed (absent in files written before it
+    /// was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_crc32: Option<String>,
 }
 
 /// The NPY 1.0 header (preamble + padded dict + `\n`) for `rows × cols`
@@ -402,6 +407,11 @@ impl NpyWriter {
         file.write_all(&header)
             .map_err(io_err(&path, "patch header of"))?;
         file.sync_all().map_err(io_err(&path, "fsync"))?;
+        // Read back from the page cache: the checksum covers what is in
+        // the file, not what was meant to be written.
+        let data_crc32 = File::open(&path)
+            .and_then(|mut f| data_crc32(&mut f, header.len() as u64))
+            .map_err(io_err(&path, "read back"))?;
         let npy_file = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -417,6 +427,7 @@ impl NpyWriter {
             channels: self.layout.channels.clone(),
             non_finite_values: self.non_finite,
             attrs: self.layout.attrs.clone(),
+            data_crc32: Some(crate::export::checksum::crc32_hex(data_crc32)),
         };
         let sidecar = sidecar_path(&path);
         let json = serde_json::to_vec_pretty(&meta).map_err(|source| ExportError::Json {
@@ -430,6 +441,25 @@ impl NpyWriter {
             sidecar,
             meta,
         })
+    }
+}
+
+/// CRC-32 of the bytes of `file` from `offset` to its end (the data of a
+/// raw file after its header), read in 64 KiB pieces.
+///
+/// # Errors
+/// I/O errors.
+pub fn data_crc32(file: &mut File, offset: u64) -> std::io::Result<u32> {
+    use std::io::Read as _;
+    file.seek(SeekFrom::Start(offset))?;
+    let mut buf = vec![0u8; 1 << 16];
+    let mut crc = 0u32;
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            return Ok(crc);
+        }
+        crc = crate::export::checksum::crc32_continue(crc, &buf[..n]);
     }
 }
 

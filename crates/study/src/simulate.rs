@@ -24,7 +24,7 @@ use serde::Serialize;
 
 use crate::export::{
     CalibrationRef, PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name,
-    raw_layout_for, read_session,
+    raw_layout_for,
 };
 use crate::operator::SimCohort;
 use crate::protocol::Protocol;
@@ -53,12 +53,16 @@ pub struct SimulateOptions {
     pub runner: RunnerConfig,
     /// Worker threads (≥ 1).
     pub threads: usize,
+    /// Resume with a changed rig file, calibration or raw recording,
+    /// recording this reason (`None`: such a resume is refused).
+    pub new_sitting: Option<String>,
 }
 
 /// What a simulation did.
 #[derive(Debug, Clone, Serialize)]
 pub struct SimulateReport {
-    /// Output folder.
+    /// Output folder (in JSON as text, non-UTF-8 bytes replaced by U+FFFD).
+    #[serde(serialize_with = "path_lossy")]
     pub out: PathBuf,
     /// Protocol name.
     pub protocol: String,
@@ -88,6 +92,11 @@ pub struct SimulateReport {
     pub raw: bool,
     /// What opening the folder found (resume report).
     pub recovery: String,
+}
+
+/// A path as JSON text whatever its bytes (U+FFFD for non-UTF-8 ones).
+fn path_lossy<S: serde::Serializer>(p: &Path, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&p.to_string_lossy())
 }
 
 type WorkerResult = Result<(UtcTime, TrialOutcome), RunError>;
@@ -137,38 +146,38 @@ pub fn run_planned(
     Ok((started, outcome))
 }
 
-/// A resumed study must run with the calibration it was started with (or
-/// without one if it started without): two chains in one study would mix
-/// two renderings of D.
+/// What a study folder records of a simulated set-up: the rig's name and
+/// the content hash of its whole rig file, the calibration file (SHA-256)
+/// whose chain D runs — `None`: the as-designed chain — whether raw files
+/// are written, and the reason of a recorded change (`--new-sitting`).
+/// A resume with other settings is refused by the store
+/// ([`crate::export::ExportError::SettingsChanged`]). Returns the meta and
+/// D's chain.
 ///
 /// # Errors
-/// [`RunError::State`] naming both calibrations.
-pub fn check_same_calibration(out: &Path, now: Option<&CalibrationRef>) -> Result<(), RunError> {
-    let path = out.join(SESSION_FILE);
-    if !path.exists() {
-        return Ok(());
-    }
-    let session = read_session(&path)?;
-    let was = session.calibration.as_ref();
-    let same = match (was, now) {
-        (None, None) => true,
-        (Some(a), Some(b)) => a.sha256 == b.sha256,
-        _ => false,
+/// The calibration file cannot be read or is not for this rig; the rig
+/// file cannot be hashed.
+pub fn sim_meta(
+    rig: &RigConfig,
+    calibration: Option<&Path>,
+    raw: bool,
+    recorded_change: Option<&str>,
+) -> Result<(StudyMeta, LoopChain), RunError> {
+    let mut meta = StudyMeta::new(&format!("simulated: {}", rig.rig.name));
+    let chain = match calibration {
+        Some(p) => {
+            meta.calibration = Some(CalibrationRef::from_file(p)?);
+            LoopChain::load(p, rig)?
+        }
+        None => LoopChain::as_designed(rig)?,
     };
-    if same {
-        return Ok(());
-    }
-    let name = |c: Option<&CalibrationRef>| {
-        c.map_or("no calibration (as-designed chain)".to_owned(), |c| {
-            format!("calibration {} (sha256 {})", c.path, c.sha256)
-        })
-    };
-    Err(RunError::State(format!(
-        "{} was started with {}; resuming it with {} would mix two renderings of D: resume with the same calibration",
-        out.display(),
-        name(was),
-        name(now)
-    )))
+    meta.rig_hash = Some(
+        kilotouch_rig::calibration::hash::content_hash(rig)
+            .map_err(|e| RunError::Config(format!("rig file: {e}")))?,
+    );
+    meta.raw_signals = Some(raw);
+    meta.recorded_change = recorded_change.map(str::to_owned);
+    Ok((meta, chain))
 }
 
 /// Runs every pending trial of the study in `opts.out` (module docs).
@@ -189,17 +198,12 @@ pub fn simulate(
         )));
     }
     let threads = opts.threads.max(1);
-    let mut meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
-    let chain = match &opts.calibration {
-        Some(p) => {
-            meta.calibration = Some(CalibrationRef::from_file(p)?);
-            LoopChain::load(p, &opts.rig)?
-        }
-        None => LoopChain::as_designed(&opts.rig)?,
-    };
-    if opts.resume {
-        check_same_calibration(&opts.out, meta.calibration.as_ref())?;
-    }
+    let (meta, chain) = sim_meta(
+        &opts.rig,
+        opts.calibration.as_deref(),
+        opts.runner.raw.is_some(),
+        opts.new_sitting.as_deref(),
+    )?;
     let mut store = StudyStore::open(&opts.out, &opts.protocol, &meta)?;
     let recovery = store.recovery().to_string();
     let planned_total = store.plan().len();

@@ -11,7 +11,9 @@ use anyhow::Context;
 use clap::Subcommand;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::device::{Clock, SystemClock};
-use kilotouch_rig::serial::emulator::{Emulator, EmulatorConfig, FaultInjection, Instrument};
+use kilotouch_rig::serial::emulator::{
+    Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
+};
 use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve};
 use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
 use std::io::Write;
@@ -61,6 +63,32 @@ pub struct Args {
     /// Seed of the fault injection (and of the sensor noise, when given).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Once started, misbehave without breaking the protocol: stream valid
+    /// frames that never advance the sample stream (a test device for the
+    /// host's progress watchdog).
+    #[arg(long, value_enum)]
+    pub misbehave: Option<MisbehaveArg>,
+}
+
+/// `--misbehave` modes (see [`Misbehaviour`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MisbehaveArg {
+    /// Only STATUS frames, the sequence number never moving.
+    StatusOnly,
+    /// Only frames of an unknown type.
+    UnknownFrames,
+    /// SAMPLES frames with stray sequence numbers.
+    StraySeq,
+}
+
+impl From<MisbehaveArg> for Misbehaviour {
+    fn from(m: MisbehaveArg) -> Self {
+        match m {
+            MisbehaveArg::StatusOnly => Self::StatusOnly,
+            MisbehaveArg::UnknownFrames => Self::UnknownFrames,
+            MisbehaveArg::StraySeq => Self::StraySequence,
+        }
+    }
 }
 
 fn secs(name: &str, v: Option<f64>) -> anyhow::Result<Option<Duration>> {
@@ -86,6 +114,7 @@ impl Args {
                 stall_for: secs("stall-for-s", self.stall_for_s)?,
                 disconnect_after: secs("disconnect-after-s", self.disconnect_after_s)?,
                 seed: self.seed.unwrap_or(0),
+                misbehave: self.misbehave.map(Misbehaviour::from),
             },
         };
         cfg.validate()?;

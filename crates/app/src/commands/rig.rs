@@ -12,7 +12,7 @@ use kilotouch_rig::sim::SimRig;
 use kilotouch_rig::stability::{StabilityReport, analyse};
 use serde::Serialize;
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use crate::output::emit;
 
@@ -97,9 +97,25 @@ pub struct CheckArgs {
     /// Rig file of the simulated rig.
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
+    /// Verdict: fail when more than this fraction of the frames is lost.
+    #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_LOSS)]
+    pub max_loss: f64,
+    /// Verdict: fail when the CRC errors exceed this fraction of the frames.
+    #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_CRC)]
+    pub max_crc_errors: f64,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+impl CheckArgs {
+    /// Default loss limit: 0.1 % of the frames (10 per second at 10 kHz).
+    pub const DEFAULT_MAX_LOSS: f64 = 1e-3;
+    /// Default CRC-error limit: 0.1 % of the frames.
+    pub const DEFAULT_MAX_CRC: f64 = 1e-3;
+    /// Time past `--duration` after which a rig that has not delivered
+    /// its block is declared stalled: `--duration` is a hard bound.
+    pub const GRACE: Duration = Duration::from_secs(1);
 }
 
 /// Result of `rig check` (JSON with `--json`).
@@ -131,73 +147,176 @@ pub struct CheckReport {
     pub duration_s: f64,
     /// Longest `process_block` call, ms.
     pub max_block_ms: f64,
+    /// lost / frames (0 without frames).
+    pub loss_fraction: f64,
+    /// crc_errors / frames (crc_errors when no frame arrived).
+    pub crc_error_fraction: f64,
+    /// The loss limit of the verdict.
+    pub max_loss: f64,
+    /// The CRC-error limit of the verdict.
+    pub max_crc_errors: f64,
+    /// Verdict: streaming ended normally within both limits.
+    pub passed: bool,
+    /// Why the check failed (`None` when it passed).
+    pub failure: Option<String>,
 }
 
 impl CheckReport {
     fn table(&self) -> String {
-        format!(
-            "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
+        let verdict = match &self.failure {
+            None => format!(
+                "  verdict   PASS (loss {:.3} % ≤ {:.3} %, CRC errors {:.3} % ≤ {:.3} %)\n",
+                100.0 * self.loss_fraction,
+                100.0 * self.max_loss,
+                100.0 * self.crc_error_fraction,
+                100.0 * self.max_crc_errors
+            ),
+            Some(why) => format!("  verdict   FAIL: {why}\n"),
+        };
+        verdict
+            + &format!(
+                "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
              crc errors {} ({} bytes skipped)\n  late commands {}\n  rate      {:.1} Hz \
              (nominal {:.0} Hz) over {:.2} s, longest block {:.2} ms\n",
-            self.rig,
-            self.device,
-            self.firmware,
-            self.frames,
-            self.received,
-            self.lost,
-            self.crc_errors,
-            self.bytes_skipped,
-            self.late_commands,
-            self.rate_hz,
-            self.nominal_rate_hz,
-            self.duration_s,
-            self.max_block_ms
-        )
+                self.rig,
+                self.device,
+                self.firmware,
+                self.frames,
+                self.received,
+                self.lost,
+                self.crc_errors,
+                self.bytes_skipped,
+                self.late_commands,
+                self.rate_hz,
+                self.nominal_rate_hz,
+                self.duration_s,
+                self.max_block_ms
+            )
     }
 }
 
-/// Stream zero commands through `rig` for `duration` s in blocks of `block`.
-fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> anyhow::Result<(u64, u64, f64, f64)> {
+/// Counters of a streaming run (kept when it ends in an error).
+#[derive(Debug, Clone, Copy, Default)]
+struct Streamed {
+    frames: u64,
+    lost: u64,
+    elapsed_s: f64,
+    max_block_s: f64,
+}
+
+/// Stream zero commands through `rig` for `duration` s in blocks of
+/// `block`. The counters are returned with the error that ended the run,
+/// if one did.
+fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<anyhow::Error>) {
     let cmds = vec![ActuatorFrame::default(); block];
     let mut sens = vec![SensorFrame::default(); block];
-    rig.start()?;
+    let mut s = Streamed::default();
+    if let Err(e) = rig.start() {
+        return (s, Some(e.into()));
+    }
     let t0 = Instant::now();
-    let (mut frames, mut lost, mut max_block) = (0u64, 0u64, 0.0f64);
+    let mut error = None;
     while t0.elapsed().as_secs_f64() < duration {
         let tb = Instant::now();
-        let r = rig.process_block(&cmds, &mut sens)?;
-        max_block = max_block.max(tb.elapsed().as_secs_f64());
-        frames += r.frames as u64;
-        lost += u64::from(r.lost_frames);
+        match rig.process_block(&cmds, &mut sens) {
+            Ok(r) => {
+                s.frames += r.frames as u64;
+                s.lost += u64::from(r.lost_frames);
+            }
+            Err(e) => error = Some(e.into()),
+        }
+        s.max_block_s = s.max_block_s.max(tb.elapsed().as_secs_f64());
+        if error.is_some() {
+            break;
+        }
     }
-    let elapsed = t0.elapsed().as_secs_f64();
-    rig.stop()?;
-    Ok((frames, lost, elapsed, max_block))
+    s.elapsed_s = t0.elapsed().as_secs_f64();
+    if let Err(e) = rig.stop() {
+        error.get_or_insert(e.into());
+    }
+    (s, error)
 }
 
-fn check(a: &CheckArgs) -> anyhow::Result<CheckReport> {
-    if !(a.duration.is_finite() && a.duration > 0.0) {
-        anyhow::bail!("--duration must be finite and > 0, got {}", a.duration);
+/// The verdict on a run's counters: `Some(why)` when a limit is exceeded.
+fn verdict(r: &CheckReport) -> Option<String> {
+    let mut why = Vec::new();
+    if r.frames == 0 {
+        why.push("no frame was exchanged".to_owned());
+    }
+    if r.loss_fraction > r.max_loss {
+        why.push(format!(
+            "{:.3} % of the frames lost ({} of {}), limit {:.3} % (--max-loss)",
+            100.0 * r.loss_fraction,
+            r.lost,
+            r.frames,
+            100.0 * r.max_loss
+        ));
+    }
+    if r.crc_error_fraction > r.max_crc_errors {
+        why.push(format!(
+            "{} CRC errors, {:.3} % of the frames, limit {:.3} % (--max-crc-errors)",
+            r.crc_errors,
+            100.0 * r.crc_error_fraction,
+            100.0 * r.max_crc_errors
+        ));
+    }
+    (!why.is_empty()).then(|| why.join("; "))
+}
+
+/// Runs the check; the report always carries the counters, with the error
+/// that ended the run (if any) as the second value.
+fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> {
+    if !(a.duration.is_finite() && a.duration > 0.0 && a.duration <= 86_400.0) {
+        anyhow::bail!("--duration must be in (0, 86400] s, got {}", a.duration);
     }
     if !(1..=65_536).contains(&a.block) {
         anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
     }
+    for (name, v) in [
+        ("--max-loss", a.max_loss),
+        ("--max-crc-errors", a.max_crc_errors),
+    ] {
+        if !(0.0..=1.0).contains(&v) {
+            anyhow::bail!("{name} must be a fraction in [0, 1], got {v}");
+        }
+    }
     let spec: RigSpec = a.rig.parse()?;
-    let (id, (frames, lost, elapsed, max_block), link) = match &spec {
+    let (id, (streamed, error), link) = match &spec {
         RigSpec::Sim => {
             let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
             let mut rig = SimRig::paced(&rc, 0.5)?;
-            let streamed = stream(&mut rig, a.duration, a.block)?;
+            let streamed = stream(&mut rig, a.duration, a.block);
             (rig.identity().clone(), streamed, LinkStats::default())
         }
         RigSpec::Serial(cfg) => {
             let mut rig = SerialRig::open(cfg)?;
-            let streamed = stream(&mut rig, a.duration, a.block)?;
+            // START may take up to the handshake time-out; then the
+            // streaming time and the grace: a hard bound on every block.
+            rig.set_deadline(Some(
+                Instant::now()
+                    + cfg.handshake_timeout
+                    + Duration::from_secs_f64(a.duration)
+                    + CheckArgs::GRACE,
+            ));
+            let streamed = stream(&mut rig, a.duration, a.block);
             (rig.identity().clone(), streamed, rig.link_stats())
         }
         RigSpec::Audio(_) => return Err(RigSpec::audio_not_built().into()),
     };
-    Ok(CheckReport {
+    let Streamed {
+        frames,
+        lost,
+        elapsed_s,
+        max_block_s,
+    } = streamed;
+    let ratio = |n: u64| {
+        if frames == 0 {
+            n as f64
+        } else {
+            n as f64 / frames as f64
+        }
+    };
+    let mut report = CheckReport {
         rig: spec.describe(),
         device: id.name,
         firmware: id.firmware,
@@ -208,10 +327,26 @@ fn check(a: &CheckArgs) -> anyhow::Result<CheckReport> {
         crc_errors: link.crc_errors,
         bytes_skipped: link.bytes_skipped,
         late_commands: link.late_commands,
-        rate_hz: frames as f64 / elapsed,
-        duration_s: elapsed,
-        max_block_ms: 1e3 * max_block,
-    })
+        rate_hz: if elapsed_s > 0.0 {
+            frames as f64 / elapsed_s
+        } else {
+            0.0
+        },
+        duration_s: elapsed_s,
+        max_block_ms: 1e3 * max_block_s,
+        loss_fraction: ratio(lost),
+        crc_error_fraction: ratio(link.crc_errors),
+        max_loss: a.max_loss,
+        max_crc_errors: a.max_crc_errors,
+        passed: false,
+        failure: None,
+    };
+    report.failure = match &error {
+        Some(e) => Some(format!("streaming ended early: {e:#}")),
+        None => verdict(&report),
+    };
+    report.passed = report.failure.is_none();
+    Ok((report, error))
 }
 
 /// Run a `rig` subcommand.
@@ -224,8 +359,15 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
         #[cfg(feature = "audio")]
         RigCommand::ListAudio { json } => list_audio(*json),
         RigCommand::Check(a) => {
-            let report = check(a).with_context(|| format!("rig check --rig {}", a.rig))?;
-            emit(a.json, &report, || report.table())
+            let ctx = || format!("rig check --rig {}", a.rig);
+            let (report, error) = check(a).with_context(ctx)?;
+            // The counters are printed whatever the outcome.
+            emit(a.json, &report, || report.table())?;
+            match (error, &report.failure) {
+                (Some(e), _) => Err(e.context(ctx())),
+                (None, Some(why)) => Err(anyhow::anyhow!("{}: FAIL: {why}", ctx())),
+                (None, None) => Ok(()),
+            }
         }
         RigCommand::Margins(a) => {
             let (cfg, chain) = a.rig.load()?;

@@ -51,6 +51,11 @@ pub struct SimulateArgs {
     /// as-designed chain is recorded as uncalibrated.
     #[command(flatten)]
     pub rig: super::rig::LoopArgs,
+    /// With --resume: continue although the rig file, calibration or raw
+    /// recording differ from the folder's, recording this reason in the
+    /// journal (otherwise such a resume is refused with the differences).
+    #[arg(long, value_name = "REASON", requires = "resume")]
+    pub new_sitting: Option<String>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -176,6 +181,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         calibration: a.rig.calibration.clone(),
         runner,
         threads,
+        new_sitting: a.new_sitting.clone(),
     };
     let mut bar = Bar {
         tty: std::io::stderr().is_terminal(),

@@ -85,11 +85,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::device::SystemClock;
 use kilotouch_study::export::{
-    CalibrationRef, PlannedTrial, Recovery, SESSION_FILE, StudyMeta, StudyStore, TRIALS_FILE,
-    TrialRow, plan, read_session, read_trials,
+    PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow, plan, read_session,
+    read_trials,
 };
 use kilotouch_study::operator::SimCohort;
 use kilotouch_study::participant::VisualFrame;
@@ -97,7 +96,7 @@ use kilotouch_study::participant::{MouseParticipant, Observation, Participant, T
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::{RunError, RunnerConfig, RunnerEvents, RunnerState, SessionRunner};
 use kilotouch_study::seeds::TrialKey;
-use kilotouch_study::simulate::check_same_calibration;
+use kilotouch_study::simulate::sim_meta;
 use kilotouch_study::task::sim_station::SimStation;
 use kilotouch_study::task::station::{HandMapping, Station};
 use kilotouch_study::task::{Scene, TaskParams, TrialEnd};
@@ -415,15 +414,12 @@ impl SessionHandle {
                 "\"as fast as possible\" is for the simulated participant only".into(),
             ));
         }
-        let mut meta = StudyMeta::new(&format!("simulated: {}", opts.rig.rig.name));
-        let chain = match &opts.calibration {
-            Some(p) => {
-                meta.calibration = Some(CalibrationRef::from_file(p)?);
-                LoopChain::load(p, &opts.rig).map_err(RunError::from)?
-            }
-            None => LoopChain::as_designed(&opts.rig).map_err(RunError::from)?,
-        };
-        check_same_calibration(&opts.out, meta.calibration.as_ref())?;
+        let (meta, chain) = sim_meta(
+            &opts.rig,
+            opts.calibration.as_deref(),
+            opts.runner.raw.is_some(),
+            None,
+        )?;
         if opts.protocol.is_some() && opts.out.join(SESSION_FILE).exists() {
             // The folder's own protocol decides; a different one is refused by
             // the store (ProtocolMismatch) — say so before touching anything.

@@ -172,11 +172,13 @@ impl CalibrationFile {
     /// Read and validate `path` without checking the rig.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Io {
-            action: "read",
-            path: path.display().to_string(),
-            source,
-        })?;
+        let text = crate::input::read_text_capped(path, crate::input::MAX_CONFIG_BYTES).map_err(
+            |source| CalibrationError::Io {
+                action: "read",
+                path: path.display().to_string(),
+                source,
+            },
+        )?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 

@@ -76,6 +76,26 @@ pub trait Instrument: Send {
     fn reset(&mut self, cmd: &Self::Command);
 }
 
+/// A device that keeps the link busy with valid frames but never advances
+/// the sample stream once started (what the host's progress watchdog,
+/// [`super::watch`], must catch). It executes no command and trips no
+/// watchdog of its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Misbehaviour {
+    /// Only STATUS frames ("running", the sequence number never moving).
+    StatusOnly,
+    /// Only frames of a type the protocol does not define.
+    UnknownFrames,
+    /// SAMPLES frames whose sequence numbers are never the ones owed
+    /// (alternately long past and far ahead).
+    StraySequence,
+}
+
+impl Misbehaviour {
+    /// Period of the misbehaving frames.
+    pub const PERIOD: Duration = Duration::from_millis(1);
+}
+
 /// Fault injection on the device → host stream (module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FaultInjection {
@@ -92,6 +112,8 @@ pub struct FaultInjection {
     pub disconnect_after: Option<Duration>,
     /// Seed of the fault generator.
     pub seed: u64,
+    /// Stream valid frames that never advance the sample stream.
+    pub misbehave: Option<Misbehaviour>,
 }
 
 /// Emulator settings.
@@ -478,6 +500,30 @@ impl<I: Instrument> Emulator<I> {
         self.anchor_time + Duration::from_secs_f64((seq + 1 - self.anchor_seq) as f64 / self.fs)
     }
 
+    /// One frame of a misbehaving device ([`Misbehaviour`]).
+    fn misbehave(&mut self, m: Misbehaviour) {
+        match m {
+            Misbehaviour::StatusOnly => {
+                let st = self.status();
+                frame::write_status(&mut self.scratch, &st);
+            }
+            Misbehaviour::UnknownFrames => {
+                frame::write_frame(&mut self.scratch, 0x7E, |o| o.extend_from_slice(b"junk"));
+            }
+            Misbehaviour::StraySequence => {
+                self.batch_seq += 1;
+                let seq = if self.batch_seq % 2 == 0 {
+                    self.next_seq.wrapping_sub(1000)
+                } else {
+                    self.next_seq.wrapping_add(1 << 20)
+                };
+                let s = self.inst.step(&self.applied, 0);
+                frame::write_block(&mut self.scratch, I::SAMPLE_TYPE, seq as u32, &[s]);
+            }
+        }
+        self.emit();
+    }
+
     /// Run every sample that is due at wall time `now` and whose command
     /// is here; check the watchdog; queue the output. Returns when to call
     /// again.
@@ -495,6 +541,10 @@ impl<I: Instrument> Emulator<I> {
         }
         if self.state != DeviceState::Running {
             return Next::WakeAt(now + Duration::from_millis(50));
+        }
+        if let Some(m) = self.cfg.faults.misbehave {
+            self.misbehave(m);
+            return Next::WakeAt(now + Misbehaviour::PERIOD);
         }
         let elapsed = now.saturating_sub(self.anchor_time).as_secs_f64();
         let pos = self.anchor_seq + (elapsed * self.fs).floor() as u64;

@@ -12,13 +12,16 @@
 //! * [`rig`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`rig::Link`].
 //! * [`tweezer_link`]: [`LinkTweezer`] ([`crate::Tweezer`]) and the tweezer
 //!   instrument.
+//! * [`watch`]: the host's watchdog on stream progress (new samples, not
+//!   frames).
 
 pub mod emulator;
 pub mod frame;
 pub mod pty;
 pub mod rig;
 pub mod tweezer_link;
+pub mod watch;
 
-pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection};
+pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Misbehaviour};
 pub use rig::{LinkStats, SerialConfig, SerialRig};
 pub use tweezer_link::{LinkCalibration, LinkTweezer, TweezerInstrument};

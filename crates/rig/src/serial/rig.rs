@@ -6,10 +6,13 @@
 //! `first_seq .. first_seq + n` is accounted for: received, or lost — a gap
 //! in the sequence numbers of SAMPLES frames, or samples a STATUS frame
 //! says were executed but never arrived. Lost samples become placeholder
-//! frames flagged [`FrameFlags::LOST`] holding the last good values. If no
-//! valid frame arrives for [`SerialConfig::timeout`] the rig commands the
+//! frames flagged [`FrameFlags::LOST`] holding the last good values. If the
+//! sample stream does not advance for [`SerialConfig::timeout`], or too few
+//! new samples arrive for the device's rate ([`super::watch`]) — whatever
+//! valid frames the device keeps sending instead — the rig commands the
 //! outputs to zero (STOP), enters [`RigState::Disconnected`] and returns
-//! [`RigError::Disconnected`]; an I/O error or end of file on the port
+//! [`RigError::Disconnected`] naming what the device sent; an I/O error or
+//! end of file on the port
 //! (device unplugged, emulator killed) does the same at once.
 //! [`SerialRig::reconnect`] reopens the port.
 //!
@@ -22,6 +25,7 @@ use super::frame::{
     self, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DeviceKind, DeviceState, Hello,
     PROTOCOL_VERSION, WireItem, fault, flag,
 };
+use super::watch::{Activity, RateWindow, Stall};
 use crate::device::{
     ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
     RigStatus, SensorFrame, StatusCounters, open_block,
@@ -40,8 +44,9 @@ pub struct SerialConfig {
     /// Baud rate (ignored by USB CDC and ptys; a UART needs ≥ 2 Mbaud for
     /// 10 kHz, `docs/PROTOCOL.md`).
     pub baud: u32,
-    /// No valid device frame for this long while waiting → the device is
-    /// declared stalled/gone.
+    /// No new sample for this long while waiting → the device is declared
+    /// stalled/gone (valid frames that do not advance the sample stream do
+    /// not count, [`super::watch`]).
     pub timeout: Duration,
     /// Handshake and START answers must arrive within this.
     pub handshake_timeout: Duration,
@@ -96,8 +101,9 @@ pub struct LinkStats {
 /// How an exchange ended badly.
 #[derive(Debug)]
 enum LinkErr {
-    /// No valid frame within the timeout.
-    Stalled,
+    /// The sample stream stalled (no progress, too slow, or past the
+    /// caller's deadline).
+    Stalled(Stall),
     /// I/O error or end of file.
     Io(std::io::Error),
     /// The device's watchdog tripped (or it rejected commands as idle).
@@ -128,6 +134,8 @@ pub struct Link {
     hello: Hello,
     stats: LinkStats,
     decoder_base: frame::DecoderStats,
+    rate: RateWindow,
+    deadline: Option<Instant>,
 }
 
 impl std::fmt::Debug for Link {
@@ -174,6 +182,8 @@ impl Link {
             },
             stats: LinkStats::default(),
             decoder_base: frame::DecoderStats::default(),
+            rate: RateWindow::default(),
+            deadline: None,
         };
         link.handshake(kind)?;
         Ok(link)
@@ -228,10 +238,9 @@ impl Link {
 
     fn map_err(&self, e: LinkErr) -> RigError {
         match e {
-            LinkErr::Stalled => self.disconnected(&format!(
-                "no data from the device for {} ms (stalled or unplugged); outputs commanded to zero",
-                self.cfg.timeout.as_millis()
-            )),
+            LinkErr::Stalled(why) => {
+                self.disconnected(&format!("{why}; outputs commanded to zero"))
+            }
             LinkErr::Io(e) => self.disconnected(&format!("the device vanished ({e})")),
             LinkErr::Watchdog { seq, .. } => RigError::Device(format!(
                 "{}: the device watchdog tripped at sample {seq} (no host frame within {} ms); \
@@ -367,8 +376,19 @@ impl Link {
                 self.cfg.path
             )));
         }
-        self.hello = hello;
+        self.hello = Hello {
+            name: crate::text::printable(&hello.name, 64),
+            serial: crate::text::printable(&hello.serial, 64),
+            firmware: crate::text::printable(&hello.firmware, 64),
+            ..hello
+        };
         Ok(())
+    }
+
+    /// A hard time bound for every exchange (e.g. the end of `rig check
+    /// --duration`): past it, waiting for samples ends as a stall.
+    pub fn set_deadline(&mut self, deadline: Option<Instant>) {
+        self.deadline = deadline;
     }
 
     /// Send START and wait for the device to run; returns the device's next
@@ -383,6 +403,7 @@ impl Link {
         let n = self.wait_for(frame::ty::STATUS, running, &mut buf, deadline)?;
         let st = frame::parse_status(&buf[..n])
             .ok_or_else(|| RigError::Device("malformed STATUS".into()))?;
+        self.rate.reset();
         Ok(u64::from(st.next_seq))
     }
 
@@ -410,14 +431,23 @@ impl Link {
         let end = first + n as u64;
         let mut expected = first;
         let mut ex = Exchange::default();
-        let mut last_frame = Instant::now();
+        let mut last_progress = Instant::now();
+        let mut last_tick = last_progress;
         let mut grace_used = false;
+        // What the device sent in this exchange, and the same counters at
+        // the last progress and at the last rate tick.
+        let mut seen = Activity::default();
+        let (mut at_progress, mut at_tick) = (seen, seen);
+        let crc_base = self.decoder.stats().crc_errors;
+        let rate_hz = self.hello.sample_rate_hz;
         let Self {
             decoder,
             stats,
             cfg,
             port,
             rx,
+            rate,
+            deadline,
             ..
         } = self;
         let fill_lost = |from: u64,
@@ -435,23 +465,27 @@ impl Link {
             }
         };
         loop {
+            let before = expected;
             while expected < end {
                 let Some(f) = decoder.next_frame() else {
                     break;
                 };
-                last_frame = Instant::now();
+                seen.frames += 1;
                 match f.ty {
                     t if t == sample_ty => {
                         let Some((seq32, cnt)) = frame::block_header::<S>(f.payload) else {
+                            seen.unknown += 1;
                             continue;
                         };
                         let base = frame::unwrap_seq(seq32, expected);
                         for i in 0..cnt {
                             let q = base + i as u64;
                             if q < expected {
+                                seen.stray_samples += 1;
                                 continue;
                             }
                             if q >= end {
+                                seen.stray_samples += 1;
                                 stats.stray_samples += 1;
                                 continue;
                             }
@@ -459,10 +493,12 @@ impl Link {
                             let s = frame::block_item::<S>(f.payload, i);
                             sink((q - first) as usize, Some(&s));
                             stats.samples += 1;
+                            seen.new_samples += 1;
                             expected = q + 1;
                         }
                     }
                     frame::ty::STATUS => {
+                        seen.status += 1;
                         let Some(st) = frame::parse_status(f.payload) else {
                             continue;
                         };
@@ -483,6 +519,7 @@ impl Link {
                         }
                     }
                     frame::ty::FAULT => {
+                        seen.faults += 1;
                         stats.device_faults += 1;
                         if let Some(seq) = watchdog_fault(f.payload, expected) {
                             return Err(LinkErr::Watchdog {
@@ -491,25 +528,50 @@ impl Link {
                             });
                         }
                     }
-                    _ => {}
+                    _ => seen.unknown += 1,
                 }
             }
+            let now = Instant::now();
+            seen.crc_errors = decoder.stats().crc_errors - crc_base;
+            if expected > before {
+                last_progress = now;
+                at_progress = seen;
+            }
+            // The rate check on the time spent waiting for the device.
+            rate.add(now - last_tick, &seen.since(&at_tick), rate_hz)
+                .map_err(LinkErr::Stalled)?;
+            (last_tick, at_tick) = (now, seen);
             if expected >= end {
                 return Ok(ex);
+            }
+            if deadline.is_some_and(|d| now >= d) {
+                return Err(LinkErr::Stalled(Stall::Deadline {
+                    activity: seen.since(&at_progress),
+                }));
             }
             // Past the timeout, look once more without waiting before
             // declaring a stall: the host itself may have been descheduled
             // while the device's frames were arriving.
-            let idle = last_frame.elapsed();
+            let idle = now - last_progress;
             let wait = if idle >= cfg.timeout {
                 if grace_used {
-                    return Err(LinkErr::Stalled);
+                    return Err(LinkErr::Stalled(Stall::NoProgress {
+                        waited_ms: u64::try_from(idle.as_millis()).unwrap_or(u64::MAX),
+                        expected_seq: expected,
+                        activity: seen.since(&at_progress),
+                    }));
                 }
                 grace_used = true;
                 Duration::from_millis(1)
             } else {
                 grace_used = false;
                 (cfg.timeout - idle).min(Duration::from_millis(20))
+            };
+            let wait = match deadline {
+                Some(d) => wait
+                    .min(d.saturating_duration_since(now))
+                    .max(Duration::from_millis(1)),
+                None => wait,
             };
             read_into(port, rx, decoder, stats, wait)?;
         }
@@ -683,6 +745,12 @@ impl SerialRig {
         Ok(())
     }
 
+    /// A hard time bound for every block ([`Link::set_deadline`]): past
+    /// it, `process_block` ends as a stall (outputs commanded to zero).
+    pub fn set_deadline(&mut self, deadline: Option<Instant>) {
+        self.link.set_deadline(deadline);
+    }
+
     /// Link counters.
     pub fn link_stats(&self) -> LinkStats {
         self.link.stats()
@@ -729,7 +797,7 @@ impl SerialRig {
                 self.state = RigState::Faulted;
                 self.counters.push(RigFault::WatchdogTripped { seq });
             }
-            LinkErr::Stalled | LinkErr::Io(_) => {
+            LinkErr::Stalled(_) | LinkErr::Io(_) => {
                 self.link.stop();
                 self.state = RigState::Disconnected;
                 self.counters.push(RigFault::Disconnected);

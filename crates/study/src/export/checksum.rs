@@ -35,11 +35,18 @@ const CRC_TABLE: [u32; 256] = {
 
 /// CRC-32 (IEEE) of `data`.
 pub fn crc32(data: &[u8]) -> u32 {
-    let mut c = 0xFFFF_FFFF_u32;
+    crc32_continue(0, data)
+}
+
+/// CRC-32 of the bytes before, whose CRC is `crc`, followed by `data`
+/// (zlib's `crc32(crc, buf, len)`): `crc32_continue(crc32(a), b)` is the
+/// CRC of `a` then `b`, and `crc32_continue(0, x) == crc32(x)`.
+pub fn crc32_continue(crc: u32, data: &[u8]) -> u32 {
+    let mut c = !crc;
     for &b in data {
         c = CRC_TABLE[((c ^ u32::from(b)) & 0xFF) as usize] ^ (c >> 8);
     }
-    c ^ 0xFFFF_FFFF
+    !c
 }
 
 /// 8 lowercase hex digits of a CRC-32.

@@ -13,7 +13,20 @@
 //!                     types, units, constraints (regenerated with them)
 //!   raw/<P>_<C>_<phase>_<trial>.npy + .json   full-rate signals per trial
 //!   recovery/         copies of torn tails cut on resume
+//!   recovery/quarantine/  raw files of finished trials that failed their check
+//!   writer.lock       the one-writer lock (PID, host, program of the holder)
 //! ```
+//!
+//! # One writer, checked resumes
+//!
+//! [`StudyStore::open`] takes the folder's lock ([`lock::FolderLock`]) for
+//! the store's life: a second writer, in this or another process, is
+//! refused at once with the holder's PID and host. On resume it refuses a
+//! rig file, calibration or raw recording other than `session.json`'s
+//! ([`settings`]) unless the change is recorded, and checks every finished
+//! trial's raw file (size, header, CRC-32 in the sidecar): a damaged one
+//! is moved to `recovery/quarantine/`, named in the [`Recovery`] report
+//! and flagged in the journal.
 //!
 //! # Commit order (per trial)
 //!
@@ -57,20 +70,23 @@ pub mod datapackage;
 pub mod journal;
 mod open;
 mod plan;
+mod raw_check;
 mod reconcile;
 pub mod session;
+pub mod settings;
 mod store;
 pub mod summary;
 pub mod trials;
 
-pub use crate::storage::{error, fsutil, utc};
+pub use crate::storage::{error, fsutil, lock, utc};
 
 pub use datapackage::{DATAPACKAGE_FILE, SummaryLayout, write_datapackage};
 pub use error::{ExportError, Position, Result};
 pub use fsutil::TornTail;
 pub use open::RECOVERY_DIR;
 pub use plan::{PlannedTrial, RAW_DIR, plan, raw_file_name, raw_layout_for};
-pub use reconcile::Recovery;
+pub use raw_check::QUARANTINE_DIR;
+pub use reconcile::{DamagedRaw, Recovery};
 pub use session::{
     CalibrationRef, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo, Sitting,
     StudyMeta, read_session,

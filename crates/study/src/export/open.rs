@@ -114,6 +114,8 @@ impl NewStudy<'_> {
             order_balance: self.table.summary.clone(),
             rig: self.meta.rig.clone(),
             calibration: self.meta.calibration.clone(),
+            rig_hash: self.meta.rig_hash.clone(),
+            raw_signals: self.meta.raw_signals,
             created_utc: self.now,
             updated_utc: self.now,
             sittings: Vec::new(),

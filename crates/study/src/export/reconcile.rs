@@ -40,6 +40,27 @@ pub struct Recovery {
     pub completed: usize,
     /// Trials still to run.
     pub pending: usize,
+    /// The record of a previous writer that ended without releasing the
+    /// folder's lock (crash, kill, power loss).
+    pub stale_lock: Option<crate::storage::lock::Holder>,
+    /// Raw files of finished trials that failed their check on resume
+    /// (moved to `recovery/quarantine/`).
+    pub damaged_raw: Vec<DamagedRaw>,
+}
+
+/// A finished trial's raw file that failed its check on resume
+/// (missing, truncated, header or checksum not matching its sidecar).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DamagedRaw {
+    /// The trial.
+    pub trial: TrialKey,
+    /// The raw file, relative to the folder (`raw/…npy`).
+    pub file: String,
+    /// What is wrong with it.
+    pub reason: String,
+    /// Where the damaged file and its sidecar were moved, relative to the
+    /// folder (`None`: nothing left to move).
+    pub quarantined_to: Option<String>,
 }
 
 impl Recovery {
@@ -49,6 +70,7 @@ impl Recovery {
             && self.trials_torn.is_none()
             && self.adopted.is_empty()
             && self.interrupted.is_empty()
+            && self.damaged_raw.is_empty()
     }
 }
 
@@ -64,6 +86,12 @@ impl fmt::Display for Recovery {
         )?;
         if self.previous_sitting_unclosed {
             f.write_str("; the previous sitting ended without closing (crash or kill)")?;
+        }
+        if let Some(h) = &self.stale_lock {
+            write!(
+                f,
+                "; the previous writer, {h}, ended without releasing the folder"
+            )?;
         }
         for t in [&self.journal_torn, &self.trials_torn]
             .into_iter()
@@ -92,6 +120,19 @@ impl fmt::Display for Recovery {
                 f,
                 "; interrupted trial(s) to run again: {}",
                 list.join(", ")
+            )?;
+        }
+        for d in &self.damaged_raw {
+            write!(
+                f,
+                "; DAMAGED raw file {} of trial {} ({}){}: the trial is flagged in the journal, \
+                 its row kept without trusted signals",
+                d.file,
+                d.trial,
+                d.reason,
+                d.quarantined_to
+                    .as_ref()
+                    .map_or_else(String::new, |q| format!(", moved to {q}"))
             )?;
         }
         Ok(())

@@ -30,6 +30,17 @@ pub struct StudyMeta {
     pub rig: String,
     /// Calibration file in use.
     pub calibration: Option<CalibrationRef>,
+    /// Content hash of the whole rig file in force
+    /// (`kilotouch_rig::calibration::hash::content_hash`; `None`: not
+    /// known to the writer, not checked).
+    pub rig_hash: Option<String>,
+    /// Whether raw signal files are written (`None`: not checked).
+    pub raw_signals: Option<bool>,
+    /// The experimenter starts a new sitting with a recorded change of
+    /// rig file, calibration or raw recording: the reason, journaled with
+    /// the differences. `None`: a resume with different settings is
+    /// refused ([`crate::export::ExportError::SettingsChanged`]).
+    pub recorded_change: Option<String>,
 }
 
 impl StudyMeta {
@@ -40,6 +51,9 @@ impl StudyMeta {
             software_version: SOFTWARE_VERSION.into(),
             rig: rig.into(),
             calibration: None,
+            rig_hash: None,
+            raw_signals: None,
+            recorded_change: None,
         }
     }
 }
@@ -101,10 +115,13 @@ impl CalibrationRef {
     /// # Errors
     /// The file cannot be read.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(io_err(path, "read calibration file"))?;
+        let text =
+            kilotouch_rig::input::read_text_capped(path, kilotouch_rig::input::MAX_CONFIG_BYTES)
+                .map_err(io_err(path, "read calibration file"))?;
+        let bytes = text.as_bytes();
         Ok(Self {
             path: path.display().to_string(),
-            sha256: sha256_hex(&bytes),
+            sha256: sha256_hex(bytes),
         })
     }
 }
@@ -176,8 +193,17 @@ pub struct SessionInfo {
     pub order_balance: String,
     /// Rig identity at creation.
     pub rig: String,
-    /// Calibration at creation.
+    /// Calibration in force (at creation, or after the last recorded
+    /// change).
     pub calibration: Option<CalibrationRef>,
+    /// Content hash of the rig file in force (absent in folders written
+    /// before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rig_hash: Option<String>,
+    /// Whether raw signal files are written (absent in folders written
+    /// before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw_signals: Option<bool>,
     /// Creation time of the folder.
     pub created_utc: UtcTime,
     /// Time of the last rewrite of this file.

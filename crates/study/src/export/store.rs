@@ -11,16 +11,18 @@ use super::checksum;
 use super::journal::{Journal, Record, SessionStart, read_journal, sittings};
 use super::open::{self, FolderRead, NewStudy};
 use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
-use super::reconcile::{Expected, Recovery, reconcile};
+use super::reconcile::{DamagedRaw, Expected, Recovery, reconcile};
 use super::session::{
     self, OrderRow, Progress, SESSION_FILE, SessionInfo, StudyMeta, read_session, write_session,
 };
 use super::summary::{SummaryFiles, regenerate_summaries};
 use super::trials::{IDENTITY_COLUMNS, TaskKind, TrialRow, TrialsWriter, first_difference};
+use super::{raw_check, settings};
 use crate::protocol::Protocol;
 use crate::rawsig::{NpyWriter, RawLayout, sidecar_path};
 use crate::seeds::{TrialKey, format_seed};
 use crate::storage::error::{ExportError, Result};
+use crate::storage::lock::FolderLock;
 use crate::storage::utc::UtcTime;
 
 /// Proof that a trial was begun ([`StudyStore::begin_trial`]); consumed by
@@ -77,6 +79,8 @@ pub struct StudyStore {
     recovery: Recovery,
     info: SessionInfo,
     poisoned: Option<String>,
+    /// The folder's one-writer lock, released when the store is dropped.
+    _lock: FolderLock,
     /// Test hook: fail the journal append of the next commit (simulates a
     /// crash between the row and its record).
     #[cfg(test)]
@@ -88,9 +92,17 @@ impl StudyStore {
     /// `session.json`, an empty `trials.csv` with its header, the journal
     /// and `raw/`) or resumes it — repairs torn tails, reconciles
     /// `trials.csv` with the journal (see the [`crate::export`] module
-    /// documentation) — and journals `session_started`.
+    /// documentation) — and journals `session_started`. The folder is
+    /// locked for the store's life ([`FolderLock`]): a second writer is
+    /// refused at once. On resume, the rig file, calibration and raw
+    /// recording of `meta` must be those `session.json` records (or the
+    /// change is recorded, [`StudyMeta::recorded_change`]), and every
+    /// finished trial's raw file is checked; damaged ones are quarantined
+    /// and reported in [`Recovery::damaged_raw`].
     ///
     /// # Errors
+    /// [`ExportError::Locked`] when another writer has the folder;
+    /// [`ExportError::SettingsChanged`] naming each differing setting;
     /// [`ExportError::Protocol`] for an invalid protocol,
     /// [`ExportError::ProtocolMismatch`] when the folder holds another
     /// protocol, [`ExportError::NotAStudyFolder`],
@@ -104,11 +116,25 @@ impl StudyStore {
         let plan = plan(protocol, &orders);
         let plan_index: HashMap<TrialKey, usize> =
             plan.iter().enumerate().map(|(i, p)| (p.key, i)).collect();
+        let lock = FolderLock::acquire(
+            dir,
+            &format!("{} {}", meta.software_name, meta.software_version),
+        )?;
         let session_path = dir.join(SESSION_FILE);
         let now = UtcTime::now();
         let resumed = session_path.exists();
+        let mut changes = Vec::new();
         let mut info = if resumed {
-            open::load_session(&session_path, protocol, &protocol_sha256)?
+            let info = open::load_session(&session_path, protocol, &protocol_sha256)?;
+            changes = settings::changes(&info, meta);
+            if !changes.is_empty() && meta.recorded_change.is_none() {
+                let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
+                return Err(ExportError::SettingsChanged {
+                    path: session_path,
+                    changes: list.join("; "),
+                });
+            }
+            info
         } else {
             let info = NewStudy {
                 protocol,
@@ -136,9 +162,20 @@ impl StudyStore {
                 plan_index: &plan_index,
             },
         )?;
-        // Checks passed: repair (cut torn tails, keeping copies) and open
-        // for appending.
+        let damaged = damaged_raw_files(dir, &read, &orders, &verdict.completed);
+        // Checks passed: repair (cut torn tails, keeping copies), quarantine
+        // damaged raw files and open for appending.
         let (trials_file, mut journal) = read.repair(dir)?;
+        let mut damaged_raw = Vec::with_capacity(damaged.len());
+        for (trial, file, reason) in damaged {
+            let quarantined_to = raw_check::quarantine(dir, &file, now.unix_millis())?;
+            damaged_raw.push(DamagedRaw {
+                trial,
+                file,
+                reason,
+                quarantined_to,
+            });
+        }
         let recovery = Recovery {
             resumed,
             journal_torn: read.journal.torn.clone(),
@@ -148,6 +185,8 @@ impl StudyStore {
             previous_sitting_unclosed: verdict.previous_sitting_unclosed,
             completed: verdict.completed.len(),
             pending: plan.len() - verdict.completed.len(),
+            stale_lock: lock.stale().cloned(),
+            damaged_raw,
         };
         let start = SessionStart {
             protocol_name: protocol.name.clone(),
@@ -160,6 +199,8 @@ impl StudyStore {
             resumed,
         };
         open::journal_opening(&mut journal, start, &recovery, &verdict.completed)?;
+        journal_checks(&mut journal, &recovery, &changes, meta)?;
+        settings::adopt(&mut info, meta);
         info.updated_utc = now;
         let mut store = Self {
             dir: dir.to_path_buf(),
@@ -175,6 +216,7 @@ impl StudyStore {
             recovery,
             info,
             poisoned: None,
+            _lock: lock,
             #[cfg(test)]
             fail_completion_record: false,
         };
@@ -560,6 +602,70 @@ impl StudyStore {
         self.write_session_info()?;
         Ok(files)
     }
+}
+
+/// The finished trials (`completed`) whose raw file fails its check, as
+/// (trial, file, reason), in file order.
+fn damaged_raw_files(
+    dir: &Path,
+    read: &FolderRead,
+    orders: &[OrderRow],
+    completed: &HashMap<TrialKey, u32>,
+) -> Vec<(TrialKey, String, String)> {
+    let index: HashMap<&str, u32> = orders
+        .iter()
+        .map(|o| (o.participant.as_str(), o.index))
+        .collect();
+    let Some(trials) = read.trials.as_ref() else {
+        return Vec::new();
+    };
+    trials
+        .rows
+        .iter()
+        .filter(|r| !r.raw_file.is_empty())
+        .filter_map(|r| {
+            let key = r.key(*index.get(r.participant.as_str())?);
+            if !completed.contains_key(&key) {
+                return None;
+            }
+            raw_check::damage(dir, &r.raw_file).map(|why| (key, r.raw_file.clone(), why))
+        })
+        .collect()
+}
+
+/// Journals what the opening checks found: each damaged raw file (the
+/// trial's flag) and a recorded change of settings with its reason.
+fn journal_checks(
+    journal: &mut Journal,
+    recovery: &Recovery,
+    changes: &[settings::SettingChange],
+    meta: &StudyMeta,
+) -> Result<()> {
+    for d in &recovery.damaged_raw {
+        journal.append(Record::Note {
+            text: format!(
+                "raw_damaged: trial {}: raw file {} {}; {}; its row is kept, its signals are \
+                 not to be trusted",
+                d.trial,
+                d.file,
+                d.reason,
+                d.quarantined_to.as_ref().map_or_else(
+                    || "nothing to quarantine".to_owned(),
+                    |q| format!("moved to {q}")
+                )
+            ),
+        })?;
+    }
+    if let (false, Some(reason)) = (changes.is_empty(), &meta.recorded_change) {
+        let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
+        journal.append(Record::Note {
+            text: format!(
+                "settings_changed: new sitting with a recorded change: {} — reason: {reason}",
+                list.join("; ")
+            ),
+        })?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

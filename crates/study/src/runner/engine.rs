@@ -184,8 +184,11 @@ impl<S: Station> TrialEngine<S> {
         self.next_due = u64::MAX;
         self.frame_seq = 0;
         self.shown = None;
-        self.trajectory_cap =
-            (setup.params.timeout_s() * self.fs / self.cfg.trajectory_every as f64) as usize + 2;
+        let cap = (setup.params.timeout_s() * self.fs / self.cfg.trajectory_every as f64).floor();
+        self.trajectory_cap = kilotouch_rig::checked_count(cap)
+            .and_then(|c| usize::try_from(c).ok())
+            .and_then(|c| c.checked_add(2))
+            .ok_or_else(|| timeout_error(setup.params.timeout_s(), self.fs))?;
         self.trajectory = Vec::with_capacity(self.trajectory_cap);
         self.trajectory.push(setup.scene.start_m);
         self.handle = [0.0; 2];
@@ -442,7 +445,9 @@ impl<S: Station> TrialEngine<S> {
         raw: &mut W,
     ) -> Result<TrialOutcome, RunError> {
         self.start(setup, participant)?;
-        let limit = (setup.params.timeout_s() * self.fs).ceil() as u64 + 1;
+        let limit = kilotouch_rig::checked_count((setup.params.timeout_s() * self.fs).ceil())
+            .ok_or_else(|| timeout_error(setup.params.timeout_s(), self.fs))?
+            + 1;
         while self.end.is_none() {
             self.run(participant, raw, 10_000)?;
             if self.k > limit {
@@ -476,4 +481,14 @@ fn event_code(events: &TweezerEvents, frame_captured: bool) -> f64 {
     } else {
         0.0
     }
+}
+
+/// The error of a trial time-out whose sample count cannot be represented
+/// (the protocol's bounds keep `timeout_s` far below this).
+fn timeout_error(timeout_s: f64, fs: f64) -> RunError {
+    RunError::Config(format!(
+        "task timeout_s = {timeout_s} s at {fs} Hz is not a representable number of samples \
+         (at most {} s)",
+        crate::protocol::MAX_TIMEOUT_S
+    ))
 }

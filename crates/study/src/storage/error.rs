@@ -165,6 +165,34 @@ pub enum ExportError {
         /// Underlying error.
         source: serde_json::Error,
     },
+    /// A resume with a rig file, calibration or raw recording other than
+    /// those the folder records.
+    #[error(
+        "{}: this resume differs from the study's set-up: {changes}; resuming would mix two \
+         set-ups in one study — resume with the recorded files and settings, or start a new \
+         sitting with the change recorded (`--new-sitting \"reason\"`)",
+        path.display()
+    )]
+    SettingsChanged {
+        /// `session.json` of the folder.
+        path: PathBuf,
+        /// Each difference (`rig file was …, now …`), `; `-separated.
+        changes: String,
+    },
+    /// Another writer (this or another process) has the study folder open.
+    #[error(
+        "{}: the study folder is in use by another writer{}; two writers would corrupt it \
+         — wait for that run to finish (or stop it), then resume",
+        dir.display(),
+        holder.as_ref().map_or_else(String::new, |h| format!(": {h}"))
+    )]
+    Locked {
+        /// The folder.
+        dir: PathBuf,
+        /// The holder (PID, host, program, since), when its record could
+        /// be read.
+        holder: Option<String>,
+    },
     /// The protocol is invalid or cannot be serialised.
     #[error("protocol: {0}")]
     Protocol(#[from] ProtocolError),

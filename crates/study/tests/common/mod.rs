@@ -192,7 +192,8 @@ pub fn test_keys(participant: u32, c: Condition, trials: u32) -> Vec<TrialKey> {
 }
 
 /// Every file under `dir` (relative path → bytes), excluding the journal,
-/// session.json (wall-clock stamps) and recovery copies.
+/// session.json (wall-clock stamps), the writer lock (process ids) and
+/// recovery copies.
 pub fn data_files(dir: &std::path::Path) -> std::collections::BTreeMap<String, Vec<u8>> {
     let mut out = std::collections::BTreeMap::new();
     let mut stack = vec![dir.to_path_buf()];
@@ -208,7 +209,7 @@ pub fn data_files(dir: &std::path::Path) -> std::collections::BTreeMap<String, V
                 if rel != "recovery" {
                     stack.push(p);
                 }
-            } else if rel != "journal.jsonl" && rel != "session.json" {
+            } else if !["journal.jsonl", "session.json", "writer.lock"].contains(&rel.as_str()) {
                 out.insert(rel, std::fs::read(&p).expect("test setup"));
             }
         }
