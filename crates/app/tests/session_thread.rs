@@ -57,6 +57,7 @@ fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
         calibration: None,
         runner: runner_cfg(raw),
         threads: 2,
+        fidelity: kilotouch_study::fidelity::Fidelity::Full,
     };
     simulate(&o, &mut |_, _| {}).unwrap();
     rows(dir)

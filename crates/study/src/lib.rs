@@ -10,7 +10,7 @@
 //!   ([`task`]); the participant interface ([`participant`]) and the
 //!   simulated operator ([`operator`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
-//!   ([`simulate`]);
+//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]);
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
@@ -23,6 +23,7 @@
 pub mod counterbalance;
 mod error;
 pub mod export;
+pub mod fidelity;
 pub mod operator;
 pub mod participant;
 pub mod protocol;

@@ -22,6 +22,7 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use serde::Serialize;
 
+use crate::fidelity::Fidelity;
 use crate::export::{
     CalibrationRef, PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name,
     raw_layout_for, read_session,
@@ -51,6 +52,8 @@ pub struct SimulateOptions {
     pub runner: RunnerConfig,
     /// Worker threads (≥ 1).
     pub threads: usize,
+    /// How much of the model each trial runs.
+    pub fidelity: Fidelity,
 }
 
 /// What a simulation did.
@@ -84,6 +87,8 @@ pub struct SimulateReport {
     pub threads: usize,
     /// Raw files written.
     pub raw: bool,
+    /// Fidelity of the trials run now.
+    pub fidelity: Fidelity,
     /// What opening the folder found (resume report).
     pub recovery: String,
 }
@@ -203,10 +208,9 @@ pub fn simulate(
     // invalid rig is reported before anything runs.
     let mut engines = Vec::with_capacity(threads);
     for _ in 0..threads.min(pending.len().max(1)) {
-        engines.push(TrialEngine::new(
-            SimStation::with_chain(&opts.rig, chain.clone())?,
-            opts.runner,
-        )?);
+        let mut station = SimStation::with_chain(&opts.rig, chain.clone())?;
+        station.set_fidelity(opts.fidelity);
+        engines.push(TrialEngine::new(station, opts.runner)?);
     }
     let mut completed = already;
     let simulated = run_in_plan_order(opts, &mut store, &pending, engines, &mut || {
@@ -234,6 +238,7 @@ pub fn simulate(
         wall_s: t0.elapsed().as_secs_f64(),
         threads,
         raw: opts.runner.raw.is_some(),
+        fidelity: opts.fidelity,
         recovery,
     })
 }

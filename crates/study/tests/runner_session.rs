@@ -209,6 +209,7 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
             calibration: None,
             runner: config(false),
             threads,
+            fidelity: kilotouch_study::fidelity::Fidelity::Full,
         };
         let rep = simulate(&opts, &mut |_, _| {}).unwrap();
         assert_eq!(rep.test_rows, 8);

@@ -44,6 +44,11 @@ pub struct SimulateArgs {
     /// Worker threads (default: available cores). Results do not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
+    /// How much of the model each trial runs: `scene` (only what the
+    /// trial's condition and recording need) or `full` (everything, the
+    /// reference). Recorded in session.json.
+    #[arg(long, default_value = "scene")]
+    pub fidelity: kilotouch_study::fidelity::Fidelity,
     /// The simulated rig and D's chain. A calibration is recorded with its
     /// SHA-256 in session.json and the journal; without one, the model's
     /// as-designed chain is recorded as uncalibrated.
@@ -138,6 +143,7 @@ fn human(r: &SimulateReport) -> String {
         r.threads,
         if r.raw { "yes" } else { "no" }
     ));
+    s.push_str(&format!("  fidelity: {}\n", r.fidelity));
     s
 }
 
@@ -170,6 +176,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         calibration: a.rig.calibration.clone(),
         runner,
         threads,
+        fidelity: a.fidelity,
     };
     let mut bar = Bar {
         tty: std::io::stderr().is_terminal(),
