@@ -125,6 +125,7 @@ fn a_study_records_its_calibration() {
         runner,
         threads: 2,
         fidelity: kilotouch_study::fidelity::Fidelity::Full,
+        shard: None,
     };
     let rep = simulate(&opts, &mut |_, _| {}).expect("study");
     assert!(rep.test_rows > 0);

@@ -58,6 +58,7 @@ fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
         runner: runner_cfg(raw),
         threads: 2,
         fidelity: kilotouch_study::fidelity::Fidelity::Full,
+        shard: None,
     };
     simulate(&o, &mut |_, _| {}).unwrap();
     rows(dir)

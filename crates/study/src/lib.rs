@@ -10,7 +10,8 @@
 //!   ([`task`]); the participant interface ([`participant`]) and the
 //!   simulated operator ([`operator`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
-//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]);
+//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]), whole or
+//!   in participant shards ([`shard`]) merged afterwards ([`merge`]);
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
@@ -27,9 +28,11 @@ pub mod fidelity;
 pub mod operator;
 pub mod participant;
 pub mod protocol;
+pub mod merge;
 pub mod rawsig;
 pub mod runner;
 pub mod seeds;
+pub mod shard;
 pub mod simulate;
 pub mod stats;
 mod storage;

@@ -1,6 +1,8 @@
-//! `kilotouch study simulate`: a whole study run by the simulated operator
-//! on the simulated rig, written to a crash-safe output folder
-//! (`trials.csv`, summaries, `session.json`, journal, raw NPY files).
+//! `kilotouch study simulate`: a whole study (or a shard of its
+//! participants) run by the simulated operator on the simulated rig,
+//! written to a crash-safe output folder (`trials.csv`, summaries,
+//! `session.json`, journal, raw NPY files); `kilotouch study merge`: shard
+//! folders joined into one.
 
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -18,6 +20,28 @@ use crate::output::emit;
 pub enum StudyCommand {
     /// Run a whole study with simulated participants on the simulated rig.
     Simulate(SimulateArgs),
+    /// Join study folders of one protocol and seed (the shards of
+    /// `study simulate --shard K/N`) into one study folder: checksums and
+    /// journals verified, rows in plan order, summaries regenerated.
+    Merge(MergeArgs),
+}
+
+/// Arguments of `kilotouch study merge`.
+#[derive(Debug, clap::Args)]
+pub struct MergeArgs {
+    /// The study folders to join (e.g. the shard folders).
+    #[arg(required = true, value_name = "DIR")]
+    pub inputs: Vec<PathBuf>,
+    /// The new study folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Fail unless the merged study is complete (every planned trial has
+    /// its row).
+    #[arg(long)]
+    pub require_complete: bool,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Arguments of `kilotouch study simulate`.
@@ -49,6 +73,11 @@ pub struct SimulateArgs {
     /// reference). Recorded in session.json.
     #[arg(long, default_value = "scene")]
     pub fidelity: kilotouch_study::fidelity::Fidelity,
+    /// Run only shard K of N: the participants whose 0-based index i has
+    /// i mod N = K − 1 (e.g. `3/8`; one shard per cluster job). Join the
+    /// shard folders with `kilotouch study merge`.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<kilotouch_study::shard::Shard>,
     /// The simulated rig and D's chain. A calibration is recorded with its
     /// SHA-256 in session.json and the journal; without one, the model's
     /// as-designed chain is recorded as uncalibrated.
@@ -63,6 +92,7 @@ pub struct SimulateArgs {
 pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
     match c {
         StudyCommand::Simulate(a) => run_simulate(a),
+        StudyCommand::Merge(a) => run_merge(a),
     }
 }
 
@@ -144,6 +174,13 @@ fn human(r: &SimulateReport) -> String {
         if r.raw { "yes" } else { "no" }
     ));
     s.push_str(&format!("  fidelity: {}\n", r.fidelity));
+    if let Some(shard) = r.shard {
+        s.push_str(&format!(
+            "  shard {shard}: participants {}, {}, … (1-based); join the shard folders with `kilotouch study merge`\n",
+            shard.index,
+            shard.index + shard.count
+        ));
+    }
     s
 }
 
@@ -177,6 +214,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         runner,
         threads,
         fidelity: a.fidelity,
+        shard: a.shard,
     };
     let mut bar = Bar {
         tty: std::io::stderr().is_terminal(),
@@ -185,4 +223,36 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
     let report = simulate(&opts, &mut |done, total| bar.report(done, total))
         .with_context(|| format!("study simulate into {}", a.out.display()))?;
     emit(a.json, &report, || human(&report))
+}
+
+fn run_merge(a: &MergeArgs) -> anyhow::Result<()> {
+    let report = kilotouch_study::merge::merge(&a.inputs, &a.out)
+        .with_context(|| format!("study merge into {}", a.out.display()))?;
+    emit(a.json, &report, || {
+        let mut s = format!(
+            "merged {} folder(s) into {}: {} of {} planned trials ({}), {} raw file(s)\n",
+            report.inputs.len(),
+            report.out.display(),
+            report.rows,
+            report.planned,
+            if report.complete {
+                "complete"
+            } else {
+                "incomplete"
+            },
+            report.raw_files
+        );
+        for (p, n) in report.inputs.iter().zip(&report.rows_per_input) {
+            s.push_str(&format!("  {}: {n} rows\n", p.display()));
+        }
+        s
+    })?;
+    if a.require_complete && !report.complete {
+        anyhow::bail!(
+            "the merged study has {} of {} planned trials (--require-complete): a shard is missing or unfinished",
+            report.rows,
+            report.planned
+        );
+    }
+    Ok(())
 }

@@ -68,8 +68,8 @@ pub use open::RECOVERY_DIR;
 pub use plan::{PlannedTrial, RAW_DIR, plan, raw_file_name, raw_layout_for};
 pub use reconcile::Recovery;
 pub use session::{
-    CalibrationRef, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo, Sitting,
-    StudyMeta, read_session,
+    CalibrationRef, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo,
+    SimulationInfo, Sitting, StudyMeta, read_session,
 };
 pub use store::{StudyStore, TrialTicket};
 pub use summary::{
