@@ -60,7 +60,9 @@ impl FromStr for Fidelity {
         match s {
             "scene" => Ok(Fidelity::Scene),
             "full" => Ok(Fidelity::Full),
-            other => Err(format!("unknown fidelity `{other}` (expected scene or full)")),
+            other => Err(format!(
+                "unknown fidelity `{other}` (expected scene or full)"
+            )),
         }
     }
 }
@@ -101,7 +103,10 @@ mod tests {
     #[test]
     fn plans_follow_the_condition() {
         for c in Condition::ALL {
-            assert_eq!(FidelityPlan::for_trial(Fidelity::Full, c), FidelityPlan::FULL);
+            assert_eq!(
+                FidelityPlan::for_trial(Fidelity::Full, c),
+                FidelityPlan::FULL
+            );
             assert!(FidelityPlan::for_trial(Fidelity::Scene, c).contact_exact);
         }
         assert!(FidelityPlan::for_trial(Fidelity::Scene, Condition::V).lean_coupling);

@@ -150,7 +150,10 @@ fn check_raw(dir: &Path, rel: &str) -> Result<(), RunError> {
     let npy = dir.join(rel);
     let side = sidecar_path(&npy);
     if !npy.is_file() || !side.is_file() {
-        return Err(bad(dir, format!("raw file `{rel}` or its sidecar is missing")));
+        return Err(bad(
+            dir,
+            format!("raw file `{rel}` or its sidecar is missing"),
+        ));
     }
     let meta = read_sidecar(&side)?;
     let [rows, cols] = meta.shape;
@@ -162,7 +165,9 @@ fn check_raw(dir: &Path, rel: &str) -> Result<(), RunError> {
     if got != want {
         return Err(bad(
             dir,
-            format!("raw file `{rel}` is {got} bytes; its sidecar's shape {rows}×{cols} gives {want}"),
+            format!(
+                "raw file `{rel}` is {got} bytes; its sidecar's shape {rows}×{cols} gives {want}"
+            ),
         ));
     }
     Ok(())
@@ -197,14 +202,17 @@ fn check_same_study(first: &Input, other: &Input) -> Result<(), RunError> {
     let cal = |s: &SessionInfo| {
         s.calibration
             .as_ref()
-            .map_or("no calibration".to_owned(), |c| format!("calibration {}", c.sha256))
+            .map_or("no calibration".to_owned(), |c| {
+                format!("calibration {}", c.sha256)
+            })
     };
     if cal(a) != cal(b) {
         return Err(differs("chain", cal(a), cal(b)));
     }
     let fid = |s: &SessionInfo| {
-        s.simulation
-            .map_or("no simulation record".to_owned(), |m| format!("fidelity {}", m.fidelity))
+        s.simulation.map_or("no simulation record".to_owned(), |m| {
+            format!("fidelity {}", m.fidelity)
+        })
     };
     if fid(a) != fid(b) {
         return Err(differs("simulation", fid(a), fid(b)));
@@ -221,7 +229,9 @@ fn check_same_study(first: &Input, other: &Input) -> Result<(), RunError> {
 /// or when `out` already holds a study; storage errors.
 pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
     if inputs.is_empty() {
-        return Err(RunError::State("nothing to merge: name the shard folders".into()));
+        return Err(RunError::State(
+            "nothing to merge: name the shard folders".into(),
+        ));
     }
     if inputs.len() > MAX_INPUTS {
         return Err(RunError::State(format!(
@@ -255,7 +265,12 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
             .map(|o| (o.participant.as_str(), o.index))
             .collect();
         for (row, _) in &input.rows {
-            let key = row.key(index.get(row.participant.as_str()).copied().unwrap_or(u32::MAX));
+            let key = row.key(
+                index
+                    .get(row.participant.as_str())
+                    .copied()
+                    .unwrap_or(u32::MAX),
+            );
             if let Some((j, _)) = by_key.insert(key, (i, row)) {
                 return Err(bad(
                     &input.dir,
@@ -322,7 +337,10 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
 fn copy_raw(from: &Path, to: &Path, rel: &str) -> Result<(), RunError> {
     let src = from.join(rel);
     let dst = to.join(rel);
-    for (a, b) in [(src.clone(), dst.clone()), (sidecar_path(&src), sidecar_path(&dst))] {
+    for (a, b) in [
+        (src.clone(), dst.clone()),
+        (sidecar_path(&src), sidecar_path(&dst)),
+    ] {
         std::fs::copy(&a, &b).map_err(|e| {
             RunError::State(format!("copy {} to {}: {e}", a.display(), b.display()))
         })?;

@@ -22,17 +22,16 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use serde::Serialize;
 
-use crate::fidelity::Fidelity;
-use crate::shard::Shard;
 use crate::export::{
     CalibrationRef, PlannedTrial, SESSION_FILE, SimulationInfo, StudyMeta, StudyStore, UtcTime,
-    raw_file_name,
-    raw_layout_for, read_session,
+    raw_file_name, raw_layout_for, read_session,
 };
+use crate::fidelity::Fidelity;
 use crate::operator::SimCohort;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
 use crate::runner::{NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout};
+use crate::shard::Shard;
 use crate::task::sim_station::SimStation;
 
 /// Options of [`simulate`].
@@ -190,7 +189,8 @@ pub fn check_same_simulation(out: &Path, now: SimulationInfo) -> Result<(), RunE
     let Some(was) = read_session(&path)?.simulation else {
         return Ok(());
     };
-    let shard = |s: Option<Shard>| s.map_or("all participants".to_owned(), |s| format!("shard {s}"));
+    let shard =
+        |s: Option<Shard>| s.map_or("all participants".to_owned(), |s| format!("shard {s}"));
     if was.fidelity != now.fidelity {
         return Err(RunError::State(format!(
             "{} was simulated at fidelity {}; resume it with --fidelity {}",
