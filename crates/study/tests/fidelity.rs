@@ -43,6 +43,9 @@ fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
         .collect()
 }
 
+/// A metric of a row.
+type Getter = fn(&TrialRow) -> Option<f64>;
+
 /// Mean and variance of the mean.
 fn mean_var(x: &[f64]) -> (f64, f64) {
     let n = x.len() as f64;
@@ -57,7 +60,7 @@ fn scene_and_full_studies_agree_within_sampling_error() {
     let full = run(Fidelity::Full, &tmp.path().join("full"));
     let scene = run(Fidelity::Scene, &tmp.path().join("scene"));
     assert_eq!(full.len(), scene.len());
-    let metrics: [(&str, fn(&TrialRow) -> Option<f64>); 5] = [
+    let metrics: [(&str, Getter); 5] = [
         ("success", |r| Some(f64::from(u8::from(r.success)))),
         ("time_s", |r| Metric::TimeS.get(r)),
         ("force_mean_pn", |r| Metric::ForceMeanPn.get(r)),
