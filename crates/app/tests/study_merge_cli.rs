@@ -12,14 +12,14 @@ use std::process::Command;
 use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_session, read_trials};
 use kilotouch_study::fidelity::Fidelity;
 
-fn run(args: &[&str]) -> std::process::Output {
+fn run<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_kilotouch"))
         .args(args)
         .output()
         .expect("run kilotouch")
 }
 
-fn ok(args: &[&str]) {
+fn ok<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S]) {
     let o = run(args);
     assert!(
         o.status.success(),
@@ -28,7 +28,7 @@ fn ok(args: &[&str]) {
     );
 }
 
-fn refused(args: &[&str], why: &str) {
+fn refused<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S], why: &str) {
     let o = run(args);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{args:?} succeeded");
@@ -64,7 +64,9 @@ fn shards_merged_equal_the_unsharded_run() {
         "--threads",
         "2",
     ];
-    let with = |extra: &[&str]| [&study[..], extra].concat();
+    let with = |extra: &[&str]| -> Vec<String> {
+        study.iter().chain(extra).map(|s| (*s).to_owned()).collect()
+    };
     ok(&with(&["--out", &d("all")]));
     for k in 1..=3 {
         ok(&with(&[
