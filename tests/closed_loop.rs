@@ -124,6 +124,8 @@ fn a_study_records_its_calibration() {
         calibration: Some(cal_path.clone()),
         runner,
         threads: 2,
+        fidelity: kilotouch_study::fidelity::Fidelity::Full,
+        shard: None,
     };
     let rep = simulate(&opts, &mut |_, _| {}).expect("study");
     assert!(rep.test_rows > 0);

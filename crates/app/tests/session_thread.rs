@@ -58,6 +58,8 @@ fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
         runner: runner_cfg(raw),
         threads: 2,
         new_sitting: None,
+        fidelity: kilotouch_study::fidelity::Fidelity::Full,
+        shard: None,
     };
     simulate(&o, &mut |_, _| {}).unwrap();
     rows(dir)

@@ -10,7 +10,8 @@
 //!   ([`task`]); the participant interface ([`participant`]) and the
 //!   simulated operator ([`operator`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
-//!   ([`simulate`]);
+//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]), whole or
+//!   in participant shards ([`shard`]) merged afterwards ([`merge`]);
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
@@ -24,6 +25,8 @@
 pub mod counterbalance;
 mod error;
 pub mod export;
+pub mod fidelity;
+pub mod merge;
 pub mod operator;
 pub mod participant;
 pub mod power;
@@ -33,6 +36,7 @@ pub mod runner;
 mod screen_texts;
 pub mod screens;
 pub mod seeds;
+pub mod shard;
 pub mod simulate;
 pub mod stats;
 mod storage;

@@ -23,15 +23,17 @@ use kilotouch_rig::coupling::LoopChain;
 use serde::Serialize;
 
 use crate::export::{
-    CalibrationRef, PlannedTrial, SESSION_FILE, StudyMeta, StudyStore, UtcTime, raw_file_name,
-    raw_layout_for,
+    CalibrationRef, PlannedTrial, SESSION_FILE, SimulationInfo, StudyMeta, StudyStore, UtcTime,
+    raw_file_name, raw_layout_for, read_session,
 };
+use crate::fidelity::Fidelity;
 use crate::operator::SimCohort;
 use crate::protocol::Protocol;
 use crate::rawsig::NpyWriter;
 use crate::runner::{
     NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout, with_scene,
 };
+use crate::shard::Shard;
 use crate::task::sim_station::SimStation;
 
 /// Options of [`simulate`].
@@ -56,6 +58,10 @@ pub struct SimulateOptions {
     /// Resume with a changed rig file, calibration or raw recording,
     /// recording this reason (`None`: such a resume is refused).
     pub new_sitting: Option<String>,
+    /// How much of the model each trial runs.
+    pub fidelity: Fidelity,
+    /// Run only this slice of the participants (`None`: all).
+    pub shard: Option<Shard>,
 }
 
 /// What a simulation did.
@@ -90,6 +96,10 @@ pub struct SimulateReport {
     pub threads: usize,
     /// Raw files written.
     pub raw: bool,
+    /// Fidelity of the trials run now.
+    pub fidelity: Fidelity,
+    /// The participant slice run (`None`: all participants).
+    pub shard: Option<Shard>,
     /// What opening the folder found (resume report).
     pub recovery: String,
 }
@@ -180,7 +190,43 @@ pub fn sim_meta(
     Ok((meta, chain))
 }
 
-/// Runs every pending trial of the study in `opts.out` (module docs).
+/// A resumed simulated study must run at the fidelity and on the shard it
+/// was started with: one study of two fidelities would mix two models, and
+/// a shard folder holds its own participants only.
+///
+/// # Errors
+/// [`RunError::State`] naming both.
+pub fn check_same_simulation(out: &Path, now: SimulationInfo) -> Result<(), RunError> {
+    let path = out.join(SESSION_FILE);
+    if !path.exists() {
+        return Ok(());
+    }
+    let Some(was) = read_session(&path)?.simulation else {
+        return Ok(());
+    };
+    let shard =
+        |s: Option<Shard>| s.map_or("all participants".to_owned(), |s| format!("shard {s}"));
+    if was.fidelity != now.fidelity {
+        return Err(RunError::State(format!(
+            "{} was simulated at fidelity {}; resume it with --fidelity {}",
+            out.display(),
+            was.fidelity,
+            was.fidelity
+        )));
+    }
+    if was.shard != now.shard {
+        return Err(RunError::State(format!(
+            "{} holds {}; resuming it as {} would mix two slices of the participants",
+            out.display(),
+            shard(was.shard),
+            shard(now.shard)
+        )));
+    }
+    Ok(())
+}
+
+/// Runs every pending trial of the study in `opts.out` (module docs); with
+/// a shard, only the trials of its participants ([`crate::shard`]).
 /// `progress(completed, planned)` is called after each commit.
 ///
 /// # Errors
@@ -204,19 +250,31 @@ pub fn simulate(
         opts.runner.raw.is_some(),
         opts.new_sitting.as_deref(),
     )?;
+    let simulation = SimulationInfo {
+        fidelity: opts.fidelity,
+        shard: opts.shard,
+    };
+    if opts.resume {
+        check_same_simulation(&opts.out, simulation)?;
+    }
     let mut store = StudyStore::open(&opts.out, &opts.protocol, &meta)?;
+    store.set_simulation(simulation)?;
     let recovery = store.recovery().to_string();
-    let planned_total = store.plan().len();
-    let already = store.completed_count();
-    let pending: Vec<PlannedTrial> = store.pending().cloned().collect();
+    let in_shard = |p: &PlannedTrial| opts.shard.is_none_or(|s| s.contains(p.key.participant));
+    let planned_total = store.plan().iter().filter(|p| in_shard(p)).count();
+    let already = store
+        .plan()
+        .iter()
+        .filter(|p| in_shard(p) && store.is_completed(&p.key))
+        .count();
+    let pending: Vec<PlannedTrial> = store.pending().filter(|p| in_shard(p)).cloned().collect();
     // Build one station per worker up front (chain design), so that an
     // invalid rig is reported before anything runs.
     let mut engines = Vec::with_capacity(threads);
     for _ in 0..threads.min(pending.len().max(1)) {
-        engines.push(TrialEngine::new(
-            SimStation::with_chain(&opts.rig, chain.clone())?,
-            opts.runner,
-        )?);
+        let mut station = SimStation::with_chain(&opts.rig, chain.clone())?;
+        station.set_fidelity(opts.fidelity);
+        engines.push(TrialEngine::new(station, opts.runner)?);
     }
     let mut completed = already;
     let simulated = run_in_plan_order(opts, &mut store, &pending, engines, &mut || {
@@ -244,6 +302,8 @@ pub fn simulate(
         wall_s: t0.elapsed().as_secs_f64(),
         threads,
         raw: opts.runner.raw.is_some(),
+        fidelity: opts.fidelity,
+        shard: opts.shard,
         recovery,
     })
 }

@@ -222,6 +222,8 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
             runner: config(false),
             threads,
             new_sitting: None,
+            fidelity: kilotouch_study::fidelity::Fidelity::Full,
+            shard: None,
         };
         let rep = simulate(&opts, &mut |_, _| {}).unwrap();
         assert_eq!(rep.test_rows, 8);

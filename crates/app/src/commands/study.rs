@@ -1,6 +1,8 @@
-//! `kilotouch study simulate`: a whole study run by the simulated operator
-//! on the simulated rig, written to a crash-safe output folder
-//! (`trials.csv`, summaries, `session.json`, journal, raw NPY files).
+//! `kilotouch study simulate`: a whole study (or a shard of its
+//! participants) run by the simulated operator on the simulated rig,
+//! written to a crash-safe output folder (`trials.csv`, summaries,
+//! `session.json`, journal, raw NPY files); `kilotouch study merge`: shard
+//! folders joined into one.
 
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -20,6 +22,28 @@ pub enum StudyCommand {
     Simulate(SimulateArgs),
     /// How many participants? Power of the planned analysis, simulated from a pilot.
     Power(super::study_power::PowerArgs),
+    /// Join study folders of one protocol and seed (the shards of
+    /// `study simulate --shard K/N`) into one study folder: checksums and
+    /// journals verified, rows in plan order, summaries regenerated.
+    Merge(MergeArgs),
+}
+
+/// Arguments of `kilotouch study merge`.
+#[derive(Debug, clap::Args)]
+pub struct MergeArgs {
+    /// The study folders to join (e.g. the shard folders).
+    #[arg(required = true, value_name = "DIR")]
+    pub inputs: Vec<PathBuf>,
+    /// The new study folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Fail unless the merged study is complete (every planned trial has
+    /// its row).
+    #[arg(long)]
+    pub require_complete: bool,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Arguments of `kilotouch study simulate`.
@@ -46,6 +70,16 @@ pub struct SimulateArgs {
     /// Worker threads (default: available cores). Results do not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
+    /// How much of the model each trial runs: `scene` (only what the
+    /// trial's condition and recording need) or `full` (everything, the
+    /// reference). Recorded in session.json.
+    #[arg(long, default_value = "scene")]
+    pub fidelity: kilotouch_study::fidelity::Fidelity,
+    /// Run only shard K of N: the participants whose 0-based index i has
+    /// i mod N = K − 1 (e.g. `3/8`; one shard per cluster job). Join the
+    /// shard folders with `kilotouch study merge`.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<kilotouch_study::shard::Shard>,
     /// The simulated rig and D's chain. A calibration is recorded with its
     /// SHA-256 in session.json and the journal; without one, the model's
     /// as-designed chain is recorded as uncalibrated.
@@ -66,6 +100,7 @@ pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
     match c {
         StudyCommand::Simulate(a) => run_simulate(a),
         StudyCommand::Power(a) => super::study_power::run(a),
+        StudyCommand::Merge(a) => run_merge(a),
     }
 }
 
@@ -149,6 +184,14 @@ fn human(r: &SimulateReport) -> String {
         r.threads,
         if r.raw { "yes" } else { "no" }
     ));
+    s.push_str(&format!("  fidelity: {}\n", r.fidelity));
+    if let Some(shard) = r.shard {
+        s.push_str(&format!(
+            "  shard {shard}: participants {}, {}, … (1-based); join the shard folders with `kilotouch study merge`\n",
+            shard.index,
+            shard.index + shard.count
+        ));
+    }
     s
 }
 
@@ -182,6 +225,8 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         runner,
         threads,
         new_sitting: a.new_sitting.clone(),
+        fidelity: a.fidelity,
+        shard: a.shard,
     };
     let mut bar = Bar {
         tty: std::io::stderr().is_terminal(),
@@ -191,4 +236,36 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
     let report = simulate(&opts, &mut |done, total| bar.report(done, total))
         .with_context(|| format!("study simulate into {}", a.out.display()))?;
     emit(a.json, &report, || human(&report))
+}
+
+fn run_merge(a: &MergeArgs) -> anyhow::Result<()> {
+    let report = kilotouch_study::merge::merge(&a.inputs, &a.out)
+        .with_context(|| format!("study merge into {}", a.out.display()))?;
+    emit(a.json, &report, || {
+        let mut s = format!(
+            "merged {} folder(s) into {}: {} of {} planned trials ({}), {} raw file(s)\n",
+            report.inputs.len(),
+            report.out.display(),
+            report.rows,
+            report.planned,
+            if report.complete {
+                "complete"
+            } else {
+                "incomplete"
+            },
+            report.raw_files
+        );
+        for (p, n) in report.inputs.iter().zip(&report.rows_per_input) {
+            s.push_str(&format!("  {}: {n} rows\n", p.display()));
+        }
+        s
+    })?;
+    if a.require_complete && !report.complete {
+        anyhow::bail!(
+            "the merged study has {} of {} planned trials (--require-complete): a shard is missing or unfinished",
+            report.rows,
+            report.planned
+        );
+    }
+    Ok(())
 }

@@ -103,6 +103,7 @@ pub struct Coupling<S: ForceSplitter = Chain> {
     fade_n: u32,
     last_trap: [f64; 2],
     counters: CouplingCounters,
+    lean: bool,
 }
 
 impl Coupling<Chain> {
@@ -154,6 +155,7 @@ impl<S: ForceSplitter> Coupling<S> {
             fade_n: crate::round_half_away(CONDITION_FADE_S * fs).max(1.0) as u32,
             last_trap: mapping.rest_trap_m(),
             counters: CouplingCounters::default(),
+            lean: false,
         })
     }
 
@@ -177,6 +179,18 @@ impl<S: ForceSplitter> Coupling<S> {
         self.condition = c;
         self.fade_from = c;
         self.fade_k = 0;
+    }
+
+    /// Skip (true) or run (false, the default) the filters whose outputs
+    /// the routing ignores, outside a cross-fade: every filter in V (the
+    /// rendering is zero), the D chain in P (unless `p_mode` is the D
+    /// chain's low channel). The rendering is the same either way (bit for
+    /// bit); lean, the skipped filters' states go stale, so a later switch
+    /// of condition starts them from there instead of from their history.
+    /// For simulated trials that run one condition from a reset (scene
+    /// fidelity); the engine switches conditions live and stays non-lean.
+    pub fn set_lean(&mut self, on: bool) {
+        self.lean = on;
     }
 
     /// What P renders.
@@ -280,6 +294,11 @@ impl<S: ForceSplitter> Coupling<S> {
     /// set from, `s` the tweezer sample.
     #[inline]
     pub fn render(&mut self, handle_m: [f64; 2], s: &TweezerSample) -> Rendered {
+        if self.lean && self.fade_k == 0 && self.condition == Condition::V {
+            // V renders zero; its filters run only to keep switching
+            // glitch-free, which a lean coupling does not need.
+            return Rendered::default();
+        }
         let v = self.damper.update(handle_m);
         let image = self.image(s);
         let damping = self.damper.force(s);
@@ -288,7 +307,15 @@ impl<S: ForceSplitter> Coupling<S> {
             self.counters.nonfinite += 1;
             f = [0.0; 2];
         }
-        let d = self.dual.split(f[0]);
+        let chain_unused = self.lean
+            && self.fade_k == 0
+            && self.condition == Condition::P
+            && self.p_mode != PMode::LowChannel;
+        let d = if chain_unused {
+            (0.0, 0.0)
+        } else {
+            self.dual.split(f[0])
+        };
         let px = match self.p_mode {
             PMode::LowChannel => d.0,
             _ => self.p_x.process(f[0]),

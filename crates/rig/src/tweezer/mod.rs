@@ -56,7 +56,7 @@ pub use drag::{
     DRAG_CLAMP_GAP_OVER_R, brenner_perpendicular, faxen_parallel, perpendicular_mobility,
     perpendicular_mobility_ds, stokes_drag,
 };
-pub use sim::SimTweezer;
+pub use sim::{CONTACT_EXACT_MARGIN_SD, SimTweezer};
 pub use table::DRAG_TABLE_PIECES;
 
 use crate::config::TweezerConfig;

@@ -53,7 +53,46 @@ pub struct SimTweezer {
     equal_radii: bool,
     reflections: u64,
     nonfinite: u64,
+    // The exact contact step ([`SimTweezer::set_contact_exact`]): enabled,
+    // its coefficients (None when the parameters do not allow it) and the
+    // samples it took.
+    contact_exact: bool,
+    contact: Option<ContactStep>,
+    contact_steps: u64,
 }
+/// Coefficients of the exact full-sample step of a bead next to the
+/// obstacle ([`SimTweezer::step_contact_exact`]). Inside the drag clamp
+/// (gap < 0.1 R) every coefficient of the sub-step is constant — the clamped
+/// mobilities, no Itô drift, stiffness κ + k_c along the normal inside the
+/// contact zone (gap < δ) and κ outside it, κ along the tangent — so one
+/// exact OU step of a whole sample replaces the sub-steps while the bead
+/// stays in one of the two zones.
+#[derive(Debug, Clone, Copy)]
+struct ContactStep {
+    /// Normal direction inside the contact zone, κ + k_c: (c, τ(1 − c) in s,
+    /// σ in m); outside it, κ alone.
+    n_in: [f64; 3],
+    n_out: [f64; 3],
+    /// κ + k_c, N/m.
+    kn: f64,
+    /// Tangent direction (κ): (c, τ(1 − c) in s, σ in m).
+    t: [f64; 3],
+    /// Contact stiffness k_c, N/m; R + R_o + δ, m; R + R_o, m.
+    kc: f64,
+    s_star: f64,
+    r_c: f64,
+    /// Smallest gap of the fast step, m: [`CONTACT_EXACT_MARGIN_SD`] normal
+    /// step SDs from the surface, where the reflecting boundary acts.
+    margin: f64,
+    /// Contact range δ and the clamp gap 0.1 R, m.
+    delta: f64,
+    clamp: f64,
+}
+/// Smallest gap of the exact contact step, in standard deviations of its
+/// normal step inside the contact zone: closer to the surface the general
+/// path sub-steps (and reflects), as it does wherever a step may change
+/// zone.
+pub const CONTACT_EXACT_MARGIN_SD: f64 = 4.0;
 /// Scalar Ornstein–Uhlenbeck coefficients of one direction over a sub-step:
 /// stiffness `k` (N/m) toward an equilibrium moving linearly `e0` → `e1` (m),
 /// mobility `mu` = 1/γ (m/(N·s), the inverse drag: the wall corrections are
@@ -65,6 +104,49 @@ struct Ou {
     e1: f64,
     mu: f64,
     v: f64,
+}
+impl ContactStep {
+    /// The coefficients for `p` at step `dt` (s), k_BT `kt` (J) and free
+    /// mobility `mu0` = 1/(γ₀ f_w) (m/(N·s)); `None` unless there is exactly
+    /// one obstacle, δ < 0.1 R (the contact zone inside the drag clamp) and
+    /// the integrator is exact.
+    fn new(p: &TweezerParams, dt: f64, kt: f64, mu0: f64) -> Option<Self> {
+        let clamp = DRAG_CLAMP_GAP_OVER_R * p.radius_m;
+        let delta = p.contact_range_m;
+        let [o] = p.obstacles.as_slice() else {
+            return None;
+        };
+        if p.integrator != TweezerIntegrator::Exact || delta >= clamp {
+            return None;
+        }
+        // The clamped mobilities of the sub-step (gap < 0.1 R).
+        let s = p.radius_m / (p.radius_m + clamp);
+        let mu_n = mu0 * perpendicular_mobility(s);
+        let mu_t = mu0 * faxen_parallel_mobility(s);
+        let kappa = p.stiffness_n_per_m;
+        let kc = p.contact_stiffness_n_per_m;
+        let kn = kappa + kc;
+        // The exact step's coefficients as `scalar_step` computes them.
+        let coef = |k: f64, mu: f64| {
+            let kmu = k * mu;
+            let c = (-dt * kmu).exp();
+            [c, (1.0 / kmu) * (1.0 - c), (kt / k * (1.0 - c * c)).sqrt()]
+        };
+        let n_in = coef(kn, mu_n);
+        let r_c = p.radius_m + o.radius_m;
+        Some(Self {
+            n_in,
+            n_out: coef(kappa, mu_n),
+            kn,
+            t: coef(kappa, mu_t),
+            kc,
+            s_star: r_c + delta,
+            r_c,
+            margin: CONTACT_EXACT_MARGIN_SD * n_in[2],
+            delta,
+            clamp,
+        })
+    }
 }
 /// Nearest obstacle: (index, unit normal from its centre to the bead, gap).
 type Near = Option<(usize, [f64; 2], f64)>;
@@ -104,7 +186,11 @@ impl SimTweezer {
             .obstacles
             .iter()
             .all(|o| o.radius_m == params.obstacles[0].radius_m);
+        let contact = ContactStep::new(&params, dt, kt, 1.0 / gf);
         Ok(Self {
+            contact_exact: false,
+            contact,
+            contact_steps: 0,
             table_on: drag.is_some(),
             fast_gap_min: params
                 .contact_range_m
@@ -173,6 +259,25 @@ impl SimTweezer {
     pub fn set_drag_table(&mut self, on: bool) {
         self.use_drag_table = on;
         self.table_on = on && self.drag.is_some();
+    }
+
+    /// Use the exact full-sample step for a bead in sustained contact
+    /// ([`Self::step_contact_exact`]) instead of the sub-steps (off by
+    /// default: the sub-stepped path is the reference). Has no effect when
+    /// the parameters do not allow it (more than one obstacle, δ > 0.1 R,
+    /// Euler–Maruyama).
+    pub fn set_contact_exact(&mut self, on: bool) {
+        self.contact_exact = on;
+    }
+
+    /// Whether the exact contact step is enabled and possible.
+    pub fn contact_exact(&self) -> bool {
+        self.contact_exact && self.contact.is_some()
+    }
+
+    /// Samples advanced by the exact contact step.
+    pub fn contact_exact_steps(&self) -> u64 {
+        self.contact_steps
     }
 
     /// Is the bead held by the trap?
@@ -626,6 +731,81 @@ impl SimTweezer {
         self.finish_sample(p1, near, ev, 1)
     }
 
+    /// The exact step of a trapped bead next to the (only) obstacle,
+    /// inside the drag clamp: there the trap (plus the contact spring inside
+    /// the contact zone) is linear with constant coefficients
+    /// ([`ContactStep`]), so one exact OU step over the whole sample in the
+    /// (normal, tangent) frame of the start replaces the general path's
+    /// sub-steps (the module docs of [`super`], with k = κ + k_c and the
+    /// equilibrium (κ t·n + k_c s*)/(κ + k_c) along the normal in contact).
+    /// Taken only when the start gap and the mean end gap lie in the same
+    /// zone — [m, δ) (contact) or [δ, 0.1 R) — with m =
+    /// [`CONTACT_EXACT_MARGIN_SD`] normal SDs from the surface; otherwise
+    /// returns `None` (nothing changed) and the general path sub-steps the
+    /// sample, so the samples that may cross a zone's boundary are resolved
+    /// as before. Same draws as one general sub-step (normal, then
+    /// tangent); the epilogue (reflection, escape, contact events) is the
+    /// general path's.
+    #[inline]
+    fn step_contact_exact(&mut self, p0: [f64; 2], p1: [f64; 2]) -> Option<TweezerSample> {
+        let cs = self.contact?;
+        let Some(Some((oi, n, g0))) = self.near_cache else {
+            return None;
+        };
+        // Zone of a gap: Some(true) in contact, Some(false) between δ and
+        // the clamp, None elsewhere (near the surface, outside the clamp).
+        let zone = |g: f64| {
+            if g >= cs.margin && g < cs.delta {
+                Some(true)
+            } else if g >= cs.delta && g < cs.clamp {
+                Some(false)
+            } else {
+                None
+            }
+        };
+        let contact = zone(g0)?;
+        if !self.trapped {
+            return None;
+        }
+        let o = self.p.obstacles[oi];
+        let t = [-n[1], n[0]];
+        let proj = |p: [f64; 2], u: [f64; 2]| {
+            (p[0] - o.centre_m[0]) * u[0] + (p[1] - o.centre_m[1]) * u[1]
+        };
+        let kappa = self.p.stiffness_n_per_m;
+        let ([c, tau_1mc, sigma], en0, en1) = if contact {
+            (
+                cs.n_in,
+                (kappa * proj(p0, n) + cs.kc * cs.s_star) / cs.kn,
+                (kappa * proj(p1, n) + cs.kc * cs.s_star) / cs.kn,
+            )
+        } else {
+            (cs.n_out, proj(p0, n), proj(p1, n))
+        };
+        let sn = cs.r_c + g0;
+        let mean_n = en1 + c * (sn - en0) - (en1 - en0) * self.fs * tau_1mc;
+        if zone(mean_n - cs.r_c) != Some(contact) {
+            return None;
+        }
+        let nz = self.rng.sample2();
+        let sn1 = mean_n + sigma * nz[0];
+        let st = proj(self.bead, t);
+        let (et0, et1) = (proj(p0, t), proj(p1, t));
+        let [ct, tau_1mc_t, sigma_t] = cs.t;
+        let st1 = et1 + ct * (st - et0) - (et1 - et0) * self.fs * tau_1mc_t + sigma_t * nz[1];
+        self.bead = [
+            o.centre_m[0] + sn1 * n[0] + st1 * t[0],
+            o.centre_m[1] + sn1 * n[1] + st1 * t[1],
+        ];
+        let near = self.finish_move(p1);
+        let ev = TweezerEvents {
+            escaped: !self.trapped,
+            ..TweezerEvents::default()
+        };
+        self.contact_steps += 1;
+        Some(self.finish_sample(p1, near, ev, 1))
+    }
+
     /// The free-space path (no obstacles, trapped, exact): one exact OU step
     /// per axis, the same expressions and order of draws as the general
     /// path (bit-identical), without its bookkeeping.
@@ -759,6 +939,11 @@ impl Tweezer for SimTweezer {
             p0
         };
         if let Some(sample) = self.step_near_table(p0, p1) {
+            return sample;
+        }
+        if self.contact_exact
+            && let Some(sample) = self.step_contact_exact(p0, p1)
+        {
             return sample;
         }
         if matches!(self.near_cache, Some(None))

@@ -123,6 +123,7 @@ impl NewStudy<'_> {
                 planned: self.planned as u64,
                 completed: 0,
             },
+            simulation: None,
         }
     }
 }

@@ -212,6 +212,20 @@ pub struct SessionInfo {
     pub sittings: Vec<Sitting>,
     /// Progress at `updated_utc`.
     pub progress: Progress,
+    /// How a simulated study was run (absent for studies with people).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulation: Option<SimulationInfo>,
+}
+
+/// How a simulated study's trials were run (`session.json` `simulation`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SimulationInfo {
+    /// How much of the model each trial ran ([`crate::fidelity`]).
+    pub fidelity: crate::fidelity::Fidelity,
+    /// The participant slice of a shard folder ([`crate::shard`]); absent
+    /// for a whole (or merged) study.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<crate::shard::Shard>,
 }
 
 /// Name of the trial-seed derivation recorded in `session.json`.

@@ -13,7 +13,8 @@ use super::open::{self, FolderRead, NewStudy};
 use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
 use super::reconcile::{DamagedRaw, Expected, Recovery, reconcile};
 use super::session::{
-    self, OrderRow, Progress, SESSION_FILE, SessionInfo, StudyMeta, read_session, write_session,
+    self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, StudyMeta, read_session,
+    write_session,
 };
 use super::summary::{SummaryFiles, regenerate_summaries};
 use super::trials::{IDENTITY_COLUMNS, TaskKind, TrialRow, TrialsWriter, first_difference};
@@ -240,6 +241,16 @@ impl StudyStore {
         }
         let info = read_session(&path)?;
         Self::open(dir, &info.protocol, meta)
+    }
+
+    /// Records in `session.json` how a simulated study is run (fidelity,
+    /// shard) and rewrites the file.
+    ///
+    /// # Errors
+    /// I/O and JSON errors.
+    pub fn set_simulation(&mut self, simulation: SimulationInfo) -> Result<()> {
+        self.info.simulation = Some(simulation);
+        self.write_session_info()
     }
 
     fn write_session_info(&mut self) -> Result<()> {

@@ -1,6 +1,7 @@
 //! The simulated [`Station`]: the rig crate's closed loop on the simulated
 //! rig ([`SimLoop`]), with the chain the study was started with (a
-//! calibration or the model's as-designed chain).
+//! calibration or the model's as-designed chain), at a [`Fidelity`]: each
+//! trial runs what its [`FidelityPlan`] asks for.
 
 use kilotouch_rig::Condition;
 use kilotouch_rig::config::RigConfig;
@@ -15,6 +16,7 @@ use rand_chacha::rand_core::Rng;
 use super::Scene;
 use super::station::{Station, StationSample};
 use crate::error::RunError;
+use crate::fidelity::{Fidelity, FidelityPlan};
 
 /// The simulated station (module docs). A fresh rig and tweezer are built
 /// for every trial from the trial's seeds (so resumed studies reproduce rows
@@ -24,6 +26,8 @@ pub struct SimStation {
     cfg: RigConfig,
     chain: LoopChain,
     lp: SimLoop,
+    fidelity: Fidelity,
+    plan: FidelityPlan,
 }
 
 impl SimStation {
@@ -48,7 +52,24 @@ impl SimStation {
             cfg: cfg.clone(),
             chain,
             lp,
+            fidelity: Fidelity::Full,
+            plan: FidelityPlan::FULL,
         })
+    }
+
+    /// Run trials at `fidelity` (a new station runs at [`Fidelity::Full`]).
+    pub fn set_fidelity(&mut self, fidelity: Fidelity) {
+        self.fidelity = fidelity;
+    }
+
+    /// The fidelity trials run at.
+    pub fn fidelity(&self) -> Fidelity {
+        self.fidelity
+    }
+
+    /// The plan of the trial prepared last.
+    pub fn plan(&self) -> FidelityPlan {
+        self.plan
     }
 
     /// The rig configuration.
@@ -104,7 +125,11 @@ impl Station for SimStation {
             radius_m: scene.geometry.obstacle_radius_m,
         }];
         p.seed = rng.next_u64();
-        let tweezer = SimTweezer::new(p, fs)?;
+        let plan = FidelityPlan::for_trial(self.fidelity, condition);
+        let mut tweezer = SimTweezer::new(p, fs)?;
+        tweezer.set_contact_exact(plan.contact_exact);
+        self.lp.coupling.set_lean(plan.lean_coupling);
+        self.plan = plan;
         // A fresh, armed safety layer per trial: forces come on through the
         // ramp once the command is small, and a resumed study reproduces
         // every row exactly.

@@ -1,0 +1,123 @@
+//! Simulation fidelity: which parts of the model a simulated trial runs.
+//!
+//! [`Fidelity::Full`] runs the whole model at every sample whatever the
+//! trial needs: the reference. [`Fidelity::Scene`] runs only what the
+//! trial's scene, condition and recording use ([`FidelityPlan::for_trial`]):
+//!
+//! | shortcut | when | what is skipped | effect on the trial |
+//! |---|---|---|---|
+//! | no haptic rendering in V | condition V | the coupling's filters (P paths, D chain, wall damper), whose outputs V zeroes ([`kilotouch_rig::coupling::Coupling::set_lean`]) | none (bit for bit) |
+//! | no D chain in P | condition P (unless `p_mode = low-channel`) | the crossover and both compensators (the Haptuator's lane), whose outputs P ignores (the same switch) | none (bit for bit) |
+//! | exact contact step | every condition | the tweezer's sub-steps while the bead sits in the contact zone, replaced by one exact OU step ([`kilotouch_rig::tweezer::SimTweezer::set_contact_exact`]) | same distribution of the bead; a different noise sequence |
+//!
+//! The plant and the accelerometer run in every condition: in V the
+//! participant's hand still moves the device, and replacing the plant by a
+//! handle that follows the hand rigidly changed V's success rate by 3.5
+//! pooled standard errors (measured, `docs/PERFORMANCE.md`): the device's
+//! own dynamics matter to the simulated participant even without force.
+//! The speed and the change of the study metrics each shortcut causes are
+//! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
+
+use std::fmt;
+use std::str::FromStr;
+
+use kilotouch_rig::Condition;
+use serde::{Deserialize, Serialize};
+
+/// How much of the model a simulated study runs (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Fidelity {
+    /// Only what each trial's scene needs (the default).
+    #[default]
+    Scene,
+    /// The whole model at every sample (the reference).
+    Full,
+}
+
+impl Fidelity {
+    /// Both fidelities.
+    pub const ALL: [Fidelity; 2] = [Fidelity::Scene, Fidelity::Full];
+
+    /// The name used on the command line and in `session.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fidelity::Scene => "scene",
+            Fidelity::Full => "full",
+        }
+    }
+}
+
+impl fmt::Display for Fidelity {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Fidelity {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "scene" => Ok(Fidelity::Scene),
+            "full" => Ok(Fidelity::Full),
+            other => Err(format!(
+                "unknown fidelity `{other}` (expected scene or full)"
+            )),
+        }
+    }
+}
+
+/// What one trial runs (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FidelityPlan {
+    /// Skip filters whose outputs the condition ignores (the D chain in P).
+    pub lean_coupling: bool,
+    /// Step the bead in sustained contact exactly instead of sub-stepping.
+    pub contact_exact: bool,
+}
+
+impl FidelityPlan {
+    /// The whole model.
+    pub const FULL: FidelityPlan = FidelityPlan {
+        lean_coupling: false,
+        contact_exact: false,
+    };
+
+    /// The plan of a trial in `condition` at `fidelity`.
+    pub fn for_trial(fidelity: Fidelity, condition: Condition) -> Self {
+        match fidelity {
+            Fidelity::Full => Self::FULL,
+            Fidelity::Scene => FidelityPlan {
+                // V and P ignore some filters' outputs; D uses them all.
+                lean_coupling: condition != Condition::D,
+                contact_exact: true,
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plans_follow_the_condition() {
+        for c in Condition::ALL {
+            assert_eq!(
+                FidelityPlan::for_trial(Fidelity::Full, c),
+                FidelityPlan::FULL
+            );
+            assert!(FidelityPlan::for_trial(Fidelity::Scene, c).contact_exact);
+        }
+        assert!(FidelityPlan::for_trial(Fidelity::Scene, Condition::V).lean_coupling);
+        assert!(FidelityPlan::for_trial(Fidelity::Scene, Condition::P).lean_coupling);
+        assert!(!FidelityPlan::for_trial(Fidelity::Scene, Condition::D).lean_coupling);
+        assert_eq!("scene".parse::<Fidelity>(), Ok(Fidelity::Scene));
+        assert_eq!("full".parse::<Fidelity>(), Ok(Fidelity::Full));
+        assert!("fast".parse::<Fidelity>().is_err());
+        assert_eq!(
+            serde_json::to_string(&Fidelity::Scene).ok().as_deref(),
+            Some("\"scene\"")
+        );
+    }
+}

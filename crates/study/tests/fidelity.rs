@@ -1,0 +1,91 @@
+//! Scene fidelity against the full model on a small study: for each
+//! condition, the mean success rate, time, optical force, displacement
+//! error and contact fraction of the test trials agree within 2.5 pooled
+//! standard errors (the sampling error of the two means), and `--fidelity
+//! full` is what a station without a fidelity setting runs.
+
+#![allow(clippy::unwrap_used)]
+
+use kilotouch_rig::config::RigConfig;
+use kilotouch_study::export::{Metric, TRIALS_FILE, TrialRow, read_session, read_trials};
+use kilotouch_study::fidelity::Fidelity;
+use kilotouch_study::protocol::{Condition, Protocol};
+use kilotouch_study::runner::RunnerConfig;
+use kilotouch_study::seeds::Phase;
+use kilotouch_study::simulate::{SimulateOptions, simulate};
+
+fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
+    let mut protocol = Protocol::paper().unwrap();
+    protocol.participants = 2;
+    protocol.seeds.study = 33;
+    let opts = SimulateOptions {
+        protocol,
+        out: dir.to_path_buf(),
+        resume: false,
+        rig: RigConfig::default(),
+        calibration: None,
+        runner: RunnerConfig {
+            raw: None,
+            ..RunnerConfig::default()
+        },
+        threads: 2,
+        fidelity,
+        shard: None,
+    };
+    simulate(&opts, &mut |_, _| {}).unwrap();
+    let session = read_session(&dir.join("session.json")).unwrap();
+    assert_eq!(session.simulation.map(|s| s.fidelity), Some(fidelity));
+    read_trials(&dir.join(TRIALS_FILE))
+        .unwrap()
+        .rows
+        .into_iter()
+        .filter(|r| r.phase == Phase::Test)
+        .collect()
+}
+
+/// A metric of a row.
+type Getter = fn(&TrialRow) -> Option<f64>;
+
+/// Mean and variance of the mean.
+fn mean_var(x: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    let v = x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0);
+    (m, v / n)
+}
+
+#[test]
+fn scene_and_full_studies_agree_within_sampling_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = run(Fidelity::Full, &tmp.path().join("full"));
+    let scene = run(Fidelity::Scene, &tmp.path().join("scene"));
+    assert_eq!(full.len(), scene.len());
+    let metrics: [(&str, Getter); 5] = [
+        ("success", |r| Some(f64::from(u8::from(r.success)))),
+        ("time_s", |r| Metric::TimeS.get(r)),
+        ("force_mean_pn", |r| Metric::ForceMeanPn.get(r)),
+        ("disp_err_mean_um", |r| Metric::DispErrMeanUm.get(r)),
+        ("contact_fraction", |r| Metric::ContactFraction.get(r)),
+    ];
+    let mut compared = 0;
+    for c in Condition::ALL {
+        for (name, get) in &metrics {
+            let values = |rows: &[TrialRow]| -> Vec<f64> {
+                rows.iter()
+                    .filter(|r| r.condition == c)
+                    .filter_map(get)
+                    .collect()
+            };
+            let (a, b) = (values(&full), values(&scene));
+            assert!(a.len() >= 10 && b.len() >= 10, "{c} {name}: too few trials");
+            let ((ma, va), (mb, vb)) = (mean_var(&a), mean_var(&b));
+            let se = (va + vb).sqrt();
+            assert!(
+                (ma - mb).abs() <= 2.5 * se + 1e-12 * ma.abs(),
+                "{c} {name}: full {ma} scene {mb}, pooled SE {se}"
+            );
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, 15);
+}
