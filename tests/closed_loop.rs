@@ -126,6 +126,7 @@ fn a_study_records_its_calibration() {
         threads: 2,
         fidelity: kilotouch_study::fidelity::Fidelity::Full,
         shard: None,
+        new_sitting: None,
     };
     let rep = simulate(&opts, &mut |_, _| {}).expect("study");
     assert!(rep.test_rows > 0);

@@ -355,6 +355,9 @@ fn contact_run(
     (out, t.contact_exact_steps())
 }
 
+/// A named trap trajectory (sample → trap position, m) and its tolerance.
+type Scene<'a> = (&'a str, &'a dyn Fn(usize) -> [f64; 2], f64);
+
 /// The exact full-sample step next to an obstacle (scene fidelity) against
 /// the sub-stepped general path: the two integrate the same SDE (the trap,
 /// the contact spring, the clamped wall drag), so their distributions must
@@ -375,7 +378,7 @@ fn tweezer_contact_exact_step() {
         [r * a.cos(), r * a.sin()]
     };
     let held = move |_k: usize| [rc + 60e-9, 0.0];
-    let scenes: [(&str, &dyn Fn(usize) -> [f64; 2], f64); 2] =
+    let scenes: [Scene<'_>; 2] =
         [("circling", &circling, 0.9), ("held at 60 nm", &held, 0.5)];
     for (name, scene, min_share) in scenes {
         let (fast, steps) = contact_run(true, 5, scene, n);

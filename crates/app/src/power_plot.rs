@@ -13,7 +13,7 @@ use kilotouch_study::power::PowerReport;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::paper::style::{ensure_font, FONT};
+use crate::paper::style::{FONT, ensure_font};
 /// Size of the plot, px (PNG) or user units (SVG).
 const SIZE: (u32, u32) = (900, 600);
 /// Curve colour.

@@ -60,7 +60,16 @@ pub fn plot_fit(
     const W: u32 = 960;
     const H: u32 = 640;
     let mut buf = vec![255_u8; (W as usize) * (H as usize) * 3];
-    draw_fit(&mut buf, (W, H), spec, &model, cal, s, (f0, f1), (pmin, pmax))?;
+    draw_fit(
+        &mut buf,
+        (W, H),
+        spec,
+        &model,
+        cal,
+        s,
+        (f0, f1),
+        (pmin, pmax),
+    )?;
     image::save_buffer(path, &buf, W, H, image::ExtendedColorType::Rgb8)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     Ok(())

@@ -4,6 +4,7 @@
 //! `rig check --duration 1` within a few seconds with an error saying what
 //! the device sent instead, the counters printed; and the `rig check`
 //! verdict on loss and CRC errors.
+#![allow(clippy::unwrap_used)]
 
 mod common;
 

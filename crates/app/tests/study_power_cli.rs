@@ -1,6 +1,7 @@
 //! `kilotouch study power` end to end, as a user runs it: simulate a small
 //! pilot with `study simulate`, then plan from its folder (table, JSON,
 //! PNG and SVG plots, thread independence, clear errors).
+#![allow(clippy::unwrap_used)]
 
 use serde_json::Value;
 use std::path::Path;

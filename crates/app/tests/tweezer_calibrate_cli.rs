@@ -3,6 +3,7 @@
 //! the plot, clear errors, and the whole live path — the simulated tweezer
 //! behind `kilotouch emulate tweezer`, recorded over the serial link and
 //! calibrated — recovering the simulated κ.
+#![allow(clippy::unwrap_used)]
 
 mod common;
 

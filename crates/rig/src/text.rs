@@ -18,9 +18,8 @@ fn is_unsafe(c: char) -> bool {
 /// out (`… (20000 more characters)`).
 pub fn printable(s: &str, max_chars: usize) -> String {
     let mut out = String::with_capacity(s.len().min(4 * max_chars + 32));
-    let mut shown = 0usize;
     let mut chars = s.chars();
-    for c in chars.by_ref() {
+    for (shown, c) in chars.by_ref().enumerate() {
         if shown == max_chars {
             let rest = 1 + chars.count();
             out.push_str(&format!("… ({rest} more characters)"));
@@ -31,7 +30,6 @@ pub fn printable(s: &str, max_chars: usize) -> String {
         } else {
             out.push(c);
         }
-        shown += 1;
     }
     out
 }

@@ -4,6 +4,7 @@
 //!
 //! Reference values: `tests/data/trap_psd/pylake_reference.json`, written by
 //! `tests/pylake_reference.py` (lumicks.pylake 1.8.0).
+#![allow(clippy::unwrap_used)]
 
 use kilotouch_dsp::lorentzian::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::synth::synthesize_record;

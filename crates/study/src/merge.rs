@@ -217,6 +217,24 @@ fn check_same_study(first: &Input, other: &Input) -> Result<(), RunError> {
     if fid(a) != fid(b) {
         return Err(differs("simulation", fid(a), fid(b)));
     }
+    let rig = |s: &SessionInfo| {
+        s.rig_hash
+            .as_ref()
+            .map_or("no recorded rig file hash".to_owned(), |h| {
+                format!("rig file {h}")
+            })
+    };
+    if rig(a) != rig(b) {
+        return Err(differs("rig file", rig(a), rig(b)));
+    }
+    let raw = |s: &SessionInfo| match s.raw_signals {
+        Some(true) => "raw recording on".to_owned(),
+        Some(false) => "raw recording off".to_owned(),
+        None => "no recorded raw setting".to_owned(),
+    };
+    if raw(a) != raw(b) {
+        return Err(differs("raw setting", raw(a), raw(b)));
+    }
     Ok(())
 }
 
@@ -288,6 +306,9 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
         software_version: s.software.version.clone(),
         rig: s.rig.clone(),
         calibration: s.calibration.clone(),
+        rig_hash: s.rig_hash.clone(),
+        raw_signals: s.raw_signals,
+        recorded_change: None,
     };
     let mut store = StudyStore::open(out, &s.protocol, &meta)?;
     if let Some(sim) = s.simulation {

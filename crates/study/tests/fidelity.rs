@@ -31,6 +31,7 @@ fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
         threads: 2,
         fidelity,
         shard: None,
+        new_sitting: None,
     };
     simulate(&opts, &mut |_, _| {}).unwrap();
     let session = read_session(&dir.join("session.json")).unwrap();

@@ -8,6 +8,7 @@
 //! about 30 such comparisons, so at 95 % one would fail by chance every
 //! other run of a changed seed; at 99.9 % the family-wise chance of a false
 //! failure is ≈ 3 %.
+#![allow(clippy::unwrap_used)]
 
 use kilotouch_study::power::{
     EffectSpec, PilotRow, PilotTable, PowerOptions, PowerReport, PowerTest, clopper_pearson, power,

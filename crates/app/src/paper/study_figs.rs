@@ -93,6 +93,9 @@ impl CirclingStudy {
             calibration: None,
             runner,
             threads: opts.threads,
+            new_sitting: None,
+            fidelity: kilotouch_study::fidelity::Fidelity::default(),
+            shard: None,
         };
         kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
             progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))

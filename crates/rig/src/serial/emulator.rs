@@ -512,7 +512,7 @@ impl<I: Instrument> Emulator<I> {
             }
             Misbehaviour::StraySequence => {
                 self.batch_seq += 1;
-                let seq = if self.batch_seq % 2 == 0 {
+                let seq = if self.batch_seq.is_multiple_of(2) {
                     self.next_seq.wrapping_sub(1000)
                 } else {
                     self.next_seq.wrapping_add(1 << 20)

@@ -187,9 +187,10 @@ impl LinkTweezer {
     /// κ (trap − bead). Non-finite or non-positive κ, or non-finite R_d, is
     /// refused.
     pub fn apply_calibration(&mut self, c: LinkCalibration) -> Result<(), RigError> {
-        if !(c.stiffness_n_per_m.is_finite() && c.stiffness_n_per_m > 0.0)
-            || !c.rd_m_per_v.iter().all(|r| r.is_finite() && *r != 0.0)
-        {
+        let valid = c.stiffness_n_per_m.is_finite()
+            && c.stiffness_n_per_m > 0.0
+            && c.rd_m_per_v.iter().all(|r| r.is_finite() && *r != 0.0);
+        if !valid {
             return Err(RigError::InvalidInput(format!(
                 "calibration {c:?}: κ must be finite and > 0, R_d finite and non-zero"
             )));

@@ -383,7 +383,7 @@ pub fn power(
             let f = match opts.effect {
                 EffectSpec::Pilot => 1.0,
                 EffectSpec::Scale(s) => s,
-                EffectSpec::Absolute(x) if x == 0.0 => 0.0,
+                EffectSpec::Absolute(0.0) => 0.0,
                 EffectSpec::Absolute(x) => {
                     if effect_now <= 0.0 {
                         return Err(PowerError::NoPilotEffect);

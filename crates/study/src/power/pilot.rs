@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use super::error::PowerError;
 use crate::export::TRIALS_FILE;
 use crate::seeds::Phase;
-use crate::stats::rows::RowRule;
 use crate::stats::Design;
+use crate::stats::rows::RowRule;
 
 /// Largest number of data rows read from a pilot file (a pilot has tens of
 /// participants × hundreds of trials; 10⁷ rows is ~1 GB of CSV).
