@@ -378,8 +378,7 @@ fn tweezer_contact_exact_step() {
         [r * a.cos(), r * a.sin()]
     };
     let held = move |_k: usize| [rc + 60e-9, 0.0];
-    let scenes: [Scene<'_>; 2] =
-        [("circling", &circling, 0.9), ("held at 60 nm", &held, 0.5)];
+    let scenes: [Scene<'_>; 2] = [("circling", &circling, 0.9), ("held at 60 nm", &held, 0.5)];
     for (name, scene, min_share) in scenes {
         let (fast, steps) = contact_run(true, 5, scene, n);
         let (reference, ref_steps) = contact_run(false, 6, scene, n);

@@ -6,6 +6,7 @@ pub mod crossover;
 pub mod emulate;
 pub mod frf;
 pub mod paper;
+pub mod progress;
 pub mod psd;
 pub mod rig;
 pub mod sim;

@@ -4,7 +4,7 @@
 //! `session.json`, journal, raw NPY files); `kilotouch study merge`: shard
 //! folders joined into one.
 
-use std::io::{IsTerminal, Write};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -13,6 +13,7 @@ use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::RunnerConfig;
 use kilotouch_study::simulate::{SimulateOptions, SimulateReport, simulate};
 
+use super::progress::Bar;
 use crate::output::emit;
 
 /// `kilotouch study …`.
@@ -116,47 +117,6 @@ fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
         "--protocol {spec}: no such file, and not a built-in protocol (expected a TOML file or one of: {})",
         kilotouch_study::protocol::BUILTIN_NAMES.join(", ")
     )
-}
-
-/// Progress on stderr: a bar redrawn in place on a terminal, a line per
-/// 10 % otherwise.
-pub(crate) struct Bar {
-    pub(crate) tty: bool,
-    pub(crate) last_decile: Option<usize>,
-    /// What is counted ("trials", "simulated studies").
-    pub(crate) unit: &'static str,
-}
-
-impl Bar {
-    pub(crate) fn report(&mut self, done: usize, total: usize) {
-        let f = if total == 0 {
-            1.0
-        } else {
-            done as f64 / total as f64
-        };
-        let mut err = std::io::stderr().lock();
-        if self.tty {
-            let width = 30;
-            let filled = ((f * width as f64).round() as usize).min(width);
-            let _ = write!(
-                err,
-                "\r\x1b[2K[{}{}] {:3.0}% {done}/{total} {}",
-                "#".repeat(filled),
-                " ".repeat(width - filled),
-                f * 100.0,
-                self.unit
-            );
-            if done >= total {
-                let _ = writeln!(err);
-            }
-        } else {
-            let decile = (f * 10.0).floor() as usize;
-            if self.last_decile != Some(decile) {
-                let _ = writeln!(err, "[{:3.0}%] {done}/{total} {}", f * 100.0, self.unit);
-                self.last_decile = Some(decile);
-            }
-        }
-    }
 }
 
 fn human(r: &SimulateReport) -> String {

@@ -13,7 +13,7 @@ use kilotouch_study::power::{
     read_pilot,
 };
 
-use super::study::Bar;
+use super::progress::Bar;
 use crate::output::emit;
 
 /// Arguments of `kilotouch study power`.

@@ -440,7 +440,7 @@ impl ExplorePage {
         self.force_note = match engine.as_ref().and_then(|e| e.health()) {
             None => Some("no rig: no force"),
             Some(h) if h.safety != crate::engine::SafetyState::Enabled || !h.running => {
-                Some("OUTPUTS HELD AT ZERO: no force is sent")
+                Some("outputs held at zero: no force is sent")
             }
             Some(h) if !h.condition.haptic() => Some("V (vision only): no force is sent"),
             Some(_) => None,
