@@ -79,13 +79,21 @@ fn rig_check_fails_above_the_loss_limit_and_always_prints_counters() {
         "{err}"
     );
     // Human output: the counters and the verdict line.
-    let o = run(&["rig", "check", "--rig", &emu.rig(), "--duration", "0.5"]);
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        out.contains("verdict   FAIL") && out.contains("lost"),
-        "{out}"
-    );
-    assert_eq!(o.status.code(), Some(1));
+    // At 1 % byte corruption the handshake itself can be hit (then the
+    // check ends before streaming, with that error): up to three attempts.
+    let mut last = String::new();
+    let mut shown = false;
+    for _ in 0..3 {
+        let o = run(&["rig", "check", "--rig", &emu.rig(), "--duration", "0.5"]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert_eq!(o.status.code(), Some(1));
+        if out.contains("verdict   FAIL") && out.contains("lost") {
+            shown = true;
+            break;
+        }
+        last = format!("{out}\n{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert!(shown, "{last}");
 }
 
 /// A clean link passes the verdict.

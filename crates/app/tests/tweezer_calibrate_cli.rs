@@ -168,12 +168,13 @@ fn plain_fit_has_no_diode_keys_and_errors_are_clear() {
 
 #[test]
 fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
-    // A stiffer trap than the default scene (κ = 100 pN/µm, f_c = 468 Hz at
-    // 5 µm from the coverslip) and no obstacles near the trap: 12 s at
+    // A stiffer trap than the default scene (κ = 100 pN/µm, f_c = 468 Hz),
+    // the bead 5 µm above the coverslip (Faxén 1.200) and no obstacles near the trap: 12 s at
     // 10 kHz through the serial link give σ_κ/κ ≈ 0.6 % from x and y.
     let dir = tempfile::tempdir().unwrap();
     let mut rc = kilotouch_rig::RigConfig::default();
     rc.tweezer.stiffness_n_per_m = 1e-4;
+    rc.tweezer.wall_distance_m = Some(5e-6);
     rc.tweezer.obstacles.clear();
     let rig_file = dir.path().join("stiff.toml");
     std::fs::write(&rig_file, rc.to_toml_string().unwrap()).unwrap();
