@@ -75,3 +75,19 @@ fn fmt_pos(line: Option<usize>, column: Option<usize>) -> String {
         _ => String::new(),
     }
 }
+
+impl RigError {
+    /// `Ok` when `value` is finite and > 0, else
+    /// [`RigError::InvalidParameter`] naming the parameter.
+    pub fn require_positive(name: &'static str, value: f64) -> Result<(), RigError> {
+        if value.is_finite() && value > 0.0 {
+            Ok(())
+        } else {
+            Err(RigError::InvalidParameter {
+                name,
+                value,
+                reason: "must be finite and > 0".into(),
+            })
+        }
+    }
+}

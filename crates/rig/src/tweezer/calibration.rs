@@ -103,17 +103,7 @@ pub struct TrapCalibration {
 impl TrapCalibrationSettings {
     /// Check every setting (errors name the option as the CLI spells it).
     pub fn validate(&self) -> Result<(), RigError> {
-        let pos = |name: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                })
-            }
-        };
+        let pos = RigError::require_positive;
         pos("fs", self.fs_hz)?;
         pos("radius", self.radius_m)?;
         pos("viscosity", self.viscosity_pa_s)?;

@@ -176,17 +176,7 @@ impl TweezerParams {
 
     /// Check every parameter.
     pub fn validate(&self) -> Result<(), RigError> {
-        let pos = |name: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                })
-            }
-        };
+        let pos = RigError::require_positive;
         pos("radius_m", self.radius_m)?;
         pos("viscosity_pa_s", self.viscosity_pa_s)?;
         pos("temperature_k", self.temperature_k)?;
