@@ -77,6 +77,38 @@ pub(crate) fn fresh_study_dir(dir: &Path) -> Result<(), PaperError> {
     Ok(())
 }
 
+/// Simulate `protocol` into `dir` (afresh; as-designed chain, default
+/// fidelity, the paper run's threads) and read the folder's results: the one
+/// study run behind Figs. 10, 11 and 12.
+///
+/// # Errors
+/// Study and file errors.
+pub(crate) fn simulate_study(
+    opts: &PaperOptions,
+    protocol: &Protocol,
+    dir: &Path,
+    runner: RunnerConfig,
+    progress: &mut dyn FnMut(f64, &str),
+) -> Result<StudyResults, PaperError> {
+    fresh_study_dir(dir)?;
+    let sim = kilotouch_study::simulate::SimulateOptions {
+        protocol: protocol.clone(),
+        out: dir.to_path_buf(),
+        resume: false,
+        rig: opts.rig.clone(),
+        calibration: None,
+        runner,
+        threads: opts.threads,
+        new_sitting: None,
+        fidelity: kilotouch_study::fidelity::Fidelity::default(),
+        shard: None,
+    };
+    kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
+        progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))
+    })?;
+    StudyResults::load(dir).map_err(PaperError::Results)
+}
+
 /// The participant index of an id `P01`, `P1`… (`protocol.rs` numbers
 /// participants from 1).
 pub(crate) fn participant_index(id: &str) -> Result<u32, PaperError> {
@@ -110,23 +142,7 @@ impl Fig10 {
             ));
         };
         let dir = opts.out.join("study-blind");
-        fresh_study_dir(&dir)?;
-        let sim = kilotouch_study::simulate::SimulateOptions {
-            protocol: protocol.clone(),
-            out: dir.clone(),
-            resume: false,
-            rig: opts.rig.clone(),
-            calibration: None,
-            runner: RunnerConfig::default(),
-            threads: opts.threads,
-            new_sitting: None,
-            fidelity: kilotouch_study::fidelity::Fidelity::default(),
-            shard: None,
-        };
-        kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
-            progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))
-        })?;
-        let res = StudyResults::load(&dir).map_err(PaperError::Results)?;
+        let res = simulate_study(opts, &protocol, &dir, RunnerConfig::default(), progress)?;
         let engine = TrialEngine::new(
             SimStation::with_chain(&opts.rig, LoopChain::as_designed(&opts.rig)?)?,
             RunnerConfig::default(),

@@ -80,28 +80,13 @@ impl CirclingStudy {
             protocol.training.practice_trials = 0;
         }
         let dir = opts.out.join("study-circling");
-        super::fig10::fresh_study_dir(&dir)?;
         let runner = RunnerConfig {
             raw: None,
             ..RunnerConfig::default()
         };
-        let sim = kilotouch_study::simulate::SimulateOptions {
-            protocol: protocol.clone(),
-            out: dir.clone(),
-            resume: false,
-            rig: opts.rig.clone(),
-            calibration: None,
-            runner,
-            threads: opts.threads,
-            new_sitting: None,
-            fidelity: kilotouch_study::fidelity::Fidelity::default(),
-            shard: None,
-        };
-        kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
-            progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))
-        })?;
+        let results = super::fig10::simulate_study(opts, &protocol, &dir, runner, progress)?;
         Ok(Self {
-            results: StudyResults::load(&dir).map_err(PaperError::Results)?,
+            results,
             trials_per_session: protocol.trials_per_session,
         })
     }
