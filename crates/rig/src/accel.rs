@@ -158,6 +158,13 @@ impl Accelerometer {
         self.nonfinite
     }
 
+    /// [`Self::reset`] with a new noise seed: the sensor as
+    /// [`Self::new`] builds it with `seed`.
+    pub fn reseed(&mut self, seed: u64) {
+        self.seed = seed;
+        self.reset();
+    }
+
     /// Reset the filter to the static acceleration and re-seed the noise.
     pub fn reset(&mut self) {
         self.state = self.offset;
@@ -184,6 +191,15 @@ impl Accelerometer {
         match self.corner_hz.get(axis) {
             Some(&fc) => C64::new(1.0, 0.0) / C64::new(1.0, f_hz / fc),
             None => C64::new(0.0, 0.0),
+        }
+    }
+
+    /// The reading of the sensor at rest without noise: its static output
+    /// (`static_m_s2`), unquantised, m/s².
+    pub fn at_rest(&self) -> AccelReading {
+        AccelReading {
+            m_s2: self.offset,
+            clipped: false,
         }
     }
 

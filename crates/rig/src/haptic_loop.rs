@@ -268,6 +268,17 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
     /// A rig error (the safety layer trips first).
     #[inline]
     pub fn step(&mut self) -> Result<LoopSample, RigError> {
+        self.advance()?;
+        Ok(self.last)
+    }
+
+    /// [`Self::step`] without returning the sample (read it with
+    /// [`Self::last`]): saves copying it out on hot paths.
+    ///
+    /// # Errors
+    /// A rig error (the safety layer trips first).
+    #[inline]
+    pub fn advance(&mut self) -> Result<(), RigError> {
         let input = self.sensors;
         let (cmd, rendered, tw) = self.control(&input, self.missed);
         let report = match self.rig.process_frame(&cmd, &mut self.sensors) {
@@ -288,7 +299,7 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
             rendered,
             command: cmd,
         };
-        Ok(self.last)
+        Ok(())
     }
 
     /// Advance `n` ≤ [`MAX_BLOCK`] samples with one block exchange (live

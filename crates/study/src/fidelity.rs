@@ -74,6 +74,9 @@ pub struct FidelityPlan {
     pub lean_coupling: bool,
     /// Step the bead in sustained contact exactly instead of sub-stepping.
     pub contact_exact: bool,
+    /// Rate divisor of the trial (1: the rig's rate): V without a raw file
+    /// runs at the control rate, with the accelerometer not rendered.
+    pub decimation: u32,
 }
 
 impl FidelityPlan {
@@ -81,16 +84,27 @@ impl FidelityPlan {
     pub const FULL: FidelityPlan = FidelityPlan {
         lean_coupling: false,
         contact_exact: false,
+        decimation: 1,
     };
 
-    /// The plan of a trial in `condition` at `fidelity`.
-    pub fn for_trial(fidelity: Fidelity, condition: Condition) -> Self {
+    /// The plan of a trial in `condition` at `fidelity`, when the runner
+    /// can take a rate divisor up to `max_decimation` (1 with a raw file:
+    /// [`crate::task::station::Station::prepare`]).
+    pub fn for_trial(fidelity: Fidelity, condition: Condition, max_decimation: u32) -> Self {
         match fidelity {
             Fidelity::Full => Self::FULL,
             Fidelity::Scene => FidelityPlan {
                 // V and P ignore some filters' outputs; D uses them all.
                 lean_coupling: condition != Condition::D,
                 contact_exact: true,
+                // V has no loop to keep at the rig's rate: nothing the
+                // participant feels depends on the hand's path between two
+                // control instants.
+                decimation: if condition == Condition::V {
+                    max_decimation.max(1)
+                } else {
+                    1
+                },
             },
         }
     }
@@ -104,14 +118,20 @@ mod tests {
     fn plans_follow_the_condition() {
         for c in Condition::ALL {
             assert_eq!(
-                FidelityPlan::for_trial(Fidelity::Full, c),
+                FidelityPlan::for_trial(Fidelity::Full, c, 10),
                 FidelityPlan::FULL
             );
-            assert!(FidelityPlan::for_trial(Fidelity::Scene, c).contact_exact);
+            assert!(FidelityPlan::for_trial(Fidelity::Scene, c, 10).contact_exact);
+            // A raw file keeps every trial at the rig's rate.
+            assert_eq!(FidelityPlan::for_trial(Fidelity::Scene, c, 1).decimation, 1);
         }
-        assert!(FidelityPlan::for_trial(Fidelity::Scene, Condition::V).lean_coupling);
-        assert!(FidelityPlan::for_trial(Fidelity::Scene, Condition::P).lean_coupling);
-        assert!(!FidelityPlan::for_trial(Fidelity::Scene, Condition::D).lean_coupling);
+        let scene = |c| FidelityPlan::for_trial(Fidelity::Scene, c, 10);
+        assert!(scene(Condition::V).lean_coupling);
+        assert!(scene(Condition::P).lean_coupling);
+        assert!(!scene(Condition::D).lean_coupling);
+        assert_eq!(scene(Condition::V).decimation, 10);
+        assert_eq!(scene(Condition::P).decimation, 1);
+        assert_eq!(scene(Condition::D).decimation, 1);
         assert_eq!("scene".parse::<Fidelity>(), Ok(Fidelity::Scene));
         assert_eq!("full".parse::<Fidelity>(), Ok(Fidelity::Full));
         assert!("fast".parse::<Fidelity>().is_err());

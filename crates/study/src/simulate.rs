@@ -366,9 +366,8 @@ fn run_in_plan_order(
             });
         }
         drop(tx);
-        let fs = opts.rig.rig.sample_rate_hz;
         let attach_raw = opts.runner.raw.is_some();
-        let r = commit_results(store, pending, rx, fs, attach_raw, committed);
+        let r = commit_results(store, pending, rx, attach_raw, committed);
         if r.is_err() {
             queue.cancel();
         }
@@ -378,8 +377,8 @@ fn run_in_plan_order(
 
 /// Commits the workers' results (index in `pending`, start time and
 /// outcome) in plan order as they arrive; `attach_raw`: the rows name the
-/// raw files the workers wrote. Returns the simulated time, s (`fs`: sample
-/// rate, Hz).
+/// raw files the workers wrote. Returns the simulated time, s (each trial's
+/// samples at its own rate).
 ///
 /// # Errors
 /// A worker's error; storage errors; [`RunError::State`] when the workers
@@ -388,7 +387,6 @@ fn commit_results(
     store: &mut StudyStore,
     pending: &[PlannedTrial],
     results: mpsc::Receiver<(usize, WorkerResult)>,
-    fs: f64,
     attach_raw: bool,
     committed: &mut dyn FnMut(),
 ) -> Result<f64, RunError> {
@@ -405,7 +403,7 @@ fn commit_results(
             let mut row = ticket.row();
             outcome.metrics.fill_row(&mut row);
             store.commit_trial(ticket, &row)?;
-            simulated += outcome.samples as f64 / fs;
+            simulated += outcome.samples as f64 / outcome.sample_rate_hz;
             commit_at += 1;
             committed();
         }

@@ -90,3 +90,58 @@ fn scene_and_full_studies_agree_within_sampling_error() {
     }
     assert_eq!(compared, 15);
 }
+
+/// Which trials the scene runs at the control rate: V without a raw file;
+/// never P or D, never with a raw file, never at full fidelity. The trial's
+/// timing keeps its durations (the time-out and the trajectory's spacing).
+#[test]
+fn v_runs_at_the_control_rate_only_without_a_raw_file() {
+    use kilotouch_study::operator::SimCohort;
+    use kilotouch_study::rawsig::Dtype;
+    use kilotouch_study::runner::{NoRaw, TrialEngine};
+    use kilotouch_study::seeds::TrialKey;
+    use kilotouch_study::task::sim_station::SimStation;
+
+    let p = Protocol::paper().unwrap();
+    let mut rates = Vec::new();
+    for (fidelity, raw) in [
+        (Fidelity::Scene, None),
+        (Fidelity::Scene, Some(Dtype::F32)),
+        (Fidelity::Full, None),
+    ] {
+        let mut station = SimStation::new(&RigConfig::default()).unwrap();
+        station.set_fidelity(fidelity);
+        let cfg = RunnerConfig {
+            raw,
+            ..RunnerConfig::default()
+        };
+        let mut e = TrialEngine::new(station, cfg).unwrap();
+        for c in Condition::ALL {
+            let key = TrialKey::new(0, c, Phase::Test, 1);
+            let setup = e.setup(&p, key);
+            let mut who = SimCohort::new(p.seeds.study, 1000.0, 10_000.0);
+            let o = e.run_trial(&setup, &mut who, &mut NoRaw).unwrap();
+            let t = o.samples as f64 / o.sample_rate_hz;
+            assert!(
+                t > 0.5 && t <= setup.params.timeout_s() + 1e-3,
+                "{c}: {t} s"
+            );
+            // One trajectory point per 10 ms whatever the rate (start,
+            // the decimated points and the end).
+            let points = o.trajectory.len() as f64;
+            assert!(
+                (points - t / 0.01).abs() <= 3.0,
+                "{c}: {points} points in {t} s"
+            );
+            rates.push((fidelity, raw.is_some(), c, o.sample_rate_hz));
+        }
+    }
+    for (fidelity, raw, c, fs) in rates {
+        let expected = if fidelity == Fidelity::Scene && !raw && c == Condition::V {
+            1000.0
+        } else {
+            10_000.0
+        };
+        assert_eq!(fs, expected, "{fidelity} raw {raw} {c}");
+    }
+}

@@ -34,12 +34,15 @@ pub enum Pacing {
 }
 
 /// The simulated dual-stage rig (module docs).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct SimRig<C: Clock = SystemClock> {
     identity: RigIdentity,
     fs: f64,
     plant: DualStagePlant,
     accel: Accelerometer,
+    // Render the accelerometer (default); off, every reading is the
+    // sensor's static output ([`SimRig::set_accelerometer_rendering`]).
+    render_accel: bool,
     encoder_res: f64,
     force_max: f64,
     drive_max: f64,
@@ -108,6 +111,7 @@ impl<C: Clock> SimRig<C> {
             fs,
             plant,
             accel,
+            render_accel: true,
             encoder_res: cfg.rig.encoder_resolution_m,
             force_max: cfg.limits.pantograph_force_max_n,
             drive_max: cfg.limits.haptuator_drive_max_v,
@@ -154,6 +158,39 @@ impl<C: Clock> SimRig<C> {
     /// The accelerometer (its response, for calibration).
     pub fn accelerometer(&self) -> &Accelerometer {
         &self.accel
+    }
+
+    /// A new rig like this one as [`SimRig::with_clock`] built it — plant at
+    /// rest, not started, counters zero, accelerometer rendered — with the
+    /// accelerometer's noise seeded `accel_seed`: bit for bit what the
+    /// constructor gives for the same configuration with that seed, without
+    /// repeating the plant's modal decomposition (a study builds one rig per
+    /// trial).
+    pub fn rebuilt(&self, accel_seed: u64) -> Self
+    where
+        C: Clone,
+    {
+        let mut r = self.clone();
+        r.plant.reset();
+        r.accel.reseed(accel_seed);
+        r.render_accel = true;
+        r.hand_prev = [0.0; 2];
+        r.hand_target = [0.0; 2];
+        r.truth = PlantFastOutput::default();
+        r.seq = 0;
+        r.state = RigState::Idle;
+        r.anchor_time = Duration::ZERO;
+        r.anchor_seq = 0;
+        r.counters = StatusCounters::default();
+        r
+    }
+
+    /// Render the accelerometer (the default) or not: off, every reading is
+    /// the sensor's static output (no noise, no motion), for simulations
+    /// in which nobody feels or records the fingertip acceleration (a
+    /// study's V trials at scene fidelity).
+    pub fn set_accelerometer_rendering(&mut self, on: bool) {
+        self.render_accel = on;
     }
 
     /// Samples due now according to the wall clock and not yet simulated
@@ -206,7 +243,11 @@ impl<C: Clock> SimRig<C> {
         if self.plant.x.end_stop_steps() != in_stop_before {
             flags |= FrameFlags::END_STOP;
         }
-        let r = self.accel.sample([o.accel_m_s2[0], o.accel_m_s2[1], 0.0]);
+        let r = if self.render_accel {
+            self.accel.sample([o.accel_m_s2[0], o.accel_m_s2[1], 0.0])
+        } else {
+            self.accel.at_rest()
+        };
         if r.clipped {
             flags |= FrameFlags::CLIPPED;
         }

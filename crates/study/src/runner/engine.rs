@@ -22,8 +22,11 @@ pub struct TrialOutcome {
     pub key: TrialKey,
     /// Its metrics.
     pub metrics: TaskMetrics,
-    /// Samples run.
+    /// Samples run (at `sample_rate_hz`).
     pub samples: u64,
+    /// The trial's sample rate, Hz (the station's rate divided by the
+    /// trial's decimation, [`Station::trial_decimation`]).
+    pub sample_rate_hz: f64,
     /// Bead trajectory decimated by `trajectory_every`, m (Fig. 10).
     pub trajectory: Vec<[f64; 2]>,
     /// The scene.
@@ -38,7 +41,13 @@ const FRAME_RING: usize = 64;
 pub struct TrialEngine<S: Station> {
     station: S,
     cfg: RunnerConfig,
+    // The station's rate, Hz.
+    station_fs: f64,
+    // The current trial's rate (the station's / its decimation), Hz, and
+    // its timing in samples of that rate.
     fs: f64,
+    act_every: u64,
+    trajectory_every: u64,
     frame_every: u64,
     latency_samples: u64,
     // Trial state.
@@ -91,14 +100,15 @@ impl<S: Station> TrialEngine<S> {
             )));
         }
         let fs = station.sample_rate_hz();
-        let frame_every = ((fs / cfg.camera_fps).round() as u64).max(1);
-        let latency_samples = (cfg.camera_latency_s * fs).round() as u64;
-        Ok(Self {
+        let mut engine = Self {
             station,
             cfg,
+            station_fs: fs,
             fs,
-            frame_every,
-            latency_samples,
+            act_every: 1,
+            trajectory_every: 1,
+            frame_every: 1,
+            latency_samples: 0,
             key: None,
             acc: None,
             scene: None,
@@ -124,7 +134,35 @@ impl<S: Station> TrialEngine<S> {
             row: [0.0; RAW_CHANNELS],
             end: None,
             pending_end: None,
-        })
+        };
+        engine.set_decimation(1);
+        Ok(engine)
+    }
+
+    /// The largest rate divisor a trial may run at: none (1) with raw
+    /// files, else one that keeps the control period and the trajectory's
+    /// decimation whole numbers of samples.
+    fn max_decimation(&self) -> u32 {
+        if self.cfg.raw.is_some() {
+            return 1;
+        }
+        let (mut a, mut b) = (self.cfg.act_every, self.cfg.trajectory_every);
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        u32::try_from(a).unwrap_or(1).max(1)
+    }
+
+    /// The trial's timing at the station's rate divided by `d` (a divisor
+    /// of [`Self::max_decimation`]): the control period, trajectory
+    /// decimation, camera period and latency keep their durations.
+    fn set_decimation(&mut self, d: u32) {
+        let d = u64::from(d.max(1));
+        self.fs = self.station_fs / d as f64;
+        self.act_every = (self.cfg.act_every as u64 / d).max(1);
+        self.trajectory_every = (self.cfg.trajectory_every as u64 / d).max(1);
+        self.frame_every = ((self.fs / self.cfg.camera_fps).round() as u64).max(1);
+        self.latency_samples = (self.cfg.camera_latency_s * self.fs).round() as u64;
     }
 
     /// The station.
@@ -137,8 +175,14 @@ impl<S: Station> TrialEngine<S> {
         &self.cfg
     }
 
-    /// Sample rate, Hz.
+    /// The station's sample rate, Hz (a trial may run at a divisor of it:
+    /// [`TrialOutcome::sample_rate_hz`]).
     pub fn sample_rate_hz(&self) -> f64 {
+        self.station_fs
+    }
+
+    /// The sample rate of the current trial, Hz.
+    pub fn trial_sample_rate_hz(&self) -> f64 {
         self.fs
     }
 
@@ -162,12 +206,21 @@ impl<S: Station> TrialEngine<S> {
         participant: &mut P,
     ) -> Result<(), RunError> {
         let mut rng = setup.rig_rng.clone();
+        let max_decimation = self.max_decimation();
         self.station.prepare(
             &setup.scene,
             setup.feedback.condition,
             setup.params.escape_distance_m(),
+            max_decimation,
             &mut rng,
         )?;
+        let d = self.station.trial_decimation();
+        if d == 0 || max_decimation % d != 0 {
+            return Err(RunError::State(format!(
+                "the station chose a rate divisor of {d}, not a divisor of {max_decimation}"
+            )));
+        }
+        self.set_decimation(d);
         self.key = Some(setup.key);
         self.acc = Some(TaskAccumulator::new(&setup.params, setup.scene.geometry));
         self.scene = Some(setup.scene);
@@ -184,7 +237,7 @@ impl<S: Station> TrialEngine<S> {
         self.next_due = u64::MAX;
         self.frame_seq = 0;
         self.shown = None;
-        let cap = (setup.params.timeout_s() * self.fs / self.cfg.trajectory_every as f64).floor();
+        let cap = (setup.params.timeout_s() * self.fs / self.trajectory_every as f64).floor();
         self.trajectory_cap = kilotouch_rig::checked_count(cap)
             .and_then(|c| usize::try_from(c).ok())
             .and_then(|c| c.checked_add(2))
@@ -244,7 +297,7 @@ impl<S: Station> TrialEngine<S> {
         if self.acc.is_none() {
             return Err(RunError::State("no trial started".into()));
         }
-        let every = self.cfg.act_every as u64;
+        let every = self.act_every;
         let dt = 1.0 / self.fs;
         for _ in 0..n {
             let phase = self.k % every;
@@ -281,7 +334,7 @@ impl<S: Station> TrialEngine<S> {
                 return Ok(Some(e));
             }
             let end = self.acc.as_mut().and_then(|acc| acc.push(&sample));
-            if self.k.is_multiple_of(self.cfg.trajectory_every as u64) {
+            if self.k.is_multiple_of(self.trajectory_every) {
                 self.keep_trajectory_point(tw.bead_m);
             }
             let code = event_code(&tw.events, captured);
@@ -427,6 +480,7 @@ impl<S: Station> TrialEngine<S> {
                 key,
                 metrics: acc.metrics(),
                 samples: self.k,
+                sample_rate_hz: self.fs,
                 trajectory: self.trajectory.clone(),
                 scene,
             }),

@@ -26,6 +26,10 @@ pub struct SimStation {
     cfg: RigConfig,
     chain: LoopChain,
     lp: SimLoop,
+    // Rigs as built for the rig file at the rate divisor of the key (the
+    // plant's modal decomposition is computed once per rate, not per trial:
+    // [`SimRig::rebuilt`]).
+    rigs: Vec<(u32, SimRig)>,
     fidelity: Fidelity,
     plan: FidelityPlan,
 }
@@ -52,6 +56,7 @@ impl SimStation {
             cfg: cfg.clone(),
             chain,
             lp,
+            rigs: Vec::new(),
             fidelity: Fidelity::Full,
             plan: FidelityPlan::FULL,
         })
@@ -93,6 +98,26 @@ impl SimStation {
     }
 }
 
+impl SimStation {
+    /// A fresh rig for `cfg` (the rig file at rate divisor `decimation`)
+    /// with the accelerometer seeded `accel_seed`.
+    fn rig_at(
+        &mut self,
+        cfg: &RigConfig,
+        decimation: u32,
+        accel_seed: u64,
+    ) -> Result<SimRig, RunError> {
+        if let Some((_, r)) = self.rigs.iter().find(|(d, _)| *d == decimation) {
+            return Ok(r.rebuilt(accel_seed));
+        }
+        let mut c = cfg.clone();
+        c.accelerometer.seed = accel_seed;
+        let rig = SimRig::new(&c)?;
+        self.rigs.push((decimation, rig.rebuilt(accel_seed)));
+        Ok(rig)
+    }
+}
+
 impl Station for SimStation {
     fn sample_rate_hz(&self) -> f64 {
         self.cfg.rig.sample_rate_hz
@@ -111,12 +136,16 @@ impl Station for SimStation {
         scene: &Scene,
         condition: Condition,
         escape_distance_m: f64,
+        max_decimation: u32,
         rng: &mut ChaCha20Rng,
     ) -> Result<(), RunError> {
-        let fs = self.cfg.rig.sample_rate_hz;
+        let plan = FidelityPlan::for_trial(self.fidelity, condition, max_decimation);
+        let fs = self.cfg.rig.sample_rate_hz / f64::from(plan.decimation);
         let mut cfg = self.cfg.clone();
-        cfg.accelerometer.seed = rng.next_u64();
-        let rig = SimRig::new(&cfg)?;
+        cfg.rig.sample_rate_hz = fs;
+        let accel_seed = rng.next_u64();
+        let mut rig = self.rig_at(&cfg, plan.decimation, accel_seed)?;
+        rig.set_accelerometer_rendering(plan.decimation == 1);
         let mut p = TweezerParams::from_config(&cfg.tweezer);
         p.radius_m = scene.geometry.bead_radius_m;
         p.escape_distance_m = escape_distance_m;
@@ -125,7 +154,6 @@ impl Station for SimStation {
             radius_m: scene.geometry.obstacle_radius_m,
         }];
         p.seed = rng.next_u64();
-        let plan = FidelityPlan::for_trial(self.fidelity, condition);
         let mut tweezer = SimTweezer::new(p, fs)?;
         tweezer.set_contact_exact(plan.contact_exact);
         self.lp.coupling.set_lean(plan.lean_coupling);
@@ -138,6 +166,10 @@ impl Station for SimStation {
         Ok(())
     }
 
+    fn trial_decimation(&self) -> u32 {
+        self.plan.decimation
+    }
+
     #[inline]
     fn set_hand(&mut self, hand_m: [f64; 2]) {
         self.lp.rig.set_hand(hand_m);
@@ -145,7 +177,8 @@ impl Station for SimStation {
 
     #[inline]
     fn step(&mut self) -> Result<StationSample, RunError> {
-        let s = self.lp.step()?;
+        self.lp.advance()?;
+        let s = self.lp.last();
         Ok(StationSample {
             sensors: s.sensors,
             command: s.command,

@@ -52,7 +52,10 @@ pub trait Station: Send {
     /// Sets up a trial: the scene's obstacle, the bead in the trap at the
     /// start, the condition; `rng` is the trial's rig generator
     /// ([`crate::seeds::STREAM_RIG`]) for all noise seeds, so the trial does
-    /// not depend on anything that ran before it.
+    /// not depend on anything that ran before it. `max_decimation` is the
+    /// largest rate divisor the runner can take for this trial (1: the
+    /// trial must run at [`Self::sample_rate_hz`], e.g. for a raw file);
+    /// the station says which it chose through [`Self::trial_decimation`].
     ///
     /// # Errors
     /// Rig or tweezer construction errors.
@@ -61,8 +64,15 @@ pub trait Station: Send {
         scene: &Scene,
         condition: Condition,
         escape_distance_m: f64,
+        max_decimation: u32,
         rng: &mut ChaCha20Rng,
     ) -> Result<(), RunError>;
+    /// The rate divisor of the trial prepared last: one [`Self::step`]
+    /// advances this many samples of [`Self::sample_rate_hz`] (1, the
+    /// default: every sample; a divisor of `max_decimation`).
+    fn trial_decimation(&self) -> u32 {
+        1
+    }
     /// Where the participant's hand is, m (simulated rigs move the hand
     /// there linearly over the next sample; live rigs ignore it — the hand
     /// is real).
