@@ -9,13 +9,16 @@
 //! | no haptic rendering in V | condition V | the coupling's filters (P paths, D chain, wall damper), whose outputs V zeroes ([`kilotouch_rig::coupling::Coupling::set_lean`]) | none (bit for bit) |
 //! | no D chain in P | condition P (unless `p_mode = low-channel`) | the crossover and both compensators (the Haptuator's lane), whose outputs P ignores (the same switch) | none (bit for bit) |
 //! | exact contact step | every condition | the tweezer's sub-steps while the bead sits in the contact zone, replaced by one exact OU step ([`kilotouch_rig::tweezer::SimTweezer::set_contact_exact`]) | same distribution of the bead; a different noise sequence |
+//! | V at the control rate | condition V, no raw file | the samples between two control instants: the rig (the plant's exact ZOH map at the control rate), the tweezer and the runner step once per control period ([`FidelityPlan::decimation`]); the accelerometer is not rendered ([`kilotouch_rig::sim::SimRig::set_accelerometer_rendering`]) | same distributions; 1 ms instead of 0.1 ms time resolution |
 //!
-//! The plant and the accelerometer run in every condition: in V the
-//! participant's hand still moves the device, and replacing the plant by a
-//! handle that follows the hand rigidly changed V's success rate by 3.5
-//! pooled standard errors (measured, `docs/PERFORMANCE.md`): the device's
-//! own dynamics matter to the simulated participant even without force.
-//! The speed and the change of the study metrics each shortcut causes are
+//! V may leave the rig's rate because it closes no loop through the device:
+//! the hand drives the plant, the encoder sets the trap, the participant
+//! only sees the bead. The plant still runs (replacing it by a handle that
+//! follows the hand rigidly changed V's success rate by 3.5 pooled standard
+//! errors: the device's own dynamics shake the trap), at the control rate,
+//! where its exact sampled map keeps those dynamics. P and D close the
+//! haptic loop at the rig's rate and keep it. The speed and the change of
+//! the study metrics each shortcut causes are
 //! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
 
 use std::fmt;
