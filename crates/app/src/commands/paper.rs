@@ -3,11 +3,10 @@
 //! paper's claims (exit status 1 when one fails). The work is in
 //! [`crate::paper`]; this file is the command line.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
+use super::progress::Progress;
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use kilotouch_rig::config::RigConfig;
 
 use crate::output::emit;
@@ -86,29 +85,11 @@ pub fn run_cmd(a: &Args) -> anyhow::Result<()> {
         rig,
         threads,
     };
-    let bar = ProgressBar::with_draw_target(Some(1000), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("[{elapsed_precise}] {bar:30} {percent:>3}% {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let tty = std::io::stderr().is_terminal();
-    let mut last_msg = String::new();
-    let mut progress = |f: f64, msg: &str| {
-        bar.set_position((f.clamp(0.0, 1.0) * 1000.0) as u64);
-        if tty {
-            bar.set_message(msg.to_owned());
-        } else {
-            // Not a terminal (CI, logs): one line per stage.
-            let stage = msg.split(':').next().unwrap_or(msg);
-            if stage != last_msg {
-                eprintln!("[{:3.0}%] {stage}", f * 100.0);
-                last_msg = stage.to_owned();
-            }
-        }
-    };
+    let mut bar = Progress::stages();
+    let mut progress = |f: f64, msg: &str| bar.fraction(f, msg);
     let report =
         run(&opts, &mut progress).with_context(|| format!("paper into {}", a.out.display()))?;
-    bar.finish_and_clear();
+    drop(bar);
     emit(a.json, &report, || human(&report))?;
     if report.failed > 0 {
         anyhow::bail!(

@@ -4,7 +4,6 @@
 //! `session.json`, journal, raw NPY files); `kilotouch study merge`: shard
 //! folders joined into one.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -13,7 +12,7 @@ use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::RunnerConfig;
 use kilotouch_study::simulate::{SimulateOptions, SimulateReport, simulate};
 
-use super::progress::Bar;
+use super::progress::Progress;
 use crate::output::emit;
 
 /// `kilotouch study …`.
@@ -188,12 +187,8 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         fidelity: a.fidelity,
         shard: a.shard,
     };
-    let mut bar = Bar {
-        tty: std::io::stderr().is_terminal(),
-        last_decile: None,
-        unit: "trials",
-    };
-    let report = simulate(&opts, &mut |done, total| bar.report(done, total))
+    let mut bar = Progress::new("trials");
+    let report = simulate(&opts, &mut |done, total| bar.count(done, total))
         .with_context(|| format!("study simulate into {}", a.out.display()))?;
     emit(a.json, &report, || human(&report))
 }

@@ -4,7 +4,6 @@
 //! `kilotouch_study::power`; this file parses the arguments, shows progress
 //! and prints the table, the JSON or the plot.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -13,7 +12,7 @@ use kilotouch_study::power::{
     read_pilot,
 };
 
-use super::progress::Bar;
+use super::progress::Progress;
 use crate::output::emit;
 
 /// Arguments of `kilotouch study power`.
@@ -229,14 +228,10 @@ pub fn human(r: &PowerReport) -> String {
 pub fn run(a: &PowerArgs) -> anyhow::Result<()> {
     let table = read_pilot(&a.pilot, &a.dv, &a.within, &a.subject)?;
     let opts = options(a, &conditions_of(&table))?;
-    let bar = std::sync::Mutex::new(Bar {
-        tty: std::io::stderr().is_terminal(),
-        last_decile: None,
-        unit: "simulated studies",
-    });
+    let bar = std::sync::Mutex::new(Progress::new("simulated studies"));
     let report = power(&table, &opts, &|done, total| {
         if let Ok(mut b) = bar.lock() {
-            b.report(done, total);
+            b.count(done, total);
         }
         true
     })
