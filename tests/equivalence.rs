@@ -591,15 +591,11 @@ fn plant_modal_form() {
     assert!(worst > 0.0, "not vacuous: the two forms round differently");
 }
 
-#[test]
-fn simulated_rig_frame_path() {
-    let cfg = RigConfig::default();
-    let mut fast = SimRig::new(&cfg).expect("rig");
-    let mut reference = SimRig::new(&cfg).expect("rig");
-    fast.start().expect("start");
-    reference.start().expect("start");
-    let mut u = Uniform(5);
-    let inputs: Vec<(ActuatorFrame, [f64; 2])> = (0..100_000)
+/// Random commands (±1.5 N, ±1.5 V) with a sinusoidal hand, a NaN force
+/// every 4 999 samples and an over-limit one every 3 001.
+fn rig_inputs(seed: u64, n: usize) -> Vec<(ActuatorFrame, [f64; 2])> {
+    let mut u = Uniform(seed);
+    (0..n)
         .map(|k| {
             let mut c = ActuatorFrame {
                 force_n: [3.0 * (u.next() - 0.5), 3.0 * (u.next() - 0.5)],
@@ -613,22 +609,34 @@ fn simulated_rig_frame_path() {
             }
             (c, [1e-3 * (k as f64 * 1e-3).sin(), 0.0])
         })
-        .collect();
-    let out = |s: SensorFrame, r: &SimRig| {
-        let st = r.status();
-        vec![
-            s.seq as f64,
-            s.handle_m[0],
-            s.handle_m[1],
-            s.accel_m_s2[0],
-            s.accel_m_s2[1],
-            s.accel_m_s2[2],
-            f64::from(s.flags.0),
-            st.frames as f64,
-            st.limited_frames as f64,
-            st.nonfinite_commands as f64,
-        ]
-    };
+        .collect()
+}
+
+/// What a simulated rig's frame and counters show.
+fn rig_outputs(s: SensorFrame, r: &SimRig) -> Vec<f64> {
+    let st = r.status();
+    vec![
+        s.seq as f64,
+        s.handle_m[0],
+        s.handle_m[1],
+        s.accel_m_s2[0],
+        s.accel_m_s2[1],
+        s.accel_m_s2[2],
+        f64::from(s.flags.0),
+        st.frames as f64,
+        st.limited_frames as f64,
+        st.nonfinite_commands as f64,
+    ]
+}
+
+#[test]
+fn simulated_rig_frame_path() {
+    let cfg = RigConfig::default();
+    let mut fast = SimRig::new(&cfg).expect("rig");
+    let mut reference = SimRig::new(&cfg).expect("rig");
+    fast.start().expect("start");
+    reference.start().expect("start");
+    let inputs = rig_inputs(5, 100_000);
     check(
         "simulated rig, frame path",
         Tol::Bits,
@@ -637,7 +645,7 @@ fn simulated_rig_frame_path() {
             fast.set_hand(*h);
             let mut s = SensorFrame::default();
             fast.process_frame(c, &mut s).expect("frame");
-            out(s, &fast)
+            rig_outputs(s, &fast)
         },
         |(c, h)| {
             reference.set_hand(*h);
@@ -645,7 +653,7 @@ fn simulated_rig_frame_path() {
             reference
                 .process_block(std::slice::from_ref(c), &mut s)
                 .expect("block");
-            out(s[0], &reference)
+            rig_outputs(s[0], &reference)
         },
     );
     while let Some(f) = fast.pop_fault() {
@@ -676,32 +684,12 @@ fn simulated_rig_rebuilt() {
     let mut reference = SimRig::new(&cfg).expect("rig");
     fast.start().expect("start");
     reference.start().expect("start");
-    let mut u = Uniform(7);
-    let inputs: Vec<(ActuatorFrame, [f64; 2])> = (0..20_000)
-        .map(|k| {
-            let c = ActuatorFrame {
-                force_n: [3.0 * (u.next() - 0.5), 3.0 * (u.next() - 0.5)],
-                haptuator_v: 3.0 * (u.next() - 0.5),
-            };
-            (c, [1e-3 * (k as f64 * 1e-3).sin(), 0.0])
-        })
-        .collect();
+    let inputs = rig_inputs(7, 20_000);
     let step = |r: &mut SimRig, (c, h): &(ActuatorFrame, [f64; 2])| {
         r.set_hand(*h);
         let mut s = SensorFrame::default();
         r.process_frame(c, &mut s).expect("frame");
-        let st = r.status();
-        vec![
-            s.seq as f64,
-            s.handle_m[0],
-            s.handle_m[1],
-            s.accel_m_s2[0],
-            s.accel_m_s2[1],
-            s.accel_m_s2[2],
-            f64::from(s.flags.0),
-            st.frames as f64,
-            st.limited_frames as f64,
-        ]
+        rig_outputs(s, r)
     };
     check(
         "simulated rig, rebuilt",
