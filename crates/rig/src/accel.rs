@@ -62,13 +62,7 @@ pub struct Accelerometer {
 impl Accelerometer {
     /// Build from a rig-file section at sample rate `fs` (Hz).
     pub fn new(cfg: &AccelerometerConfig, fs: f64) -> Result<Self, RigError> {
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(RigError::InvalidParameter {
-                name: "fs",
-                value: fs,
-                reason: "must be finite and > 0".into(),
-            });
-        }
+        RigError::require_positive("fs", fs)?;
         for &fc in &cfg.corner_hz {
             if !(fc.is_finite() && fc > 0.0 && fc < 0.5 * fs) {
                 return Err(RigError::InvalidParameter {
@@ -78,13 +72,7 @@ impl Accelerometer {
                 });
             }
         }
-        if !(cfg.range_g.is_finite() && cfg.range_g > 0.0) {
-            return Err(RigError::InvalidParameter {
-                name: "range_g",
-                value: cfg.range_g,
-                reason: "must be finite and > 0".into(),
-            });
-        }
+        RigError::require_positive("range_g", cfg.range_g)?;
         if !(cfg.noise_density_ug_per_rthz.is_finite() && cfg.noise_density_ug_per_rthz >= 0.0) {
             return Err(RigError::InvalidParameter {
                 name: "noise_density_ug_per_rthz",

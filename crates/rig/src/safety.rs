@@ -529,13 +529,7 @@ impl SafetyLayer {
             limits.force_norm_max_n,
             limits.drive_max_v,
         )?;
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(RigError::InvalidParameter {
-                name: "sample_rate_hz",
-                value: fs,
-                reason: "must be finite and > 0".into(),
-            });
-        }
+        RigError::require_positive("sample_rate_hz", fs)?;
         if let Some((key, value, reason)) = cfg.issue(fs).into_iter().next() {
             return Err(RigError::InvalidParameter {
                 name: key,

@@ -30,13 +30,7 @@ impl LinearResampler {
     /// From `in_rate_hz` to `out_rate_hz` (both finite and > 0).
     pub fn new(in_rate_hz: f64, out_rate_hz: f64) -> Result<Self, RigError> {
         for (name, v) in [("in_rate_hz", in_rate_hz), ("out_rate_hz", out_rate_hz)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                });
-            }
+            RigError::require_positive(name, v)?;
         }
         Ok(Self {
             step: in_rate_hz / out_rate_hz,
@@ -151,13 +145,7 @@ impl AudioMonitor {
             ("source_rate_hz", cfg.source_rate_hz),
             ("capacity_s", cfg.capacity_s),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                });
-            }
+            RigError::require_positive(name, v)?;
         }
         if !cfg.gain.is_finite() {
             return Err(RigError::InvalidParameter {

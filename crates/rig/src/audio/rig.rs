@@ -122,13 +122,7 @@ impl AudioRigConfig {
             ("accel_full_scale_m_s2", self.accel_full_scale_m_s2),
             ("timeout_s", self.timeout_s),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(RigError::InvalidParameter {
-                    name,
-                    value: v,
-                    reason: "must be finite and > 0".into(),
-                });
-            }
+            RigError::require_positive(name, v)?;
         }
         if self.ring_frames < 2 || self.latency_frames >= self.ring_frames {
             return Err(RigError::InvalidParameter {

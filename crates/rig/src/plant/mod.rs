@@ -202,13 +202,7 @@ impl DualStagePlant {
 
     /// Build both axes at an explicit sample rate (Hz).
     pub fn with_rate(cfg: &RigConfig, integrator: Integrator, fs: f64) -> Result<Self, RigError> {
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(RigError::InvalidParameter {
-                name: "fs",
-                value: fs,
-                reason: "sample rate must be finite and > 0".into(),
-            });
-        }
+        RigError::require_positive("fs", fs)?;
         let mx = AxisModel::new(cfg, Axis::X)?;
         let my = AxisModel::new(cfg, Axis::Y)?;
         Ok(Self {

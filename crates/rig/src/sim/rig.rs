@@ -84,14 +84,8 @@ impl<C: Clock> SimRig<C> {
         clock: C,
     ) -> Result<Self, RigError> {
         cfg.validate()?;
-        if let Pacing::WallClock { max_lag_s } = pacing
-            && !(max_lag_s.is_finite() && max_lag_s > 0.0)
-        {
-            return Err(RigError::InvalidParameter {
-                name: "max_lag_s",
-                value: max_lag_s,
-                reason: "must be finite and > 0".into(),
-            });
+        if let Pacing::WallClock { max_lag_s } = pacing {
+            RigError::require_positive("max_lag_s", max_lag_s)?;
         }
         let fs = cfg.rig.sample_rate_hz;
         let plant = DualStagePlant::new(cfg, integrator)?;
