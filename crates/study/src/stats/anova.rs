@@ -22,6 +22,18 @@ pub(crate) fn negligible(ss: f64, terms: usize, scale: f64) -> bool {
     ss <= terms as f64 * unit * unit
 }
 
+/// The divisor that brings data of largest magnitude `scale` to magnitude
+/// 1 (1 for all-zero data): sums of squares are formed from scaled data so
+/// that neither they nor the rounding bound of [`negligible`] overflow
+/// (|x| up to f64::MAX) or underflow.
+pub(crate) fn unit_divisor(scale: f64) -> f64 {
+    if scale > 0.0 && scale.is_finite() {
+        scale
+    } else {
+        1.0
+    }
+}
+
 /// Result of a one-way between-groups ANOVA.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct OneWayAnova {
@@ -93,16 +105,23 @@ pub fn one_way_anova<G: AsRef<[f64]>>(groups: &[G]) -> Result<OneWayAnova> {
             got: n_total,
         });
     }
-    let grand = groups.iter().flat_map(|g| g.as_ref()).sum::<f64>() / n_total as f64;
+    // Sums of squares of the data divided by `u` (magnitude ≤ 1).
+    let u = unit_divisor(scale);
+    let grand = groups
+        .iter()
+        .flat_map(|g| g.as_ref())
+        .map(|v| v / u)
+        .sum::<f64>()
+        / n_total as f64;
     let mut ss_between = 0.0;
     let mut ss_within = 0.0;
     for g in groups {
         let g = g.as_ref();
-        let m = g.iter().sum::<f64>() / g.len() as f64;
+        let m = g.iter().map(|v| v / u).sum::<f64>() / g.len() as f64;
         ss_between += g.len() as f64 * (m - grand) * (m - grand);
-        ss_within += g.iter().map(|&v| (v - m) * (v - m)).sum::<f64>();
+        ss_within += g.iter().map(|&v| (v / u - m) * (v / u - m)).sum::<f64>();
     }
-    if negligible(ss_within, n_total, scale) {
+    if negligible(ss_within, n_total, scale / u) {
         return Err(StatsError::ZeroVariance {
             test: TEST,
             detail: "every group is constant (within-group sum of squares is zero)".into(),
@@ -116,8 +135,8 @@ pub fn one_way_anova<G: AsRef<[f64]>>(groups: &[G]) -> Result<OneWayAnova> {
         df1,
         df2,
         p: f_sf(f, df1, df2)?,
-        ss_between,
-        ss_within,
+        ss_between: ss_between * u * u,
+        ss_within: ss_within * u * u,
         eta2: ss_between / (ss_between + ss_within),
         eta2_ci: eta2_ci_from_f(f, df1, df2).ok(),
         n_groups: k,
@@ -249,25 +268,28 @@ fn contrast_eigenvalues(m: &CellMatrix) -> Vec<f64> {
 pub fn rm_anova(m: &CellMatrix) -> Result<RmAnova> {
     const TEST: &str = "repeated-measures ANOVA";
     let (n, k) = m.require_at_least_2x2(TEST)?;
-    let values = m.values();
-    let scale = values.iter().fold(0.0_f64, |a, &v| a.max(v.abs()));
+    let scale = m.values().iter().fold(0.0_f64, |a, &v| a.max(v.abs()));
+    // Sums of squares of the data divided by `u` (magnitude ≤ 1), row-major.
+    let u = unit_divisor(scale);
+    let values: Vec<f64> = m.values().iter().map(|v| v / u).collect();
+    let row = |i: usize| &values[i * k..(i + 1) * k];
     let grand = values.iter().sum::<f64>() / (n * k) as f64;
     let row_means: Vec<f64> = (0..n)
-        .map(|i| m.row(i).iter().sum::<f64>() / k as f64)
+        .map(|i| row(i).iter().sum::<f64>() / k as f64)
         .collect();
     let col_means: Vec<f64> = (0..k)
-        .map(|j| (0..n).map(|i| m.row(i)[j]).sum::<f64>() / n as f64)
+        .map(|j| (0..n).map(|i| row(i)[j]).sum::<f64>() / n as f64)
         .collect();
     let ss_conditions = n as f64 * col_means.iter().map(|c| (c - grand).powi(2)).sum::<f64>();
     let ss_subjects = k as f64 * row_means.iter().map(|r| (r - grand).powi(2)).sum::<f64>();
     let mut ss_error = 0.0;
     for (i, rm) in row_means.iter().enumerate() {
         for (j, cm) in col_means.iter().enumerate() {
-            let e = m.row(i)[j] - rm - cm + grand;
+            let e = row(i)[j] - rm - cm + grand;
             ss_error += e * e;
         }
     }
-    if negligible(ss_error, n * k, scale) {
+    if negligible(ss_error, n * k, scale / u) {
         return Err(StatsError::ZeroVariance {
             test: TEST,
             detail: "the residual (subject × condition) sum of squares is zero: every subject \
@@ -346,9 +368,9 @@ pub fn rm_anova(m: &CellMatrix) -> Result<RmAnova> {
         np2: ss_conditions / (ss_conditions + ss_error),
         np2_ci: eta2_ci_from_f(f, df1, df2).ok(),
         ng2: ss_conditions / (ss_conditions + ss_subjects + ss_error),
-        ss_conditions,
-        ss_subjects,
-        ss_error,
+        ss_conditions: ss_conditions * u * u,
+        ss_subjects: ss_subjects * u * u,
+        ss_error: ss_error * u * u,
         n_subjects: n,
         n_conditions: k,
     })
@@ -389,6 +411,38 @@ mod tests {
         }
         let trace = (y.transpose() * &y).trace();
         assert!((trace - r.ss_error).abs() < 1e-12 * trace);
+    }
+
+    /// F, t and p are scale-free: data multiplied by 10^±200 (where the
+    /// squares over- or underflow) give the statistics of the unscaled data,
+    /// and the reported moments scale with them.
+    #[test]
+    fn statistics_do_not_depend_on_the_data_scale() {
+        let a = [5.1, 4.9, 6.2, 5.8, 6.0];
+        let b = [6.3, 5.2, 7.1, 6.6, 6.4];
+        let c = [7.0, 6.1, 7.9, 7.7, 6.8];
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * y.abs().max(1e-300);
+        let base_rm =
+            rm_anova(&CellMatrix::from_columns(&[("a", a), ("b", b), ("c", c)]).unwrap()).unwrap();
+        let base_ow = one_way_anova(&[a, b, c]).unwrap();
+        let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+        let base_t = super::super::pairwise::one_sample_t(&d, 0.0).unwrap();
+        for s in [1e200, 1e-200, -1e300] {
+            let sc = |x: [f64; 5]| x.map(|v| v * s);
+            let m = CellMatrix::from_columns(&[("a", sc(a)), ("b", sc(b)), ("c", sc(c))]).unwrap();
+            let r = rm_anova(&m).unwrap();
+            assert!(close(r.f, base_rm.f) && close(r.p, base_rm.p), "{s}: {r:?}");
+            assert!(close(r.eps_gg, base_rm.eps_gg) && close(r.np2, base_rm.np2));
+            let o = one_way_anova(&[sc(a), sc(b), sc(c)]).unwrap();
+            assert!(close(o.f, base_ow.f) && close(o.p, base_ow.p), "{s}: {o:?}");
+            let ds: Vec<f64> = d.iter().map(|v| v * s).collect();
+            let t = super::super::pairwise::one_sample_t(&ds, 0.0).unwrap();
+            assert!(
+                close(t.t, base_t.t * s.signum()) && close(t.p, base_t.p),
+                "{s}: {t:?}"
+            );
+            assert!(close(t.mean, base_t.mean * s) && close(t.sd, base_t.sd * s.abs()));
+        }
     }
 
     #[test]

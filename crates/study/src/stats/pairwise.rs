@@ -7,7 +7,7 @@
 
 use serde::Serialize;
 
-use super::anova::negligible;
+use super::anova::{negligible, unit_divisor};
 use super::design::CellMatrix;
 use super::dist::{normal_two_sided, t_two_sided};
 use super::error::{Result, StatsError};
@@ -79,25 +79,28 @@ pub fn one_sample_t(x: &[f64], mu0: f64) -> Result<TTest> {
         });
     }
     let nf = n as f64;
-    let mean = x.iter().sum::<f64>() / nf;
-    let ss: f64 = x.iter().map(|v| (v - mean) * (v - mean)).sum();
-    let scale = x.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
-    if negligible(ss, n, scale) {
+    let scale = x.iter().fold(mu0.abs(), |a, v| a.max(v.abs()));
+    // Moments of the data divided by `u` (magnitude ≤ 1): neither the sum
+    // of squares nor its rounding bound overflows.
+    let u = unit_divisor(scale);
+    let mean = x.iter().map(|v| v / u).sum::<f64>() / nf;
+    let ss: f64 = x.iter().map(|v| (v / u - mean) * (v / u - mean)).sum();
+    if negligible(ss, n, scale / u) {
         return Err(StatsError::ZeroVariance {
             test: TEST,
             detail: "all values (differences) are equal, so t is unbounded or undefined".into(),
         });
     }
     let sd = (ss / (nf - 1.0)).sqrt();
-    let t = (mean - mu0) / (sd / nf.sqrt());
+    let t = (mean - mu0 / u) / (sd / nf.sqrt());
     let df = nf - 1.0;
     Ok(TTest {
         t,
         df,
         p: t_two_sided(t, df)?,
-        mean,
-        sd,
-        cohen_d: (mean - mu0) / sd,
+        mean: mean * u,
+        sd: sd * u,
+        cohen_d: (mean - mu0 / u) / sd,
         n,
     })
 }
