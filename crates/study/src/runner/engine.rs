@@ -215,7 +215,7 @@ impl<S: Station> TrialEngine<S> {
             &mut rng,
         )?;
         let d = self.station.trial_decimation();
-        if d == 0 || max_decimation % d != 0 {
+        if d == 0 || !max_decimation.is_multiple_of(d) {
             return Err(RunError::State(format!(
                 "the station chose a rate divisor of {d}, not a divisor of {max_decimation}"
             )));
