@@ -253,8 +253,9 @@ pub fn plan_panel(ui: &mut egui::Ui, dir: &Path) {
                     ui.radio_value(&mut s.rm, true, "RM-ANOVA (GG)");
                 });
                 ui.end_row();
-                ui.label("Participants (n)");
+                let label = ui.label("Participants (n)");
                 ui.add(egui::TextEdit::singleline(&mut s.ns).desired_width(160.0))
+                    .labelled_by(label.id)
                     .on_hover_text("comma list and/or FROM:TO:STEP, e.g. 4:40:4");
                 ui.end_row();
                 ui.label("Trials per condition");
