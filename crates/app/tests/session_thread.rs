@@ -384,3 +384,64 @@ fn participant_ids_are_pseudonyms() {
         FolderStatus::Empty
     );
 }
+
+#[test]
+fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
+    // The trap calibration the Rig page applies: 10 s of the simulated
+    // tweezer's detector, both axes calibrated (aliased Lorentzian, the
+    // simulated detector point-samples at the loop rate).
+    let rc = RigConfig::default();
+    let mut free = rc.clone();
+    free.tweezer.obstacles.clear();
+    let rec = kilotouch::tweezer_cal::record(
+        &kilotouch_rig::device::RigSpec::Sim,
+        &free,
+        10.0,
+        [0.0; 2],
+        &mut |_| {},
+    )
+    .unwrap();
+    let gui = kilotouch::gui::pages::rig_tweezer::TweezerSection::new();
+    let (cal, _) = kilotouch::tweezer_cal::calibrate_axes(&rec, &gui.settings()).unwrap();
+    cal.check().unwrap();
+    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
+    assert!((cal.kappa_pn_um / truth - 1.0).abs() < 0.04, "{cal:?}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let mut o = opts(&out, Some(tiny()), false);
+    o.only_participant = Some(0);
+    o.trap_calibration = Some(cal.clone());
+    let mut h = SessionHandle::spawn(o).unwrap();
+    assert!(h.send(SessionCommand::Start));
+    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    assert_eq!(fin, Some(FinishReason::ParticipantDone("P01".into())));
+    drop(h);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let t = &json["trap_calibration"];
+    assert_eq!(t["source"], "sim");
+    assert_eq!(t["kappa_pn_um"].as_f64(), Some(cal.kappa_pn_um), "{t}");
+    assert_eq!(t["x"]["fc_se_hz"].as_f64(), Some(cal.x.fc_se_hz));
+    assert_eq!(
+        serde_json::from_value::<kilotouch_rig::tweezer::TrapCalibrationRecord>(t.clone())
+            .unwrap(),
+        cal
+    );
+
+    // A resume with another trap calibration is refused, naming it.
+    let mut other = cal.clone();
+    other.kappa_pn_um *= 1.1;
+    let mut o = opts(&out, Some(tiny()), false);
+    o.trap_calibration = Some(other);
+    let e = SessionHandle::spawn(o).unwrap_err().to_string();
+    assert!(e.contains("trap calibration"), "{e}");
+    // Without one, the folder keeps the one it recorded.
+    let mut h = SessionHandle::spawn(opts(&out, Some(tiny()), false)).unwrap();
+    assert!(h.send(SessionCommand::Start));
+    let _ = run_until_finished(&mut h, 20.0, |_, _| {});
+    drop(h);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    assert_eq!(json["trap_calibration"]["kappa_pn_um"].as_f64(), Some(cal.kappa_pn_um));
+}

@@ -58,6 +58,21 @@ pub(crate) fn changes(info: &SessionInfo, meta: &StudyMeta) -> Vec<SettingChange
             now: calibration_text(now),
         });
     }
+    if let (Some(was), Some(now)) = (&info.trap_calibration, &meta.trap_calibration)
+        && was != now
+    {
+        let text = |t: &kilotouch_rig::tweezer::TrapCalibrationRecord| {
+            format!(
+                "κ {:.4} pN/µm, R_d {:.5}/{:.5} µm/V ({})",
+                t.kappa_pn_um, t.rd_um_per_v[0], t.rd_um_per_v[1], t.source
+            )
+        };
+        out.push(SettingChange {
+            what: "trap calibration",
+            was: text(was),
+            now: text(now),
+        });
+    }
     if let (Some(was), Some(now)) = (info.raw_signals, meta.raw_signals)
         && was != now
     {
@@ -80,5 +95,8 @@ pub(crate) fn adopt(info: &mut SessionInfo, meta: &StudyMeta) {
     info.calibration.clone_from(&meta.calibration);
     if meta.raw_signals.is_some() {
         info.raw_signals = meta.raw_signals;
+    }
+    if meta.trap_calibration.is_some() {
+        info.trap_calibration.clone_from(&meta.trap_calibration);
     }
 }
