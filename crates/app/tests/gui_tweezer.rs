@@ -10,13 +10,13 @@
 mod common;
 
 use common::{engine_reporting, step_until};
-use egui_kittest::kittest::Queryable;
+use egui_kittest::kittest::{NodeT, Queryable};
 use kilotouch::gui::{KilotouchApp, Page};
 
 fn shown_kappa(h: &egui_kittest::Harness<'_, KilotouchApp>) -> f64 {
     // "κ to apply: 20.123 ± 0.234 pN/µm (both axes, weighted)"
     let node = h.get_by_label_contains("κ to apply:");
-    let text = node.label().unwrap();
+    let text = node.accesskit_node().value().unwrap();
     let v = text.split("κ to apply:").nth(1).unwrap().trim();
     v.split_whitespace().next().unwrap().parse().unwrap()
 }
@@ -59,6 +59,7 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.get_by_label("Apply").click();
     assert!(step_until(&mut h, 5.0, |a| a.trap_calibration().is_some()));
     assert_eq!(h.state().trap_calibration(), Some(&r));
+    h.step();
     h.get_by_label_contains("Active trap calibration: κ =");
     // The engine's tweezer reports through it.
     assert!(step_until(&mut h, 5.0, |a| a

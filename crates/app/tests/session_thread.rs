@@ -421,13 +421,31 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
         serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
     let t = &json["trap_calibration"];
     assert_eq!(t["source"], "sim");
-    assert_eq!(t["kappa_pn_um"].as_f64(), Some(cal.kappa_pn_um), "{t}");
-    assert_eq!(t["x"]["fc_se_hz"].as_f64(), Some(cal.x.fc_se_hz));
-    assert_eq!(
-        serde_json::from_value::<kilotouch_rig::tweezer::TrapCalibrationRecord>(t.clone())
-            .unwrap(),
-        cal
-    );
+    // Every field (JSON numbers read back within an ulp or two).
+    let got: kilotouch_rig::tweezer::TrapCalibrationRecord =
+        serde_json::from_value(t.clone()).unwrap();
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+    assert_eq!((got.source.as_str(), got.n_samples), ("sim", 100_000));
+    assert_eq!(got.settings, cal.settings);
+    assert!(close(got.kappa_pn_um, cal.kappa_pn_um), "{t}");
+    assert!(close(got.kappa_se_pn_um, cal.kappa_se_pn_um));
+    for k in 0..2 {
+        assert!(close(got.rd_um_per_v[k], cal.rd_um_per_v[k]));
+    }
+    for (g, c) in [(&got.x, &cal.x), (&got.y, &cal.y)] {
+        for (a, b) in [
+            (g.fc_hz, c.fc_hz),
+            (g.fc_se_hz, c.fc_se_hz),
+            (g.diffusion_v2_s, c.diffusion_v2_s),
+            (g.kappa_pn_um, c.kappa_pn_um),
+            (g.rd_um_per_v, c.rd_um_per_v),
+            (g.chi2_per_dof, c.chi2_per_dof),
+            (g.backing_pct, c.backing_pct),
+        ] {
+            assert!(close(a, b), "{a} vs {b}");
+        }
+        assert_eq!((g.n_points, g.iterations), (c.n_points, c.iterations));
+    }
 
     // A resume with another trap calibration is refused, naming it.
     let mut other = cal.clone();
@@ -436,12 +454,16 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     o.trap_calibration = Some(other);
     let e = SessionHandle::spawn(o).unwrap_err().to_string();
     assert!(e.contains("trap calibration"), "{e}");
-    // Without one, the folder keeps the one it recorded.
-    let mut h = SessionHandle::spawn(opts(&out, Some(tiny()), false)).unwrap();
+    // The same one (as the GUI keeps it) resumes: P02 closes the study.
+    let mut o = opts(&out, Some(tiny()), false);
+    o.trap_calibration = Some(cal.clone());
+    let mut h = SessionHandle::spawn(o).unwrap();
     assert!(h.send(SessionCommand::Start));
-    let _ = run_until_finished(&mut h, 20.0, |_, _| {});
+    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    assert_eq!(fin, Some(FinishReason::StudyDone));
     drop(h);
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
-    assert_eq!(json["trap_calibration"]["kappa_pn_um"].as_f64(), Some(cal.kappa_pn_um));
+    let kept = json["trap_calibration"]["kappa_pn_um"].as_f64().unwrap();
+    assert!((kept - cal.kappa_pn_um).abs() <= 1e-14 * cal.kappa_pn_um);
 }

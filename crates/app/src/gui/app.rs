@@ -41,6 +41,8 @@ pub struct AppOptions {
     pub study_dir: Option<PathBuf>,
     /// Start a simulated real-time sitting on the Study page.
     pub simulate_sitting: bool,
+    /// Record and calibrate the simulated tweezer at start (Rig page).
+    pub calibrate_tweezer: bool,
 }
 
 impl Default for AppOptions {
@@ -53,6 +55,7 @@ impl Default for AppOptions {
             engine: EngineOptions::default(),
             study_dir: None,
             simulate_sitting: false,
+            calibrate_tweezer: false,
         }
     }
 }
@@ -218,6 +221,9 @@ impl KilotouchApp {
         }
         if opts.simulate_sitting {
             study.simulate_sitting();
+        }
+        if opts.calibrate_tweezer {
+            rig_page.tweezer.start(&rig_config);
         }
         let mut app = Self {
             page: settings.page,

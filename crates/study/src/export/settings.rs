@@ -58,8 +58,14 @@ pub(crate) fn changes(info: &SessionInfo, meta: &StudyMeta) -> Vec<SettingChange
             now: calibration_text(now),
         });
     }
+    // The same calibration read back from session.json may differ in the
+    // last bits of its numbers: the applied values are compared to 1e-12.
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
     if let (Some(was), Some(now)) = (&info.trap_calibration, &meta.trap_calibration)
-        && was != now
+        && !(was.source == now.source
+            && same(was.kappa_pn_um, now.kappa_pn_um)
+            && same(was.rd_um_per_v[0], now.rd_um_per_v[0])
+            && same(was.rd_um_per_v[1], now.rd_um_per_v[1]))
     {
         let text = |t: &kilotouch_rig::tweezer::TrapCalibrationRecord| {
             format!(

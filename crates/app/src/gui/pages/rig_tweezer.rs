@@ -37,6 +37,11 @@ use kilotouch_rig::tweezer::calibration::{
 
 /// Colours of the x and y axes' spectra.
 const AXIS_COLORS: [Color32; 2] = [charts::LOW_COLOR, charts::HIGH_COLOR];
+/// Colours of their fitted models (light, drawn over the points).
+const FIT_COLORS: [Color32; 2] = [
+    Color32::from_rgb(0x9e, 0xf0, 0xff),
+    Color32::from_rgb(0xff, 0xee, 0x58),
+];
 
 /// The Tweezer section's state.
 #[derive(Debug)]
@@ -470,11 +475,7 @@ fn result_ui(
                     (f > 0.0 && m > 0.0 && m.is_finite()).then(|| [f.log10(), m.log10()])
                 })
                 .collect();
-            series.push(Series::dashed(
-                format!("{axis}: fit"),
-                model,
-                AXIS_COLORS[k].gamma_multiply(0.6),
-            ));
+            series.push(Series::solid(format!("{axis}: fit"), model, FIT_COLORS[k]));
         }
         charts::freq_chart(
             &mut cols[0],
@@ -487,7 +488,7 @@ fn result_ui(
                     p.points(
                         Points::new(name, PlotPoints::new(pts))
                             .radius(1.8)
-                            .color(color),
+                            .color(color.gamma_multiply(0.75)),
                     );
                 }
             },
@@ -533,11 +534,14 @@ fn result_ui(
             }
         }
         let b = ui
-            .add_enabled(
-                verdict.is_ok() && engine_connected,
-                egui::Button::new(RichText::new("Apply").strong())
-                    .min_size(egui::vec2(110.0, 26.0)),
-            )
+            .horizontal(|ui| {
+                ui.add_enabled(
+                    verdict.is_ok() && engine_connected,
+                    egui::Button::new(RichText::new("Apply").strong())
+                        .min_size(egui::vec2(110.0, 26.0)),
+                )
+            })
+            .inner
             .on_hover_text(
                 "the engine's tweezer reports the bead at trap + R_d·V and the force \
                  κ (trap − bead) from now on; recorded in a study's session.json",
