@@ -12,7 +12,7 @@ use kilotouch_rig::serial::LinkTweezer;
 use kilotouch_rig::tweezer::calibration::{
     MAX_RECORD_SAMPLES, TrapCalibration, TrapCalibrationSettings, calibrate_trap, record_detector,
 };
-use kilotouch_rig::tweezer::{DetectedTweezer, Tweezer, TweezerParams, TrapCalibrationRecord};
+use kilotouch_rig::tweezer::{DetectedTweezer, TrapCalibrationRecord, Tweezer, TweezerParams};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -68,7 +68,9 @@ pub fn record(
     for _ in 0..(0.05 * fs).ceil() as usize {
         tw.step(trap_m);
     }
-    let volts = record_detector(tw.as_mut(), trap_m, n, &mut |i| progress(i as f64 / n as f64))?;
+    let volts = record_detector(tw.as_mut(), trap_m, n, &mut |i| {
+        progress(i as f64 / n as f64)
+    })?;
     Ok(DetectorRecord {
         fs_hz: fs,
         volts,

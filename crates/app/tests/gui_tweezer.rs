@@ -23,12 +23,7 @@ fn shown_kappa(h: &egui_kittest::Harness<'_, KilotouchApp>) -> f64 {
 
 #[test]
 fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
-    let mut h = common::app_harness(
-        common::fresh_app(Some(Page::Rig)),
-        1400.0,
-        2200.0,
-        Some(16),
-    );
+    let mut h = common::app_harness(common::fresh_app(Some(Page::Rig)), 1400.0, 2200.0, Some(16));
     assert!(step_until(&mut h, 10.0, engine_reporting));
     let truth = h.state().rig_config.tweezer.stiffness_n_per_m * 1e6;
     h.get_by_label("Tweezer: trap calibration");
@@ -36,7 +31,11 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.get_by_label("Record and calibrate").click();
     // Background work: the page keeps drawing and shows its progress.
     h.step();
-    assert!(step_until(&mut h, 60.0, |a| a.rig_page().tweezer.result().is_some()
+    assert!(step_until(&mut h, 60.0, |a| a
+        .rig_page()
+        .tweezer
+        .result()
+        .is_some()
         || a.rig_page().tweezer.error().is_some()));
     h.step();
     assert_eq!(h.state().rig_page().tweezer.error(), None);
@@ -91,7 +90,10 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.state_mut().rig_page_mut().tweezer.aliased = false;
     h.get_by_label("Record and calibrate").click();
     h.step();
-    assert!(step_until(&mut h, 60.0, |a| !a.rig_page().tweezer.is_busy()));
+    assert!(step_until(&mut h, 60.0, |a| !a
+        .rig_page()
+        .tweezer
+        .is_busy()));
     h.step();
     h.get_by_label_contains("not applicable:");
     assert!(h.get_by_label("Apply").accesskit_node().is_disabled());

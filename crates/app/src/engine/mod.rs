@@ -74,11 +74,11 @@ pub use backend::EngineRig;
 pub use handle::{EngineHandle, engine_pair, engine_pair_with_rig};
 pub use runner::EngineCore;
 
+use kilotouch_rig::ActuatorFrame;
 use kilotouch_rig::coupling::CouplingCounters;
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::ActuatorFrame;
 use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer};
 use splitter::{ChainSwap, SwapOutcome};
 

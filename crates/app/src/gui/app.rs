@@ -334,11 +334,10 @@ impl KilotouchApp {
                     self.applied = None;
                 }
                 if let Some(t) = &self.trap_applied
-                    && let Err(e) = Self::trap_calibration_fits(&h, t)
-                        .and_then(|()| {
-                            h.apply_trap_calibration(Some(t.applied()))
-                                .map_err(|e| e.to_string())
-                        })
+                    && let Err(e) = Self::trap_calibration_fits(&h, t).and_then(|()| {
+                        h.apply_trap_calibration(Some(t.applied()))
+                            .map_err(|e| e.to_string())
+                    })
                 {
                     self.notify(format!("trap calibration not re-applied: {e}"), true);
                     self.trap_applied = None;

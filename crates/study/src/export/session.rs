@@ -5,11 +5,11 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::checksum::sha256_hex;
-use kilotouch_rig::tweezer::TrapCalibrationRecord;
 use crate::protocol::{AssignmentTable, Condition, Protocol};
 use crate::storage::error::{ExportError, Result, io_err};
 use crate::storage::fsutil::{read_json, write_atomic};
 use crate::storage::utc::UtcTime;
+use kilotouch_rig::tweezer::TrapCalibrationRecord;
 
 /// File name of the study record.
 pub const SESSION_FILE: &str = "session.json";

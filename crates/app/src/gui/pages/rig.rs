@@ -4,8 +4,8 @@
 //! closed loop's stability margins with the chain the engine runs, and the
 //! tweezer's trap calibration ([`super::rig_tweezer`]).
 
-use crate::engine::{EngineHandle, SafetyState};
 use super::rig_tweezer::TweezerSection;
+use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
 use egui::{Color32, RichText};
 use kilotouch_rig::device::RigSpec;

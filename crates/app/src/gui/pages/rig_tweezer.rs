@@ -286,16 +286,17 @@ impl TweezerSection {
                 .num_columns(6)
                 .spacing([10.0, 4.0])
                 .show(ui, |ui| {
-                    let num = |ui: &mut egui::Ui, label: &str, v: &mut f64, speed: f64, unit: &str| {
-                        let l = ui.label(label);
-                        ui.add(
-                            egui::DragValue::new(v)
-                                .speed(speed)
-                                .range(0.0..=f64::MAX)
-                                .suffix(unit),
-                        )
-                        .labelled_by(l.id);
-                    };
+                    let num =
+                        |ui: &mut egui::Ui, label: &str, v: &mut f64, speed: f64, unit: &str| {
+                            let l = ui.label(label);
+                            ui.add(
+                                egui::DragValue::new(v)
+                                    .speed(speed)
+                                    .range(0.0..=f64::MAX)
+                                    .suffix(unit),
+                            )
+                            .labelled_by(l.id);
+                        };
                     num(ui, "record", &mut self.duration_s, 0.1, " s");
                     let l = ui.label("trap at");
                     ui.horizontal(|ui| {
@@ -553,7 +554,9 @@ fn result_ui(
             });
         if b.clicked() {
             env.requests
-                .push(ShellRequest::ApplyTrapCalibration(Some(Box::new(r.clone()))));
+                .push(ShellRequest::ApplyTrapCalibration(Some(Box::new(
+                    r.clone(),
+                ))));
         }
     });
 }

@@ -66,12 +66,13 @@ impl TrapCalibrationRun {
                 let ptx = tx.clone();
                 let work = move || -> anyhow::Result<TrapCalibrationDone> {
                     let mut last = 0.0;
-                    let rec = crate::tweezer_cal::record(&spec, &rc, duration_s, trap_m, &mut |f| {
-                        if f - last >= 0.01 {
-                            last = f;
-                            let _ = ptx.send(Msg::Progress(f));
-                        }
-                    })?;
+                    let rec =
+                        crate::tweezer_cal::record(&spec, &rc, duration_s, trap_m, &mut |f| {
+                            if f - last >= 0.01 {
+                                last = f;
+                                let _ = ptx.send(Msg::Progress(f));
+                            }
+                        })?;
                     let (record, fits) = crate::tweezer_cal::calibrate_axes(&rec, &settings)?;
                     Ok(TrapCalibrationDone { record, fits })
                 };
