@@ -1,12 +1,101 @@
-//! `kilotouch tweezer calibrate` and `record`: passive power-spectral
-//! calibration of a trap from a detector record
-//! (`kilotouch_rig::tweezer::calibration`) and the plot of its spectrum
-//! and fit (PNG, plotters with an embedded font: no system font lookup).
+//! `kilotouch tweezer calibrate` and `record`, and the Rig page's Tweezer
+//! section: recording the detector signals of a tweezer ([`record`], the
+//! one path from a `--rig` spec to a record), passive power-spectral
+//! calibration of both axes ([`calibrate_axes`],
+//! `kilotouch_rig::tweezer::calibration`) and the plot of a spectrum and
+//! its fit (PNG, plotters with an embedded font: no system font lookup).
 
 use kilotouch_dsp::trap_psd::PsdFit;
-use kilotouch_rig::tweezer::calibration::{TrapCalibration, TrapCalibrationSettings};
+use kilotouch_rig::RigConfig;
+use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::serial::LinkTweezer;
+use kilotouch_rig::tweezer::calibration::{
+    MAX_RECORD_SAMPLES, TrapCalibration, TrapCalibrationSettings, calibrate_trap, record_detector,
+};
+use kilotouch_rig::tweezer::{DetectedTweezer, TrapCalibrationRecord, Tweezer, TweezerParams};
 use plotters::prelude::*;
 use std::path::Path;
+
+/// A record of a tweezer's position-detector signals.
+#[derive(Debug, Clone)]
+pub struct DetectorRecord {
+    /// Sample rate, Hz.
+    pub fs_hz: f64,
+    /// The signals (x, y), V.
+    pub volts: [Vec<f64>; 2],
+    /// The tweezer it came from (`sim`, `serial:PATH`).
+    pub source: String,
+}
+
+/// Record `duration_s` seconds of the detector signals of the tweezer
+/// `spec` names — `sim`: the simulated tweezer of `rc` behind its simulated
+/// detector; `serial:…`: a live (or emulated) tweezer — with the trap held
+/// at `trap_m` (m) after 50 ms of settling. `progress` gets the fraction
+/// done.
+pub fn record(
+    spec: &RigSpec,
+    rc: &RigConfig,
+    duration_s: f64,
+    trap_m: [f64; 2],
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<DetectorRecord> {
+    if !(duration_s.is_finite() && duration_s > 0.0) {
+        anyhow::bail!("the duration must be finite and > 0 s, got {duration_s}");
+    }
+    if !trap_m.iter().all(|v| v.is_finite()) {
+        anyhow::bail!("the trap position must be finite");
+    }
+    let mut tw: Box<dyn Tweezer> = match spec {
+        RigSpec::Sim => Box::new(DetectedTweezer::new(
+            TweezerParams::from_config(&rc.tweezer),
+            &rc.tweezer.detector,
+            rc.rig.sample_rate_hz,
+        )?),
+        RigSpec::Serial(cfg) => Box::new(LinkTweezer::open(cfg)?),
+        RigSpec::Audio(_) => {
+            anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH")
+        }
+    };
+    let fs = tw.sample_rate_hz();
+    let n = (duration_s * fs).round();
+    if n > MAX_RECORD_SAMPLES as f64 {
+        anyhow::bail!("{duration_s} s is {n} samples at {fs} Hz; at most {MAX_RECORD_SAMPLES}");
+    }
+    let n = n as usize;
+    // Move the trap there and let the bead settle (50 relaxation times of
+    // any trap above 10 Hz): the record starts stationary.
+    tw.reset(trap_m);
+    for _ in 0..(0.05 * fs).ceil() as usize {
+        tw.step(trap_m);
+    }
+    let volts = record_detector(tw.as_mut(), trap_m, n, &mut |i| {
+        progress(i as f64 / n as f64)
+    })?;
+    Ok(DetectorRecord {
+        fs_hz: fs,
+        volts,
+        source: spec.describe(),
+    })
+}
+
+/// Calibrate both axes of a record with the same settings (the record's
+/// sample rate replaces `s.fs_hz`): the combined record and each axis' fit.
+pub fn calibrate_axes(
+    rec: &DetectorRecord,
+    s: &TrapCalibrationSettings,
+) -> anyhow::Result<(TrapCalibrationRecord, [PsdFit; 2])> {
+    let s = TrapCalibrationSettings {
+        fs_hz: rec.fs_hz,
+        ..s.clone()
+    };
+    let (cx, fx) = calibrate_trap(&rec.volts[0], &s).map_err(|e| anyhow::anyhow!("x axis: {e}"))?;
+    let (cy, fy) = calibrate_trap(&rec.volts[1], &s).map_err(|e| anyhow::anyhow!("y axis: {e}"))?;
+    let n = rec.volts[0].len();
+    Ok((
+        TrapCalibrationRecord::new(&rec.source, n, s, cx, cy),
+        [fx, fy],
+    ))
+}
 
 use crate::paper::style::FONT;
 

@@ -29,6 +29,7 @@ fn harness(state: State) -> Harness<'static, State> {
                     output_dir: None,
                     requests: &mut s.requests,
                     applied: None,
+                    trap_applied: None,
                 };
                 s.page.ui(ui, &mut env);
             },

@@ -186,6 +186,7 @@ fn harness(state: State) -> Harness<'static, State> {
                     output_dir: s.output_dir.as_deref(),
                     requests: &mut s.requests,
                     applied: None,
+                    trap_applied: None,
                 };
                 s.page.ui(ui, &mut env);
             },

@@ -384,3 +384,86 @@ fn participant_ids_are_pseudonyms() {
         FolderStatus::Empty
     );
 }
+
+#[test]
+fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
+    // The trap calibration the Rig page applies: 10 s of the simulated
+    // tweezer's detector, both axes calibrated (aliased Lorentzian, the
+    // simulated detector point-samples at the loop rate).
+    let rc = RigConfig::default();
+    let mut free = rc.clone();
+    free.tweezer.obstacles.clear();
+    let rec = kilotouch::tweezer_cal::record(
+        &kilotouch_rig::device::RigSpec::Sim,
+        &free,
+        10.0,
+        [0.0; 2],
+        &mut |_| {},
+    )
+    .unwrap();
+    let gui = kilotouch::gui::pages::rig_tweezer::TweezerSection::new();
+    let (cal, _) = kilotouch::tweezer_cal::calibrate_axes(&rec, &gui.settings()).unwrap();
+    cal.check().unwrap();
+    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
+    assert!((cal.kappa_pn_um / truth - 1.0).abs() < 0.04, "{cal:?}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let mut o = opts(&out, Some(tiny()), false);
+    o.only_participant = Some(0);
+    o.trap_calibration = Some(cal.clone());
+    let mut h = SessionHandle::spawn(o).unwrap();
+    assert!(h.send(SessionCommand::Start));
+    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    assert_eq!(fin, Some(FinishReason::ParticipantDone("P01".into())));
+    drop(h);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let t = &json["trap_calibration"];
+    assert_eq!(t["source"], "sim");
+    // Every field (JSON numbers read back within an ulp or two).
+    let got: kilotouch_rig::tweezer::TrapCalibrationRecord =
+        serde_json::from_value(t.clone()).unwrap();
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+    assert_eq!((got.source.as_str(), got.n_samples), ("sim", 100_000));
+    assert_eq!(got.settings, cal.settings);
+    assert!(close(got.kappa_pn_um, cal.kappa_pn_um), "{t}");
+    assert!(close(got.kappa_se_pn_um, cal.kappa_se_pn_um));
+    for k in 0..2 {
+        assert!(close(got.rd_um_per_v[k], cal.rd_um_per_v[k]));
+    }
+    for (g, c) in [(&got.x, &cal.x), (&got.y, &cal.y)] {
+        for (a, b) in [
+            (g.fc_hz, c.fc_hz),
+            (g.fc_se_hz, c.fc_se_hz),
+            (g.diffusion_v2_s, c.diffusion_v2_s),
+            (g.kappa_pn_um, c.kappa_pn_um),
+            (g.rd_um_per_v, c.rd_um_per_v),
+            (g.chi2_per_dof, c.chi2_per_dof),
+            (g.backing_pct, c.backing_pct),
+        ] {
+            assert!(close(a, b), "{a} vs {b}");
+        }
+        assert_eq!((g.n_points, g.iterations), (c.n_points, c.iterations));
+    }
+
+    // A resume with another trap calibration is refused, naming it.
+    let mut other = cal.clone();
+    other.kappa_pn_um *= 1.1;
+    let mut o = opts(&out, Some(tiny()), false);
+    o.trap_calibration = Some(other);
+    let e = SessionHandle::spawn(o).unwrap_err().to_string();
+    assert!(e.contains("trap calibration"), "{e}");
+    // The same one (as the GUI keeps it) resumes: P02 closes the study.
+    let mut o = opts(&out, Some(tiny()), false);
+    o.trap_calibration = Some(cal.clone());
+    let mut h = SessionHandle::spawn(o).unwrap();
+    assert!(h.send(SessionCommand::Start));
+    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    assert_eq!(fin, Some(FinishReason::StudyDone));
+    drop(h);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let kept = json["trap_calibration"]["kappa_pn_um"].as_f64().unwrap();
+    assert!((kept - cal.kappa_pn_um).abs() <= 1e-14 * cal.kappa_pn_um);
+}

@@ -4,9 +4,14 @@ trap_calibration` times: a 1e6-sample record (10 s at 100 kHz, Lorentzian x
 diode spectrum synthesised in the frequency domain), fit range 100 Hz-40 kHz,
 200 points per block; plain (fast sensor), diode and hydrodynamic models.
 Prints the median of 7 runs of calculate_power_spectrum + fit_power_spectrum.
+
+With a path argument, times the record the Rust benchmark wrote there
+(`KILOTOUCH_TRAP_RECORD=PATH cargo bench -p kilotouch-rig --bench
+trap_calibration`: raw little-endian f64), i.e. both tools on the same record.
 """
 
 import math
+import sys
 import time
 
 import numpy as np
@@ -26,6 +31,9 @@ spec = np.sqrt(var / 2) * (rng.standard_normal(f.size) + 1j * rng.standard_norma
 spec[0] = 0
 spec[-1] = math.sqrt(var[-1]) * rng.standard_normal()
 x = np.fft.irfft(spec, n=N)
+if len(sys.argv) > 1:
+    x = np.fromfile(sys.argv[1], dtype="<f8")
+    assert x.size == N, f"{sys.argv[1]}: {x.size} samples, expected {N}"
 
 for name, kw in [
     ("plain_1e6", dict(fast_sensor=True)),

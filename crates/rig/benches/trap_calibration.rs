@@ -3,9 +3,10 @@
 //! 10⁶ samples (10 s at 100 kHz, frequency-domain synthesis of a Lorentzian
 //! × diode spectrum) calibrated end to end — periodogram, blocking,
 //! analytical start, fit, κ and R_d — with the plain, diode and
-//! hydrodynamic models. pylake on a record of the same size:
-//! `python3 crates/rig/benches/pylake_timing.py`. Figures in
-//! docs/PERFORMANCE.md.
+//! hydrodynamic models. pylake on the same record:
+//! `KILOTOUCH_TRAP_RECORD=/tmp/rec.f64 cargo bench … ` writes it (raw
+//! little-endian f64), `python3 crates/rig/benches/pylake_timing.py
+//! /tmp/rec.f64` times pylake on it. Figures in docs/PERFORMANCE.md.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use kilotouch_dsp::lorentzian::lorentzian_one_sided;
@@ -44,6 +45,10 @@ fn bench(c: &mut Criterion) {
         &mut || rng.sample(),
     )
     .expect("record");
+    if let Some(path) = std::env::var_os("KILOTOUCH_TRAP_RECORD") {
+        let bytes: Vec<u8> = x.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(&path, bytes).expect("writing the record");
+    }
     let mut g = c.benchmark_group("trap_calibration");
     g.sample_size(20);
     for (name, hydro, diode) in [
@@ -52,6 +57,12 @@ fn bench(c: &mut Criterion) {
         ("hydro_1e6", true, false),
     ] {
         let s = settings(hydro, diode);
+        // What is timed: the fit's iterations and quality.
+        let (c, _) = calibrate_trap(&x, &s).expect("calibration");
+        eprintln!(
+            "{name}: f_c {:.2} ± {:.2} Hz, κ {:.3} pN/µm, χ²/dof {:.3}, {} points, {} iterations",
+            c.fc_hz, c.fc_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
+        );
         g.bench_function(name, |b| {
             b.iter(|| calibrate_trap(black_box(&x), &s).expect("calibration"))
         });

@@ -308,6 +308,7 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
         calibration: s.calibration.clone(),
         rig_hash: s.rig_hash.clone(),
         raw_signals: s.raw_signals,
+        trap_calibration: s.trap_calibration.clone(),
         recorded_change: None,
     };
     let mut store = StudyStore::open(out, &s.protocol, &meta)?;

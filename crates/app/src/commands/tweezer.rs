@@ -9,12 +9,10 @@ use anyhow::Context;
 use clap::Subcommand;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::device::RigSpec;
-use kilotouch_rig::serial::LinkTweezer;
 use kilotouch_rig::tweezer::calibration::{
-    DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, MAX_RECORD_SAMPLES,
-    TrapCalibrationSettings, calibrate_trap, record_detector,
+    DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, TrapCalibrationSettings,
+    calibrate_trap,
 };
-use kilotouch_rig::tweezer::{DetectedTweezer, Tweezer, TweezerParams};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -199,50 +197,16 @@ struct RecordReport {
 }
 
 fn record(a: &RecordArgs) -> anyhow::Result<()> {
-    if !(a.duration_s.is_finite() && a.duration_s > 0.0) {
-        anyhow::bail!("--duration-s must be finite and > 0, got {}", a.duration_s);
-    }
     let spec: RigSpec = a.rig.parse()?;
-    let mut tw: Box<dyn Tweezer> = match spec {
-        RigSpec::Sim => {
-            let rc = RigConfig::load_or_default(a.rig_config.as_deref())?;
-            let p = TweezerParams::from_config(&rc.tweezer);
-            Box::new(DetectedTweezer::new(
-                p,
-                &rc.tweezer.detector,
-                rc.rig.sample_rate_hz,
-            )?)
-        }
-        RigSpec::Serial(cfg) => Box::new(LinkTweezer::open(&cfg)?),
-        RigSpec::Audio(_) => {
-            anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH")
-        }
-    };
-    let fs = tw.sample_rate_hz();
-    let n = (a.duration_s * fs).round();
-    if n > MAX_RECORD_SAMPLES as f64 {
-        anyhow::bail!(
-            "--duration-s {} is {n} samples at {fs} Hz; at most {MAX_RECORD_SAMPLES}",
-            a.duration_s
-        );
-    }
-    let n = n as usize;
+    let rc = RigConfig::load_or_default(a.rig_config.as_deref())?;
     let trap = [a.trap_um.0 * 1e-6, a.trap_um.1 * 1e-6];
-    if !trap.iter().all(|v| v.is_finite()) {
-        anyhow::bail!("--trap-um must be finite");
-    }
-    // Move the trap there and let the bead settle (50 relaxation times of
-    // any trap above 10 Hz): the record starts stationary.
-    tw.reset(trap);
-    for _ in 0..(0.05 * fs).ceil() as usize {
-        tw.step(trap);
-    }
-    let [x, y] = record_detector(tw.as_mut(), trap, n, &mut |_| {})?;
+    let rec = crate::tweezer_cal::record(&spec, &rc, a.duration_s, trap, &mut |_| {})?;
+    let (fs, n, [x, y]) = (rec.fs_hz, rec.volts[0].len(), &rec.volts);
     let file =
         std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut w = std::io::BufWriter::new(file);
     writeln!(w, "t_s,x_v,y_v")?;
-    for (i, (xv, yv)) in x.iter().zip(&y).enumerate() {
+    for (i, (xv, yv)) in x.iter().zip(y).enumerate() {
         writeln!(w, "{},{xv:e},{yv:e}", i as f64 / fs)?;
     }
     w.flush()

@@ -13,7 +13,8 @@ use kilotouch_rig::device::{Clock, RigIdentity, SystemClock};
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::stability::StabilityReport;
 use kilotouch_rig::tweezer::Obstacle;
-use kilotouch_rig::{RigConfig, SimTweezer, TweezerParams};
+use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer};
+use kilotouch_rig::{RigConfig, TweezerParams};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::thread::JoinHandle;
@@ -240,8 +241,22 @@ impl EngineHandle {
     pub fn set_obstacles(&mut self, obstacles: &[Obstacle]) -> Result<(), EngineError> {
         let mut p = TweezerParams::from_config(&self.config.tweezer);
         p.obstacles = obstacles.to_vec();
-        let t = SimTweezer::new(p, self.sample_rate_hz())?;
+        let t = DetectedTweezer::new(p, &self.config.tweezer.detector, self.sample_rate_hz())?;
         self.send(Command::SetTweezer(Box::new(t)))
+            .map_err(|_| EngineError::Option {
+                name: "queue",
+                reason: "command queue full, try again",
+            })
+    }
+
+    /// Report the tweezer through this trap calibration (κ, R_d) from the
+    /// next block on, or through the simulated bead and stiffness (`None`).
+    /// An invalid calibration is refused.
+    pub fn apply_trap_calibration(&mut self, c: Option<AppliedTrap>) -> Result<(), EngineError> {
+        if let Some(c) = &c {
+            c.validate()?;
+        }
+        self.send(Command::SetTrapCalibration(c))
             .map_err(|_| EngineError::Option {
                 name: "queue",
                 reason: "command queue full, try again",

@@ -74,11 +74,12 @@ pub use backend::EngineRig;
 pub use handle::{EngineHandle, engine_pair, engine_pair_with_rig};
 pub use runner::EngineCore;
 
+use kilotouch_rig::ActuatorFrame;
 use kilotouch_rig::coupling::CouplingCounters;
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{RigFault, RigIdentity, RigStatus};
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::{ActuatorFrame, SimTweezer};
+use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer};
 use splitter::{ChainSwap, SwapOutcome};
 
 /// The experimental condition: the rig crate's, one type from the protocol
@@ -181,6 +182,9 @@ pub struct Health {
     pub estop_zeroed_frames: u64,
     /// The bead is in the trap.
     pub trapped: bool,
+    /// The trap calibration the tweezer reports through (None: the
+    /// simulated bead and stiffness).
+    pub trap_calibration: Option<AppliedTrap>,
 }
 
 impl Health {
@@ -224,8 +228,12 @@ pub enum Command {
     SetHand([f64; 2]),
     /// Switch condition V / P / D at once (outputs ramp).
     SetCondition(Condition),
-    /// Replace the tweezer (new obstacles); the bead and trap carry over.
-    SetTweezer(Box<SimTweezer>),
+    /// Replace the tweezer (new obstacles); the bead, trap and trap
+    /// calibration carry over.
+    SetTweezer(Box<DetectedTweezer>),
+    /// Use this trap calibration (κ, R_d; already validated) for the
+    /// tweezer's bead and force, or the simulated ones (`None`).
+    SetTrapCalibration(Option<AppliedTrap>),
     /// Swap in a new chain (calibration).
     ApplyChain(Box<ChainSwap>),
     /// Release the emergency stop, if `ack` equals the number of stops
@@ -254,7 +262,7 @@ pub enum Command {
 #[derive(Debug)]
 pub enum Garbage {
     /// An old tweezer.
-    Tweezer(Box<SimTweezer>),
+    Tweezer(Box<DetectedTweezer>),
     /// A swapped chain.
     Chain(Box<ChainSwap>),
     /// An old driver.

@@ -15,7 +15,8 @@ use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, LoopSample, MAX_BLOCK};
 use kilotouch_rig::safety::{SafetyLayer, SafetyState, TripReason};
-use kilotouch_rig::{Rig, RigConfig, SimTweezer, Tweezer, TweezerParams};
+use kilotouch_rig::tweezer::DetectedTweezer;
+use kilotouch_rig::{Rig, RigConfig, Tweezer, TweezerParams};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -30,7 +31,7 @@ pub(crate) struct Shared {
 }
 
 /// The closed loop the engine runs.
-pub type EngineLoop = HapticLoop<EngineRig, SimTweezer, SwappableChain>;
+pub type EngineLoop = HapticLoop<EngineRig, DetectedTweezer, SwappableChain>;
 
 /// Idle period while the rig is stopped, s.
 const IDLE_SLEEP_S: f64 = 5e-3;
@@ -115,7 +116,11 @@ impl<C: Clock> EngineCore<C> {
         let cfg = &cfg;
         let fs = cfg.rig.sample_rate_hz;
         let live = rig.is_live();
-        let tweezer = SimTweezer::new(TweezerParams::from_config(&cfg.tweezer), fs)?;
+        let tweezer = DetectedTweezer::new(
+            TweezerParams::from_config(&cfg.tweezer),
+            &cfg.tweezer.detector,
+            fs,
+        )?;
         // The loop is armed only if its margins meet the rig file's minimum.
         let chain = LoopChain::as_designed(cfg)?;
         let clearance = Clearance::check(cfg, &chain)?;
@@ -283,8 +288,14 @@ impl<C: Clock> EngineCore<C> {
                 let bead = self.lp.tweezer.bead();
                 t.reset(self.last_trap);
                 t.set_bead(bead);
+                // Validated when it was applied.
+                let _ = t.set_calibration(self.lp.tweezer.calibration());
                 std::mem::swap(&mut *t, &mut self.lp.tweezer);
                 self.push_event(EngineEvent::Garbage(Garbage::Tweezer(t)));
+            }
+            Command::SetTrapCalibration(c) => {
+                // Validated by the handle; an invalid one keeps the old.
+                let _ = self.lp.tweezer.set_calibration(c);
             }
             Command::ApplyChain(swap) => {
                 // Room checked in handle_commands.
@@ -419,6 +430,7 @@ impl<C: Clock> EngineCore<C> {
             coupling: self.lp.coupling.counters(),
             estop_zeroed_frames: st.counters.latched_zeroed,
             trapped: self.trapped,
+            trap_calibration: self.lp.tweezer.calibration(),
         }
     }
 

@@ -41,6 +41,8 @@ pub struct AppOptions {
     pub study_dir: Option<PathBuf>,
     /// Start a simulated real-time sitting on the Study page.
     pub simulate_sitting: bool,
+    /// Record and calibrate the simulated tweezer at start (Rig page).
+    pub calibrate_tweezer: bool,
 }
 
 impl Default for AppOptions {
@@ -53,6 +55,7 @@ impl Default for AppOptions {
             engine: EngineOptions::default(),
             study_dir: None,
             simulate_sitting: false,
+            calibrate_tweezer: false,
         }
     }
 }
@@ -123,6 +126,9 @@ pub struct KilotouchApp {
     requests: Vec<ShellRequest>,
     /// The calibration the engine runs (None: the as-designed chain).
     applied: Option<AppliedCalibration>,
+    /// The trap calibration the engine's tweezer uses (None: the
+    /// simulated bead and stiffness).
+    trap_applied: Option<kilotouch_rig::tweezer::TrapCalibrationRecord>,
     notices: VecDeque<Notice>,
     reset_dialog: Option<bool>,
     /// Screenshot plan, if any.
@@ -216,6 +222,9 @@ impl KilotouchApp {
         if opts.simulate_sitting {
             study.simulate_sitting();
         }
+        if opts.calibrate_tweezer {
+            rig_page.tweezer.start(&rig_config);
+        }
         let mut app = Self {
             page: settings.page,
             settings,
@@ -231,6 +240,7 @@ impl KilotouchApp {
             results: ResultsPage::new(),
             requests: Vec::new(),
             applied: None,
+            trap_applied: None,
             notices,
             reset_dialog: None,
             screenshot: None,
@@ -290,6 +300,21 @@ impl KilotouchApp {
         }
     }
 
+    /// The Rig page.
+    pub fn rig_page(&self) -> &RigPage {
+        &self.rig_page
+    }
+
+    /// The Rig page, to change its fields.
+    pub fn rig_page_mut(&mut self) -> &mut RigPage {
+        &mut self.rig_page
+    }
+
+    /// The trap calibration the engine's tweezer uses, if one was applied.
+    pub fn trap_calibration(&self) -> Option<&kilotouch_rig::tweezer::TrapCalibrationRecord> {
+        self.trap_applied.as_ref()
+    }
+
     /// Is a live rig being opened?
     pub fn is_connecting(&self) -> bool {
         self.connecting.is_some()
@@ -307,6 +332,15 @@ impl KilotouchApp {
                 {
                     self.notify(format!("calibration not re-applied: {e}"), true);
                     self.applied = None;
+                }
+                if let Some(t) = &self.trap_applied
+                    && let Err(e) = Self::trap_calibration_fits(&h, t).and_then(|()| {
+                        h.apply_trap_calibration(Some(t.applied()))
+                            .map_err(|e| e.to_string())
+                    })
+                {
+                    self.notify(format!("trap calibration not re-applied: {e}"), true);
+                    self.trap_applied = None;
                 }
                 self.engine = Some(h);
             }
@@ -375,6 +409,7 @@ impl KilotouchApp {
     fn use_rig_file(&mut self, cfg: RigConfig, path: Option<PathBuf>) {
         self.rig_config = cfg;
         self.applied = None;
+        self.trap_applied = None;
         self.rig_config_path = path.clone();
         self.settings.rig_file = path;
         self.config_error = None;
@@ -424,11 +459,56 @@ impl KilotouchApp {
         }
     }
 
+    /// Why the engine `h` must not use the trap calibration `t`: a bad fit,
+    /// a record of another tweezer than the engine's, or a loop gain beyond
+    /// the margins it was cleared for.
+    fn trap_calibration_fits(
+        h: &EngineHandle,
+        t: &kilotouch_rig::tweezer::TrapCalibrationRecord,
+    ) -> Result<(), String> {
+        t.check()?;
+        if t.source != "sim" {
+            return Err(format!(
+                "it was recorded from {}, and the engine's loop drives the rig file's simulated \
+                 tweezer",
+                t.source
+            ));
+        }
+        match h.stability() {
+            Some(r) => kilotouch_rig::tweezer::check_loop_gain(r, t.applied().stiffness_n_per_m),
+            None => Err("the loop was armed without its stability analysis".into()),
+        }
+    }
+
     fn handle_requests(&mut self) {
         for r in std::mem::take(&mut self.requests) {
             match r {
                 ShellRequest::Notify(s) => self.notify(s, false),
                 ShellRequest::SetOutputDir(p) => self.settings.output_dir = Some(p),
+                ShellRequest::ApplyTrapCalibration(t) => match (&mut self.engine, t) {
+                    (None, _) => {
+                        self.notify("trap calibration not applied: no rig connected", true)
+                    }
+                    (Some(h), None) => match h.apply_trap_calibration(None) {
+                        Ok(()) => self.trap_applied = None,
+                        Err(e) => self.notify(format!("trap calibration not removed: {e}"), true),
+                    },
+                    (Some(h), Some(t)) => {
+                        let r = Self::trap_calibration_fits(h, &t).and_then(|()| {
+                            h.apply_trap_calibration(Some(t.applied()))
+                                .map_err(|e| e.to_string())
+                        });
+                        match r {
+                            Ok(()) => {
+                                self.trap_applied = Some(*t);
+                                self.notify("trap calibration applied to the tweezer", false);
+                            }
+                            Err(e) => {
+                                self.notify(format!("trap calibration not applied: {e}"), true)
+                            }
+                        }
+                    }
+                },
                 ShellRequest::ApplyCalibration(a) => {
                     let fs = self.rig_config.rig.sample_rate_hz;
                     let c = &a.chain.coefficients;
@@ -668,6 +748,7 @@ impl KilotouchApp {
                 output_dir: self.settings.output_dir.as_deref(),
                 requests: &mut self.requests,
                 applied: self.applied.as_ref(),
+                trap_applied: self.trap_applied.as_ref(),
             };
             match self.page {
                 Page::Rig => {

@@ -16,6 +16,9 @@ pub struct PageEnv<'a> {
     /// The calibration the engine runs, if one was applied (the Study
     /// page's default).
     pub applied: Option<&'a AppliedCalibration>,
+    /// The trap calibration the engine's tweezer uses, if one was applied
+    /// (Rig page; recorded in a study's `session.json`).
+    pub trap_applied: Option<&'a kilotouch_rig::tweezer::TrapCalibrationRecord>,
 }
 
 /// A calibration cleared for the closed loop: its force-normalised chain,
@@ -36,6 +39,9 @@ pub enum ShellRequest {
     /// Load this calibration (a finished wizard run or a loaded file) into
     /// the real-time engine's chain (already cleared by the stability analysis).
     ApplyCalibration(Box<AppliedCalibration>),
+    /// Use this trap calibration (κ, R_d) for the engine's tweezer, or
+    /// none (`None`); the shell checks the fit and the loop's margins first.
+    ApplyTrapCalibration(Option<Box<kilotouch_rig::tweezer::TrapCalibrationRecord>>),
     /// Remember this folder as the study output folder (persisted in the settings).
     SetOutputDir(PathBuf),
     /// Show a short message to the user (status line / toast).

@@ -56,6 +56,10 @@ pub struct GuiArgs {
     /// participant view inline; how the README's Study image is made).
     #[arg(long)]
     pub simulate_sitting: bool,
+    /// Record and calibrate the simulated tweezer at start (the Rig page's
+    /// Tweezer section; how its screenshot is made).
+    #[arg(long)]
+    pub calibrate_tweezer: bool,
     /// Window size in points, WxH (default 1100x700).
     #[arg(long, value_name = "WxH", default_value = "1100x700")]
     pub size: String,
@@ -110,6 +114,7 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         fresh_settings: shot,
         study_dir: args.study_dir.clone(),
         simulate_sitting: args.simulate_sitting,
+        calibrate_tweezer: args.calibrate_tweezer,
         ..Default::default()
     };
     let native = eframe::NativeOptions {

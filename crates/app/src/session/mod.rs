@@ -171,6 +171,9 @@ pub struct SessionOptions {
     /// SHA-256 in `session.json` and the journal. `None`: the model's
     /// as-designed chain, recorded as uncalibrated.
     pub calibration: Option<PathBuf>,
+    /// The trap calibration applied on the Rig page, recorded in
+    /// `session.json` (`trap_calibration`); `None`: none applied.
+    pub trap_calibration: Option<kilotouch_rig::tweezer::TrapCalibrationRecord>,
     /// Run the participant's screens (module docs, "Participant screens"):
     /// every block waits for [`SessionCommand::Proceed`] (the participant's
     /// key or click on the ready screen; the simulated participant "reads"
@@ -200,6 +203,7 @@ impl SessionOptions {
             block: 10,
             telemetry_every: 20,
             calibration: None,
+            trap_calibration: None,
             screens: false,
         }
     }
@@ -414,12 +418,13 @@ impl SessionHandle {
                 "\"as fast as possible\" is for the simulated participant only".into(),
             ));
         }
-        let (meta, chain) = sim_meta(
+        let (mut meta, chain) = sim_meta(
             &opts.rig,
             opts.calibration.as_deref(),
             opts.runner.raw.is_some(),
             None,
         )?;
+        meta.trap_calibration.clone_from(&opts.trap_calibration);
         if opts.protocol.is_some() && opts.out.join(SESSION_FILE).exists() {
             // The folder's own protocol decides; a different one is refused by
             // the store (ProtocolMismatch) — say so before touching anything.

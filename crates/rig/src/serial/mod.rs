@@ -24,4 +24,4 @@ pub mod watch;
 
 pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Misbehaviour};
 pub use rig::{LinkStats, SerialConfig, SerialRig};
-pub use tweezer_link::{LinkCalibration, LinkTweezer, TweezerInstrument};
+pub use tweezer_link::{LinkTweezer, TweezerInstrument};

@@ -35,7 +35,7 @@ use super::rig::{Link, LinkErrorKind, LinkStats, SerialConfig};
 use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::tweezer::{
-    DetectedTweezer, SimTweezer, Tweezer, TweezerEvents, TweezerParams, TweezerSample,
+    AppliedTrap, DetectedTweezer, SimTweezer, Tweezer, TweezerEvents, TweezerParams, TweezerSample,
 };
 
 /// The simulated tweezer as a protocol instrument.
@@ -136,18 +136,9 @@ pub struct LinkTweezer {
     running: bool,
     last: TweezerSample,
     last_v: [f64; 2],
-    calibration: Option<LinkCalibration>,
+    calibration: Option<AppliedTrap>,
     failures: u64,
     last_error: Option<LinkErrorKind>,
-}
-
-/// A trap calibration applied to a live tweezer (module docs).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LinkCalibration {
-    /// Trap stiffness κ, N/m.
-    pub stiffness_n_per_m: f64,
-    /// Displacement sensitivity R_d per axis (x, y), m/V.
-    pub rd_m_per_v: [f64; 2],
 }
 
 impl LinkTweezer {
@@ -184,17 +175,10 @@ impl LinkTweezer {
     }
 
     /// Use a trap calibration from now on: bead = trap + R_d·V and force
-    /// κ (trap − bead). Non-finite or non-positive κ, or non-finite R_d, is
-    /// refused.
-    pub fn apply_calibration(&mut self, c: LinkCalibration) -> Result<(), RigError> {
-        let valid = c.stiffness_n_per_m.is_finite()
-            && c.stiffness_n_per_m > 0.0
-            && c.rd_m_per_v.iter().all(|r| r.is_finite() && *r != 0.0);
-        if !valid {
-            return Err(RigError::InvalidInput(format!(
-                "calibration {c:?}: κ must be finite and > 0, R_d finite and non-zero"
-            )));
-        }
+    /// κ (trap − bead) ([`AppliedTrap::bead_and_force`]). Non-finite or
+    /// non-positive κ, or non-finite R_d, is refused.
+    pub fn apply_calibration(&mut self, c: AppliedTrap) -> Result<(), RigError> {
+        c.validate()?;
         self.kappa = c.stiffness_n_per_m;
         self.calibration = Some(c);
         Ok(())
@@ -202,7 +186,7 @@ impl LinkTweezer {
 
     /// The calibration in use (None: the instrument's own bead position
     /// and κ).
-    pub fn calibration(&self) -> Option<LinkCalibration> {
+    pub fn calibration(&self) -> Option<AppliedTrap> {
         self.calibration
     }
 
@@ -299,20 +283,16 @@ impl Tweezer for LinkTweezer {
         if v.iter().all(|x| x.is_finite()) {
             self.last_v = v;
         }
-        let bead = match self.calibration {
-            Some(c) if trapped => [
-                trap[0] + c.rd_m_per_v[0] * self.last_v[0],
-                trap[1] + c.rd_m_per_v[1] * self.last_v[1],
-            ],
-            _ => w.bead_m,
-        };
-        let force = if trapped {
-            [
-                self.kappa * (trap[0] - bead[0]),
-                self.kappa * (trap[1] - bead[1]),
-            ]
-        } else {
-            [0.0; 2]
+        let (bead, force) = match self.calibration {
+            Some(c) if trapped => c.bead_and_force(trap, self.last_v),
+            _ if trapped => (
+                w.bead_m,
+                [
+                    self.kappa * (trap[0] - w.bead_m[0]),
+                    self.kappa * (trap[1] - w.bead_m[1]),
+                ],
+            ),
+            _ => (w.bead_m, [0.0; 2]),
         };
         let in_contact = w.status & ts::IN_CONTACT != 0;
         // The device reports no obstacle geometry. Pressed against an

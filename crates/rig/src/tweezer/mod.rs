@@ -44,12 +44,14 @@
 //! range, default ≈ R) the bead is lost: no optical force, free diffusion,
 //! until the trap comes back within half that distance (recapture).
 
+pub mod applied;
 pub mod calibration;
 pub mod detector;
 pub mod drag;
 pub mod sim;
 pub mod table;
 
+pub use applied::{AppliedTrap, TrapCalibrationRecord, check_applicable, check_loop_gain};
 pub use calibration::{TrapCalibration, TrapCalibrationSettings, calibrate_trap};
 pub use detector::{DetectedTweezer, Detector, DetectorConfig};
 pub use drag::{

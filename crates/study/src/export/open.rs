@@ -116,6 +116,7 @@ impl NewStudy<'_> {
             calibration: self.meta.calibration.clone(),
             rig_hash: self.meta.rig_hash.clone(),
             raw_signals: self.meta.raw_signals,
+            trap_calibration: self.meta.trap_calibration.clone(),
             created_utc: self.now,
             updated_utc: self.now,
             sittings: Vec::new(),

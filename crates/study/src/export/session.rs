@@ -9,6 +9,7 @@ use crate::protocol::{AssignmentTable, Condition, Protocol};
 use crate::storage::error::{ExportError, Result, io_err};
 use crate::storage::fsutil::{read_json, write_atomic};
 use crate::storage::utc::UtcTime;
+use kilotouch_rig::tweezer::TrapCalibrationRecord;
 
 /// File name of the study record.
 pub const SESSION_FILE: &str = "session.json";
@@ -20,7 +21,7 @@ pub const FORMAT: &str = "kilotouch-study-output/1";
 pub const SOFTWARE_VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// Identity of the writer and the hardware, recorded with every sitting.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct StudyMeta {
     /// Software name (default `kilotouch`).
     pub software_name: String,
@@ -36,6 +37,9 @@ pub struct StudyMeta {
     pub rig_hash: Option<String>,
     /// Whether raw signal files are written (`None`: not checked).
     pub raw_signals: Option<bool>,
+    /// The trap calibration in force (κ and the detector's sensitivity
+    /// applied to the tweezer; `None`: none applied).
+    pub trap_calibration: Option<TrapCalibrationRecord>,
     /// The experimenter starts a new sitting with a recorded change of
     /// rig file, calibration or raw recording: the reason, journaled with
     /// the differences. `None`: a resume with different settings is
@@ -53,6 +57,7 @@ impl StudyMeta {
             calibration: None,
             rig_hash: None,
             raw_signals: None,
+            trap_calibration: None,
             recorded_change: None,
         }
     }
@@ -204,6 +209,10 @@ pub struct SessionInfo {
     /// before it was recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub raw_signals: Option<bool>,
+    /// The trap calibration in force (at creation, or from the last sitting
+    /// that applied one; absent: none applied).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trap_calibration: Option<TrapCalibrationRecord>,
     /// Creation time of the folder.
     pub created_utc: UtcTime,
     /// Time of the last rewrite of this file.

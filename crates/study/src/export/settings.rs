@@ -58,6 +58,27 @@ pub(crate) fn changes(info: &SessionInfo, meta: &StudyMeta) -> Vec<SettingChange
             now: calibration_text(now),
         });
     }
+    // The same calibration read back from session.json may differ in the
+    // last bits of its numbers: the applied values are compared to 1e-12.
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+    if let (Some(was), Some(now)) = (&info.trap_calibration, &meta.trap_calibration)
+        && !(was.source == now.source
+            && same(was.kappa_pn_um, now.kappa_pn_um)
+            && same(was.rd_um_per_v[0], now.rd_um_per_v[0])
+            && same(was.rd_um_per_v[1], now.rd_um_per_v[1]))
+    {
+        let text = |t: &kilotouch_rig::tweezer::TrapCalibrationRecord| {
+            format!(
+                "κ {:.4} pN/µm, R_d {:.5}/{:.5} µm/V ({})",
+                t.kappa_pn_um, t.rd_um_per_v[0], t.rd_um_per_v[1], t.source
+            )
+        };
+        out.push(SettingChange {
+            what: "trap calibration",
+            was: text(was),
+            now: text(now),
+        });
+    }
     if let (Some(was), Some(now)) = (info.raw_signals, meta.raw_signals)
         && was != now
     {
@@ -80,5 +101,8 @@ pub(crate) fn adopt(info: &mut SessionInfo, meta: &StudyMeta) {
     info.calibration.clone_from(&meta.calibration);
     if meta.raw_signals.is_some() {
         info.raw_signals = meta.raw_signals;
+    }
+    if meta.trap_calibration.is_some() {
+        info.trap_calibration.clone_from(&meta.trap_calibration);
     }
 }

@@ -7,6 +7,7 @@ pub mod explore;
 pub mod plan_study;
 pub mod results;
 pub mod rig;
+pub mod rig_tweezer;
 pub mod study;
 
 pub use calibration::CalibrationPage;

@@ -1,8 +1,10 @@
 //! Rig page: which rig (simulated, serial DAQ, audio interface — the
 //! `--rig` syntax of [`RigSpec`]), which rig file, connect/disconnect,
 //! reconnect after a device fault, identity, status and counters, and the
-//! closed loop's stability margins with the chain the engine runs.
+//! closed loop's stability margins with the chain the engine runs, and the
+//! tweezer's trap calibration ([`super::rig_tweezer`]).
 
+use super::rig_tweezer::TweezerSection;
 use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
 use egui::{Color32, RichText};
@@ -41,6 +43,8 @@ pub struct RigPage {
     pub rig_text: String,
     /// Text of the rig-file field.
     pub path_text: String,
+    /// The Tweezer section (trap calibration).
+    pub tweezer: TweezerSection,
 }
 
 impl Default for RigPage {
@@ -55,6 +59,7 @@ impl RigPage {
         Self {
             rig_text: "sim".to_owned(),
             path_text: String::new(),
+            tweezer: TweezerSection::new(),
         }
     }
 
@@ -184,6 +189,8 @@ impl RigPage {
                     ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_owned());
                 }
             });
+            ui.add_space(6.0);
+            self.tweezer.ui(ui, env, engine.is_some());
             ui.add_space(6.0);
             ui.horizontal(|ui| match engine {
                 None => {

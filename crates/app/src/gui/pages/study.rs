@@ -524,6 +524,15 @@ impl StudyPage {
             Err(e) => e,
         };
         ui.label(RichText::new(recorded).weak());
+        let trap = match env.trap_applied {
+            Some(t) => format!(
+                "trap calibration recorded: κ = {:.3} ± {:.3} pN/µm, R_d = {:.4} / {:.4} µm/V \
+                 (applied on the Rig page)",
+                t.kappa_pn_um, t.kappa_se_pn_um, t.rd_um_per_v[0], t.rd_um_per_v[1]
+            ),
+            None => "no trap calibration applied (the Rig page's Tweezer section)".to_owned(),
+        };
+        ui.label(RichText::new(trap).weak());
     }
 
     fn open_session(&mut self, env: &mut PageEnv<'_>, resume: bool) {
@@ -572,6 +581,7 @@ impl StudyPage {
         };
         let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
         opts.calibration = calibration;
+        opts.trap_calibration = env.trap_applied.cloned();
         opts.participant = self.kind;
         opts.speed = if self.kind == ParticipantKind::Simulated {
             self.speed

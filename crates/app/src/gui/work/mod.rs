@@ -4,3 +4,4 @@
 
 pub mod calibration;
 pub mod results;
+pub mod trap_calibration;
