@@ -88,6 +88,7 @@ fn harness() -> Harness<'static, State> {
                     output_dir: None,
                     requests: &mut s.requests,
                     applied: None,
+                    trap_applied: None,
                 };
                 s.page.ui(ui, &mut env);
             },
