@@ -597,6 +597,15 @@ fn stats_ui(ui: &mut egui::Ui, t: &StatsTable) {
         t.rows.sentence(),
         t.row_rule.describe()
     ));
+    // The table scrolls sideways inside the page's width, so a long note
+    // does not widen the page (and the panels below it) past the window.
+    egui::ScrollArea::horizontal()
+        .id_salt("res-stats-scroll")
+        .show(ui, |ui| stats_grid(ui, t));
+}
+
+/// The statistics table of [`stats_ui`].
+fn stats_grid(ui: &mut egui::Ui, t: &StatsTable) {
     egui::Grid::new("res-stats")
         .striped(true)
         .num_columns(10)
