@@ -46,7 +46,7 @@ impl Progress {
     /// Progress of stages reported as a fraction and a message
     /// ("stage: detail"; the lines without a terminal name the stage).
     pub(crate) fn stages() -> Self {
-        let mut p = Self::new("");
+        let p = Self::new("");
         if let Some(b) = &p.bar {
             b.set_style(
                 ProgressStyle::with_template("[{elapsed_precise}] {bar:30} {percent:>3}% {msg}")
@@ -54,7 +54,6 @@ impl Progress {
             );
             b.set_length(FRACTION_STEPS);
         }
-        p.unit = "";
         p
     }
 
