@@ -23,7 +23,11 @@
 //! It scans for the sync marker, rejects a header whose LEN exceeds
 //! [`MAX_PAYLOAD`], and on a CRC mismatch discards only the first sync byte
 //! and scans again, so a valid frame that follows garbage or a corrupted
-//! frame is always found (resynchronisation on the next valid frame).
+//! frame is always found (resynchronisation on the next valid frame). A
+//! header whose (corrupted) LEN runs past the start of a complete valid
+//! frame is dropped without waiting for the bytes it claims: otherwise a
+//! device that has paused for the host's next commands would leave the
+//! host waiting for bytes that never come.
 
 use crc::{CRC_16_IBM_3740, Crc};
 
@@ -646,7 +650,8 @@ pub struct DecoderStats {
     pub frames: u64,
     /// Candidate frames (sync + plausible header, complete) whose CRC failed.
     pub crc_errors: u64,
-    /// Headers rejected because LEN exceeded [`MAX_PAYLOAD`].
+    /// Headers rejected because LEN exceeded [`MAX_PAYLOAD`], or because a
+    /// complete valid frame began inside the length they claimed.
     pub bad_lengths: u64,
     /// Bytes skipped while searching for a frame.
     pub bytes_skipped: u64,
@@ -754,6 +759,15 @@ impl Decoder {
             }
             let total = HEADER + plen + TRAILER;
             if avail.len() < total {
+                // A corrupted LEN can claim more bytes than the device will
+                // send before it waits for the host (a deadlock until the
+                // link times out). A complete, CRC-valid frame starting
+                // inside the claimed length shows this header is bad.
+                if complete_frame_after(avail) {
+                    self.stats.bad_lengths += 1;
+                    self.skip(1);
+                    continue;
+                }
                 return None;
             }
             let crc = u16::from_le_bytes([avail[total - 2], avail[total - 1]]);
@@ -771,6 +785,32 @@ impl Decoder {
             });
         }
     }
+}
+
+/// Whether a complete frame with a valid CRC starts after the first byte of
+/// `avail` (which begins with a sync marker). A false positive inside a
+/// genuine frame's payload needs the sync marker, a plausible LEN and a
+/// matching CRC-16 at once (≈ 2⁻³² per byte position); a scan is bounded by
+/// the decoder's buffer, [`Decoder::CAPACITY`] bytes.
+fn complete_frame_after(avail: &[u8]) -> bool {
+    let mut from = 1;
+    while let Some(off) = avail[from..].windows(2).position(|w| w == SYNC) {
+        let c = &avail[from + off..];
+        from += off + 1;
+        if c.len() < HEADER {
+            return false;
+        }
+        let plen = u16::from_le_bytes([c[2], c[3]]) as usize;
+        let total = HEADER + plen + TRAILER;
+        if plen > MAX_PAYLOAD || c.len() < total {
+            continue;
+        }
+        if CRC16.checksum(&c[2..HEADER + plen]) == u16::from_le_bytes([c[total - 2], c[total - 1]])
+        {
+            return true;
+        }
+    }
+    false
 }
 
 #[cfg(test)]
@@ -925,5 +965,66 @@ mod tests {
         assert_eq!(d.stats().bad_lengths, 1);
         assert!(d.next_frame().is_none());
         assert_eq!(d.buffered(), 0);
+    }
+
+    /// A SAMPLES frame whose LEN was corrupted to claim 900 bytes, then the
+    /// STATUS a waiting device sends: the STATUS is decoded at once, not
+    /// after 900 more bytes.
+    #[test]
+    fn a_corrupted_length_does_not_hide_the_frames_after_it() {
+        let s = DaqSample {
+            enc: [1, 2],
+            acc: [3, 4, 5],
+            flags: 0,
+        };
+        let mut stream = Vec::new();
+        write_block(&mut stream, ty::SAMPLES, 10, &[s, s, s]);
+        stream[3] = 0x03; // LEN high byte: 768 + low byte, ≤ MAX_PAYLOAD
+        let st = Status {
+            next_seq: 13,
+            state: DeviceState::Running,
+            host_frames: 1,
+            host_crc_errors: 0,
+            late_commands: 0,
+        };
+        write_status(&mut stream, &st);
+        let mut d = Decoder::new();
+        // Byte by byte, as a slow link delivers them.
+        let mut got = None;
+        for b in &stream {
+            d.push(std::slice::from_ref(b));
+            if let Some(f) = d.next_frame() {
+                got = Some((f.ty, parse_status(f.payload).unwrap()));
+                break;
+            }
+        }
+        assert_eq!(got, Some((ty::STATUS, st)));
+        assert_eq!(d.stats().bad_lengths, 1);
+        assert_eq!(d.buffered(), 0);
+    }
+
+    /// A genuine long frame whose payload is full of sync markers, arriving
+    /// a byte at a time, is decoded whole: partial frames are not abandoned
+    /// for lack of a later valid frame.
+    #[test]
+    fn a_long_frame_full_of_sync_markers_arrives_whole() {
+        let payload: Vec<u8> = (0..1000).map(|i| SYNC[i % 2]).collect();
+        let mut stream = Vec::new();
+        write_frame(&mut stream, ty::HEARTBEAT, |o| {
+            o.extend_from_slice(&payload)
+        });
+        let mut d = Decoder::new();
+        for (i, b) in stream.iter().enumerate() {
+            d.push(std::slice::from_ref(b));
+            match d.next_frame() {
+                Some(f) => {
+                    assert_eq!(i, stream.len() - 1, "decoded early");
+                    assert_eq!(f.payload, &payload[..]);
+                }
+                None => assert!(i < stream.len() - 1, "not decoded"),
+            }
+        }
+        assert_eq!(d.stats().frames, 1);
+        assert_eq!(d.stats().bad_lengths + d.stats().crc_errors, 0);
     }
 }

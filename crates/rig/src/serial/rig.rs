@@ -299,6 +299,7 @@ impl Link {
         out: &mut [u8; frame::MAX_PAYLOAD],
         deadline: Instant,
     ) -> Result<usize, RigError> {
+        let corrupted_before = self.decoder.stats().crc_errors + self.decoder.stats().bad_lengths;
         loop {
             while let Some(f) = self.decoder.next_frame() {
                 if f.ty == want && accept(f.payload) {
@@ -318,11 +319,22 @@ impl Link {
             }
             let now = Instant::now();
             if now >= deadline {
-                return Err(self.disconnected(&format!(
-                    "no answer from the device within {} ms (is it a kilotouch device, and is \
-                     the emulator running?)",
-                    self.cfg.handshake_timeout.as_millis()
-                )));
+                let d = self.decoder.stats();
+                let corrupted = d.crc_errors + d.bad_lengths - corrupted_before;
+                return Err(self.disconnected(&if corrupted > 0 {
+                    format!(
+                        "no valid answer from the device within {} ms: {corrupted} corrupted \
+                         frame(s) arrived instead (check the cable, the baud rate and \
+                         interference)",
+                        self.cfg.handshake_timeout.as_millis()
+                    )
+                } else {
+                    format!(
+                        "no answer from the device within {} ms (is it a kilotouch device, and \
+                         is the emulator running?)",
+                        self.cfg.handshake_timeout.as_millis()
+                    )
+                }));
             }
             self.read_some((deadline - now).min(Duration::from_millis(50)))
                 .map_err(|e| self.map_err(e))?;
