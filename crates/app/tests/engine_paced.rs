@@ -17,7 +17,8 @@
 //! * **deadline misses** (a 1 ms block ending more than the tolerated
 //!   latency, 2 ms, after its deadline): no more than the machine's floor,
 //!   i.e. than an idle thread running the same pacer misses at the same
-//!   time (within the scatter of [`kilotouch::engine::soak::FLOOR_FACTOR`]).
+//!   time (within the scatter of [`kilotouch::engine::soak::FLOOR_FACTOR`]:
+//!   3 × its count plus 1 ‰ of the blocks).
 //!   Zero is the result on a machine that runs a ready thread within 3 ms;
 //!   the 2-vCPU virtual machine this project is developed on does not (an
 //!   idle thread sleeping to 1 ms deadlines there wakes more than 3 ms late
