@@ -39,6 +39,18 @@
 //! Wolpert 1998) and a critically damped second-order "arm" at
 //! `arm_bandwidth_hz`.
 //!
+//! *Attention lapses* (Peiris et al. 2006, J. Sleep Res. 15:291): a Poisson
+//! process of rate `lapse_rate_per_h` (per participant, log-normal around
+//! 24 /h, mean 39 /h) starts lapses lasting `lapse_min_s` plus an
+//! exponential (mean `lapse_mean_s` = 3.4 s). During a lapse perception is
+//! not acted on: the movement under way goes on open-loop at the rates the
+//! plan had when the lapse began (circling: its turn and radial rate in the
+//! plan's polar frame; blind navigation: a straight line), and the hand's
+//! passive impedance still meets the device's force. Peiris et al. saw
+//! lapses as flat spots in a pursuit-tracking trace; carrying on with the
+//! movement under way is this model's assumption for a self-paced task.
+//! Lapses come from their own random stream of the trial's generator.
+//!
 //! Parameters, their sources and the model's limits: `docs/STUDY.md` §13.
 
 use std::f64::consts::PI;
@@ -113,6 +125,16 @@ pub struct OperatorParams {
     pub motor_noise_tau_s: f64,
     /// Bandwidth of the arm's second-order response, Hz.
     pub arm_bandwidth_hz: f64,
+    /// Rate of attention lapses, per hour of task (a Poisson process).
+    /// Default 24 /h, the median of the population's log-normal spread
+    /// ([`TraitSpread::lapse_rate_ln_sd`]), whose mean is Peiris et al.'s
+    /// (2006) 39 per hour (SD ≈ 50 between rested people in continuous
+    /// visuomotor tracking).
+    pub lapse_rate_per_h: f64,
+    /// Mean lapse duration, s (Peiris et al. 2006: 3.4 s).
+    pub lapse_mean_s: f64,
+    /// Shortest lapse, s (durations are this plus an exponential).
+    pub lapse_min_s: f64,
 }
 
 impl Default for OperatorParams {
@@ -144,9 +166,15 @@ impl Default for OperatorParams {
             motor_noise_gain: 0.08,
             motor_noise_tau_s: 0.4,
             arm_bandwidth_hz: 4.0,
+            lapse_rate_per_h: 24.0,
+            lapse_mean_s: 3.4,
+            lapse_min_s: 0.5,
         }
     }
 }
+
+/// ChaCha stream of a trial's attention lapses ("kt-lapse").
+const LAPSE_STREAM: u64 = 0x6b74_2d6c_6170_7365;
 
 /// Domain tag of the participant-trait generator ("kt-pers").
 const TRAIT_DOMAIN: u64 = 0x6b74_2d70_6572_7300;
@@ -173,6 +201,10 @@ pub struct TraitSpread {
     pub visual_gain: (f64, f64),
     /// Visuomotor delay, s: U(lo, hi) (absolute, not a factor).
     pub visual_delay_s: (f64, f64),
+    /// Haptic (long-latency) delay, s: U(lo, hi) (absolute, not a factor).
+    pub haptic_delay_s: (f64, f64),
+    /// Attention-lapse rate: log-normal σ.
+    pub lapse_rate_ln_sd: f64,
 }
 
 impl Default for TraitSpread {
@@ -186,6 +218,8 @@ impl Default for TraitSpread {
             vibration_threshold_ln_sd: 0.46,
             visual_gain: (0.8, 1.25),
             visual_delay_s: (0.12, 0.20),
+            haptic_delay_s: (0.05, 0.10),
+            lapse_rate_ln_sd: 0.98,
         }
     }
 }
@@ -219,6 +253,9 @@ impl OperatorParams {
         let gain = ln_factor(spread.force_gain_ln_sd);
         let threshold = ln_factor(spread.force_threshold_ln_sd);
         let vibration = ln_factor(spread.vibration_threshold_ln_sd);
+        // Drawn after the traits above, so adding them left those unchanged.
+        let lapses = ln_factor(spread.lapse_rate_ln_sd);
+        let haptic_delay_s = uniform(u(), spread.haptic_delay_s);
         Self {
             approach_speed_m_s: d.approach_speed_m_s * speed,
             circling_speed_m_s: d.circling_speed_m_s * speed,
@@ -231,6 +268,8 @@ impl OperatorParams {
             vibration_threshold_m_s2: d.vibration_threshold_m_s2 * vibration,
             visual_gain: d.visual_gain * vision,
             visual_delay_s,
+            haptic_delay_s,
+            lapse_rate_per_h: d.lapse_rate_per_h * lapses,
             ..d
         }
     }
@@ -281,6 +320,7 @@ enum Plan {
 pub struct SimOperator {
     p: OperatorParams,
     rng: ChaCha20Rng,
+    lapse_rng: ChaCha20Rng,
     task: TaskKind,
     mapping: HandMapping,
     // Perception.
@@ -314,6 +354,12 @@ pub struct SimOperator {
     arm_vel: [f64; 2],
     prev_target: [f64; 2],
     started: bool,
+    // Attention lapses.
+    lapse_start_s: f64,
+    lapse_end_s: f64,
+    in_lapse: bool,
+    plan_rates: [f64; 2],
+    lapse_rates: [f64; 2],
 }
 
 impl SimOperator {
@@ -348,6 +394,7 @@ impl SimOperator {
         Ok(Self {
             p: params,
             rng: ChaCha20Rng::from_seed([0; 32]),
+            lapse_rng: ChaCha20Rng::from_seed([0; 32]),
             task: TaskKind::Circling,
             mapping,
             force_lp: [0.0; 2],
@@ -378,6 +425,11 @@ impl SimOperator {
             arm_vel: [0.0; 2],
             prev_target: [0.0; 2],
             started: false,
+            lapse_start_s: f64::INFINITY,
+            lapse_end_s: f64::INFINITY,
+            in_lapse: false,
+            plan_rates: [0.0; 2],
+            lapse_rates: [0.0; 2],
         })
     }
 
@@ -391,6 +443,76 @@ impl SimOperator {
         let u1 = 1.0 - unit_uniform(&mut self.rng);
         let u2 = unit_uniform(&mut self.rng);
         (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+    }
+
+    /// Schedules the next lapse after `from_s` (s since the trial start):
+    /// its start after an exponential interval of mean 1/`lapse_rate_per_h`,
+    /// its duration `lapse_min_s` plus an exponential making the mean
+    /// `lapse_mean_s`.
+    fn schedule_lapse(&mut self, from_s: f64) {
+        let rate_per_s = self.p.lapse_rate_per_h / 3600.0;
+        if !(rate_per_s > 0.0 && rate_per_s.is_finite()) {
+            self.lapse_start_s = f64::INFINITY;
+            self.lapse_end_s = f64::INFINITY;
+            return;
+        }
+        // u in (0, 1]: −ln u is a unit exponential.
+        let mut exp1 = || -(1.0 - unit_uniform(&mut self.lapse_rng)).ln();
+        let gap = exp1() / rate_per_s;
+        let extra = (self.p.lapse_mean_s - self.p.lapse_min_s).max(0.0) * exp1();
+        self.lapse_start_s = from_s + gap;
+        self.lapse_end_s = self.lapse_start_s + self.p.lapse_min_s.max(0.0) + extra;
+    }
+
+    /// Whether the operator is in an attention lapse at `t_s`; schedules
+    /// the next lapse when one ends.
+    fn lapsing(&mut self, t_s: f64) -> bool {
+        while t_s >= self.lapse_end_s {
+            let end = self.lapse_end_s;
+            self.schedule_lapse(end);
+        }
+        t_s >= self.lapse_start_s
+    }
+
+    /// One step of a lapse: the movement under way goes on open-loop at
+    /// the rates the plan had when the lapse began (module docs): circling
+    /// in the plan's polar frame (the turn and the radial push or approach
+    /// go on), blind navigation in a straight line.
+    fn lapse_step(&mut self, dt: f64) -> [f64; 2] {
+        if !self.in_lapse {
+            self.in_lapse = true;
+            self.lapse_rates = self.plan_rates;
+        }
+        let [r0, r1] = self.lapse_rates;
+        match self.task {
+            TaskKind::Circling if self.plan == Plan::Circling => {
+                self.depth = (self.depth + r0 * dt).clamp(-3.0e-6, 5.0e-6);
+                self.theta += r1 * dt;
+                let r = self.contact_r + self.depth;
+                [
+                    self.centre[0] + r * self.theta.cos(),
+                    self.centre[1] + r * self.theta.sin(),
+                ]
+            }
+            TaskKind::Circling => self.point,
+            TaskKind::BlindNavigation => {
+                self.point[0] += r0 * dt;
+                self.point[1] += r1 * dt;
+                if self.plan == Plan::Retreating {
+                    self.retreated += norm([r0 * dt, r1 * dt]);
+                }
+                self.point
+            }
+        }
+    }
+
+    /// The plan's coordinates the lapse rates are taken from: circling
+    /// (depth, angle), blind navigation (x, y) of the trap point.
+    fn plan_coords(&self) -> [f64; 2] {
+        match self.task {
+            TaskKind::Circling => [self.depth, self.theta],
+            TaskKind::BlindNavigation => self.point,
+        }
     }
 
     /// Perceived force vector (delayed, low-passed, gain error), N.
@@ -605,6 +727,10 @@ impl SimOperator {
 impl Participant for SimOperator {
     fn begin_trial(&mut self, brief: &TrialBrief) {
         self.rng = brief.rng.clone();
+        // Lapses come from their own stream of the trial's generator, so
+        // the rest of the trial draws the same numbers with or without them.
+        self.lapse_rng = brief.rng.clone();
+        self.lapse_rng.set_stream(LAPSE_STREAM);
         self.task = brief.task;
         self.mapping = brief.mapping;
         self.force_lp = [0.0; 2];
@@ -633,6 +759,9 @@ impl Participant for SimOperator {
         self.noise = [0.0; 2];
         self.arm_vel = [0.0; 2];
         self.started = false;
+        self.in_lapse = false;
+        self.plan_rates = [0.0; 2];
+        self.schedule_lapse(0.0);
     }
 
     fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
@@ -643,10 +772,31 @@ impl Participant for SimOperator {
         }
         let vib_recent = obs.t_s - self.last_vib_event_s <= self.p.vibration_memory_s;
         self.perceive_frame(obs);
-        let target = match self.task {
-            TaskKind::Circling => self.circling(obs, force, vib_recent, dt),
-            TaskKind::BlindNavigation => self.blind(force, vib_recent, dt),
+        let before = self.plan_coords();
+        let target = if self.lapsing(obs.t_s) {
+            self.lapse_step(dt)
+        } else {
+            self.in_lapse = false;
+            match self.task {
+                TaskKind::Circling => self.circling(obs, force, vib_recent, dt),
+                TaskKind::BlindNavigation => self.blind(force, vib_recent, dt),
+            }
         };
+        // Rates of the plan, low-passed over 0.1 s: what a lapse goes on with.
+        let after = self.plan_coords();
+        if dt > 0.0 {
+            let a = 1.0 - (-dt / 0.1).exp();
+            for (rate, (x1, x0)) in self
+                .plan_rates
+                .iter_mut()
+                .zip(after.into_iter().zip(before))
+            {
+                let v = (x1 - x0) / dt;
+                if v.is_finite() {
+                    *rate += a * (v - *rate);
+                }
+            }
+        }
         self.point = target;
         let hand = self.motor(target, dt);
         if hand.iter().all(|v| v.is_finite()) {
