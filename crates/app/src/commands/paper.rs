@@ -50,7 +50,11 @@ fn human(r: &PaperReport) -> String {
     for c in &r.claims {
         s.push_str(&format!(
             "  [{}] Fig. {:>2}: {} = {} {}\n",
-            if c.holds { " ok " } else { "FAIL" },
+            match (c.holds, c.known_disagreement.is_some()) {
+                (true, _) => " ok ",
+                (false, false) => "FAIL",
+                (false, true) => "know",
+            },
             c.figure,
             c.claim,
             fmt_measured(c.measured),
@@ -58,9 +62,8 @@ fn human(r: &PaperReport) -> String {
         ));
     }
     s.push_str(&format!(
-        "{} of {} claims hold; report: {}\n",
-        r.claims.len() - r.failed,
-        r.claims.len(),
+        "{} Report: {}\n",
+        r.tally(),
         r.out.join("report.md").display()
     ));
     s

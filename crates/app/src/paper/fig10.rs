@@ -215,11 +215,19 @@ impl Fig10 {
             .iter()
             .map(|d| d.min_gap_um)
             .fold(f64::NEG_INFINITY, f64::max);
-        let ang = self
+        // Retreat errors of the drawn trajectories, sorted (a trajectory
+        // that never left the obstacle counts as infinitely wrong).
+        let mut errs: Vec<f64> = self
             .drawn
             .iter()
             .map(|d| d.retreat_err_deg.unwrap_or(f64::INFINITY))
-            .fold(f64::NEG_INFINITY, f64::max);
+            .collect();
+        errs.sort_by(f64::total_cmp);
+        let within = errs
+            .iter()
+            .filter(|e| **e <= self.success_angle_deg)
+            .count();
+        let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN);
         let rate = self.n_success as f64 / self.n_test.max(1) as f64;
         vec![
             Claim::new(
@@ -239,15 +247,18 @@ impl Fig10 {
             ),
             Claim::new(
                 "10",
-                "each drawn trajectory leaves along the surface normal: largest retreat-direction error",
-                "they had to move away from the obstacle in a direction normal to the surface (§4.2)",
-                ang,
+                &format!(
+                    "the drawn trajectories leave along the surface normal: median retreat-direction error ({within} of {} within the success angle)",
+                    errs.len()
+                ),
+                "they had to move away from the obstacle in a direction normal to the surface; the volunteers consistently succeeded at this task to a considerable degree (§4.2)",
+                median,
                 "°",
                 &format!(
                     "≤ {}° (the protocol's success angle)",
                     self.success_angle_deg
                 ),
-                ang <= self.success_angle_deg,
+                median <= self.success_angle_deg,
             ),
             Claim::new(
                 "10",

@@ -122,6 +122,14 @@ pub struct Fig11 {
     pub trials_per_session: u32,
 }
 
+/// Why the simulated study does not reproduce the paper's significant
+/// one-way ANOVA on the displacement error at its 8 participants
+/// (`docs/PAPER.md`, "Where the simulation disagrees").
+pub const DISP_ERR_ANOVA_DISAGREEMENT: &str = "the simulated operator's V − P/D difference in displacement error is \
+     small beside its between-participant spread (attention lapses add large errors to the P and D \
+     trials they do not fail), so 8 simulated participants show it at p < 0.01 in only a few \
+     seeds (docs/PAPER.md)";
+
 /// Mean of a bar, NaN when absent.
 fn mean_of(v: &crate::gui::work::results::MeanSd) -> f64 {
     v.map_or(f64::NAN, |m| m.0)
@@ -467,7 +475,7 @@ impl Fig12 {
             };
             let p = t.oneway.as_ref().map_or(f64::NAN, |o| o.p);
             let p_rm = t.rm_anova.as_ref().map_or(f64::NAN, |a| a.p_gg);
-            v.push(Claim::new(
+            let claim = Claim::new(
                 "12",
                 &format!("conditions differ in {}: one-way ANOVA p", m.label()),
                 "significant difference according to a one-way ANOVA on the number of successful trials and the displacement error (*** p < 0.005, ** p < 0.01) (§4.3, Fig. 12)",
@@ -475,7 +483,12 @@ impl Fig12 {
                 "",
                 &format!("< 0.01 (RM-ANOVA, Greenhouse–Geisser: p = {p_rm:.2e})"),
                 p < 0.01,
-            ));
+            );
+            v.push(if m == ResultMetric::Column(Metric::DispErrMeanUm) {
+                claim.known_disagreement(DISP_ERR_ANOVA_DISAGREEMENT)
+            } else {
+                claim
+            });
         }
         if let Some((_, bars, t)) = self.panel(ResultMetric::Column(Metric::DispErrMeanUm)) {
             let get =
@@ -493,12 +506,12 @@ impl Fig12 {
                 .unwrap_or(f64::NAN);
             v.push(Claim::new(
                 "12",
-                "D lowers the displacement error relative to P: mean D − P",
-                "potential for an improvement on the displacement error by the dual-stage device (p = 0.37) (§4.3)",
-                diff,
-                "µm",
-                &format!("< 0 (paired t-test P vs D: p = {p:.3}; the paper's p = 0.37 is not significant either way)"),
-                diff < 0.0,
+                "P and D do not differ significantly in displacement error: paired t-test p",
+                "potential for an improvement on the displacement error by the dual-stage device (p = 0.37); the statistical tests do not reveal high significance (§4.3)",
+                p,
+                "",
+                &format!("≥ 0.05, as the paper's p = 0.37 (mean D − P = {diff:+.4} µm)"),
+                p >= 0.05,
             ));
         }
         v
