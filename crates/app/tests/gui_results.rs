@@ -9,7 +9,7 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use kilotouch::gui::env::{PageEnv, ShellRequest};
 use kilotouch::gui::pages::results::ResultsPage;
-use kilotouch::gui::work::results::ResultMetric;
+use kilotouch::results::ResultMetric;
 use kilotouch_study::export::{Metric, StudyMeta, StudyStore, UtcTime};
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::rawsig::{Channel, Dtype, RawLayout};

@@ -8,7 +8,7 @@
 
 use super::style::{self, Figure, err, text};
 use super::{Claim, PaperError, PaperOptions, write_csv};
-use crate::gui::work::results::{StudyResults, read_trajectory};
+use crate::results::{StudyResults, read_trajectory};
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_study::protocol::{Protocol, Task};
 use kilotouch_study::runner::{RunnerConfig, TrialEngine};

@@ -11,7 +11,7 @@
 
 use super::style::{self, Figure, err, text};
 use super::{Claim, PaperError, PaperOptions};
-use crate::gui::work::results::{
+use crate::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, read_trajectory,
 };
 use kilotouch_study::export::Metric;
@@ -131,7 +131,7 @@ pub const DISP_ERR_ANOVA_DISAGREEMENT: &str = "the simulated operator's V − P/
      seeds (docs/PAPER.md)";
 
 /// Mean of a bar, NaN when absent.
-fn mean_of(v: &crate::gui::work::results::MeanSd) -> f64 {
+fn mean_of(v: &crate::results::MeanSd) -> f64 {
     v.map_or(f64::NAN, |m| m.0)
 }
 

@@ -13,12 +13,12 @@
 //!   means of the test trials, and export (`stats.csv`, `stats.json`,
 //!   regenerated `cells_long.csv` / `cells_wide.csv`).
 //!
-//! The computations live in [`crate::gui::work::results`]; malformed files
+//! The computations live in [`crate::results`]; malformed files
 //! give the study crate's file:line errors on the page, never a panic.
 
 use crate::gui::charts::{self, BarSeries, FAIL_COLOR, Trace, condition_color};
 use crate::gui::env::{PageEnv, ShellRequest};
-use crate::gui::work::results::{
+use crate::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, Trajectory,
     read_trajectory,
 };

@@ -1,7 +1,6 @@
 //! Work done off the UI thread or outside the widgets: the background
-//! calibration run and the study-results model (loading, statistics,
-//! export), kept free of egui so they can be tested directly.
+//! haptic and trap calibration runs, kept free of egui so they can be
+//! tested directly. The study-results model is [`crate::results`].
 
 pub mod calibration;
-pub mod results;
 pub mod trap_calibration;

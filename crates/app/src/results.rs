@@ -1,5 +1,5 @@
-//! The study-results model behind the Results page: reading an output
-//! folder, the per-participant and per-condition values of a metric, the
+//! The study-results model behind the Results page and `kilotouch paper`:
+//! reading an output folder, the per-participant and per-condition values of a metric, the
 //! statistics table and its export. No egui here.
 //!
 //! * Data: `trials.csv` read with [`read_trials`] (file:line errors, CRC
@@ -44,8 +44,6 @@ use kilotouch_study::stats::{
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-
-use crate::gui::charts::{decimate_indices, mean_sd};
 
 /// File name of the exported statistics table (CSV).
 pub const STATS_CSV: &str = "stats.csv";
@@ -674,4 +672,71 @@ pub fn read_trajectory(
         bead_um,
         samples: arr.rows,
     })
+}
+
+/// Mean (Neumaier-compensated, as the study crate's cell means) and sample
+/// standard deviation (n − 1 denominator; `None` for a single value) of the
+/// finite values; `None` when there is no finite value.
+pub fn mean_sd(values: &[f64]) -> Option<(f64, Option<f64>)> {
+    let v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let mean = kilotouch_study::stats::compensated_mean(&v);
+    let sd = (v.len() > 1).then(|| {
+        let dev: Vec<f64> = v.iter().map(|x| (x - mean) * (x - mean)).collect();
+        (kilotouch_study::stats::compensated_mean(&dev) * v.len() as f64 / (v.len() - 1) as f64)
+            .sqrt()
+    });
+    Some((mean, sd))
+}
+
+/// Indices of at most `max` samples of a record of `n`, evenly strided, the
+/// last sample always included (a trajectory keeps its end point).
+pub fn decimate_indices(n: usize, max: usize) -> Vec<usize> {
+    if n == 0 || max == 0 {
+        return Vec::new();
+    }
+    if n <= max {
+        return (0..n).collect();
+    }
+    let stride = n.div_ceil(max.saturating_sub(1).max(1));
+    let mut v: Vec<usize> = (0..n).step_by(stride).collect();
+    if v.last() != Some(&(n - 1)) {
+        v.push(n - 1);
+    }
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_and_sample_sd_match_the_textbook_example() {
+        // 2, 4, 4, 4, 5, 5, 7, 9: mean 5, Σ(x − x̄)² = 32, sample SD √(32/7).
+        let (m, sd) = mean_sd(&[2.0, 4.0, 4.0, 4.0, 5.0, 5.0, 7.0, 9.0]).unwrap();
+        assert!((m - 5.0).abs() < 1e-15);
+        assert!((sd.unwrap() - (32.0f64 / 7.0).sqrt()).abs() < 1e-14);
+        assert_eq!(mean_sd(&[3.0]), Some((3.0, None)));
+        assert_eq!(mean_sd(&[]), None);
+        assert_eq!(mean_sd(&[f64::NAN]), None);
+        // Non-finite values are ignored, not propagated.
+        let (m, sd) = mean_sd(&[1.0, f64::INFINITY, 3.0]).unwrap();
+        assert_eq!(m, 2.0);
+        assert!((sd.unwrap() - 2f64.sqrt()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn decimation_keeps_ends_and_bounds_the_count() {
+        assert!(decimate_indices(0, 10).is_empty());
+        assert_eq!(decimate_indices(5, 10), vec![0, 1, 2, 3, 4]);
+        for (n, max) in [(100_000, 2000), (2001, 2000), (10, 3), (7, 2)] {
+            let idx = decimate_indices(n, max);
+            assert!(idx.len() <= max, "{n} {max}: {}", idx.len());
+            assert_eq!(idx[0], 0);
+            assert_eq!(*idx.last().unwrap(), n - 1);
+            assert!(idx.windows(2).all(|w| w[0] < w[1]));
+        }
+    }
 }
