@@ -3,46 +3,25 @@
 //! default simulated rig, save / apply / load with the file's checks, and
 //! cancel.
 
+mod common;
+
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use kilotouch::gui::env::{PageEnv, ShellRequest};
+use kilotouch::gui::env::ShellRequest;
 use kilotouch::gui::pages::calibration::{CalibrationPage, Status, sim_record};
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::calibration::{CalibrationFile, Step};
 use kilotouch_rig::coupling::ChainSource;
 use std::time::{Duration, Instant};
 
-struct State {
-    page: CalibrationPage,
-    rig: RigConfig,
-    requests: Vec<ShellRequest>,
-}
+type State = common::PageState<CalibrationPage>;
 
 fn harness(state: State) -> Harness<'static, State> {
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 5000.0))
-        .build_ui_state(
-            |ui, s: &mut State| {
-                let mut env = PageEnv {
-                    rig_config: &s.rig,
-                    rig_config_path: None,
-                    output_dir: None,
-                    requests: &mut s.requests,
-                    applied: None,
-                    trap_applied: None,
-                };
-                s.page.ui(ui, &mut env);
-            },
-            state,
-        )
+    common::page_harness(state, 5000.0, CalibrationPage::ui)
 }
 
 fn new_state() -> State {
-    State {
-        page: CalibrationPage::new(),
-        rig: RigConfig::default(),
-        requests: Vec::new(),
-    }
+    State::new(CalibrationPage::new())
 }
 
 /// Step the UI (as the shell would, frame after frame) until `done` or

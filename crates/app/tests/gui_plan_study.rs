@@ -7,9 +7,10 @@
 //! `kilotouch_study::power` gives for the same options (results do not
 //! depend on the thread count).
 
+mod common;
+
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use kilotouch::gui::env::{PageEnv, ShellRequest};
 use kilotouch::gui::pages::results::ResultsPage;
 use kilotouch_study::export::{StudyMeta, StudyStore, UtcTime};
 use kilotouch_study::power::{EffectSpec, PowerOptions, PowerTest, power_from_path};
@@ -71,33 +72,10 @@ fn write_pilot(dir: &Path) {
     store.close().expect("test setup");
 }
 
-struct State {
-    page: ResultsPage,
-    rig: kilotouch_rig::RigConfig,
-    requests: Vec<ShellRequest>,
-}
+type State = common::PageState<ResultsPage>;
 
 fn harness() -> Harness<'static, State> {
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 6000.0))
-        .build_ui_state(
-            |ui, s: &mut State| {
-                let mut env = PageEnv {
-                    rig_config: &s.rig,
-                    rig_config_path: None,
-                    output_dir: None,
-                    requests: &mut s.requests,
-                    applied: None,
-                    trap_applied: None,
-                };
-                s.page.ui(ui, &mut env);
-            },
-            State {
-                page: ResultsPage::new(),
-                rig: kilotouch_rig::RigConfig::default(),
-                requests: Vec::new(),
-            },
-        )
+    common::page_harness(State::new(ResultsPage::new()), 6000.0, ResultsPage::ui)
 }
 
 #[test]

@@ -5,9 +5,11 @@
 //! against textbook formulas computed here from the known cell means, and
 //! against `kilotouch_study::stats` called directly.
 
+mod common;
+
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use kilotouch::gui::env::{PageEnv, ShellRequest};
+use kilotouch::gui::env::ShellRequest;
 use kilotouch::gui::pages::results::ResultsPage;
 use kilotouch::results::ResultMetric;
 use kilotouch_study::export::{Metric, StudyMeta, StudyStore, UtcTime};
@@ -168,38 +170,16 @@ fn textbook_friedman(y: &[Vec<f64>]) -> f64 {
     12.0 / (n * kf * (kf + 1.0)) * sums.iter().map(|s| s * s).sum::<f64>() - 3.0 * n * (kf + 1.0)
 }
 
-struct State {
-    page: ResultsPage,
-    rig: kilotouch_rig::RigConfig,
-    output_dir: Option<PathBuf>,
-    requests: Vec<ShellRequest>,
-}
+type State = common::PageState<ResultsPage>;
 
 fn harness(state: State) -> Harness<'static, State> {
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 6000.0))
-        .build_ui_state(
-            |ui, s: &mut State| {
-                let mut env = PageEnv {
-                    rig_config: &s.rig,
-                    rig_config_path: None,
-                    output_dir: s.output_dir.as_deref(),
-                    requests: &mut s.requests,
-                    applied: None,
-                    trap_applied: None,
-                };
-                s.page.ui(ui, &mut env);
-            },
-            state,
-        )
+    common::page_harness(state, 6000.0, ResultsPage::ui)
 }
 
 fn state(output_dir: Option<PathBuf>) -> State {
     State {
-        page: ResultsPage::new(),
-        rig: kilotouch_rig::RigConfig::default(),
         output_dir,
-        requests: Vec::new(),
+        ..State::new(ResultsPage::new())
     }
 }
 

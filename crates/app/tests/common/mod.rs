@@ -178,3 +178,52 @@ pub fn json_ok(args: &[&str]) -> Value {
     );
     serde_json::from_slice(&out.stdout).expect("stdout is one JSON document")
 }
+
+/// One page shown alone, with the bare environment the shell would give it
+/// (the default rig, no calibration applied, shell requests collected).
+#[allow(dead_code)]
+pub struct PageState<P> {
+    pub page: P,
+    pub rig: kilotouch_rig::RigConfig,
+    pub output_dir: Option<std::path::PathBuf>,
+    pub requests: Vec<kilotouch::gui::env::ShellRequest>,
+}
+
+#[allow(dead_code)]
+impl<P> PageState<P> {
+    /// `page` with the default rig and no output folder.
+    pub fn new(page: P) -> Self {
+        Self {
+            page,
+            rig: kilotouch_rig::RigConfig::default(),
+            output_dir: None,
+            requests: Vec::new(),
+        }
+    }
+}
+
+/// A harness 1400 px wide and `height` px tall drawing the page of `state`
+/// with `show` (the page's `ui` method) every frame.
+#[allow(dead_code)]
+pub fn page_harness<P: 'static>(
+    state: PageState<P>,
+    height: f32,
+    show: fn(&mut P, &mut egui::Ui, &mut kilotouch::gui::env::PageEnv<'_>),
+) -> Harness<'static, PageState<P>> {
+    Harness::builder()
+        .with_size(egui::vec2(1400.0, height))
+        .build_ui_state(
+            move |ui, s: &mut PageState<P>| {
+                let mut env = kilotouch::gui::env::PageEnv {
+                    rig_config: &s.rig,
+                    rig_config_path: None,
+                    output_dir: s.output_dir.as_deref(),
+                    requests: &mut s.requests,
+                    applied: None,
+                    trap_applied: None,
+                };
+                show(&mut s.page, ui, &mut env);
+            },
+            state,
+        )
+}
