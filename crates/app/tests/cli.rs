@@ -327,3 +327,29 @@ fn bench_reports_the_contract_keys() {
         assert!(x.is_finite() && x > 0.0, "{k} = {x}");
     }
 }
+
+/// `bench --paced 2 --json`: the soak report with its counters and
+/// verdict on stdout, and progress as plain lines (no carriage returns)
+/// on a stderr that is not a terminal.
+#[test]
+fn paced_bench_reports_the_soak_and_logs_plain_progress_lines() {
+    let o = kilotouch(&["bench", "--paced", "2", "--json"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON report");
+    assert_eq!(v["seconds"].as_f64(), Some(2.0));
+    assert!(v["blocks"].as_u64().unwrap() >= 1900, "{v}");
+    assert_eq!(v["overruns"].as_u64(), Some(0), "{v}");
+    assert_eq!(v["telemetry_dropped"].as_u64(), Some(0), "{v}");
+    assert!(v["reference_blocks"].as_u64().unwrap() > 0, "{v}");
+    assert!(!err.contains('\r'), "{err:?}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.contains("of the paced run"))
+        .collect();
+    assert!(
+        lines.first().is_some_and(|l| l.starts_with("[  0%]"))
+            && lines.last().is_some_and(|l| l.starts_with("[100%] 2/2")),
+        "{err}"
+    );
+}

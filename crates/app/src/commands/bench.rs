@@ -321,21 +321,15 @@ impl Report {
 fn run_paced(a: &Args, seconds: f64) -> anyhow::Result<()> {
     use crate::engine::EngineOptions;
     use crate::engine::soak::run_soak;
-    use std::io::Write;
     if !(seconds.is_finite() && seconds >= 1.0) {
         anyhow::bail!("--paced: give at least 1 second (got {seconds})");
     }
     let cfg = RigConfig::load_or_default(a.rig_config.as_ref())?;
-    let mut err = std::io::stderr();
-    let mut last = -1i64;
+    let mut bar = super::progress::Progress::new("s of the paced run");
+    let total = seconds.ceil() as usize;
     let report = run_soak(&cfg, EngineOptions::default(), seconds, &mut |f| {
-        let pct = (100.0 * f).floor() as i64;
-        if pct / 5 != last / 5 {
-            last = pct;
-            let _ = write!(err, "\rpaced run: {pct:3} % of {seconds:.0} s");
-            let _ = err.flush();
-        }
+        bar.count(((f * seconds).floor() as usize).min(total), total);
     })?;
-    let _ = writeln!(err);
+    drop(bar);
     emit(a.json, &report, || report.describe())
 }

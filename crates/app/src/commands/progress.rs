@@ -1,5 +1,5 @@
 //! Progress of long headless commands on stderr (`study simulate`,
-//! `study power`, `paper`): an `indicatif` bar (elapsed time, percentage,
+//! `study power`, `paper`, `bench --paced`): an `indicatif` bar (elapsed time, percentage,
 //! count or stage) redrawn in place on a terminal; without a terminal (CI
 //! logs, a cluster job's output file) one line per 10 % of a count, or per
 //! stage, so logs stay short.
