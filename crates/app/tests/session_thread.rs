@@ -50,16 +50,10 @@ fn opts(out: &Path, protocol: Option<Protocol>, raw: bool) -> SessionOptions {
 /// The headless reference rows.
 fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
     let o = SimulateOptions {
-        protocol: tiny(),
-        out: dir.to_path_buf(),
-        resume: false,
-        rig: RigConfig::default(),
-        calibration: None,
         runner: runner_cfg(raw),
         threads: 2,
-        new_sitting: None,
         fidelity: kilotouch_study::fidelity::Fidelity::Full,
-        shard: None,
+        ..SimulateOptions::new(tiny(), dir)
     };
     simulate(&o, &mut |_, _| {}).unwrap();
     rows(dir)

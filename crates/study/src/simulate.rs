@@ -64,6 +64,27 @@ pub struct SimulateOptions {
     pub shard: Option<Shard>,
 }
 
+impl SimulateOptions {
+    /// `protocol` into a new folder `out` on the default simulated rig:
+    /// no calibration, the default runner (raw files on), one thread,
+    /// the default fidelity, all participants. Set the other fields with
+    /// struct-update syntax.
+    pub fn new(protocol: Protocol, out: impl Into<PathBuf>) -> Self {
+        Self {
+            protocol,
+            out: out.into(),
+            resume: false,
+            rig: RigConfig::default(),
+            calibration: None,
+            runner: RunnerConfig::default(),
+            threads: 1,
+            new_sitting: None,
+            fidelity: Fidelity::default(),
+            shard: None,
+        }
+    }
+}
+
 /// What a simulation did.
 #[derive(Debug, Clone, Serialize)]
 pub struct SimulateReport {

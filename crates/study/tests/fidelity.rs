@@ -19,19 +19,13 @@ fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
     protocol.participants = 2;
     protocol.seeds.study = 33;
     let opts = SimulateOptions {
-        protocol,
-        out: dir.to_path_buf(),
-        resume: false,
-        rig: RigConfig::default(),
-        calibration: None,
         runner: RunnerConfig {
             raw: None,
             ..RunnerConfig::default()
         },
         threads: 2,
         fidelity,
-        shard: None,
-        new_sitting: None,
+        ..SimulateOptions::new(protocol, dir)
     };
     simulate(&opts, &mut |_, _| {}).unwrap();
     let session = read_session(&dir.join("session.json")).unwrap();

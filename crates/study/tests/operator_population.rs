@@ -4,7 +4,6 @@
 
 #![allow(clippy::unwrap_used)]
 
-use kilotouch_rig::config::RigConfig;
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
 use kilotouch_study::fidelity::Fidelity;
 use kilotouch_study::operator::{OperatorParams, TraitSpread};
@@ -92,19 +91,13 @@ fn a_simulated_population_is_not_at_ceiling_in_p_and_d_and_v_stays_worst() {
     protocol.training.practice_trials = 0;
     let tmp = tempfile::tempdir().unwrap();
     let opts = SimulateOptions {
-        protocol: protocol.clone(),
-        out: tmp.path().join("study"),
-        resume: false,
-        rig: RigConfig::default(),
-        calibration: None,
         runner: RunnerConfig {
             raw: None,
             ..RunnerConfig::default()
         },
         threads: 2,
         fidelity: Fidelity::Scene,
-        shard: None,
-        new_sitting: None,
+        ..SimulateOptions::new(protocol.clone(), tmp.path().join("study"))
     };
     simulate(&opts, &mut |_, _| {}).unwrap();
     let k = success_counts(&opts.out, participants);

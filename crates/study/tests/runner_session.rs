@@ -214,16 +214,10 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
     for threads in [1, 3] {
         let out = tmp.path().join(format!("sim{threads}"));
         let opts = SimulateOptions {
-            protocol: protocol(),
-            out: out.clone(),
-            resume: false,
-            rig: RigConfig::default(),
-            calibration: None,
             runner: config(false),
             threads,
-            new_sitting: None,
             fidelity: kilotouch_study::fidelity::Fidelity::Full,
-            shard: None,
+            ..SimulateOptions::new(protocol(), out.clone())
         };
         let rep = simulate(&opts, &mut |_, _| {}).unwrap();
         assert_eq!(rep.test_rows, 8);

@@ -92,16 +92,10 @@ pub(crate) fn simulate_study(
 ) -> Result<StudyResults, PaperError> {
     fresh_study_dir(dir)?;
     let sim = kilotouch_study::simulate::SimulateOptions {
-        protocol: protocol.clone(),
-        out: dir.to_path_buf(),
-        resume: false,
         rig: opts.rig.clone(),
-        calibration: None,
         runner,
         threads: opts.threads,
-        new_sitting: None,
-        fidelity: kilotouch_study::fidelity::Fidelity::default(),
-        shard: None,
+        ..kilotouch_study::simulate::SimulateOptions::new(protocol.clone(), dir)
     };
     kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
         progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))
