@@ -445,7 +445,7 @@ impl<I: Instrument> Emulator<I> {
             frame::ty::HEARTBEAT => {}
             frame::ty::RESET => {
                 if payload.len() == I::Command::SIZE {
-                    let c = I::Command::get(payload);
+                    let c = I::Command::decode(payload);
                     self.inst.reset(&c);
                     self.applied = c;
                 } else {
