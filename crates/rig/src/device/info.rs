@@ -83,3 +83,22 @@ pub enum HostInfo {
     /// The participant's screen now shows this frame.
     View(ViewInfo),
 }
+
+/// A participant at a device's handle: what an emulated device hosts for
+/// hardware-in-the-loop runs (`kilotouch emulate daq --participant`). It
+/// hears what the host tells the device ([`HostInfo`]), feels what the
+/// device renders and moves the handle. Called on the device's thread,
+/// once per sample.
+pub trait HandAgent: Send + std::fmt::Debug {
+    /// The host told the device something.
+    fn info(&mut self, info: &HostInfo);
+    /// Where the hand is during the next sample (m; `None`: where it was).
+    fn hand(&mut self) -> Option<[f64; 2]>;
+    /// The sample ran with `applied` (Pantograph force N, Haptuator drive
+    /// V); `sensors` is what the device read at its end.
+    fn observe(
+        &mut self,
+        applied: &crate::device::ActuatorFrame,
+        sensors: &crate::device::SensorFrame,
+    );
+}

@@ -42,7 +42,7 @@ pub(crate) use fault::StatusCounters;
 pub use fault::{FaultQueue, RigFault};
 pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
 pub use identity::{RigIdentity, RigKind, RigState, RigStatus};
-pub use info::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
 pub use spec::RigSpec;
 
 use crate::error::RigError;
