@@ -7,8 +7,9 @@ use kilotouch_rig::config::default_config_text;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
-use kilotouch_rig::serial::{LinkStats, SerialRig};
-use kilotouch_rig::sim::SimRig;
+use kilotouch_rig::AnyRig;
+use kilotouch_rig::backend::Device;
+use kilotouch_rig::serial::LinkStats;
 use kilotouch_rig::stability::{StabilityReport, analyse};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -141,6 +142,13 @@ pub struct CheckReport {
     pub bytes_skipped: u64,
     /// Samples executed by the device with a held (late) command.
     pub late_commands: u64,
+    /// Of these, after the first 100 ms (a command lead keeps a
+    /// free-running device in commands once running: only start-up is late).
+    pub late_commands_after_startup: u64,
+    /// The command lead, samples (serial rigs; 0: block-synchronous).
+    pub command_lead_samples: u64,
+    /// The link's round trip measured at connection, ms (serial rigs).
+    pub round_trip_ms: Option<f64>,
     /// Measured rate: frames / wall time of the streaming, Hz.
     pub rate_hz: f64,
     /// Wall time of the streaming, s.
@@ -202,7 +210,14 @@ struct Streamed {
     lost: u64,
     elapsed_s: f64,
     max_block_s: f64,
+    /// Late commands after the start-up window ([`STARTUP_S`]).
+    late_after_startup: u64,
 }
+
+/// The start-up window of a check, s: the device runs from START while the
+/// host's first commands travel (and, with a command lead, while the lead
+/// fills), so late commands there are expected.
+const STARTUP_S: f64 = 0.1;
 
 /// Stream zero commands through `rig` for `duration` s in blocks of
 /// `block`. The counters are returned with the error that ended the run,
@@ -214,9 +229,16 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
     if let Err(e) = rig.start() {
         return (s, Some(e.into()));
     }
+    // The exchange runs real-time where the system allows it, as the
+    // engine's loop does.
+    let rt = kilotouch_rig::realtime::promote_current_thread().is_realtime();
     let t0 = Instant::now();
     let mut error = None;
+    let mut late_at_startup = None;
     while t0.elapsed().as_secs_f64() < duration {
+        if late_at_startup.is_none() && t0.elapsed().as_secs_f64() >= STARTUP_S {
+            late_at_startup = Some(rig.status().late_commands);
+        }
         let tb = Instant::now();
         match rig.process_block(&cmds, &mut sens) {
             Ok(r) => {
@@ -231,6 +253,11 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
         }
     }
     s.elapsed_s = t0.elapsed().as_secs_f64();
+    let late = rig.status().late_commands;
+    s.late_after_startup = late - late_at_startup.unwrap_or(late).min(late);
+    if rt {
+        kilotouch_rig::realtime::demote_current_thread();
+    }
     if let Err(e) = rig.stop() {
         error.get_or_insert(e.into());
     }
@@ -281,33 +308,38 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         }
     }
     let spec: RigSpec = a.rig.parse()?;
-    let (id, (streamed, error), link) = match &spec {
-        RigSpec::Sim => {
-            let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
-            let mut rig = SimRig::paced(&rc, 0.5)?;
-            let streamed = stream(&mut rig, a.duration, a.block);
-            (rig.identity().clone(), streamed, LinkStats::default())
-        }
-        RigSpec::Serial(cfg) => {
-            let mut rig = SerialRig::open(cfg)?;
-            // START may take up to the handshake time-out; then the
-            // streaming time and the grace: a hard bound on every block.
-            rig.set_deadline(Some(
-                Instant::now()
-                    + cfg.handshake_timeout
-                    + Duration::from_secs_f64(a.duration)
-                    + CheckArgs::GRACE,
-            ));
-            let streamed = stream(&mut rig, a.duration, a.block);
-            (rig.identity().clone(), streamed, rig.link_stats())
-        }
-        RigSpec::Audio(_) => return Err(RigSpec::audio_not_built().into()),
+    let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
+    let mut rig = match &spec {
+        // The simulated rig paced by the wall clock, as a device would be.
+        RigSpec::Sim => AnyRig::sim_paced(&rc, 0.5)?,
+        _ => kilotouch_rig::open_rig(&spec, &rc)?,
     };
+    if let Device::Serial(r) = rig.device_mut() {
+        // START may take up to the handshake time-out; then the streaming
+        // time and the grace: a hard bound on every block.
+        let hs = match &spec {
+            RigSpec::Serial(c) => c.handshake_timeout,
+            _ => Duration::ZERO,
+        };
+        r.set_deadline(Some(
+            Instant::now() + hs + Duration::from_secs_f64(a.duration) + CheckArgs::GRACE,
+        ));
+    }
+    let lead = u64::from(rig.loop_delay_samples(a.block).saturating_sub(a.block as u32))
+        * u64::from(rig.is_live());
+    let round_trip_ms = rig.round_trip_s().map(|s| s * 1e3);
+    let (streamed, error) = stream(&mut rig, a.duration, a.block);
+    let link = match rig.device() {
+        Device::Serial(r) => r.link_stats(),
+        _ => LinkStats::default(),
+    };
+    let id = rig.identity().clone();
     let Streamed {
         frames,
         lost,
         elapsed_s,
         max_block_s,
+        late_after_startup,
     } = streamed;
     let ratio = |n: u64| {
         if frames == 0 {
@@ -327,6 +359,9 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         crc_errors: link.crc_errors,
         bytes_skipped: link.bytes_skipped,
         late_commands: link.late_commands,
+        late_commands_after_startup: late_after_startup,
+        command_lead_samples: lead,
+        round_trip_ms,
         rate_hz: if elapsed_s > 0.0 {
             frames as f64 / elapsed_s
         } else {
