@@ -9,7 +9,7 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::plant::Axis;
-use kilotouch_rig::stability::margins::{grid, margins};
+use kilotouch_rig::stability::margins::{grid, grid_for_delay, margins};
 use kilotouch_rig::stability::{
     Case, Hand, LoopAnalysis, LoopState, analyse, analyse_with_latency, delay_samples,
 };
@@ -55,6 +55,38 @@ fn margins_match_python_control() {
             cmp(m.phase_crossover_hz, &g["phase_crossover_hz"], 1e-6, "f180");
         }
         if m.gain_crossover_hz.is_finite() {
+            cmp(m.gain_crossover_hz, &g["gain_crossover_hz"], 1e-6, "fc");
+        }
+    }
+}
+
+/// Small loops with a long pure delay (the phase turns hundreds of times up
+/// to Nyquist): the grid refined for the delay and the refinement of the
+/// decisive crossings only give python-control's margins.
+#[test]
+fn delayed_margins_match_python_control() {
+    let r = reference();
+    for g in r["generic_delayed"].as_array().unwrap() {
+        let num: Vec<f64> = serde_json::from_value(g["num"].clone()).unwrap();
+        let den: Vec<f64> = serde_json::from_value(g["den"].clone()).unwrap();
+        let fs = g["fs"].as_f64().unwrap();
+        let d = g["delay_samples"].as_u64().unwrap() as usize;
+        let l = |f: f64| {
+            let z = C64::from_polar(1.0, 2.0 * PI * f / fs);
+            poly_z(&num, z) / poly_z(&den, z) * z.powi(-(d as i32))
+        };
+        let fr = grid_for_delay(fs, d);
+        assert!(fr.len() > grid(fs).len() && fr.windows(2).all(|w| w[1] > w[0]));
+        let v: Vec<C64> = fr.iter().map(|&f| l(f)).collect();
+        let m = margins(&fr, &v, &l, fs);
+        let cmp = |got: f64, want: &Value, tol: f64, what: &str| match want.as_f64() {
+            Some(w) => assert!((got - w).abs() <= tol, "{what}: {got} vs {w} (d = {d})"),
+            None => assert!(!got.is_finite(), "{what}: {got} vs none (d = {d})"),
+        };
+        cmp(m.gain_margin_db, &g["gain_margin_db"], 1e-4, "GM dB");
+        cmp(m.phase_margin_deg, &g["phase_margin_deg"], 1e-3, "PM deg");
+        cmp(m.phase_crossover_hz, &g["phase_crossover_hz"], 1e-6, "f180");
+        if g["gain_crossover_hz"].is_number() {
             cmp(m.gain_crossover_hz, &g["gain_crossover_hz"], 1e-6, "fc");
         }
     }
@@ -279,7 +311,9 @@ fn delayed_loop_matches_python_control() {
     for c in r["delay_cases"].as_array().unwrap() {
         let d = c["delay_samples"].as_u64().unwrap() as usize;
         let case = case_from(c);
-        let got = delayed(&cfg, &chain, d).case(&case, kappa, g, true).unwrap();
+        let got = delayed(&cfg, &chain, d)
+            .case(&case, kappa, g, true)
+            .unwrap();
         let m = got.margins.unwrap();
         let what = format!("{case:?} d = {d}");
         let gm = c["gain_margin_db"].as_f64().unwrap();
@@ -319,8 +353,18 @@ fn delayed_loop_matches_python_control() {
     let case = case_from(cd);
     let last = cd["last_stable_samples"].as_u64().unwrap() as usize;
     let first = cd["first_unstable_samples"].as_u64().unwrap() as usize;
-    assert!(delayed(&cfg, &chain, last).case(&case, kappa, g, false).unwrap().stable);
-    assert!(!delayed(&cfg, &chain, first).case(&case, kappa, g, false).unwrap().stable);
+    assert!(
+        delayed(&cfg, &chain, last)
+            .case(&case, kappa, g, false)
+            .unwrap()
+            .stable
+    );
+    assert!(
+        !delayed(&cfg, &chain, first)
+            .case(&case, kappa, g, false)
+            .unwrap()
+            .stable
+    );
 }
 
 /// A pure delay leaves |L| and so the gain crossover where it is and turns
@@ -351,10 +395,9 @@ fn a_delay_lowers_the_phase_margin_by_the_phase_of_the_delay() {
             if (md.gain_crossover_hz / m0.gain_crossover_hz - 1.0).abs() > 1e-9 {
                 continue;
             }
-            let want =
-                (m0.phase_margin_deg - 360.0 * m0.gain_crossover_hz * d as f64 / fs + 180.0)
-                    .rem_euclid(360.0)
-                    - 180.0;
+            let want = (m0.phase_margin_deg - 360.0 * m0.gain_crossover_hz * d as f64 / fs + 180.0)
+                .rem_euclid(360.0)
+                - 180.0;
             assert!(
                 (md.phase_margin_deg - want).abs() < 1e-6,
                 "{what}: PM {} vs {want} (PM₀ {} at {} Hz)",
@@ -390,7 +433,11 @@ fn eigenvalues_and_phase_margin_agree_on_the_critical_delay() {
         .unwrap();
     let d0 = r0.condition(Condition::D).unwrap();
     let case = d0.worst_phase_case;
-    let stable = |d: usize| delayed(&cfg, &chain, d).case(&case, kappa, g, false).unwrap();
+    let stable = |d: usize| {
+        delayed(&cfg, &chain, d)
+            .case(&case, kappa, g, false)
+            .unwrap()
+    };
     let (mut lo, mut hi) = (0usize, 400usize);
     assert!(stable(lo).stable && !stable(hi).stable);
     while hi - lo > 1 {
@@ -470,7 +517,10 @@ fn the_clearance_at_a_delay_names_it() {
         assert!(
             matches!(
                 analyse_with_latency(&cfg, &chain.coefficients, bad),
-                Err(RigError::InvalidParameter { name: "latency", .. })
+                Err(RigError::InvalidParameter {
+                    name: "latency",
+                    ..
+                })
             ),
             "{bad}"
         );
