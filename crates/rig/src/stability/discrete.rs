@@ -168,6 +168,9 @@ mod tests {
 
     fn response(s: &Dss, z: C64) -> C64 {
         let n = s.n_states();
+        if n == 0 {
+            return C64::new(s.d[(0, 0)], 0.0);
+        }
         let mut m = DMatrix::<C64>::from_fn(n, n, |i, j| C64::new(-s.a[(i, j)], 0.0));
         for i in 0..n {
             m[(i, i)] += z;
