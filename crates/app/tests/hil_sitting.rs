@@ -105,8 +105,7 @@ fn a_whole_participant_on_emulated_hardware() {
     }
     // session.json names the device and its measured loop delay.
     let session: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
     let d = &session["sittings"][0]["device"];
     assert_eq!(d["spec"], dev.rig(), "{session}");
     assert_eq!(d["kind"], "SerialDaq");
@@ -179,8 +178,14 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     let FinishReason::Failed(why) = reason else {
         panic!("{reason:?}")
     };
-    assert!(why.contains(&dev.path), "the reason names the device: {why}");
-    assert!(ended_s < 5.0, "the sitting ended {ended_s:.2} s after the kill");
+    assert!(
+        why.contains(&dev.path),
+        "the reason names the device: {why}"
+    );
+    assert!(
+        ended_s < 5.0,
+        "the sitting ended {ended_s:.2} s after the kill"
+    );
     // Outputs held at zero: the engine's loop stopped with the safety
     // layer tripped.
     let _ = s.close(&mut engine);
@@ -192,7 +197,11 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    assert!(engine.health().is_some_and(|h| !h.running && h.safety.latched()));
+    assert!(
+        engine
+            .health()
+            .is_some_and(|h| !h.running && h.safety.latched())
+    );
     engine.shutdown();
     // Nothing committed is lost; the trial in progress has no row.
     let on_disk = rows(&out);
@@ -229,7 +238,10 @@ fn a_link_too_slow_for_the_margins_is_refused_with_the_numbers() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("margin"), "{err}");
     assert!(err.contains("ms"), "names the delay: {err}");
-    assert!(err.contains("force scale"), "names the largest safe force scale: {err}");
+    assert!(
+        err.contains("force scale"),
+        "names the largest safe force scale: {err}"
+    );
     // Nothing was written.
     assert!(rows(&out).is_empty());
 }

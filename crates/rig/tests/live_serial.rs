@@ -526,7 +526,10 @@ fn a_command_lead_keeps_a_free_running_device_in_commands() {
     let (led, led_status) = late_commands_with_lead(2, 300);
     assert_eq!(sync, sync_status);
     assert_eq!(led, led_status);
-    assert!(sync >= 150, "block-synchronous: only {sync} late commands in 3000 samples");
+    assert!(
+        sync >= 150,
+        "block-synchronous: only {sync} late commands in 3000 samples"
+    );
     assert!(
         led * 10 < sync,
         "with a lead of 2 blocks {led} late commands, block-synchronous {sync}"
@@ -603,6 +606,9 @@ fn the_host_information_reaches_the_participant_at_the_handle() {
     // behind the finger's impedance); it rests at 0 without a hand.
     assert!(out[9].handle_m[0] > 10e-6, "{:?}", out[9].handle_m);
     let emu = dev.finish();
-    assert_eq!(infos.lock().unwrap().as_slice(), &[begin, view, HostInfo::TrialEnd]);
+    assert_eq!(
+        infos.lock().unwrap().as_slice(),
+        &[begin, view, HostInfo::TrialEnd]
+    );
     assert_eq!(emu.stats().host_frames, emu.stats().host_frames);
 }

@@ -2,15 +2,15 @@
 
 use anyhow::Context;
 use clap::Subcommand;
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::backend::Device;
 use kilotouch_rig::config::default_config_text;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
-use kilotouch_rig::AnyRig;
-use kilotouch_rig::backend::Device;
 use kilotouch_rig::serial::LinkStats;
-use kilotouch_rig::stability::{StabilityReport, analyse};
+use kilotouch_rig::stability::{MAX_LATENCY_S, StabilityReport, analyse_with_latency};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -32,7 +32,8 @@ pub enum RigCommand {
     /// Stream zero commands to a rig for a while and report frames, lost frames, CRC errors and the rate.
     Check(CheckArgs),
     /// Closed-loop stability: gain and phase margins of P and D (worst case over the hand range,
-    /// free and pressed), critical trap stiffness and the largest safe force scale.
+    /// free and pressed), critical trap stiffness and the largest safe force scale; with
+    /// `--latency-ms`, for a loop with that much extra delay (a live rig's block and link).
     Margins(MarginsArgs),
 }
 
@@ -68,9 +69,33 @@ pub struct MarginsArgs {
     /// Rig and chain.
     #[command(flatten)]
     pub rig: LoopArgs,
+    /// Extra loop delay, ms, on top of the simulated loop's one sample: a live rig's block
+    /// length plus its link's command lead. Rounded up to whole samples; 0 to 100 ms.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "MS",
+        allow_negative_numbers = true
+    )]
+    pub latency_ms: f64,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+impl MarginsArgs {
+    /// `--latency-ms` in seconds, checked: finite, ≥ 0, at most
+    /// [`MAX_LATENCY_S`].
+    pub fn latency_s(&self) -> anyhow::Result<f64> {
+        let ms = self.latency_ms;
+        let max_ms = 1e3 * MAX_LATENCY_S;
+        if !(ms.is_finite() && (0.0..=max_ms).contains(&ms)) {
+            anyhow::bail!(
+                "--latency-ms must be a number of milliseconds from 0 to {max_ms}, got {ms}"
+            );
+        }
+        Ok(1e-3 * ms)
+    }
 }
 
 /// `kilotouch rig margins --json`: the stability report and the chain it is for.
@@ -81,6 +106,9 @@ pub struct MarginsReport {
     pub report: StabilityReport,
     /// Where the chain came from.
     pub chain: ChainSource,
+    /// The extra loop delay asked for (`--latency-ms`), ms; the report's
+    /// `latency_samples` is it in whole samples.
+    pub latency_ms: f64,
 }
 
 /// Arguments of `kilotouch rig check`.
@@ -325,8 +353,10 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
             Instant::now() + hs + Duration::from_secs_f64(a.duration) + CheckArgs::GRACE,
         ));
     }
-    let lead = u64::from(rig.loop_delay_samples(a.block).saturating_sub(a.block as u32))
-        * u64::from(rig.is_live());
+    let lead = u64::from(
+        rig.loop_delay_samples(a.block)
+            .saturating_sub(a.block as u32),
+    ) * u64::from(rig.is_live());
     let round_trip_ms = rig.round_trip_s().map(|s| s * 1e3);
     let (streamed, error) = stream(&mut rig, a.duration, a.block);
     let link = match rig.device() {
@@ -405,11 +435,14 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
             }
         }
         RigCommand::Margins(a) => {
+            let latency_s = a.latency_s()?;
             let (cfg, chain) = a.rig.load()?;
-            let report = analyse(&cfg, &chain.coefficients).context("rig margins")?;
+            let report = analyse_with_latency(&cfg, &chain.coefficients, latency_s)
+                .context("rig margins")?;
             let out = MarginsReport {
                 report,
                 chain: chain.source.clone(),
+                latency_ms: a.latency_ms,
             };
             emit(a.json, &out, || {
                 let mut t = format!("chain: {}\n", chain.source.describe());

@@ -83,7 +83,9 @@ impl std::str::FromStr for RigSpec {
                         _ => {
                             return Err(bad(
                                 s,
-                                format!("`lead` is `auto` or a number of blocks 0 ..= 64, got `{v}`"),
+                                format!(
+                                    "`lead` is `auto` or a number of blocks 0 ..= 64, got `{v}`"
+                                ),
                             ));
                         }
                     },

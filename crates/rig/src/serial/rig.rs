@@ -903,8 +903,7 @@ impl SerialRig {
     fn send(&mut self, s: u64, commands: &[ActuatorFrame]) -> Result<(), RigError> {
         let c = self.caps;
         for (i, a) in commands.iter().enumerate() {
-            self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] =
-                command_flags(a, &c);
+            self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] = command_flags(a, &c);
         }
         let mut off = 0usize;
         for chunk in commands.chunks(Self::FRAME_COMMANDS) {
