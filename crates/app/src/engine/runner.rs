@@ -447,6 +447,22 @@ impl<C: Clock> EngineCore<C> {
             ))));
             return;
         }
+        // The new device's loop delay (its link's round trip sizes the
+        // command lead) must be within what the stability clearance was
+        // made for; a longer one needs a new connection, which checks the
+        // margins again.
+        let latency = extra_latency_s(&self.lp.rig, self.opts.block_len, self.fs);
+        if latency > self.latency_s + 0.5 / self.fs {
+            let _ = self.lp.rig.stop();
+            self.faulted = true;
+            self.push_notice(EngineEvent::RigError(RigError::LoopNotSafe(format!(
+                "the reconnected device's loop adds {:.2} ms of delay, the stability check was made \
+                 for {:.2} ms: disconnect and connect again so the margins are checked with it",
+                latency * 1e3,
+                self.latency_s * 1e3
+            ))));
+            return;
+        }
         match SafetyLayer::for_rig(&id, &self.cfg.safety) {
             Ok(mut layer) => {
                 if layer.arm_on_start() {

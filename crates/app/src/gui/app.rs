@@ -371,9 +371,19 @@ impl KilotouchApp {
 
     /// THE emergency stop of the GUI (button and Esc): never blocks.
     pub fn emergency_stop(&mut self) {
+        let sitting = self.study.is_running();
         self.study.emergency_stop();
         match &self.engine {
-            Some(e) => e.emergency_stop(),
+            Some(e) => {
+                e.emergency_stop();
+                if sitting {
+                    self.notify(
+                        "emergency stop: the study's trial was aborted and the sitting paused; \
+                         outputs held at zero until the stop is reset",
+                        true,
+                    );
+                }
+            }
             None => self.notify(
                 "emergency stop: no rig connected (outputs already off)",
                 false,
