@@ -8,6 +8,7 @@ pub mod emulate;
 pub mod frf;
 pub mod paper;
 pub mod progress;
+pub mod protocol_arg;
 pub mod psd;
 pub mod rig;
 pub mod sim;

@@ -387,6 +387,33 @@ fn emulator_output_equals_the_simulated_rig_sample_for_sample() {
     );
 }
 
+/// A waiting emulator that was descheduled (it runs samples long after
+/// they were due) does not blame the host: the host could not answer
+/// samples it never received, so the window starts when the device
+/// actually ran out of commands.
+#[test]
+fn a_descheduled_device_does_not_trip_on_samples_it_ran_late() {
+    let mut e = emulator(EmulatorConfig {
+        watchdog: Duration::from_millis(50),
+        ..cfg()
+    });
+    e.receive(&host(ty::START, |_| {}), Duration::ZERO);
+    e.receive(&commands(0, &[DaqCommand::default(); 100]), ms(1.0));
+    // The process wakes 300 ms later: the 100 samples run now.
+    e.advance(ms(300.0));
+    assert_eq!(e.next_seq(), 100);
+    assert_eq!(e.state(), DeviceState::Running);
+    e.advance(ms(349.0));
+    assert_eq!(
+        e.state(),
+        DeviceState::Running,
+        "within the window from 300 ms"
+    );
+    e.advance(ms(350.5));
+    assert_eq!(e.state(), DeviceState::Tripped);
+    assert_eq!(e.stats().watchdog_trips, 1);
+}
+
 #[test]
 fn watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
     let c = EmulatorConfig {

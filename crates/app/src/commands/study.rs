@@ -8,7 +8,6 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::RunnerConfig;
 use kilotouch_study::simulate::{SimulateOptions, SimulateReport, simulate};
 
@@ -110,20 +109,6 @@ pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
     }
 }
 
-pub(crate) fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
-    let path = PathBuf::from(spec);
-    if path.is_file() {
-        return Protocol::load(&path).map_err(anyhow::Error::from);
-    }
-    if kilotouch_study::protocol::BUILTIN_NAMES.contains(&spec) {
-        return Protocol::builtin(spec).map_err(anyhow::Error::from);
-    }
-    anyhow::bail!(
-        "--protocol {spec}: no such file, and not a built-in protocol (expected a TOML file or one of: {})",
-        kilotouch_study::protocol::BUILTIN_NAMES.join(", ")
-    )
-}
-
 fn human(r: &SimulateReport) -> String {
     let mut s = String::new();
     s.push_str(&format!(
@@ -161,7 +146,7 @@ fn human(r: &SimulateReport) -> String {
 }
 
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
-    let mut protocol = load_protocol(&a.protocol)?;
+    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
     if let Some(n) = a.participants {
         protocol.participants = n;
     }

@@ -197,7 +197,7 @@ fn folder_or_new_protocol(a: &RunArgs) -> anyhow::Result<kilotouch_study::protoc
             a.out.display()
         );
     }
-    super::study::load_protocol(&a.protocol)
+    super::protocol_arg::load_protocol(&a.protocol)
 }
 
 /// Polls the sitting until it ends: progress on stderr, the engine's rig

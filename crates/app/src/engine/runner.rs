@@ -1,7 +1,7 @@
 //! The engine's loop body: one block per call (see the module docs of
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
-use super::driver::{BlockCtx, BlockDriver, FreeExploration, Publisher};
+use super::driver::{BlockCtx, BlockDriver, EngineLoop, FreeExploration, Publisher};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
@@ -30,9 +30,6 @@ pub(crate) struct Shared {
     /// Ask the engine thread to end.
     pub shutdown: AtomicBool,
 }
-
-/// The closed loop the engine runs.
-pub type EngineLoop = HapticLoop<AnyRig, DetectedTweezer, SwappableChain>;
 
 /// The loop delay of `rig` exchanging blocks of `block_len` samples at
 /// `fs` Hz beyond the one sample of the simulated loop, s: what the

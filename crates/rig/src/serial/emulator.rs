@@ -626,10 +626,19 @@ impl<I: Instrument> Emulator<I> {
         } else {
             self.flush_batch();
             // The watchdog window runs from the later of the last valid host
-            // frame and the moment the device ran out of commands.
-            let since = *self
-                .waiting_since
-                .get_or_insert(self.due_time(self.next_seq).min(now));
+            // frame and the moment the device ran out of commands: on its
+            // clock (the sample that is due without a command), unless the
+            // device is far behind its clock (the emulating process was
+            // descheduled: it ran the samples only now, so the host could
+            // not have answered them earlier) — then from now.
+            let ran_out = self.due_time(self.next_seq);
+            let since = *self.waiting_since.get_or_insert(
+                if now.saturating_sub(ran_out) > self.cfg.watchdog / 2 {
+                    now
+                } else {
+                    ran_out.min(now)
+                },
+            );
             let deadline = self.last_host.max(since) + self.cfg.watchdog;
             if now >= deadline {
                 // Watchdog: outputs safe, report, stop streaming.
