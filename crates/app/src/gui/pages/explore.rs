@@ -11,7 +11,7 @@
 
 use crate::engine::{Condition, EngineHandle, TelemetrySample, flags};
 use crate::gui::env::PageEnv;
-use crate::gui::plot::{self, LiveTraces, Trace};
+use crate::gui::plot::{self, AxisReadout, AxisScale, LiveTraces, Ring, Trace};
 use crate::gui::scene::{self, Camera, CameraModel, SceneFrame, Snapshot, View};
 use crate::gui::scene_wgpu::SceneCallback;
 use egui::{Color32, RichText, Sense};
@@ -28,6 +28,23 @@ pub enum Tool {
     Place,
     /// Click an obstacle to remove it.
     Remove,
+}
+
+/// What the Explore page's plots showed last frame: their axes and the
+/// agitation's standard deviations (egui_plot paints tick labels as text,
+/// so the tests read them here).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PlotReadouts {
+    /// Force trace, y axis.
+    pub force: AxisReadout,
+    /// Acceleration trace, y axis.
+    pub accel: AxisReadout,
+    /// Histogram, x axis.
+    pub histogram: AxisReadout,
+    /// SD of the tip acceleration x over the last second, m/s².
+    pub sd_now_m_s2: Option<f64>,
+    /// SD over the last second of samples without contact, m/s².
+    pub sd_free_m_s2: Option<f64>,
 }
 
 /// Half width of the scene, µm.
@@ -63,6 +80,20 @@ pub struct ExplorePage {
     spectrum: Option<Spectrum>,
     spectrum_age: f64,
     hist_range: f32,
+    /// Tip acceleration x of the last samples without contact (1 s), m/s²:
+    /// the free agitation the histogram's SD is compared with.
+    free_accel: Ring,
+    /// A Reset bead waiting for the trap to reach this clear spot (m), and
+    /// the frames waited.
+    pending_reset: Option<([f64; 2], u32)>,
+    /// Condition the free samples were taken in (cleared on a change).
+    free_condition: Option<Condition>,
+    /// The accelerometer's quantisation step, m/s² (histogram bins).
+    accel_lsb: f64,
+    force_scale: AxisScale,
+    accel_scale: AxisScale,
+    /// What the plots' axes showed last frame (tests read them).
+    readouts: PlotReadouts,
     /// Why the Pantograph force sent is zero (outputs held, condition V).
     force_note: Option<&'static str>,
     escapes: u64,
@@ -125,6 +156,13 @@ impl ExplorePage {
             spectrum: None,
             spectrum_age: f64::INFINITY,
             hist_range: 1.0,
+            free_accel: Ring::new(fs.ceil().max(1.0) as usize),
+            free_condition: None,
+            pending_reset: None,
+            accel_lsb: cfg.accelerometer.lsb_m_s2,
+            force_scale: AxisScale::default(),
+            accel_scale: AxisScale::default(),
+            readouts: PlotReadouts::default(),
             force_note: None,
             escapes: 0,
             contacts: 0,
@@ -144,7 +182,53 @@ impl ExplorePage {
         self.obstacles = config_obstacles(cfg);
         self.hand_m = cfg.coupling.handle_origin_m;
         self.spectrum = None;
+        self.free_accel = Ring::new(fs.ceil().max(1.0) as usize);
+        self.accel_lsb = cfg.accelerometer.lsb_m_s2;
         self.fs = fs;
+    }
+
+    /// Reset bead: at once when the trap is clear of the obstacles;
+    /// otherwise the hand first moves the trap to the nearest spot clear of
+    /// them ([`clear_spot`]) and the reset follows when the telemetry shows
+    /// the trap there ([`Self::poll_reset`]): a bead put back inside an
+    /// obstacle would be pushed out of the trap at once.
+    fn reset_bead(&mut self, cfg: &RigConfig, e: &mut EngineHandle) {
+        let trap = self.last.map_or([0.0; 2], |s| s.trap_m);
+        let clearance = cfg.tweezer.radius_m + 0.5e-6;
+        match clear_spot(trap, &self.obstacles, clearance) {
+            None => {
+                let _ = e.send(crate::engine::Command::ResetBead);
+                self.pending_reset = None;
+            }
+            Some(spot) => {
+                let hand = Self::hand_for_trap(cfg, spot);
+                self.hand_m = hand;
+                e.set_hand(hand);
+                self.pending_reset = Some((spot, 0));
+            }
+        }
+    }
+
+    /// Send a deferred Reset bead once the trap has reached its clear spot
+    /// (within 0.2 µm), or after 3 s of frames at most.
+    fn poll_reset(&mut self, e: &mut EngineHandle) {
+        let Some((spot, frames)) = self.pending_reset else {
+            return;
+        };
+        let arrived = self.last.is_some_and(|s| {
+            (s.trap_m[0] - spot[0]).hypot(s.trap_m[1] - spot[1]) < 0.2e-6
+        });
+        if arrived || frames > 180 {
+            let _ = e.send(crate::engine::Command::ResetBead);
+            self.pending_reset = None;
+        } else {
+            self.pending_reset = Some((spot, frames + 1));
+        }
+    }
+
+    /// What the plots showed last frame (axes, SD numbers).
+    pub fn readouts(&self) -> &PlotReadouts {
+        &self.readouts
     }
 
     /// Read all waiting telemetry (called by the shell every frame, whatever
@@ -155,6 +239,7 @@ impl ExplorePage {
         let camera = &mut self.camera;
         let last = &mut self.last;
         let (esc, con) = (&mut self.escapes, &mut self.contacts);
+        let free = &mut self.free_accel;
         #[cfg(feature = "audio")]
         let (playing, sound_buf) = (self.sound.monitor.is_some(), &mut self.sound.buf);
         let n = engine.drain_telemetry(|s| {
@@ -175,6 +260,9 @@ impl ExplorePage {
             }
             if s.has(flags::CONTACT_START) {
                 *con += 1;
+            }
+            if !s.has(flags::IN_CONTACT) {
+                free.push(s.accel_m_s2[0] as f32);
             }
             *last = Some(*s);
         });
@@ -251,6 +339,15 @@ impl ExplorePage {
         mut engine: Option<&mut EngineHandle>,
     ) {
         let cfg = env.rig_config;
+        if let Some(e) = engine.as_deref_mut() {
+            self.poll_reset(e);
+        }
+        let condition = engine.as_ref().map(|e| e.condition());
+        if condition != self.free_condition {
+            // The free agitation belongs to one condition.
+            self.free_accel.clear();
+            self.free_condition = condition;
+        }
         // ---------------------------------------------------------- controls
         ui.horizontal_wrapped(|ui| {
             ui.label(RichText::new("Condition").strong());
@@ -268,11 +365,22 @@ impl ExplorePage {
                     e.set_condition(c);
                 }
             }
-            // Fixed width: the toolbar wraps the same way in V, P and D, so
-            // the scene below does not jump when the condition changes.
+            // Fixed width, that of the longest description: the toolbar wraps
+            // the same way in V, P and D, so the scene below does not jump
+            // when the condition changes, and no description is cut.
             let desc = current.map(|c| c.description()).unwrap_or_default();
-            ui.add_sized([300.0, 18.0], egui::Label::new(desc).truncate())
-                .on_hover_text(desc);
+            let font = egui::TextStyle::Body.resolve(ui.style());
+            let width = Condition::ALL
+                .iter()
+                .map(|c| {
+                    ui.painter()
+                        .layout_no_wrap(c.description().to_owned(), font.clone(), Color32::WHITE)
+                        .size()
+                        .x
+                })
+                .fold(0.0, f32::max)
+                + 4.0;
+            ui.add_sized([width, 18.0], egui::Label::new(desc));
             ui.separator();
             ui.label(RichText::new("Tool").strong());
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
@@ -304,10 +412,16 @@ impl ExplorePage {
                 self.obstacles = config_obstacles(cfg);
                 self.push_obstacles(engine.as_deref_mut());
             }
-            if ui.button("Reset bead").clicked()
+            if ui
+                .button("Reset bead")
+                .on_hover_text(
+                    "put the bead back in the trap (the trap first moves off an obstacle it \
+                     sits over, else the bead would be pushed out at once)",
+                )
+                .clicked()
                 && let Some(e) = engine.as_deref_mut()
             {
-                let _ = e.send(crate::engine::Command::ResetBead);
+                self.reset_bead(cfg, e);
             }
         });
         ui.horizontal_wrapped(|ui| {
@@ -537,17 +651,19 @@ impl ExplorePage {
     fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
         let fs = self.traces.fs();
         let secs = self.trace_seconds;
-        let h = ((height - 40.0) / 3.0).max(80.0);
+        let h = ((height - 70.0) / 3.0).max(80.0);
         let fx = self.traces.last(Trace::ForceX, secs).to_vec();
         let fy = self.traces.last(Trace::ForceY, secs).to_vec();
         if let Some(n) = self.force_note {
             ui.colored_label(Color32::from_rgb(230, 150, 40), n);
         }
-        plot::trace_plot(
+        self.readouts.force = plot::trace_plot(
             ui,
             "force",
             h,
-            "Pantograph force sent (N)",
+            "Pantograph force sent",
+            "N",
+            &mut self.force_scale,
             &[
                 ("x", Color32::from_rgb(90, 170, 255), &fx),
                 ("y", Color32::from_rgb(255, 150, 60), &fy),
@@ -555,11 +671,13 @@ impl ExplorePage {
             fs,
         );
         let ax = self.traces.last(Trace::AccelX, secs).to_vec();
-        plot::trace_plot(
+        self.readouts.accel = plot::trace_plot(
             ui,
             "accel",
             h,
-            "tip accel. x (m/s²)",
+            "tip acceleration x",
+            "m/s²",
+            &mut self.accel_scale,
             &[("x", Color32::from_rgb(120, 220, 120), &ax)],
             fs,
         );
@@ -574,6 +692,10 @@ impl ExplorePage {
         if want > self.hist_range || want * 2.5 < self.hist_range {
             self.hist_range = want;
         }
+        let mut free = Vec::new();
+        self.free_accel.last_into(self.free_accel.len(), &mut free);
+        self.readouts.sd_now_m_s2 = plot::sd(&hist);
+        self.readouts.sd_free_m_s2 = plot::sd(&free);
         let dt = f64::from(ui.input(|i| i.stable_dt));
         self.spectrum_age += dt;
         if self.spectrum_age > 0.2 {
@@ -582,11 +704,67 @@ impl ExplorePage {
             self.spectrum = plot::spectrum(&x, fs, 1024);
             self.spectrum_age = 0.0;
         }
+        let (lsb, range) = (self.accel_lsb, self.hist_range);
+        let (now, free_sd) = (self.readouts.sd_now_m_s2, self.readouts.sd_free_m_s2);
+        let mut hist_axis = AxisReadout::default();
         ui.columns(2, |c| {
-            plot::histogram_plot(&mut c[0], "hist", h, &hist, self.hist_range);
+            agitation_ui(&mut c[0], now, free_sd);
+            hist_axis = plot::histogram_plot(
+                &mut c[0],
+                "hist",
+                h,
+                "tip acceleration x",
+                "m/s²",
+                &hist,
+                range,
+                lsb,
+            );
+            c[1].label(" ");
             plot::spectrum_plot(&mut c[1], "spectrum", h, self.spectrum.as_ref());
         });
+        self.readouts.histogram = hist_axis;
     }
+}
+
+/// The agitation's standard deviation now and free, beside the histogram
+/// (the paper's Fig. 9 e/g: contact narrows the distribution).
+fn agitation_ui(ui: &mut egui::Ui, now: Option<f64>, free: Option<f64>) {
+    let fmt = |v: Option<f64>| v.map_or_else(|| "–".to_owned(), |v| plot::format_si(v, "m/s²"));
+    let ratio = match (now, free) {
+        (Some(n), Some(f)) if f > 0.0 => format!(" (now/free {:.2})", n / f),
+        _ => String::new(),
+    };
+    ui.label(format!("SD now {} · free {}{ratio}", fmt(now), fmt(free)))
+        .on_hover_text(
+            "standard deviation of the tip acceleration x: now = the last second; free = the \
+             last second without contact (in this condition). Pressing against an obstacle \
+             narrows the agitation (the paper's Fig. 9 e/g).",
+        );
+}
+
+/// The nearest spot to `trap` (m) whose distance to every obstacle's
+/// surface is at least `clearance` (m), or `None` when `trap` is already
+/// such a spot: pushed radially out of the obstacle it overlaps (along +x
+/// from its centre), repeated a few times for touching obstacles.
+pub fn clear_spot(trap: [f64; 2], obstacles: &[Obstacle], clearance: f64) -> Option<[f64; 2]> {
+    let mut p = trap;
+    let mut moved = false;
+    for _ in 0..8 {
+        let hit = obstacles.iter().find(|o| {
+            (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]) < o.radius_m + clearance
+        });
+        let Some(o) = hit else {
+            return moved.then_some(p);
+        };
+        let d = [p[0] - o.centre_m[0], p[1] - o.centre_m[1]];
+        let r = d[0].hypot(d[1]);
+        let n = if r > 0.0 { [d[0] / r, d[1] / r] } else { [1.0, 0.0] };
+        // 1 % beyond the clearance, so rounding never leaves it inside.
+        let reach = 1.01 * (o.radius_m + clearance);
+        p = [o.centre_m[0] + reach * n[0], o.centre_m[1] + reach * n[1]];
+        moved = true;
+    }
+    moved.then_some(p)
 }
 
 /// The obstacles of a rig file.
@@ -599,4 +777,37 @@ pub fn config_obstacles(cfg: &RigConfig) -> Vec<Obstacle> {
             radius_m: o.radius_m,
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reset_spot_leaves_every_obstacle_with_the_clearance() {
+        let obs = [
+            Obstacle {
+                centre_m: [12e-6, 0.0],
+                radius_m: 5e-6,
+            },
+            // Touching the first one on its right.
+            Obstacle {
+                centre_m: [22e-6, 0.0],
+                radius_m: 5e-6,
+            },
+        ];
+        let c = 2e-6;
+        // Already clear: nothing to do.
+        assert_eq!(clear_spot([0.0, 0.0], &obs, c), None);
+        // Over the first obstacle, right of its centre: pushed out to the
+        // right, into the second one, and out of that one too.
+        let p = clear_spot([13e-6, 0.0], &obs, c).unwrap();
+        for o in &obs {
+            let d = (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]);
+            assert!(d >= o.radius_m + c, "{p:?} is {d} from {:?}", o.centre_m);
+        }
+        // At an obstacle's centre: along +x.
+        let q = clear_spot([12e-6, 0.0], &obs[..1], c).unwrap();
+        assert!(q[0] > 12e-6 + 7e-6 && q[1] == 0.0, "{q:?}");
+    }
 }
