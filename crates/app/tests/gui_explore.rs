@@ -9,15 +9,16 @@
 mod common;
 
 use common::{app_harness, engine_reporting, fresh_app, step_until};
+use egui_kittest::kittest::Queryable;
 use kilotouch::engine::Condition;
 use kilotouch::gui::Page;
-use kilotouch::gui::plot::AxisReadout;
+use kilotouch::gui::plot::{AxisReadout, format_si};
 
-/// At least two distinct, non-empty numeric tick labels, and a unit in
-/// parentheses in the axis label.
+/// At least two distinct, non-empty numeric tick labels, and the unit (with
+/// its SI prefix) in the axis label.
 fn readable(what: &str, a: &AxisReadout, unit: &str) {
     assert!(
-        a.label.ends_with(&format!("{unit})")),
+        a.label.ends_with(unit) || a.label.ends_with(&format!("{unit})")),
         "{what}: axis label `{}` has no unit {unit}",
         a.label
     );
@@ -59,10 +60,13 @@ fn explore_plots_have_scales_with_units_in_every_condition_and_size() {
             readable(&format!("histogram, {at}"), &r.histogram, "m/s²");
             let (now, free) = (r.sd_now_m_s2.unwrap(), r.sd_free_m_s2.unwrap());
             assert!(now > 0.0 && free > 0.0, "{at}: SD {now} / {free}");
-            // The numbers are on the page, with their unit.
-            let shown = h.get_by_label_contains("SD now");
-            let text = format!("{:?}", shown.accesskit_node());
-            assert!(text.contains("m/s²") && text.contains("free"), "{at}: {text}");
+            // The numbers are on the page, with their unit (the readouts
+            // and the accessibility tree are of the same frame).
+            h.get_by_label_contains(&format!(
+                "SD now {} · free {}",
+                format_si(now, "m/s²"),
+                format_si(free, "m/s²")
+            ));
         }
     }
 }

@@ -228,11 +228,12 @@ fn folder_bytes(dir: &Path) -> u64 {
 
 #[test]
 fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
-    // 6 participants × 3 conditions × (1 practice + 4 test) = 90 trials with
-    // raw files; the estimate comes from a pilot of 6 of the 30 trials of
-    // each condition, before anything is written.
+    // 4 participants × 3 conditions × (1 practice + 2 test) = 36 trials with
+    // raw files (≈ 10 s each, time-out 20 s); the estimate comes from a
+    // pilot of 3 of the 12 trials of each condition, before anything is
+    // written.
     let tmp = tempfile::tempdir().unwrap();
-    let proto = write_protocol(tmp.path(), 4, 1);
+    let proto = write_protocol(tmp.path(), 2, 1);
     for (raw, dir) in [(true, "raw"), (false, "no-raw")] {
         let out = tmp.path().join(dir);
         let mut args = vec![
@@ -241,7 +242,7 @@ fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
             "--protocol",
             &proto,
             "--participants",
-            "6",
+            "4",
             "--out",
             out.to_str().unwrap(),
             "--json",
@@ -253,11 +254,16 @@ fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{err}");
         // Stated before the run, on stderr (before the progress bar).
-        let said = err.find("the run will write about").expect("estimate stated");
-        assert!(said < err.find("90/90 trials").unwrap_or(usize::MAX), "{err}");
+        let said = err
+            .find("the run will write about")
+            .expect("estimate stated");
+        assert!(
+            said < err.find("36/36 trials").unwrap_or(usize::MAX),
+            "{err}"
+        );
         let j: Value = serde_json::from_slice(&o.stdout).unwrap();
         let e = &j["estimate"];
-        assert_eq!(e["trials"], 90, "{e}");
+        assert_eq!(e["trials"], 36, "{e}");
         let estimate = e["bytes"].as_f64().unwrap();
         let written = folder_bytes(&out) as f64;
         assert!(
@@ -266,7 +272,7 @@ fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
         );
         if raw {
             assert_eq!(e["basis"]["kind"], "pilot", "{e}");
-            assert_eq!(e["basis"]["trials"], 18, "{e}");
+            assert_eq!(e["basis"]["trials"], 9, "{e}");
             // The upper bound (every trial to its 20 s time-out) is above.
             assert!(e["timeout_bytes"].as_f64().unwrap() > written, "{e}");
         }
@@ -276,7 +282,7 @@ fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
 #[test]
 fn simulate_refuses_a_run_larger_than_the_free_space() {
     let tmp = tempfile::tempdir().unwrap();
-    let proto = write_protocol(tmp.path(), 4, 1);
+    let proto = write_protocol(tmp.path(), 2, 1);
     let out = tmp.path().join("study");
     let o = run(&[
         "study",
@@ -284,7 +290,7 @@ fn simulate_refuses_a_run_larger_than_the_free_space() {
         "--protocol",
         &proto,
         "--participants",
-        "6",
+        "4",
         "--out",
         out.to_str().unwrap(),
         "--assume-free-bytes",
@@ -308,7 +314,7 @@ fn simulate_refuses_a_run_larger_than_the_free_space() {
         "--protocol",
         &proto,
         "--participants",
-        "6",
+        "4",
         "--out",
         out.to_str().unwrap(),
         "--no-raw",

@@ -336,7 +336,10 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
         assert!(out.status.success());
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.contains("warning") && err.contains("free solution"), "{err}");
+        assert!(
+            err.contains("warning") && err.contains("free solution"),
+            "{err}"
+        );
         assert_eq!(v["warnings"].as_array().map(Vec::len), Some(1), "{v}");
         // The measured κ is as soft as the predicted drag says (the
         // prediction mixes the normal and tangential mobilities; within a

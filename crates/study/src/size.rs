@@ -57,16 +57,16 @@ use crate::runner::{RAW_CHANNELS, RunError, RunnerConfig, TrialEngine};
 use crate::simulate::{SimulateOptions, run_planned, sim_meta};
 use crate::task::sim_station::SimStation;
 
-/// Bytes one trial adds to `trials.csv` and the journal (its row, ≈ 330 B,
-/// and its `trial_started` / `trial_completed` records), rounded up from
-/// simulated studies of the built-in protocols.
-pub const TABLE_BYTES_PER_TRIAL: u64 = 1_000;
+/// Bytes one trial adds to `trials.csv` and the journal (its row, ≈ 200 B,
+/// and its journal records, ≈ 430 B), rounded up from a simulated study
+/// (90 trials: 18.0 kB of rows, 38.5 kB of journal).
+pub const TABLE_BYTES_PER_TRIAL: u64 = 650;
 /// Bytes of a raw file besides its rows: the NPY header (128 B) and the
-/// JSON sidecar (channel names, units, scene: ≈ 4 kB).
+/// JSON sidecar (channel names, units, scene: ≈ 3.3 kB).
 pub const RAW_FILE_OVERHEAD_BYTES: u64 = 5_000;
-/// Bytes of the study's fixed files (`session.json`, the summaries,
-/// `datapackage.json`), rounded up.
-pub const STUDY_FIXED_BYTES: u64 = 64_000;
+/// Bytes of the study's fixed files (`session.json` ≈ 4 kB, the summaries
+/// ≈ 4 kB for 6 participants, `datapackage.json` ≈ 21 kB), rounded up.
+pub const STUDY_FIXED_BYTES: u64 = 32_000;
 /// Pilot trials run per condition ([`TrialRows::pilot`]).
 pub const PILOT_TRIALS_PER_CONDITION: usize = 6;
 
@@ -239,7 +239,9 @@ impl TrialRows {
             ..opts.runner
         };
         let threads = opts.threads.clamp(1, sample.len().max(1));
-        let chunks: Vec<&[PlannedTrial]> = sample.chunks(sample.len().div_ceil(threads).max(1)).collect();
+        let chunks: Vec<&[PlannedTrial]> = sample
+            .chunks(sample.len().div_ceil(threads).max(1))
+            .collect();
         let results: Vec<Result<Vec<(Condition, u64, f64)>, RunError>> =
             std::thread::scope(|scope| {
                 let handles: Vec<_> = chunks
@@ -271,19 +273,25 @@ impl TrialRows {
                     })
                     .collect()
             });
-        let mut sums: BTreeMap<Condition, (f64, usize, f64)> = BTreeMap::new();
+        // A trial that writes no raw file may run at a lower rate (scene
+        // fidelity runs V at the participant's control rate); a raw file
+        // records every sample of the station's rate: rows = seconds × f_s.
+        let fs = opts.rig.rig.sample_rate_hz;
+        let mut sums: BTreeMap<Condition, (f64, usize)> = BTreeMap::new();
         let mut trials = 0;
         for r in results {
-            for (c, rows, rate) in r? {
-                let e = sums.entry(c).or_insert((0.0, 0, rate));
-                e.0 += rows as f64;
+            for (c, samples, rate) in r? {
+                let e = sums.entry(c).or_insert((0.0, 0));
+                if rate > 0.0 {
+                    e.0 += samples as f64 / rate * fs;
+                }
                 e.1 += 1;
                 trials += 1;
             }
         }
         Ok(TrialRows {
             mean_rows: sums.iter().map(|(c, s)| (*c, s.0 / s.1 as f64)).collect(),
-            rate_hz: sums.iter().map(|(c, s)| (*c, s.2)).collect(),
+            rate_hz: sums.keys().map(|c| (*c, fs)).collect(),
             basis: RowsBasis::Pilot { trials },
         })
     }
@@ -448,15 +456,13 @@ pub fn estimate_simulated_study(opts: &SimulateOptions) -> Result<StudySize, Run
     let raw = opts.runner.raw;
     let rows = match (raw, opts.resume) {
         (None, _) => TrialRows::time_out(&opts.protocol, opts.rig.rig.sample_rate_hz),
-        (Some(d), true) => match TrialRows::from_folder(
-            &opts.out,
-            &opts.protocol,
-            opts.rig.rig.sample_rate_hz,
-            d,
-        ) {
-            Some(r) => r,
-            None => TrialRows::pilot(opts, &pending, PILOT_TRIALS_PER_CONDITION)?,
-        },
+        (Some(d), true) => {
+            match TrialRows::from_folder(&opts.out, &opts.protocol, opts.rig.rig.sample_rate_hz, d)
+            {
+                Some(r) => r,
+                None => TrialRows::pilot(opts, &pending, PILOT_TRIALS_PER_CONDITION)?,
+            }
+        }
         (Some(_), false) => TrialRows::pilot(opts, &pending, PILOT_TRIALS_PER_CONDITION)?,
     };
     let mut size = estimate_study_size(&opts.protocol, raw, &pending, &rows);
@@ -474,10 +480,9 @@ pub fn estimate_simulated_study(opts: &SimulateOptions) -> Result<StudySize, Run
 /// No existing parent; the file system's query failed.
 pub fn available_space(target: &Path) -> std::io::Result<u64> {
     let abs = std::path::absolute(target)?;
-    let existing = abs
-        .ancestors()
-        .find(|p| p.exists())
-        .ok_or_else(|| std::io::Error::other(format!("no existing folder above {}", abs.display())))?;
+    let existing = abs.ancestors().find(|p| p.exists()).ok_or_else(|| {
+        std::io::Error::other(format!("no existing folder above {}", abs.display()))
+    })?;
     fs4::available_space(existing)
 }
 
@@ -555,7 +560,10 @@ mod tests {
         let n = all.len() as u64;
         assert_eq!(s.trials as u64, n);
         assert_eq!(s.raw_bytes, n * (80_000 * 19 * 4 + RAW_FILE_OVERHEAD_BYTES));
-        assert_eq!(s.bytes, s.raw_bytes + n * TABLE_BYTES_PER_TRIAL + STUDY_FIXED_BYTES);
+        assert_eq!(
+            s.bytes,
+            s.raw_bytes + n * TABLE_BYTES_PER_TRIAL + STUDY_FIXED_BYTES
+        );
         assert!((s.mean_trial_s - 8.0).abs() < 1e-12);
         assert_eq!(
             s.timeout_bytes - s.table_bytes,
@@ -567,7 +575,10 @@ mod tests {
         // The refusal names both numbers and the ways out.
         let e = check_free_space(&s, Path::new("/data/study"), 1_000_000_000).unwrap_err();
         let m = e.to_string();
-        assert!(m.contains("1.0 GB free") && m.contains("--no-raw") && m.contains("--participants"), "{m}");
+        assert!(
+            m.contains("1.0 GB free") && m.contains("--no-raw") && m.contains("--participants"),
+            "{m}"
+        );
         assert!(check_free_space(&s, Path::new("/x"), s.bytes).is_ok());
     }
 
@@ -578,7 +589,11 @@ mod tests {
         let s = pilot_sample(&all, &protocol.conditions, 4);
         assert_eq!(s.len(), 12);
         // A quarter at most: 13 trials of a condition → 4.
-        let one: Vec<_> = all.iter().filter(|p| p.key.participant == 0).cloned().collect();
+        let one: Vec<_> = all
+            .iter()
+            .filter(|p| p.key.participant == 0)
+            .cloned()
+            .collect();
         assert_eq!(pilot_sample(&one, &protocol.conditions, 6).len(), 3 * 4);
         for c in &protocol.conditions {
             let of_c: Vec<_> = all.iter().filter(|p| p.key.condition == *c).collect();

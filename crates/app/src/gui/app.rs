@@ -655,7 +655,11 @@ impl KilotouchApp {
                         };
                         ui.colored_label(col, h.status_label().to_owned());
                         ui.separator();
-                        ui.label(format!("{} · {}", h.condition.code(), if h.running { "running" } else { "paused" }));
+                        ui.label(format!(
+                            "{} · {}",
+                            h.condition.code(),
+                            if h.running { "running" } else { "paused" }
+                        ));
                         ui.separator();
                         ui.label(format!("loop {:.0} Hz", h.loop_rate_hz));
                         ui.label(format!("load {:.1} %", 100.0 * h.load));
@@ -895,13 +899,7 @@ pub fn swap_words(o: crate::engine::splitter::SwapOutcome) -> &'static str {
 }
 
 /// One notice: red with a dismiss button for an error, its repeat count.
-fn notice_ui(
-    ui: &mut egui::Ui,
-    n: &Notice,
-    i: usize,
-    dismiss: &mut Option<usize>,
-    truncate: bool,
-) {
+fn notice_ui(ui: &mut egui::Ui, n: &Notice, i: usize, dismiss: &mut Option<usize>, truncate: bool) {
     let text = if n.count > 1 {
         format!("{} (×{})", n.text, n.count)
     } else {
@@ -938,7 +936,7 @@ fn deadline_ui(ui: &mut egui::Ui, h: &crate::engine::Health) {
     ui.colored_label(
         col,
         format!(
-            "deadline misses {} ({:.1} ‰, worst {worst_ms:.0} ms) ⓘ",
+            "deadline misses {} ({:.1} ‰, worst {worst_ms:.0} ms) [?]",
             h.deadline_misses,
             1e3 * share
         ),

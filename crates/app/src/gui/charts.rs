@@ -579,14 +579,20 @@ pub fn bars_with_whiskers(
                 }
                 p.bar_chart(BarChart::new(s.name.clone(), bars).color(s.color));
             }
+            // Three separate segments (bottom cap, stem, top cap): a
+            // polyline that doubles back on itself draws spikes at the turns
+            // when it is wide.
             for pts in whiskers {
-                for (color, width) in [(Color32::from_gray(20), 3.2), (ui_text_color(), 1.4)] {
-                    p.line(
-                        Line::new("", PlotPoints::new(pts.to_vec()))
-                            .color(color)
-                            .width(width)
-                            .allow_hover(false),
-                    );
+                let segments = [[pts[0], pts[1]], [pts[2], pts[3]], [pts[4], pts[5]]];
+                for (color, width) in [(Color32::from_gray(20), 3.0), (ui_text_color(), 1.4)] {
+                    for seg in segments {
+                        p.line(
+                            Line::new("", PlotPoints::new(seg.to_vec()))
+                                .color(color)
+                                .width(width)
+                                .allow_hover(false),
+                        );
+                    }
                 }
             }
         });

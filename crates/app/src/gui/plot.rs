@@ -237,9 +237,9 @@ impl AxisScale {
     /// Update with the data's peak magnitude; the factor to multiply the
     /// values by and the prefix of their unit.
     pub fn update(&mut self, peak: f64) -> (f64, &'static str) {
-        let keep = self
-            .current
-            .is_some_and(|(f, _)| !peak.is_finite() || peak <= 0.0 || (0.5..2000.0).contains(&(peak * f)));
+        let keep = self.current.is_some_and(|(f, _)| {
+            !peak.is_finite() || peak <= 0.0 || (0.5..2000.0).contains(&(peak * f))
+        });
         if !keep {
             self.current = Some(si_prefix(peak));
         }
@@ -247,11 +247,14 @@ impl AxisScale {
     }
 }
 
-/// Grid marks on the 1-2-5 series spaced at least `min_px` screen points
+/// Grid marks on the 1-2-(2.5)-5 series spaced at least `min_px` screen points
 /// apart (egui_plot's default spacer steps by powers of ten only, so a
 /// ±0.5 range got ticks every 0.1 — too close to label — or only "0").
-/// Every mark returned is far enough apart for egui_plot to label it.
-pub fn ticks_125(input: egui_plot::GridInput, min_px: f64) -> Vec<GridMark> {
+/// When that leaves fewer than three marks in view (a short plot), the next
+/// smaller steps are taken down to `floor_px`, the spacing below which
+/// egui_plot would not label them. Every mark returned is far enough apart
+/// for egui_plot to label it.
+pub fn ticks_125(input: egui_plot::GridInput, min_px: f64, floor_px: f64) -> Vec<GridMark> {
     // base_step_size is the value of egui_plot's 8-point minimum grid spacing.
     let per_px = input.base_step_size / 8.0;
     let (lo, hi) = input.bounds;
@@ -261,22 +264,30 @@ pub fn ticks_125(input: egui_plot::GridInput, min_px: f64) -> Vec<GridMark> {
     }
     let e = want.log10().floor();
     let base = 10f64.powf(e);
-    let step = [1.0, 2.0, 5.0, 10.0]
-        .iter()
-        .map(|m| m * base)
-        .find(|s| *s >= want * (1.0 - 1e-9))
-        .unwrap_or(10.0 * base);
-    let first = (lo / step).ceil() as i64;
-    let last = (hi / step).floor() as i64;
-    if last < first || last - first > 1000 {
+    // The 1-2-5 series with 2.5 (a short axis then keeps ±250 beside 0).
+    let series = [0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0];
+    let Some(mut k) = series.iter().position(|m| m * base >= want * (1.0 - 1e-9)) else {
         return Vec::new();
+    };
+    let marks = |step: f64| -> Vec<GridMark> {
+        let first = (lo / step).ceil() as i64;
+        let last = (hi / step).floor() as i64;
+        if last < first || last - first > 1000 {
+            return Vec::new();
+        }
+        (first..=last)
+            .map(|j| GridMark {
+                value: j as f64 * step,
+                step_size: step,
+            })
+            .collect()
+    };
+    let mut out = marks(series[k] * base);
+    while out.len() < 3 && k > 0 && series[k - 1] * base >= per_px * floor_px * (1.0 + 1e-9) {
+        k -= 1;
+        out = marks(series[k] * base);
     }
-    (first..=last)
-        .map(|k| GridMark {
-            value: k as f64 * step,
-            step_size: step,
-        })
-        .collect()
+    out
 }
 
 /// What an axis of a live plot showed: its label and the tick labels
@@ -289,10 +300,11 @@ pub struct AxisReadout {
     pub ticks: Vec<String>,
 }
 
-/// Minimum spacing of labelled ticks, screen points: x labels are wide
-/// (egui_plot hides them below 60 pt), y labels are one line high (20 pt).
-const X_TICK_PX: f64 = 80.0;
-const Y_TICK_PX: f64 = 32.0;
+/// Spacing of labelled ticks, screen points: wanted, and the least
+/// ([`ticks_125`]); egui_plot hides x labels closer than 60 pt and y labels
+/// closer than 20 pt.
+const X_TICK_PX: (f64, f64) = (80.0, 62.0);
+const Y_TICK_PX: (f64, f64) = (32.0, 21.0);
 
 /// Names of the live traces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -391,18 +403,20 @@ impl LiveTraces {
 
 /// Draw decimated traces (time axis: seconds before now) in one plot, the
 /// values in `unit` scaled by an SI prefix chosen by `scale` (e.g. N → mN);
-/// `quantity` names them ("Pantograph force sent"). Returns what the y axis
+/// the y axis is labelled with the unit alone (the legend names the
+/// quantities: a long axis label ran into the next plot on a small
+/// window); `time_label`: label the time axis. Returns what the y axis
 /// showed.
 #[allow(clippy::too_many_arguments)]
 pub fn trace_plot(
     ui: &mut egui::Ui,
     id: &str,
     height: f32,
-    quantity: &str,
     unit: &str,
     scale: &mut AxisScale,
     series: &[(&str, egui::Color32, &[f32])],
     fs: f64,
+    time_label: bool,
 ) -> AxisReadout {
     let columns = (ui.available_width().max(50.0) as usize).min(4000);
     let peak = series
@@ -424,21 +438,25 @@ pub fn trace_plot(
                 .width(1.0)
         })
         .collect();
-    let label = format!("{quantity} ({prefix}{unit})");
+    let label = format!("{prefix}{unit}");
     let shown = std::cell::RefCell::new(Vec::new());
     Plot::new(id.to_owned())
         .height(height)
         .y_axis_label(label.clone())
-        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX))
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
         .y_axis_formatter(|m, r| {
             let t = tick_label(m, r);
             shown.borrow_mut().push(t.clone());
             t
         })
         .y_axis_min_width(44.0)
-        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX))
+        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
         .x_axis_formatter(tick_label)
-        .x_axis_label("time before now (s)")
+        .x_axis_label(if time_label {
+            "time before now (s)"
+        } else {
+            ""
+        })
         .include_y(0.0)
         .allow_scroll(false)
         .allow_drag(false)
@@ -536,14 +554,14 @@ pub fn histogram_plot(
     Plot::new(id.to_owned())
         .height(height)
         .x_axis_label(label.clone())
-        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX))
+        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
         .x_axis_formatter(|m, rr| {
             let t = tick_label(m, rr);
             shown.borrow_mut().push(t.clone());
             t
         })
-        .y_axis_label("probability density")
-        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX))
+        .y_axis_label("density")
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
         .y_axis_formatter(tick_label)
         .y_axis_min_width(44.0)
         .allow_scroll(false)
@@ -589,10 +607,10 @@ pub fn spectrum_plot(ui: &mut egui::Ui, id: &str, height: f32, spec: Option<&Spe
     Plot::new(id.to_owned())
         .height(height)
         .x_axis_label("frequency (Hz)")
-        .y_axis_label("PSD (dB re 1 (m/s²)²/Hz)")
+        .y_axis_label("dB")
         .x_grid_spacer(|i| crate::gui::charts::log_freq_marks(i.bounds))
         .x_axis_formatter(|m, _| crate::gui::charts::log_freq_label(m.value))
-        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX))
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
         .y_axis_formatter(tick_label)
         .y_axis_min_width(44.0)
         .allow_scroll(false)
@@ -796,8 +814,15 @@ mod tests {
         // The aligned bins: odd multiples of q, centred on 0, covering ±0.5.
         let (lo, w, n) = aligned;
         let k = (w / q).round();
-        assert!((w / q - k).abs() < 1e-9 && k % 2.0 == 1.0, "{w} = {} q", w / q);
-        assert!((lo + 0.5 * w * n as f64).abs() < 1e-12 && lo <= -0.5, "{lo} {n}");
+        assert!(
+            (w / q - k).abs() < 1e-9 && k % 2.0 == 1.0,
+            "{w} = {} q",
+            w / q
+        );
+        assert!(
+            (lo + 0.5 * w * n as f64).abs() < 1e-12 && lo <= -0.5,
+            "{lo} {n}"
+        );
         // Without a step: the plain bins.
         assert_eq!(quantised_bins(0.5, 61, 0.0), (-0.5, 1.0 / 61.0, 61));
     }
@@ -823,18 +848,35 @@ mod tests {
                 base_step_size: 8.0 / 400.0,
             },
             80.0,
+            62.0,
         );
         let v: Vec<f64> = marks.iter().map(|m| m.value).collect();
         assert_eq!(v, vec![-0.4, -0.2, 0.0, 0.2, 0.4]);
-        let labels: Vec<String> = marks.iter().map(|m| tick_label(*m, &(-0.5..=0.5))).collect();
+        let labels: Vec<String> = marks
+            .iter()
+            .map(|m| tick_label(*m, &(-0.5..=0.5)))
+            .collect();
         assert_eq!(labels, ["-0.4", "-0.2", "0", "0.2", "0.4"]);
+        // A short axis: ±450 over 130 points wants steps of 500 (only 0 in
+        // view); the next smaller steps still ≥ 21 points apart are taken.
+        let short = ticks_125(
+            egui_plot::GridInput {
+                bounds: (-450.0, 450.0),
+                base_step_size: 8.0 * 900.0 / 130.0,
+            },
+            32.0,
+            21.0,
+        );
+        let v: Vec<f64> = short.iter().map(|m| m.value).collect();
+        assert_eq!(v, vec![-400.0, -200.0, 0.0, 200.0, 400.0]);
         assert!(
             ticks_125(
                 egui_plot::GridInput {
                     bounds: (f64::NAN, 1.0),
                     base_step_size: 0.1
                 },
-                80.0
+                80.0,
+                62.0
             )
             .is_empty()
         );

@@ -152,7 +152,10 @@ mod tests {
         assert!((d.gap_m - 5.5e-6).abs() < 1e-15);
         // −24 % and −12 %: the default rig's spot (0, 0).
         let [bx, by] = d.kappa_bias();
-        assert!((bx + 0.237).abs() < 0.005 && (by + 0.120).abs() < 0.005, "{bx} {by}");
+        assert!(
+            (bx + 0.237).abs() < 0.005 && (by + 0.120).abs() < 0.005,
+            "{bx} {by}"
+        );
         assert!(d.biased());
         assert!(d.describe().contains("5.50 µm"), "{}", d.describe());
         // On the diagonal both axes mix the two laws equally.
@@ -174,6 +177,11 @@ mod tests {
         assert!(near.biased(), "{:?}", near.kappa_bias());
         // Inside the contact zone the factors stay finite (clamped).
         let touching = surface_drag(&p, [6.5e-6, 0.0]);
-        assert!(touching.drag_factor.iter().all(|b| b.is_finite() && *b > 1.0));
+        assert!(
+            touching
+                .drag_factor
+                .iter()
+                .all(|b| b.is_finite() && *b > 1.0)
+        );
     }
 }

@@ -155,7 +155,7 @@ impl ExplorePage {
             hand_m: cfg.coupling.handle_origin_m,
             spectrum: None,
             spectrum_age: f64::INFINITY,
-            hist_range: 1.0,
+            hist_range: 0.0,
             free_accel: Ring::new(fs.ceil().max(1.0) as usize),
             free_condition: None,
             pending_reset: None,
@@ -215,9 +215,9 @@ impl ExplorePage {
         let Some((spot, frames)) = self.pending_reset else {
             return;
         };
-        let arrived = self.last.is_some_and(|s| {
-            (s.trap_m[0] - spot[0]).hypot(s.trap_m[1] - spot[1]) < 0.2e-6
-        });
+        let arrived = self
+            .last
+            .is_some_and(|s| (s.trap_m[0] - spot[0]).hypot(s.trap_m[1] - spot[1]) < 0.2e-6);
         if arrived || frames > 180 {
             let _ = e.send(crate::engine::Command::ResetBead);
             self.pending_reset = None;
@@ -651,7 +651,7 @@ impl ExplorePage {
     fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
         let fs = self.traces.fs();
         let secs = self.trace_seconds;
-        let h = ((height - 70.0) / 3.0).max(80.0);
+        let h = ((height - 70.0) / 3.0).max(100.0);
         let fx = self.traces.last(Trace::ForceX, secs).to_vec();
         let fy = self.traces.last(Trace::ForceY, secs).to_vec();
         if let Some(n) = self.force_note {
@@ -661,25 +661,29 @@ impl ExplorePage {
             ui,
             "force",
             h,
-            "Pantograph force sent",
             "N",
             &mut self.force_scale,
             &[
-                ("x", Color32::from_rgb(90, 170, 255), &fx),
+                (
+                    "Pantograph force sent x",
+                    Color32::from_rgb(90, 170, 255),
+                    &fx,
+                ),
                 ("y", Color32::from_rgb(255, 150, 60), &fy),
             ],
             fs,
+            false,
         );
         let ax = self.traces.last(Trace::AccelX, secs).to_vec();
         self.readouts.accel = plot::trace_plot(
             ui,
             "accel",
             h,
-            "tip acceleration x",
             "m/s²",
             &mut self.accel_scale,
-            &[("x", Color32::from_rgb(120, 220, 120), &ax)],
+            &[("tip acceleration x", Color32::from_rgb(120, 220, 120), &ax)],
             fs,
+            true,
         );
         // Histogram of the last second; spectrum of the last ~1.6 s (5 Hz refresh).
         let hist = self.traces.last(Trace::AccelX, 1.0).to_vec();
@@ -687,7 +691,10 @@ impl ExplorePage {
             .iter()
             .filter(|v| v.is_finite())
             .fold(0f32, |m, v| m.max(v.abs()));
-        let want = plot::nice_range(peak);
+        // ±4 SD of the last second (the peak when it is all one value), so
+        // the distribution fills the plot instead of a sliver of ±peak.
+        let spread = plot::sd(&hist).map_or(peak, |sd| (4.0 * sd) as f32);
+        let want = plot::nice_range(if spread > 0.0 { spread } else { peak });
         // Hysteresis: widen at once, narrow only when 2.5× too wide.
         if want > self.hist_range || want * 2.5 < self.hist_range {
             self.hist_range = want;
@@ -719,7 +726,7 @@ impl ExplorePage {
                 range,
                 lsb,
             );
-            c[1].label(" ");
+            c[1].add(egui::Label::new("acceleration spectrum, dB re 1 (m/s²)²/Hz").truncate());
             plot::spectrum_plot(&mut c[1], "spectrum", h, self.spectrum.as_ref());
         });
         self.readouts.histogram = hist_axis;
@@ -734,12 +741,12 @@ fn agitation_ui(ui: &mut egui::Ui, now: Option<f64>, free: Option<f64>) {
         (Some(n), Some(f)) if f > 0.0 => format!(" (now/free {:.2})", n / f),
         _ => String::new(),
     };
-    ui.label(format!("SD now {} · free {}{ratio}", fmt(now), fmt(free)))
-        .on_hover_text(
-            "standard deviation of the tip acceleration x: now = the last second; free = the \
-             last second without contact (in this condition). Pressing against an obstacle \
-             narrows the agitation (the paper's Fig. 9 e/g).",
-        );
+    ui.add(egui::Label::new(format!("SD now {} · free {}", fmt(now), fmt(free))).truncate())
+        .on_hover_text(format!(
+            "standard deviation of the tip acceleration x{ratio}: now = the last second; free = \
+             the last second without contact (in this condition). Pressing against an obstacle \
+             narrows the agitation (the paper's Fig. 9 e/g)."
+        ));
 }
 
 /// The nearest spot to `trap` (m) whose distance to every obstacle's
@@ -750,15 +757,19 @@ pub fn clear_spot(trap: [f64; 2], obstacles: &[Obstacle], clearance: f64) -> Opt
     let mut p = trap;
     let mut moved = false;
     for _ in 0..8 {
-        let hit = obstacles.iter().find(|o| {
-            (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]) < o.radius_m + clearance
-        });
+        let hit = obstacles
+            .iter()
+            .find(|o| (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]) < o.radius_m + clearance);
         let Some(o) = hit else {
             return moved.then_some(p);
         };
         let d = [p[0] - o.centre_m[0], p[1] - o.centre_m[1]];
         let r = d[0].hypot(d[1]);
-        let n = if r > 0.0 { [d[0] / r, d[1] / r] } else { [1.0, 0.0] };
+        let n = if r > 0.0 {
+            [d[0] / r, d[1] / r]
+        } else {
+            [1.0, 0.0]
+        };
         // 1 % beyond the clearance, so rounding never leaves it inside.
         let reach = 1.01 * (o.radius_m + clearance);
         p = [o.centre_m[0] + reach * n[0], o.centre_m[1] + reach * n[1]];

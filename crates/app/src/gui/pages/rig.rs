@@ -367,7 +367,11 @@ impl RigPage {
 /// 1.0·10¹¹.
 fn sci(x: f64) -> String {
     if !(x.is_finite() && x > 0.0) {
-        return if x.is_infinite() { "∞".into() } else { format!("{x}") };
+        return if x.is_infinite() {
+            "∞".into()
+        } else {
+            format!("{x}")
+        };
     }
     let e = x.log10().floor() as i32;
     let m = x / 10f64.powi(e);
@@ -376,7 +380,8 @@ fn sci(x: f64) -> String {
         .chars()
         .map(|c| match c {
             '-' => '⁻',
-            d => ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹'][d.to_digit(10).unwrap_or(0) as usize],
+            d => ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹']
+                [d.to_digit(10).unwrap_or(0) as usize],
         })
         .collect();
     format!("{m:.1}·10{sup}")

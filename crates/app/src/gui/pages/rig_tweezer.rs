@@ -434,8 +434,8 @@ fn rows(c: &TrapCalibration) -> Vec<(&'static str, String)> {
         ));
         r.push(("α", pm(al, c.alpha_se.unwrap_or(f64::NAN), 3)));
     }
-    r.push(("χ²/dof ⓘ", format!("{:.3}", c.chi2_per_dof)));
-    r.push(("fit backing (%) ⓘ", format!("{:.1}", c.backing_pct)));
+    r.push(("χ²/dof [?]", format!("{:.3}", c.chi2_per_dof)));
+    r.push(("fit backing (%) [?]", format!("{:.1}", c.backing_pct)));
     r.push(("points fitted", c.n_points.to_string()));
     r
 }
