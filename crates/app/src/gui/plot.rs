@@ -858,7 +858,8 @@ mod tests {
             .collect();
         assert_eq!(labels, ["-0.4", "-0.2", "0", "0.2", "0.4"]);
         // A short axis: ±450 over 130 points wants steps of 500 (only 0 in
-        // view); the next smaller steps still ≥ 21 points apart are taken.
+        // view); the next smaller steps still ≥ 21 points apart (250) are
+        // taken.
         let short = ticks_125(
             egui_plot::GridInput {
                 bounds: (-450.0, 450.0),
@@ -868,7 +869,7 @@ mod tests {
             21.0,
         );
         let v: Vec<f64> = short.iter().map(|m| m.value).collect();
-        assert_eq!(v, vec![-400.0, -200.0, 0.0, 200.0, 400.0]);
+        assert_eq!(v, vec![-250.0, 0.0, 250.0]);
         assert!(
             ticks_125(
                 egui_plot::GridInput {
