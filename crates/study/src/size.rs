@@ -57,6 +57,9 @@ use crate::runner::{RAW_CHANNELS, RunError, RunnerConfig, TrialEngine};
 use crate::simulate::{SimulateOptions, run_planned, sim_meta};
 use crate::task::sim_station::SimStation;
 
+/// One pilot trial's result: its condition, raw rows written, trial length (s).
+type PilotRow = (Condition, u64, f64);
+
 /// Bytes one trial adds to `trials.csv` and the journal (its row, ≈ 200 B,
 /// and its journal records, ≈ 430 B), rounded up from a simulated study
 /// (90 trials: 18.0 kB of rows, 38.5 kB of journal).
@@ -242,37 +245,34 @@ impl TrialRows {
         let chunks: Vec<&[PlannedTrial]> = sample
             .chunks(sample.len().div_ceil(threads).max(1))
             .collect();
-        let results: Vec<Result<Vec<(Condition, u64, f64)>, RunError>> =
-            std::thread::scope(|scope| {
-                let handles: Vec<_> = chunks
-                    .into_iter()
-                    .map(|chunk| {
-                        let chain = chain.clone();
-                        scope.spawn(move || -> Result<Vec<(Condition, u64, f64)>, RunError> {
-                            let mut station = SimStation::with_chain(&opts.rig, chain)?;
-                            station.set_fidelity(opts.fidelity);
-                            let mut engine = TrialEngine::new(station, runner)?;
-                            let nowhere = Path::new("");
-                            chunk
-                                .iter()
-                                .map(|p| {
-                                    let (_, o) =
-                                        run_planned(&mut engine, &opts.protocol, p, nowhere)?;
-                                    Ok((p.key.condition, o.samples, o.sample_rate_hz))
-                                })
-                                .collect()
-                        })
+        let results: Vec<Result<Vec<PilotRow>, RunError>> = std::thread::scope(|scope| {
+            let handles: Vec<_> = chunks
+                .into_iter()
+                .map(|chunk| {
+                    let chain = chain.clone();
+                    scope.spawn(move || -> Result<Vec<(Condition, u64, f64)>, RunError> {
+                        let mut station = SimStation::with_chain(&opts.rig, chain)?;
+                        station.set_fidelity(opts.fidelity);
+                        let mut engine = TrialEngine::new(station, runner)?;
+                        let nowhere = Path::new("");
+                        chunk
+                            .iter()
+                            .map(|p| {
+                                let (_, o) = run_planned(&mut engine, &opts.protocol, p, nowhere)?;
+                                Ok((p.key.condition, o.samples, o.sample_rate_hz))
+                            })
+                            .collect()
                     })
-                    .collect();
-                handles
-                    .into_iter()
-                    .map(|h| {
-                        h.join().unwrap_or_else(|_| {
-                            Err(RunError::State("a pilot thread panicked".into()))
-                        })
-                    })
-                    .collect()
-            });
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join()
+                        .unwrap_or_else(|_| Err(RunError::State("a pilot thread panicked".into())))
+                })
+                .collect()
+        });
         // A trial that writes no raw file may run at a lower rate (scene
         // fidelity runs V at the participant's control rate); a raw file
         // records every sample of the station's rate: rows = seconds × f_s.

@@ -488,7 +488,7 @@ pub fn quantised_bins(range: f64, bins: usize, lsb: f64) -> (f64, f64, usize) {
         return (-range, w, bins);
     }
     let mut k = (w / lsb).round().max(1.0) as u64;
-    if k % 2 == 0 {
+    if k.is_multiple_of(2) {
         k += 1;
     }
     let w = k as f64 * lsb;
