@@ -42,6 +42,9 @@ pub struct AppOptions {
     pub simulate_sitting: bool,
     /// Record and calibrate the simulated tweezer at start (Rig page).
     pub calibrate_tweezer: bool,
+    /// The rig to connect at start (`sim`, `serial:PATH[,…]`; else the one
+    /// used last, else the simulated rig).
+    pub rig: Option<String>,
 }
 
 impl Default for AppOptions {
@@ -55,6 +58,7 @@ impl Default for AppOptions {
             study_dir: None,
             simulate_sitting: false,
             calibrate_tweezer: false,
+            rig: None,
         }
     }
 }
@@ -208,7 +212,7 @@ impl KilotouchApp {
             .as_ref()
             .map(|p| p.display().to_string())
             .unwrap_or_default();
-        if let Some(r) = &settings.rig_spec {
+        if let Some(r) = opts.rig.as_ref().or(settings.rig_spec.as_ref()) {
             rig_page.rig_text = r.clone();
         }
         let mut study = StudyPage::with_gpu(gpu);

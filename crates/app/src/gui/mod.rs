@@ -37,6 +37,10 @@ pub struct GuiArgs {
     /// Rig file (TOML); default: the one used last, else the built-in rig.
     #[arg(long, value_name = "FILE")]
     pub rig_config: Option<PathBuf>,
+    /// The rig to connect at start: `sim` or `serial:PATH[,…]` (a DAQ or
+    /// its emulator); default: the one used last, else the simulated rig.
+    #[arg(long, value_name = "SPEC")]
+    pub rig: Option<String>,
     /// Save a PNG of the window after --quit-after seconds, then exit
     /// (exit status 1 if the image is blank). Uses fresh settings.
     #[arg(long, value_name = "FILE.png", requires = "quit_after")]
@@ -116,6 +120,7 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         study_dir: args.study_dir.clone(),
         simulate_sitting: args.simulate_sitting,
         calibrate_tweezer: args.calibrate_tweezer,
+        rig: args.rig.clone(),
         ..Default::default()
     };
     let native = eframe::NativeOptions {
