@@ -50,23 +50,22 @@ D = "D-TEXT: you will feel the contact."
 
 const POLL: Duration = Duration::from_millis(5);
 
-fn open(dir: &std::path::Path) -> H {
-    let proto = dir.join("screens.toml");
-    std::fs::write(&proto, PROTOCOL).unwrap();
+/// The app on the Study page with the protocol file `proto`, participant
+/// P01 and the output folder `out` (inline participant view).
+fn study_page(proto: &std::path::Path, out: &std::path::Path) -> H {
     let app = common::fresh_app(Some(Page::Study));
     let mut h = common::app_harness(app, 1100.0, 1400.0, None);
-    {
-        let s = &mut h.state_mut().study;
-        s.source = ProtocolSource::File;
-        s.protocol_file = proto.display().to_string();
-        s.participant_text = "P01".into();
-        s.out_text = dir.join("out").display().to_string();
-        s.kind = ParticipantKind::Mouse;
-        s.speed = Speed::RealTime;
-        s.separate_window = false;
-    }
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
-    h.step();
+    let s = &mut h.state_mut().study;
+    s.source = ProtocolSource::File;
+    s.protocol_file = proto.display().to_string();
+    s.participant_text = "P01".into();
+    s.out_text = out.display().to_string();
+    s.separate_window = false;
+    h
+}
+
+/// Click "Open session", check it opened, click Start.
+fn open_and_start(h: &mut H) {
     h.get_by_label("Open session").click();
     h.step();
     assert!(
@@ -77,6 +76,20 @@ fn open(dir: &std::path::Path) -> H {
     h.step();
     h.get_by_label("Start").click();
     h.step();
+}
+
+fn open(dir: &std::path::Path) -> H {
+    let proto = dir.join("screens.toml");
+    std::fs::write(&proto, PROTOCOL).unwrap();
+    let mut h = study_page(&proto, &dir.join("out"));
+    {
+        let s = &mut h.state_mut().study;
+        s.kind = ParticipantKind::Mouse;
+        s.speed = Speed::RealTime;
+    }
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    h.step();
+    open_and_start(&mut h);
     h
 }
 
@@ -368,20 +381,13 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         .study;
     let emu = common::Emulator::spawn("daq", &["--participant", &format!("operator:{seed}")]);
     let out = dir.path().join("out");
-    let app = common::fresh_app(Some(Page::Study));
-    let mut h = common::app_harness(app, 1100.0, 1400.0, None);
+    let mut h = study_page(&proto, &out);
     {
         let a = h.state_mut();
         // A fixed lead of one block (hil_sitting.rs: a loaded machine
         // stretches the round trips the automatic lead measures).
         a.rig_page_mut().rig_text = format!("{},lead=1", emu.rig());
         a.connect();
-        let s = &mut a.study;
-        s.source = ProtocolSource::File;
-        s.protocol_file = proto.display().to_string();
-        s.participant_text = "P01".into();
-        s.out_text = out.display().to_string();
-        s.separate_window = false;
     }
     assert!(
         step_until_every(&mut h, POLL, 20.0, |a| a
@@ -397,16 +403,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
     assert!(h.query_by_label_contains(&emu.path).is_some());
     assert!(h.query_by_label_contains("loop delay").is_some());
     assert!(h.query_by_label("Use the simulated rig").is_some());
-    h.get_by_label("Open session").click();
-    h.step();
-    assert!(
-        h.state().study.is_running(),
-        "{:?}",
-        h.state().study.error()
-    );
-    h.step();
-    h.get_by_label("Start").click();
-    h.step();
+    open_and_start(&mut h);
     // Into the first trial, then the emergency stop.
     assert!(space_through_screens_until(&mut h, 20.0, |h| matches!(
         routine(h),
