@@ -541,6 +541,34 @@ fn a_command_lead_keeps_a_free_running_device_in_commands() {
     );
 }
 
+/// A device whose frames do not line up with the host's blocks (7 samples
+/// per frame, blocks of 10) and a command lead of one block: frames carry
+/// samples past the block the host waits for; every sample reaches the
+/// host, in order, none counted lost.
+#[test]
+fn frames_across_block_boundaries_lose_nothing_with_a_lead() {
+    let dev = daq(EmulatorConfig {
+        batch: 7,
+        ..emu_cfg()
+    });
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.lead = kilotouch_rig::serial::CommandLead::Blocks(1);
+    cfg.timeout = Duration::from_secs(2);
+    let mut rig = SerialRig::open(&cfg).unwrap();
+    rig.start().unwrap();
+    let cmds = vec![ActuatorFrame::default(); 10];
+    let mut out = vec![SensorFrame::default(); 10];
+    let mut seqs = Vec::new();
+    for _ in 0..200 {
+        rig.process_block(&cmds, &mut out).unwrap();
+        seqs.extend(out.iter().map(|f| f.seq));
+    }
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+    let st = rig.link_stats();
+    assert_eq!(st.lost, 0, "{st:?}");
+    assert_eq!(rig.status().lost_frames, 0);
+}
+
 /// A participant at the emulated handle that records what the host told
 /// the device and moves the hand along x.
 #[derive(Debug, Default)]

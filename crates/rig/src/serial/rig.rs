@@ -85,6 +85,11 @@ pub enum CommandLead {
 /// the emulator's 8192).
 pub const MAX_LEAD_SAMPLES: u64 = 2048;
 
+/// How far past the block being waited for a device's sample may lie and
+/// still be one of the stream's (kept for the next block): the largest
+/// command lead plus one frame's items. Beyond it a sample number is stray.
+const MAX_AHEAD_SAMPLES: u64 = MAX_LEAD_SAMPLES + 256;
+
 /// Round trips timed at connection (HELLO request → HELLO).
 const RTT_PROBES: usize = 4;
 
@@ -126,7 +131,9 @@ pub struct LinkStats {
     pub late_commands: u64,
     /// FAULT frames received.
     pub device_faults: u64,
-    /// Samples received outside the block being waited for (ignored).
+    /// Samples whose numbers fit no block: further ahead than any command
+    /// lead lets a device run (ignored). Samples of later blocks in a frame
+    /// that crosses a block boundary are kept for them, not stray.
     pub stray_samples: u64,
 }
 
@@ -169,6 +176,44 @@ pub struct Link {
     rate: RateWindow,
     deadline: Option<Instant>,
     round_trip: Option<Duration>,
+    /// A sample frame whose tail lies past the block last waited for (a
+    /// device with commands ahead — the command lead — whose frames do not
+    /// line up with the host's blocks): its payload, and the index of the
+    /// first item not yet taken. The next exchange takes them first.
+    carry: Carry,
+}
+
+/// See [`Link::carry`]: at most one frame's payload
+/// ([`frame::MAX_PAYLOAD`] bytes, allocated once).
+#[derive(Debug)]
+struct Carry {
+    ty: u8,
+    payload: Vec<u8>,
+    from: usize,
+}
+
+impl Carry {
+    fn new() -> Self {
+        Self {
+            ty: 0,
+            payload: Vec::with_capacity(frame::MAX_PAYLOAD),
+            from: 0,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.payload.clear();
+        self.from = 0;
+    }
+
+    /// Keep `payload` from item `from` on (no allocation: it fits the
+    /// capacity reserved).
+    fn keep(&mut self, ty: u8, payload: &[u8], from: usize) {
+        self.ty = ty;
+        self.payload.clear();
+        self.payload.extend_from_slice(payload);
+        self.from = from;
+    }
 }
 
 impl std::fmt::Debug for Link {
@@ -218,6 +263,7 @@ impl Link {
             rate: RateWindow::default(),
             deadline: None,
             round_trip: None,
+            carry: Carry::new(),
         };
         link.handshake(kind)?;
         link.measure_round_trip();
@@ -231,6 +277,7 @@ impl Link {
         self.port = Some(open_port(&self.cfg)?);
         self.decoder_base = self.decoder_stats_total();
         self.decoder = Decoder::new();
+        self.carry.clear();
         self.handshake(kind)?;
         self.measure_round_trip();
         Ok(())
@@ -487,6 +534,7 @@ impl Link {
         let st = frame::parse_status(&buf[..n])
             .ok_or_else(|| RigError::Device("malformed STATUS".into()))?;
         self.rate.reset();
+        self.carry.clear();
         Ok(u64::from(st.next_seq))
     }
 
@@ -531,6 +579,7 @@ impl Link {
             rx,
             rate,
             deadline,
+            carry,
             ..
         } = self;
         let fill_lost = |from: u64,
@@ -547,6 +596,69 @@ impl Link {
                 stats.lost += to - from;
             }
         };
+        // The items of a sample frame from index `from` on: those of this
+        // block go to the sink (gaps before them lost); returns the index
+        // of the first item past the block, if any (kept for the next
+        // exchange).
+        let take = |payload: &[u8],
+                    from: usize,
+                    expected: &mut u64,
+                    ex: &mut Exchange,
+                    stats: &mut LinkStats,
+                    seen: &mut Activity,
+                    sink: &mut dyn FnMut(usize, Option<&S>)|
+         -> Option<usize> {
+            let (seq32, cnt) = frame::block_header::<S>(payload)?;
+            let base = frame::unwrap_seq(seq32, *expected);
+            for i in from..cnt {
+                let q = base + i as u64;
+                if q < *expected {
+                    seen.stray_samples += 1;
+                    continue;
+                }
+                if q >= end + MAX_AHEAD_SAMPLES {
+                    // Further ahead than any command lead lets a device
+                    // run: not a sample of this stream.
+                    seen.stray_samples += 1;
+                    stats.stray_samples += 1;
+                    continue;
+                }
+                if q >= end {
+                    // Frames arrive in order: what this block still lacks
+                    // was lost.
+                    fill_lost(*expected, end, ex, stats, sink);
+                    *expected = end;
+                    return Some(i);
+                }
+                fill_lost(*expected, q, ex, stats, sink);
+                let s = frame::block_item::<S>(payload, i);
+                sink((q - first) as usize, Some(&s));
+                stats.samples += 1;
+                seen.new_samples += 1;
+                *expected = q + 1;
+            }
+            None
+        };
+        // What the previous exchange kept: samples of this block first.
+        if !carry.payload.is_empty() {
+            if carry.ty == sample_ty {
+                let rest = take(
+                    &carry.payload,
+                    carry.from,
+                    &mut expected,
+                    &mut ex,
+                    stats,
+                    &mut seen,
+                    &mut sink,
+                );
+                match rest {
+                    Some(i) => carry.from = i,
+                    None => carry.clear(),
+                }
+            } else {
+                carry.clear();
+            }
+        }
         loop {
             let before = expected;
             while expected < end {
@@ -556,28 +668,21 @@ impl Link {
                 seen.frames += 1;
                 match f.ty {
                     t if t == sample_ty => {
-                        let Some((seq32, cnt)) = frame::block_header::<S>(f.payload) else {
+                        if frame::block_header::<S>(f.payload).is_none() {
                             seen.unknown += 1;
                             continue;
-                        };
-                        let base = frame::unwrap_seq(seq32, expected);
-                        for i in 0..cnt {
-                            let q = base + i as u64;
-                            if q < expected {
-                                seen.stray_samples += 1;
-                                continue;
-                            }
-                            if q >= end {
-                                seen.stray_samples += 1;
-                                stats.stray_samples += 1;
-                                continue;
-                            }
-                            fill_lost(expected, q, &mut ex, stats, &mut sink);
-                            let s = frame::block_item::<S>(f.payload, i);
-                            sink((q - first) as usize, Some(&s));
-                            stats.samples += 1;
-                            seen.new_samples += 1;
-                            expected = q + 1;
+                        }
+                        if let Some(i) = take(
+                            f.payload,
+                            0,
+                            &mut expected,
+                            &mut ex,
+                            stats,
+                            &mut seen,
+                            &mut sink,
+                        ) {
+                            // The frame's tail belongs to later blocks.
+                            carry.keep(t, f.payload, i);
                         }
                     }
                     frame::ty::STATUS => {

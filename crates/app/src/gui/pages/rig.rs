@@ -375,13 +375,15 @@ fn sci(x: f64) -> String {
     }
     let e = x.log10().floor() as i32;
     let m = x / 10f64.powi(e);
+    if e < 0 {
+        // egui's font has the superscript digits but no superscript minus.
+        return format!("{m:.1}e{e}");
+    }
     let sup: String = e
         .to_string()
         .chars()
-        .map(|c| match c {
-            '-' => '⁻',
-            d => ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹']
-                [d.to_digit(10).unwrap_or(0) as usize],
+        .map(|d| {
+            ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹'][d.to_digit(10).unwrap_or(0) as usize]
         })
         .collect();
     format!("{m:.1}·10{sup}")
@@ -494,7 +496,7 @@ pub fn margins_ui(
             (
                 "largest safe force scale",
                 format!(
-                    "1 pN → {} (×{}); the loop is unstable from 1 pN → {} (×{})",
+                    "1 pN felt as {} (×{}); the loop is unstable from 1 pN felt as {} (×{})",
                     format_si(1e-12 * r.max_force_scale, "N"),
                     sci(r.max_force_scale),
                     format_si(1e-12 * r.critical_force_scale, "N"),
