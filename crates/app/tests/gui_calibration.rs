@@ -64,7 +64,9 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
         );
         h.step();
         frames += 1;
-        saw_progress |= h.query_by_label_contains("identify-").is_some();
+        // The step message line ("Identify the low channel: …"), not the
+        // step list (which names every step all the time).
+        saw_progress |= h.query_by_label_contains(" channel: ").is_some();
         // Short frames: the simulated calibration itself takes only
         // ≈ 50–100 ms in the test profile.
         std::thread::sleep(Duration::from_millis(2));
