@@ -253,10 +253,13 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     // The status bar: the engine's stop and the sitting's state.
     assert!(h.query_by_label_contains("study sitting: P01").is_some());
     assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
-    let rows = read_trials(&dir.path().join("out").join(TRIALS_FILE))
-        .unwrap()
-        .rows;
-    assert_eq!(rows.len(), 1);
+    // The aborted trial's row, committed by the sitting's worker.
+    let trials = dir.path().join("out").join(TRIALS_FILE);
+    assert!(step_until_every(&mut h, POLL, 10.0, |_| read_trials(
+        &trials
+    )
+    .is_ok_and(|t| t.rows.len() == 1)));
+    let rows = read_trials(&trials).unwrap().rows;
     assert_eq!(rows[0].reject_reason, "aborted");
     // Resume is refused until the stop is reset with the confirmation.
     h.get_by_label("Resume").click();
@@ -421,8 +424,13 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()),
         "the engine's stop is latched"
     );
-    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
-    assert_eq!(rows.len(), 1);
+    // The aborted trial's row, committed by the sitting's worker.
+    let trials = out.join(TRIALS_FILE);
+    assert!(step_until_every(&mut h, POLL, 10.0, |_| read_trials(
+        &trials
+    )
+    .is_ok_and(|t| t.rows.len() == 1)));
+    let rows = read_trials(&trials).unwrap().rows;
     assert_eq!(rows[0].reject_reason, "aborted");
     // The confirmed reset, then Resume.
     h.get_by_label("Reset emergency stop…").click();
