@@ -351,10 +351,11 @@ fn pilot_sample(
 
 /// The trials of `protocol` not yet in the folder `out` (all of them for a
 /// new folder), restricted to `participants` when given (a shard's),
-/// without opening the folder for writing.
+/// without opening the folder for writing. An unreadable `trials.csv`
+/// counts as no trial done (the store repairs it when it opens).
 ///
 /// # Errors
-/// An invalid protocol; a malformed `trials.csv`.
+/// An invalid protocol.
 pub fn pending_trials(
     protocol: &Protocol,
     out: &Path,
@@ -365,9 +366,11 @@ pub fn pending_trials(
         .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
     let all = plan(protocol, &order_rows(&table));
     let trials = out.join(TRIALS_FILE);
-    let done: std::collections::HashSet<_> = if trials.is_file() {
-        read_trials(&trials)?
-            .rows
+    // A damaged `trials.csv` (a writer killed while creating it) is the
+    // store's to repair when it opens; until then the estimate counts
+    // every trial as pending (an upper bound).
+    let done: std::collections::HashSet<_> = if let Ok(read) = read_trials(&trials) {
+        read.rows
             .iter()
             .map(|r| {
                 crate::seeds::TrialKey::new(
