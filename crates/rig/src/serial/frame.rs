@@ -293,16 +293,6 @@ mod tests {
     }
 
     #[test]
-    fn crc_check_value_is_that_of_ccitt_false() {
-        // Catalogue check value of CRC-16/CCITT-FALSE.
-        assert_eq!(CRC16.checksum(b"123456789"), 0x29B1);
-        assert_eq!(bitwise_crc(b"123456789"), 0x29B1);
-        for data in [&b""[..], b"\x00", b"\xA5\x5A\x00\x00\x02", &[0xFF; 300]] {
-            assert_eq!(CRC16.checksum(data), bitwise_crc(data));
-        }
-    }
-
-    #[test]
     fn worked_example_of_the_protocol_document() {
         // docs/PROTOCOL.md, "Worked example": START, then one COMMANDS frame
         // (seq 0x01020304; +2.5 N, −2.5 N on a 5 N Pantograph; +1 V of 10 V).
