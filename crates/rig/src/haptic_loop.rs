@@ -152,6 +152,8 @@ pub struct HapticLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
     block: [LoopSample; MAX_BLOCK],
     block_cmd: [ActuatorFrame; MAX_BLOCK],
     block_out: [SensorFrame; MAX_BLOCK],
+    block_trap: [[f64; 2]; MAX_BLOCK],
+    block_tw: [TweezerSample; MAX_BLOCK],
     block_len: usize,
 }
 
@@ -221,6 +223,8 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
             block: [LoopSample::default(); MAX_BLOCK],
             block_cmd: [ActuatorFrame::default(); MAX_BLOCK],
             block_out: [SensorFrame::default(); MAX_BLOCK],
+            block_trap: [[0.0; 2]; MAX_BLOCK],
+            block_tw: [TweezerSample::default(); MAX_BLOCK],
             block_len: 0,
         })
     }
@@ -347,6 +351,9 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
     pub fn advance(&mut self) -> Result<(), RigError> {
         let input = self.sensors;
         let (cmd, rendered, tw) = self.control(&input, self.missed);
+        if let Some(k) = self.tweezer.link_error() {
+            return Err(self.tweezer_failed(k));
+        }
         let report = match self.rig.process_frame(&cmd, &mut self.sensors) {
             Ok(r) => r,
             Err(e) => {
@@ -375,9 +382,25 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
     /// A rig error (the safety layer trips first).
     pub fn step_block(&mut self, n: usize) -> Result<BlockReport, RigError> {
         let n = n.min(MAX_BLOCK);
+        // Trap set-points of the whole block first, then one tweezer
+        // exchange, then the rendering: a live tweezer answers a block at
+        // once; a simulated one steps sample by sample, so the result is
+        // the same as `control` per sample.
+        for i in 0..n {
+            self.block_trap[i] = self.coupling.trap_target(self.block_in[i].handle_m);
+        }
+        self.tweezer
+            .step_block(&self.block_trap[..n], &mut self.block_tw[..n]);
+        if let Some(k) = self.tweezer.link_error() {
+            return Err(self.tweezer_failed(k));
+        }
         for i in 0..n {
             let sens = self.block_in[i];
-            let (cmd, rendered, tw) = self.control(&sens, self.missed && i == 0);
+            let tw = self.block_tw[i];
+            let rendered = self.coupling.render(sens.handle_m, &tw);
+            let cmd = self
+                .safety
+                .apply(rendered.command, &sens, self.missed && i == 0);
             self.block_cmd[i] = cmd;
             self.block[i] = LoopSample {
                 sensors: SensorFrame::default(),
@@ -412,6 +435,37 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
                 Err(e)
             }
         }
+    }
+
+    /// The loop's delay beyond the simulated loop's one sample, for
+    /// blocks of `block_len` samples: the rig's ([`Rig::loop_delay_samples`],
+    /// which counts the block and the DAQ link's command lead) plus the
+    /// tweezer link's ([`Tweezer::loop_delay_samples`]), samples.
+    pub fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        self.rig
+            .loop_delay_samples(block_len)
+            .saturating_add(self.tweezer.loop_delay_samples(block_len))
+    }
+
+    /// The tweezer link failed: the safety layer trips (outputs to zero)
+    /// and the error names the tweezer, not an escape.
+    #[cold]
+    #[inline(never)]
+    fn tweezer_failed(&mut self, k: crate::device::LinkErrorKind) -> RigError {
+        self.safety.fault(TripReason::RigError);
+        self.block_len = 0;
+        RigError::Disconnected(match k {
+            crate::device::LinkErrorKind::Disconnected => {
+                "the tweezer link was lost (no answer from the tweezer, or its port closed); \
+                 outputs are held at zero"
+                    .into()
+            }
+            crate::device::LinkErrorKind::Watchdog => {
+                "the tweezer's watchdog tripped (it waited too long for trap set-points); \
+                 outputs are held at zero"
+                    .into()
+            }
+        })
     }
 
     /// The samples of the last [`Self::step_block`].

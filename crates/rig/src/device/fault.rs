@@ -235,3 +235,15 @@ impl StatusCounters {
         }
     }
 }
+
+/// Kind of a device link failure, for callers that cannot return a
+/// [`crate::error::RigError`] on the spot (the [`crate::tweezer::Tweezer`]
+/// trait, whose `step` cannot fail): the loop asks afterwards and ends with
+/// a link error, never with an escape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkErrorKind {
+    /// Stalled, unplugged, I/O error.
+    Disconnected,
+    /// The device watchdog tripped (outputs safe until restarted).
+    Watchdog,
+}

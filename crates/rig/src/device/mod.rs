@@ -39,7 +39,7 @@ mod spec;
 
 pub use clock::{Clock, ManualClock, SystemClock};
 pub(crate) use fault::StatusCounters;
-pub use fault::{FaultQueue, RigFault};
+pub use fault::{FaultQueue, LinkErrorKind, RigFault};
 pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
 pub use identity::{RigIdentity, RigKind, RigState, RigStatus};
 pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};

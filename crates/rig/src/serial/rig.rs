@@ -846,15 +846,7 @@ impl Link {
     }
 }
 
-/// Kind of a link failure, for callers that cannot return a [`RigError`]
-/// (the [`crate::tweezer::Tweezer`] trait).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LinkErrorKind {
-    /// Stalled, unplugged, I/O error.
-    Disconnected,
-    /// The device watchdog tripped (outputs safe until restarted).
-    Watchdog,
-}
+pub use crate::device::LinkErrorKind;
 
 /// A DAQ on a serial link as a [`Rig`] (module docs).
 #[derive(Debug)]

@@ -312,4 +312,33 @@ pub trait Tweezer {
     fn detector_v(&self) -> Option<[f64; 2]> {
         None
     }
+    /// Advance `traps.len()` samples at once: `out[i]` is the sample in
+    /// which the trap moved to `traps[i]` (`out` at least as long). A live
+    /// tweezer exchanges the block in one round trip, with its command lead
+    /// ([`Self::loop_delay_samples`]); a simulated one steps sample by
+    /// sample (the default), so block and sample stepping agree exactly.
+    /// Must not allocate, lock or panic.
+    fn step_block(&mut self, traps: &[[f64; 2]], out: &mut [TweezerSample]) {
+        for (t, o) in traps.iter().zip(out.iter_mut()) {
+            *o = self.step(*t);
+        }
+    }
+    /// Samples by which the bead's answer to a trap set-point comes later
+    /// than in the simulated loop, for blocks of `block_len` samples: 0 for
+    /// a simulated tweezer; a live link's block plus its command lead. The
+    /// stability clearance adds it to the rig's loop delay.
+    fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        let _ = block_len;
+        0
+    }
+    /// A link failure since the last [`Self::reset`] (live tweezers): the
+    /// samples after it carry no force, and the loop ends with a link error
+    /// naming the tweezer instead of reporting an escape.
+    fn link_error(&self) -> Option<crate::device::LinkErrorKind> {
+        None
+    }
+    /// Round trip of the link measured at connection, s (live tweezers).
+    fn round_trip_s(&self) -> Option<f64> {
+        None
+    }
 }
