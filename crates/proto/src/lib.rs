@@ -14,6 +14,8 @@
 //! * [`message`]: HELLO (identity with bounded strings), STATUS, FAULT.
 //! * [`decoder`]: the resynchronising stream decoder with a fixed buffer.
 //! * [`seq`]: extension of the wire's 32-bit sequence numbers.
+//! * [`testing`]: test frames (plant model, late-command policy, simulated
+//!   emergency stop, fault injection, cost counters).
 
 #![no_std]
 
@@ -23,6 +25,7 @@ pub mod frame;
 pub mod items;
 pub mod message;
 pub mod seq;
+pub mod testing;
 
 pub use decoder::{Decoder, DecoderStats, FrameRef};
 pub use frame::{
