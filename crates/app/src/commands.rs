@@ -4,6 +4,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod crossover;
 pub mod emulate;
+pub mod firmware;
 pub mod frf;
 pub mod paper;
 pub mod progress;

@@ -34,6 +34,9 @@ pub mod op {
     /// Cost counters of the sample interrupt; the ack's data are
     /// [`Profile`]. `u8` 1 resets them after reading.
     pub const PROFILE: u8 = 0x08;
+    /// The outputs applied now; the ack's data are one
+    /// [`crate::DaqCommand`] (6 bytes). No arguments.
+    pub const OUTPUTS: u8 = 0x09;
 }
 
 /// Results in a TEST_ACK.

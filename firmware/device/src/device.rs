@@ -74,6 +74,8 @@ pub trait Frontend {
     fn read(&mut self) -> DaqSample;
     /// Outputs to zero at once (watchdog, emergency stop, STOP).
     fn safe(&mut self);
+    /// The command the outputs carry now (after [`safe`](Self::safe): zero).
+    fn outputs(&self) -> DaqCommand;
     /// Capabilities announced in HELLO (they may change with a loaded plant).
     fn caps(&self) -> DaqCaps;
     /// A test operation this frontend implements (the plant model's);
@@ -572,8 +574,14 @@ impl<F: Frontend, O: Outbox> Device<F, O> {
                 self.ack(op, Ok(0), &p);
                 return;
             }
+            (testing::op::OUTPUTS, []) => {
+                let mut b = [0u8; DaqCommand::SIZE];
+                self.fe.outputs().encode(&mut b);
+                self.ack(op, Ok(0), &b);
+                return;
+            }
             (testing::op::MODE | testing::op::ESTOP | testing::op::FAULTS, _)
-            | (testing::op::PROFILE, _) => Err(bad),
+            | (testing::op::PROFILE | testing::op::OUTPUTS, _) => Err(bad),
             _ => self.fe.test(op, args, idle),
         };
         self.ack(op, r, &[]);

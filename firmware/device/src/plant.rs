@@ -196,6 +196,10 @@ impl Frontend for PlantFrontend {
         self.cmd = DaqCommand::default();
     }
 
+    fn outputs(&self) -> DaqCommand {
+        self.cmd
+    }
+
     fn caps(&self) -> DaqCaps {
         let p = &self.sensors;
         DaqCaps {

@@ -44,6 +44,9 @@ impl Frontend for Echo {
         self.cmd = DaqCommand::default();
         self.safe_calls += 1;
     }
+    fn outputs(&self) -> DaqCommand {
+        self.cmd
+    }
     fn caps(&self) -> DaqCaps {
         DaqCaps {
             encoder_counts_per_m: 1e7,

@@ -94,6 +94,9 @@ pub struct CheckArgs {
     /// Frames per block.
     #[arg(long, default_value_t = 100)]
     pub block: usize,
+    /// Stop after this many blocks (within --duration, which stays the hard bound).
+    #[arg(long)]
+    pub blocks: Option<u64>,
     /// Rig file of the simulated rig.
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
@@ -129,6 +132,8 @@ pub struct CheckReport {
     pub firmware: String,
     /// Nominal sample rate, Hz.
     pub nominal_rate_hz: f64,
+    /// Blocks exchanged (`process_block` calls that returned).
+    pub blocks: u64,
     /// Frames exchanged (received + lost).
     pub frames: u64,
     /// Frames received.
@@ -198,6 +203,7 @@ impl CheckReport {
 /// Counters of a streaming run (kept when it ends in an error).
 #[derive(Debug, Clone, Copy, Default)]
 struct Streamed {
+    blocks: u64,
     frames: u64,
     lost: u64,
     elapsed_s: f64,
@@ -207,7 +213,12 @@ struct Streamed {
 /// Stream zero commands through `rig` for `duration` s in blocks of
 /// `block`. The counters are returned with the error that ended the run,
 /// if one did.
-fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<anyhow::Error>) {
+fn stream(
+    rig: &mut dyn Rig,
+    duration: f64,
+    block: usize,
+    blocks: Option<u64>,
+) -> (Streamed, Option<anyhow::Error>) {
     let cmds = vec![ActuatorFrame::default(); block];
     let mut sens = vec![SensorFrame::default(); block];
     let mut s = Streamed::default();
@@ -216,10 +227,13 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
     }
     let t0 = Instant::now();
     let mut error = None;
-    while t0.elapsed().as_secs_f64() < duration {
+    let mut done = 0u64;
+    while t0.elapsed().as_secs_f64() < duration && blocks.is_none_or(|n| done < n) {
+        done += 1;
         let tb = Instant::now();
         match rig.process_block(&cmds, &mut sens) {
             Ok(r) => {
+                s.blocks += 1;
                 s.frames += r.frames as u64;
                 s.lost += u64::from(r.lost_frames);
             }
@@ -272,6 +286,9 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
     if !(1..=65_536).contains(&a.block) {
         anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
     }
+    if a.blocks == Some(0) {
+        anyhow::bail!("--blocks must be at least 1");
+    }
     for (name, v) in [
         ("--max-loss", a.max_loss),
         ("--max-crc-errors", a.max_crc_errors),
@@ -285,7 +302,7 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         RigSpec::Sim => {
             let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
             let mut rig = SimRig::paced(&rc, 0.5)?;
-            let streamed = stream(&mut rig, a.duration, a.block);
+            let streamed = stream(&mut rig, a.duration, a.block, a.blocks);
             (rig.identity().clone(), streamed, LinkStats::default())
         }
         RigSpec::Serial(cfg) => {
@@ -298,12 +315,13 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
                     + Duration::from_secs_f64(a.duration)
                     + CheckArgs::GRACE,
             ));
-            let streamed = stream(&mut rig, a.duration, a.block);
+            let streamed = stream(&mut rig, a.duration, a.block, a.blocks);
             (rig.identity().clone(), streamed, rig.link_stats())
         }
         RigSpec::Audio(_) => return Err(RigSpec::audio_not_built().into()),
     };
     let Streamed {
+        blocks,
         frames,
         lost,
         elapsed_s,
@@ -321,6 +339,7 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         device: id.name,
         firmware: id.firmware,
         nominal_rate_hz: id.sample_rate_hz,
+        blocks,
         frames,
         received: frames - lost,
         lost,

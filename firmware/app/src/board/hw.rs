@@ -18,7 +18,7 @@
 //! * Link: USART2 (PA2 TX, PA3 RX) at 2 Mbaud; USB CDC-ACM on PA11/PA12.
 //! * Independent watchdog: 5 ms, fed every sample period.
 
-use super::{SAMPLE_RATE_HZ, ack_sample_timer, start_sample_timer};
+use super::SAMPLE_RATE_HZ;
 use crate::TxQueue;
 use core::cell::RefCell;
 use cortex_m::interrupt::Mutex;
@@ -61,10 +61,12 @@ static USB_LINK: Mutex<RefCell<Option<(UsbDev, UsbSerial)>>> = Mutex::new(RefCel
 #[derive(Debug)]
 pub struct Frontend {
     adc_zero: [u16; 3],
+    applied: DaqCommand,
 }
 
 impl DeviceFrontend for Frontend {
     fn apply(&mut self, c: &DaqCommand) {
+        self.applied = *c;
         // SAFETY: the DAC holding registers, TIM1's compare register and
         // PB0 are written only here, in `safe` and by the panic handler.
         unsafe {
@@ -107,7 +109,12 @@ impl DeviceFrontend for Frontend {
     }
 
     fn safe(&mut self) {
+        self.applied = DaqCommand::default();
         safe_outputs();
+    }
+
+    fn outputs(&self) -> DaqCommand {
+        self.applied
     }
 
     fn caps(&self) -> DaqCaps {
@@ -298,7 +305,7 @@ pub fn init(
     core::mem::forget(estop_pin);
 
     // Encoders.
-    let qx = dp.TIM2.qei((gpioa.pa15, gpiob.pb3), &mut rcc);
+    let qx = dp.TIM2.qei((gpioa.pa15.into_input(), gpiob.pb3.into_input()), &mut rcc);
     let qy = dp.TIM5.qei((gpioa.pa0, gpioa.pa1), &mut rcc);
     core::mem::forget((qx, qy));
 
@@ -407,6 +414,7 @@ pub fn init(
         Link,
         Frontend {
             adc_zero: [2048; 3],
+            applied: DaqCommand::default(),
         },
         serial_no,
     )
@@ -419,4 +427,23 @@ pub fn hex(bytes: &[u8], out: &mut [u8]) {
         o[0] = D[usize::from(b >> 4)];
         o[1] = D[usize::from(b & 15)];
     }
+}
+
+/// Configure TIM4 as the sample clock: update event every `(psc + 1) ·
+/// (arr + 1)` timer-clock periods, interrupt on update.
+pub fn start_sample_timer(tim: &pac::TIM4, psc: u16, arr: u16) {
+    tim.cr1().write(|w| w.cen().clear_bit());
+    tim.psc().write(|w| w.psc().set(psc));
+    tim.arr().write(|w| unsafe { w.bits(u32::from(arr)) });
+    tim.egr().write(|w| w.ug().set_bit());
+    tim.sr().write(|w| unsafe { w.bits(0) });
+    tim.dier().write(|w| w.uie().set_bit());
+    tim.cr1().write(|w| w.cen().set_bit());
+}
+
+/// Acknowledge TIM4's update interrupt.
+pub fn ack_sample_timer() {
+    // SAFETY: clearing UIF (write 0, others 1: rc_w0) only from the tick task.
+    let t = unsafe { &*pac::TIM4::ptr() };
+    t.sr().write(|w| unsafe { w.bits(!1) });
 }

@@ -75,22 +75,3 @@ pub fn usart_write(b: u8) {
     while u.sr().read().txe().bit_is_clear() {}
     u.dr().write(|w| unsafe { w.bits(u16::from(b)) });
 }
-
-/// Configure TIM4 as the sample clock: update event every `(psc + 1) ·
-/// (arr + 1)` timer-clock periods, interrupt on update.
-pub fn start_sample_timer(tim: &pac::TIM4, psc: u16, arr: u16) {
-    tim.cr1().write(|w| w.cen().clear_bit());
-    tim.psc().write(|w| w.psc().set(psc));
-    tim.arr().write(|w| unsafe { w.bits(u32::from(arr)) });
-    tim.egr().write(|w| w.ug().set_bit());
-    tim.sr().write(|w| unsafe { w.bits(0) });
-    tim.dier().write(|w| w.uie().set_bit());
-    tim.cr1().write(|w| w.cen().set_bit());
-}
-
-/// Acknowledge TIM4's update interrupt.
-pub fn ack_sample_timer() {
-    // SAFETY: clearing UIF (write 0, others 1: rc_w0) only from the tick task.
-    let t = unsafe { &*pac::TIM4::ptr() };
-    t.sr().write(|w| unsafe { w.bits(!1) });
-}
