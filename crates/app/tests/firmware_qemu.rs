@@ -16,8 +16,8 @@ mod common;
 
 use common::{BIN, Emulator, json_ok, kilotouch as run};
 use kilotouch_rig::serial::frame::{
-    self, DaqCommand, DaqSample, Decoder, DeviceState, FaultReport, Status, WireItem, fault,
-    flag, ty,
+    self, DaqCommand, DaqSample, Decoder, DeviceState, FaultReport, Status, WireItem, fault, flag,
+    ty,
 };
 use serde_json::Value;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
@@ -43,7 +43,14 @@ struct Qemu {
 impl Qemu {
     fn boot(elf: &str) -> Self {
         let mut child = Command::new("qemu-system-arm")
-            .args(["-M", "netduinoplus2", "-display", "none", "-monitor", "none"])
+            .args([
+                "-M",
+                "netduinoplus2",
+                "-display",
+                "none",
+                "-monitor",
+                "none",
+            ])
             .args(["-serial", "null", "-serial", "pty", "-kernel", elf])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -107,15 +114,29 @@ fn rig_check_streams_10000_blocks_without_loss() {
     let q = Qemu::boot(&elf);
     let rig = format!("{},timeout-ms=1000", q.rig());
     let v = json_ok(&[
-        "rig", "check", "--rig", &rig, "--block", "10", "--blocks", "10000", "--duration",
-        "600", "--json",
+        "rig",
+        "check",
+        "--rig",
+        &rig,
+        "--block",
+        "10",
+        "--blocks",
+        "10000",
+        "--duration",
+        "600",
+        "--json",
     ]);
     eprintln!("rig check through the firmware: {v}");
     assert_eq!(v["blocks"].as_u64(), Some(10_000), "{v}");
     assert_eq!(v["lost"].as_u64(), Some(0), "{v}");
     assert_eq!(v["crc_errors"].as_u64(), Some(0), "{v}");
     assert_eq!(v["passed"].as_bool(), Some(true));
-    assert!(v["firmware"].as_str().unwrap_or("").starts_with("kilotouch-firmware"));
+    assert!(
+        v["firmware"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("kilotouch-firmware")
+    );
 }
 
 /// Third-octave bands 63 Hz – 1 kHz of a calibration's verification.
@@ -124,14 +145,21 @@ fn bands(v: &Value) -> Vec<(f64, f64)> {
         .as_array()
         .expect("bands")
         .iter()
-        .map(|b| (b["f"].as_f64().unwrap_or(0.0), b["db"].as_f64().unwrap_or(f64::NAN)))
+        .map(|b| {
+            (
+                b["f"].as_f64().unwrap_or(0.0),
+                b["db"].as_f64().unwrap_or(f64::NAN),
+            )
+        })
         .filter(|(f, _)| (63.0..=1001.0).contains(f))
         .collect()
 }
 
 #[test]
 fn calibration_through_the_firmware_plant_agrees_with_the_emulator() {
-    let Some(elf) = elf("calibration") else { return };
+    let Some(elf) = elf("calibration") else {
+        return;
+    };
     let q = Qemu::boot(&elf);
     let fw = json_ok(&[
         "calibrate",
@@ -156,9 +184,14 @@ fn calibration_through_the_firmware_plant_agrees_with_the_emulator() {
     for ((f1, d1), (f2, d2)) in bf.iter().zip(&be) {
         assert_eq!(f1, f2);
         diff = diff.max((d1 - d2).abs());
-        assert!((d1 - d2).abs() <= 0.5, "{f1} Hz: firmware {d1} dB, emulator {d2} dB");
+        assert!(
+            (d1 - d2).abs() <= 0.5,
+            "{f1} Hz: firmware {d1} dB, emulator {d2} dB"
+        );
     }
-    eprintln!("calibration: firmware worst band {worst:.3} dB; largest difference to the emulator {diff:.3} dB");
+    eprintln!(
+        "calibration: firmware worst band {worst:.3} dB; largest difference to the emulator {diff:.3} dB"
+    );
 }
 
 #[test]
@@ -167,10 +200,22 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
     let q = Qemu::boot(&elf);
     let rig = q.rig();
     let out = run(&[
-        "firmware", "set", "--rig", &rig, "--corrupt-rate", "2e-4", "--drop-rate", "2e-4",
-        "--seed", "3",
+        "firmware",
+        "set",
+        "--rig",
+        &rig,
+        "--corrupt-rate",
+        "2e-4",
+        "--drop-rate",
+        "2e-4",
+        "--seed",
+        "3",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v = json_ok(&[
         "rig",
         "check",
@@ -200,7 +245,15 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
 /// `act` and return how long the check took to fail and its stderr.
 fn check_then(q: &Qemu, act: impl FnOnce()) -> (Duration, String) {
     let check = Command::new(BIN)
-        .args(["rig", "check", "--rig", &q.rig(), "--duration", "600", "--json"])
+        .args([
+            "rig",
+            "check",
+            "--rig",
+            &q.rig(),
+            "--duration",
+            "600",
+            "--json",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -217,7 +270,10 @@ fn check_then(q: &Qemu, act: impl FnOnce()) -> (Duration, String) {
     let t = Instant::now();
     let out = check.wait_with_output().expect("rig check output");
     assert!(!out.status.success());
-    (t.elapsed(), String::from_utf8_lossy(&out.stderr).into_owned())
+    (
+        t.elapsed(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
 }
 
 #[test]
@@ -238,7 +294,10 @@ fn a_vanished_firmware_is_reported_promptly() {
     });
     let _ = q.child.wait();
     assert!(waited < Duration::from_secs(3), "exit took {waited:?}");
-    assert!(err.contains("disconnected") && !err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("disconnected") && !err.contains("panicked"),
+        "{err}"
+    );
 }
 
 /// A raw host session on a port: frames out, every device frame in.
@@ -299,7 +358,9 @@ impl Raw {
         p.extend_from_slice(args);
         let from = self.got.len();
         self.send(ty::TEST, &p);
-        self.until("test ack", |g| g[from..].iter().any(|(t, _)| *t == ty::TEST_ACK));
+        self.until("test ack", |g| {
+            g[from..].iter().any(|(t, _)| *t == ty::TEST_ACK)
+        });
         let (_, p) = self.got[from..]
             .iter()
             .find(|(t, _)| *t == ty::TEST_ACK)
@@ -369,7 +430,11 @@ fn the_device_watchdog_zeroes_both_outputs_when_the_host_goes_silent() {
             *t == ty::STATUS && Status::parse(p).is_some_and(|s| s.state == DeviceState::Tripped)
         })
     });
-    assert_eq!(r.outputs(), DaqCommand::default(), "Pantograph and Haptuator at zero");
+    assert_eq!(
+        r.outputs(),
+        DaqCommand::default(),
+        "Pantograph and Haptuator at zero"
+    );
 }
 
 #[test]
@@ -381,11 +446,17 @@ fn a_free_running_firmware_flags_late_commands_and_the_estop_trips_it() {
     let s = start(&mut r);
     // No command yet: the samples run anyway, flagged CMD_LATE.
     r.until("late samples", |g| samples(g).len() >= 20);
-    assert!(samples(&r.got).iter().all(|(_, x)| x.flags & flag::CMD_LATE != 0));
+    assert!(
+        samples(&r.got)
+            .iter()
+            .all(|(_, x)| x.flags & flag::CMD_LATE != 0)
+    );
     // Commands well ahead: their samples are on time.
     let n = samples(&r.got).last().map_or(s, |(q, _)| *q) + 2000;
     r.commands(n, &[DaqCommand::default(); 200]);
-    r.until("samples on time", |g| samples(g).iter().any(|(q, _)| *q >= n + 100));
+    r.until("samples on time", |g| {
+        samples(g).iter().any(|(q, _)| *q >= n + 100)
+    });
     let on_time = samples(&r.got)
         .iter()
         .filter(|(q, x)| (n..n + 100).contains(q) && x.flags & flag::CMD_LATE == 0)
@@ -406,7 +477,12 @@ fn a_free_running_firmware_flags_late_commands_and_the_estop_trips_it() {
 /// One event of a session as both devices must produce it.
 #[derive(Debug, Clone, PartialEq)]
 enum Event {
-    Hello { version: u16, rate: u32, watchdog_ms: u16, batch: u8 },
+    Hello {
+        version: u16,
+        rate: u32,
+        watchdog_ms: u16,
+        batch: u8,
+    },
     Fault(u8),
     Status(DeviceState, u64),
     Samples(Vec<(u64, u8)>),
@@ -554,7 +630,13 @@ fn the_emulator_and_the_firmware_agree_on_every_frame_of_a_recorded_session() {
     }
     let n = fw_s.len().min(em_s.len()) as f64;
     let (acc, sig) = ((acc / n).sqrt(), (sig / n).sqrt());
-    eprintln!("session: {} events; |Δenc| ≤ {enc}; accel x RMS difference {acc:.1} codes of {sig:.1}", a.len());
+    eprintln!(
+        "session: {} events; |Δenc| ≤ {enc}; accel x RMS difference {acc:.1} codes of {sig:.1}",
+        a.len()
+    );
     assert!(enc <= 2, "encoder counts differ by {enc}");
-    assert!(acc < 0.2 * sig, "accelerations differ: RMS {acc} of {sig} codes");
+    assert!(
+        acc < 0.2 * sig,
+        "accelerations differ: RMS {acc} of {sig} codes"
+    );
 }

@@ -20,10 +20,18 @@ fn sections_reproduce_the_simulated_plant_sample_for_sample() {
     let chans = plant_sections(&cfg).unwrap();
     assert_eq!(chans.len(), 6);
     let n_sections: usize = chans.iter().map(|c| c.sections.len()).sum();
-    assert!(n_sections <= 64, "{n_sections} sections: more than the firmware holds");
+    assert!(
+        n_sections <= 64,
+        "{n_sections} sections: more than the firmware holds"
+    );
     let mut banks: Vec<Vec<Biquad>> = chans
         .iter()
-        .map(|c| c.sections.iter().map(|s| Biquad::new(*s).unwrap()).collect())
+        .map(|c| {
+            c.sections
+                .iter()
+                .map(|s| Biquad::new(*s).unwrap())
+                .collect()
+        })
         .collect();
     let mut plant = DualStagePlant::new(&cfg, Integrator::Zoh).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(9);
@@ -45,7 +53,11 @@ fn sections_reproduce_the_simulated_plant_sample_for_sample() {
             hand_m: [0.0; 2],
             hand_vel_m_s: [0.0; 2],
         });
-        assert_eq!(plant.x.end_stop_steps(), 0, "the test must stay off the stops");
+        assert_eq!(
+            plant.x.end_stop_steps(),
+            0,
+            "the test must stay off the stops"
+        );
         let mut y = [0.0f64; 4]; // accel x, accel y, motor x, motor y
         for (c, bank) in chans.iter().zip(banks.iter_mut()) {
             let x = match (c.axis, c.input) {
@@ -89,7 +101,10 @@ fn sections_follow_the_analytic_channel_responses() {
     let fs = cfg.rig.sample_rate_hz;
     let chans = plant_sections(&cfg).unwrap();
     let mx = AxisModel::new(&cfg, Axis::X).unwrap();
-    for (input, ch) in [(ChannelInput::Force, Channel::Low), (ChannelInput::Drive, Channel::High)] {
+    for (input, ch) in [
+        (ChannelInput::Force, Channel::Low),
+        (ChannelInput::Drive, Channel::High),
+    ] {
         let c = chans
             .iter()
             .find(|c| c.axis == Axis::X && c.input == input && c.output == ChannelOutput::Accel)
@@ -100,7 +115,12 @@ fn sections_follow_the_analytic_channel_responses() {
             let rel = (h.norm() - a.norm()).abs() / a.norm();
             // ZOH magnitude error |sinc(f/fs)| − 1 ≤ 1.6 % at 1 kHz, and
             // the half-sample delay only turns the phase.
-            assert!(rel < 0.02, "{input:?} at {f} Hz: |H| {} vs {}", h.norm(), a.norm());
+            assert!(
+                rel < 0.02,
+                "{input:?} at {f} Hz: |H| {} vs {}",
+                h.norm(),
+                a.norm()
+            );
         }
     }
 }

@@ -52,7 +52,9 @@ impl kilotouch_device::Outbox for TxQueue {
 
 impl core::fmt::Debug for TxQueue {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("TxQueue").field("len", &self.0.len()).finish()
+        f.debug_struct("TxQueue")
+            .field("len", &self.0.len())
+            .finish()
     }
 }
 

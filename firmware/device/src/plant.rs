@@ -186,9 +186,7 @@ impl Frontend for PlantFrontend {
             acc,
             flags,
         };
-        self.cost = self
-            .cost
-            .wrapping_add((self.clock)().wrapping_sub(t0));
+        self.cost = self.cost.wrapping_add((self.clock)().wrapping_sub(t0));
         s
     }
 

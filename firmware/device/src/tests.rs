@@ -136,8 +136,14 @@ fn hello_answers_the_version_and_identity() {
     let f = drain(&mut d);
     assert_eq!(f.len(), 1);
     let h = Hello::parse(&f[0].1).unwrap();
-    assert_eq!((h.version, h.sample_rate_hz, h.watchdog_ms, h.batch), (2, 10_000, 100, 10));
-    assert_eq!((h.name, h.serial, h.firmware), (&b"test"[..], &b"ABC"[..], &b"fw 0"[..]));
+    assert_eq!(
+        (h.version, h.sample_rate_hz, h.watchdog_ms, h.batch),
+        (2, 10_000, 100, 10)
+    );
+    assert_eq!(
+        (h.name, h.serial, h.firmware),
+        (&b"test"[..], &b"ABC"[..], &b"fw 0"[..])
+    );
     d.handle(ty::HELLO_REQ, &1u16.to_le_bytes());
     let f = drain(&mut d);
     assert_eq!(faults(&f), [fault::VERSION]);
@@ -161,7 +167,10 @@ fn waiting_device_runs_due_samples_batches_and_reports_while_waiting() {
     assert_eq!(f.iter().filter(|(t, _)| *t == ty::SAMPLES).count(), 2);
     let s = samples(&f);
     assert_eq!(s.len(), 20);
-    assert!(s.iter().all(|(q, x)| x.enc[0] == *q as i32 + 1 && x.flags == 0));
+    assert!(
+        s.iter()
+            .all(|(q, x)| x.enc[0] == *q as i32 + 1 && x.flags == 0)
+    );
     // Out of commands at sample 25: partial frame of 5, then STATUS.
     for _ in 0..10 {
         d.tick();
@@ -194,7 +203,10 @@ fn holding_device_flags_late_samples_and_keeps_the_clock() {
     }
     let s = samples(&drain(&mut d));
     assert_eq!(s.len(), 10);
-    let late: Vec<bool> = s.iter().map(|(_, x)| x.flags & flag::CMD_LATE != 0).collect();
+    let late: Vec<bool> = s
+        .iter()
+        .map(|(_, x)| x.flags & flag::CMD_LATE != 0)
+        .collect();
     assert_eq!(late[..4], [true, false, false, true]);
     assert!(late[3..].iter().all(|l| *l));
     // Held: the last command stays applied through the late samples.
@@ -275,7 +287,10 @@ fn codes_are_clamped_and_flagged_limited() {
     let s = samples(&drain(&mut d));
     assert_eq!(s[0].1.enc[0], -30_000);
     assert_eq!(s[2].1.enc[1], 30_000);
-    let lim: Vec<bool> = s.iter().map(|(_, x)| x.flags & flag::LIMITED != 0).collect();
+    let lim: Vec<bool> = s
+        .iter()
+        .map(|(_, x)| x.flags & flag::LIMITED != 0)
+        .collect();
     assert_eq!(lim, [true, false, true]);
 }
 
@@ -290,7 +305,12 @@ fn malformed_stale_and_far_commands_are_refused() {
     let f = drain(&mut d);
     assert_eq!(
         faults(&f),
-        [fault::NOT_RUNNING, fault::BAD_FRAME, fault::BAD_FRAME, fault::BAD_FRAME]
+        [
+            fault::NOT_RUNNING,
+            fault::BAD_FRAME,
+            fault::BAD_FRAME,
+            fault::BAD_FRAME
+        ]
     );
     d.handle(ty::START, &[]);
     d.handle(ty::COMMANDS, &commands(0, &[cmd(1); 3]));
@@ -407,7 +427,10 @@ fn the_plant_model_matches_its_analytic_step_response() {
         b: [0.5, 0.0, 0.0],
         a: [-0.5, 0.0],
     };
-    let unstable = Section { a: [-2.5, 1.0], ..sec };
+    let unstable = Section {
+        a: [-2.5, 1.0],
+        ..sec
+    };
     for (op, args) in [
         (testing::op::PLANT_CLEAR, Vec::new()),
         (testing::op::PLANT_SENSORS, sensors().encode().to_vec()),
@@ -433,7 +456,10 @@ fn the_plant_model_matches_its_analytic_step_response() {
         ]
     );
     d.handle(ty::TEST, &test_frame(testing::op::PLANT_CLEAR, &[]));
-    d.handle(ty::TEST, &test_frame(testing::op::PLANT_SECTION, &sec.encode()));
+    d.handle(
+        ty::TEST,
+        &test_frame(testing::op::PLANT_SECTION, &sec.encode()),
+    );
     d.handle(ty::START, &[]);
     // 4 N = code 26214 (of 5 N at 32767): 4.00006… N.
     let c = DaqCommand {
@@ -441,8 +467,14 @@ fn the_plant_model_matches_its_analytic_step_response() {
         drive: 0,
     };
     d.handle(ty::COMMANDS, &commands(0, &[c; 20]));
-    d.handle(ty::TEST, &test_frame(testing::op::PLANT_SENSORS, &sensors().encode()));
-    assert_eq!(acks(&drain(&mut d)).last().unwrap().1, testing::result::BUSY);
+    d.handle(
+        ty::TEST,
+        &test_frame(testing::op::PLANT_SENSORS, &sensors().encode()),
+    );
+    assert_eq!(
+        acks(&drain(&mut d)).last().unwrap().1,
+        testing::result::BUSY
+    );
     for _ in 0..20 {
         d.tick();
     }
@@ -451,7 +483,10 @@ fn the_plant_model_matches_its_analytic_step_response() {
     for (n, (_, x)) in s.iter().enumerate() {
         let want = f * (1.0 - (n as f64 + 3.0) / 2f64.powi(n as i32 + 2));
         let got = f64::from(x.acc[0]) * 0.01;
-        assert!((got - want).abs() <= 0.005 + 1e-12, "n {n}: {got} vs {want}");
+        assert!(
+            (got - want).abs() <= 0.005 + 1e-12,
+            "n {n}: {got} vs {want}"
+        );
         assert_eq!(x.acc[2], 981);
         assert_eq!(x.flags, 0);
     }
@@ -466,7 +501,10 @@ fn the_plant_model_clips_and_resets_on_non_finite_outputs() {
         b: [100.0, 0.0, 0.0],
         a: [0.0, 0.0],
     };
-    assert_eq!(fe.test(testing::op::PLANT_SECTION, &big.encode(), true), Ok(1));
+    assert_eq!(
+        fe.test(testing::op::PLANT_SECTION, &big.encode(), true),
+        Ok(1)
+    );
     fe.apply(&DaqCommand {
         force: [0; 2],
         drive: 32767,
@@ -480,7 +518,10 @@ fn the_plant_model_clips_and_resets_on_non_finite_outputs() {
         b: [f64::MAX, 0.0, 0.0],
         ..big
     };
-    assert_eq!(fe.test(testing::op::PLANT_SECTION, &inf.encode(), true), Ok(2));
+    assert_eq!(
+        fe.test(testing::op::PLANT_SECTION, &inf.encode(), true),
+        Ok(2)
+    );
     let s = fe.read();
     assert_eq!(s.flags & flag::NONFINITE, flag::NONFINITE);
     assert!(s.enc == [0, 0]);

@@ -35,7 +35,9 @@ pub struct TestLink {
 
 impl std::fmt::Debug for TestLink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("TestLink").field("path", &self.path).finish()
+        f.debug_struct("TestLink")
+            .field("path", &self.path)
+            .finish()
     }
 }
 
@@ -196,7 +198,10 @@ impl TestLink {
     pub fn outputs(&mut self) -> Result<frame::DaqCommand, RigError> {
         let (_, data) = self.request(testing::op::OUTPUTS, &[])?;
         if data.len() != 6 {
-            return Err(RigError::Device(format!("{}: malformed outputs", self.path)));
+            return Err(RigError::Device(format!(
+                "{}: malformed outputs",
+                self.path
+            )));
         }
         Ok(<frame::DaqCommand as frame::WireItem>::decode(&data))
     }

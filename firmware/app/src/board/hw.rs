@@ -71,7 +71,8 @@ impl DeviceFrontend for Frontend {
         // PB0 are written only here, in `safe` and by the panic handler.
         unsafe {
             let dac = &*pac::DAC::ptr();
-            dac.dhr12r1().write(|w| w.bits(u32::from(analog::dac12(c.drive))));
+            dac.dhr12r1()
+                .write(|w| w.bits(u32::from(analog::dac12(c.drive))));
             dac.dhr12r2()
                 .write(|w| w.bits(u32::from(analog::dac12(c.force[0]))));
             let t1 = &*pac::TIM1::ptr();
@@ -255,7 +256,14 @@ fn init_adc(adc: &pac::ADC1) {
     adc.cr1().write(|w| w.scan().set_bit());
     // JL = 2 (three conversions): JSQ2..4 hold them.
     adc.jsqr().write(|w| unsafe {
-        w.jl().bits(2).jsq2().bits(11).jsq3().bits(12).jsq4().bits(14)
+        w.jl()
+            .bits(2)
+            .jsq2()
+            .bits(11)
+            .jsq3()
+            .bits(12)
+            .jsq4()
+            .bits(14)
     });
     // JEXTSEL 0b0110 = TIM4_CH1 … trigger on the rising edge.
     adc.cr2()
@@ -298,16 +306,18 @@ pub fn init(
     let gpioc = dp.GPIOC.split(&mut rcc);
 
     // Outputs off before anything can drive them.
+    // (The pin objects are configuration only: dropping them leaves the
+    // pins as configured; the frontend writes PB0 through BSRR.)
     let mut amp_enable = gpiob.pb0.into_push_pull_output();
     amp_enable.set_low();
-    core::mem::forget(amp_enable);
-    let estop_pin = gpiob.pb1.into_pull_up_input();
-    core::mem::forget(estop_pin);
+    let _estop_pin = gpiob.pb1.into_pull_up_input();
 
-    // Encoders.
-    let qx = dp.TIM2.qei((gpioa.pa15.into_input(), gpiob.pb3.into_input()), &mut rcc);
-    let qy = dp.TIM5.qei((gpioa.pa0, gpioa.pa1), &mut rcc);
-    core::mem::forget((qx, qy));
+    // Encoders: encoder mode stays configured when the drivers are
+    // dropped; the frontend reads the counters directly.
+    let _qx = dp
+        .TIM2
+        .qei((gpioa.pa15.into_input(), gpiob.pb3.into_input()), &mut rcc);
+    let _qy = dp.TIM5.qei((gpioa.pa0, gpioa.pa1), &mut rcc);
 
     // Outputs: DAC 1 and 2, TIM1 CH1 PWM.
     let (mut c1, mut c2) = stm32f4xx_hal::dac::dac(
@@ -335,9 +345,7 @@ pub fn init(
     let _az = gpioc.pc4.into_analog();
     init_adc(&dp.ADC1);
     let arr = TIM_CLOCK_HZ / SAMPLE_RATE_HZ - 1;
-    dp.TIM4
-        .ccr1()
-        .write(|w| unsafe { w.bits(arr - ADC_LEAD) });
+    dp.TIM4.ccr1().write(|w| unsafe { w.bits(arr - ADC_LEAD) });
     dp.TIM4
         .ccmr1_output()
         .write(|w| unsafe { w.oc1m().bits(0b011) });
@@ -361,9 +369,16 @@ pub fn init(
             .modify(|_, w| w.usart2en().set_bit());
     }
     dp.USART2.brr().write(|w| unsafe { w.bits((1 << 4) | 5) });
-    dp.USART2
-        .cr1()
-        .write(|w| w.ue().set_bit().te().set_bit().re().set_bit().rxneie().set_bit());
+    dp.USART2.cr1().write(|w| {
+        w.ue()
+            .set_bit()
+            .te()
+            .set_bit()
+            .re()
+            .set_bit()
+            .rxneie()
+            .set_bit()
+    });
 
     // USB CDC-ACM.
     let usb = USB {
