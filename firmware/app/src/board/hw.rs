@@ -282,15 +282,50 @@ fn init_pwm(t1: &pac::TIM1) {
     t1.cr1().write(|w| w.cen().set_bit());
 }
 
+/// The USB CDC-ACM device (serial number: the MCU's unique ID in hex,
+/// which is returned for HELLO too).
+fn init_usb(usb: USB) -> [u8; 24] {
+    static mut EP_MEMORY: [u32; 1024] = [0; 1024];
+    static mut USB_BUS: Option<UsbBusAllocator<UsbBusType>> = None;
+    let mut serial_no = [0u8; 24];
+    // SAFETY: the 96-bit unique device ID, read-only memory (RM0090 §39.1).
+    let uid: [u8; 12] = unsafe { core::ptr::read_volatile(0x1FFF_7A10 as *const [u8; 12]) };
+    hex(&uid, &mut serial_no);
+    // SAFETY: init runs once, before interrupts are enabled; the statics
+    // are only reached through the references created here.
+    let bus: &'static UsbBusAllocator<UsbBusType> = unsafe {
+        let mem = &mut *core::ptr::addr_of_mut!(EP_MEMORY);
+        let slot = &mut *core::ptr::addr_of_mut!(USB_BUS);
+        slot.insert(UsbBus::new(usb, mem))
+    };
+    let serial = SerialPort::new(bus);
+    // The serial-number string must outlive the device: keep it static.
+    static mut SERIAL_STR: [u8; 24] = [0; 24];
+    // SAFETY: written once here before the USB device exists.
+    let sn: &'static str = unsafe {
+        let s = &mut *core::ptr::addr_of_mut!(SERIAL_STR);
+        s.copy_from_slice(&serial_no);
+        core::str::from_utf8(s).unwrap_or("unknown")
+    };
+    let dev = UsbDeviceBuilder::new(bus, UsbVidPid(0x16c0, 0x27dd))
+        .device_class(usbd_serial::USB_CLASS_CDC)
+        .strings(&[StringDescriptors::default()
+            .manufacturer("kilotouch")
+            .product("kilotouch DAQ")
+            .serial_number(sn)])
+        .map(|b| b.build());
+    if let Ok(dev) = dev {
+        cortex_m::interrupt::free(|cs| USB_LINK.borrow(cs).replace(Some((dev, serial))));
+    }
+    serial_no
+}
+
 /// Set up everything (module docs); returns the board, the link, the
 /// frontend and the HELLO serial number (the MCU's unique ID in hex).
 pub fn init(
     dp: pac::Peripherals,
     mut cp: cortex_m::Peripherals,
 ) -> (Board, Link, Frontend, [u8; 24]) {
-    static mut EP_MEMORY: [u32; 1024] = [0; 1024];
-    static mut USB_BUS: Option<UsbBusAllocator<UsbBusType>> = None;
-
     let mut rcc = dp.RCC.freeze(
         RccConfig::hse(8.MHz())
             .sysclk(168.MHz())
@@ -389,36 +424,7 @@ pub fn init(
         pin_dp: gpioa.pa12.into(),
         hclk: rcc.clocks.hclk(),
     };
-    let mut serial_no = [0u8; 24];
-    // SAFETY: the 96-bit unique device ID, read-only memory (RM0090 §39.1).
-    let uid: [u8; 12] = unsafe { core::ptr::read_volatile(0x1FFF_7A10 as *const [u8; 12]) };
-    hex(&uid, &mut serial_no);
-    // SAFETY: init runs once, before interrupts are enabled; the statics
-    // are only reached through the references created here.
-    let bus: &'static UsbBusAllocator<UsbBusType> = unsafe {
-        let mem = &mut *core::ptr::addr_of_mut!(EP_MEMORY);
-        let slot = &mut *core::ptr::addr_of_mut!(USB_BUS);
-        slot.insert(UsbBus::new(usb, mem))
-    };
-    let serial = SerialPort::new(bus);
-    // The serial-number string must outlive the device: keep it static.
-    static mut SERIAL_STR: [u8; 24] = [0; 24];
-    // SAFETY: written once here before the USB device exists.
-    let sn: &'static str = unsafe {
-        let s = &mut *core::ptr::addr_of_mut!(SERIAL_STR);
-        s.copy_from_slice(&serial_no);
-        core::str::from_utf8(s).unwrap_or("unknown")
-    };
-    let dev = UsbDeviceBuilder::new(bus, UsbVidPid(0x16c0, 0x27dd))
-        .device_class(usbd_serial::USB_CLASS_CDC)
-        .strings(&[StringDescriptors::default()
-            .manufacturer("kilotouch")
-            .product("kilotouch DAQ")
-            .serial_number(sn)])
-        .map(|b| b.build());
-    if let Ok(dev) = dev {
-        cortex_m::interrupt::free(|cs| USB_LINK.borrow(cs).replace(Some((dev, serial))));
-    }
+    let serial_no = init_usb(usb);
 
     // Sample clock last: 84 MHz / 8400 = 10 kHz.
     start_sample_timer(&dp.TIM4, 0, arr as u16);
