@@ -14,5 +14,6 @@ pub mod sim;
 pub mod stats;
 pub mod study;
 pub mod study_power;
+pub mod study_run;
 pub mod tfest;
 pub mod tweezer;

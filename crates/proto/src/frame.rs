@@ -76,6 +76,9 @@ pub mod ty {
     /// Host → device: reset the instrument state to one command item
     /// (tweezer: trap and bead at the given position).
     pub const RESET: u8 = 0x07;
+    /// Host → device: information about the experiment
+    /// ([`crate::info::Info`]); optional, a device may ignore it.
+    pub const INFO: u8 = 0x20;
     /// Device → host: handshake answer ([`crate::Hello`]).
     pub const HELLO: u8 = 0x81;
     /// Device → host: DAQ samples (block of [`crate::DaqSample`]).

@@ -12,6 +12,7 @@
 //! * [`items`]: the fixed-size block items (DAQ commands and samples, trap
 //!   commands, tweezer samples) and block payloads.
 //! * [`message`]: HELLO (identity with bounded strings), STATUS, FAULT.
+//! * [`info`]: the host's optional information frames (trial, screen).
 //! * [`decoder`]: the resynchronising stream decoder with a fixed buffer.
 //! * [`seq`]: extension of the wire's 32-bit sequence numbers.
 //! * [`testing`]: test frames (plant model, late-command policy, simulated
@@ -22,6 +23,7 @@
 pub mod contract;
 pub mod decoder;
 pub mod frame;
+pub mod info;
 pub mod items;
 pub mod message;
 pub mod seq;

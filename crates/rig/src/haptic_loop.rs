@@ -66,6 +66,19 @@ impl Clearance {
         })
     }
 
+    /// TEMPORARY until the latency analysis lands: [`Self::check`].
+    ///
+    /// # Errors
+    /// As [`Self::check`].
+    pub fn check_with_latency(
+        cfg: &RigConfig,
+        chain: &LoopChain,
+        latency_s: f64,
+    ) -> Result<Self, RigError> {
+        let _ = latency_s;
+        Self::check(cfg, chain)
+    }
+
     /// Arm without the analysis. For tests and tools that study unsafe
     /// settings on the simulated rig on purpose; never for a live rig.
     pub fn overridden(source: ChainSource) -> Self {
@@ -120,6 +133,16 @@ pub struct HapticLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
     block_cmd: [ActuatorFrame; MAX_BLOCK],
     block_out: [SensorFrame; MAX_BLOCK],
     block_len: usize,
+}
+
+/// Where the handle is when a trial begins ([`HapticLoop::begin_trial`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrialStart {
+    /// A fresh simulated rig: the handle rests at its origin.
+    Fresh,
+    /// A live rig: the handle is wherever the participant left it; the hand
+    /// mapping is re-centred there, so the trap starts at rest.
+    AtHandle,
 }
 
 /// The simulated loop.
@@ -232,18 +255,41 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
         mut safety: SafetyLayer,
     ) -> Result<(), RigError> {
         rig.start()?;
-        self.coupling.set_condition_now(condition);
-        self.coupling.reset();
-        self.sensors = SensorFrame::default();
-        let trap = self.coupling.trap_target(self.sensors.handle_m);
-        tweezer.reset(trap);
         safety.arm()?;
         self.rig = rig;
-        self.tweezer = tweezer;
-        self.safety = safety;
+        self.begin_trial(&mut tweezer, condition, &mut safety, TrialStart::Fresh);
+        Ok(())
+    }
+
+    /// Start a trial on the loop as it runs, without allocating or freeing
+    /// (the engine): the trial's tweezer and its (armed) safety layer are
+    /// swapped in — the old ones are left in the arguments, to be dropped
+    /// off the real-time path — the condition switches at once, the filters
+    /// are cleared and the bead sits in the trap at rest. `start` says where
+    /// the handle is ([`TrialStart`]). The rig is not touched: a simulated
+    /// rig is swapped by the caller beforehand ([`crate::AnyRig::swap_sim`]).
+    pub fn begin_trial(
+        &mut self,
+        tweezer: &mut T,
+        condition: Condition,
+        safety: &mut SafetyLayer,
+        start: TrialStart,
+    ) {
+        self.coupling.set_condition_now(condition);
+        self.coupling.reset();
+        match start {
+            TrialStart::Fresh => {
+                self.sensors = SensorFrame::default();
+                self.block_in = [SensorFrame::default(); MAX_BLOCK];
+            }
+            TrialStart::AtHandle => self.coupling.set_handle_origin(self.sensors.handle_m),
+        }
+        let trap = self.coupling.trap_target(self.sensors.handle_m);
+        tweezer.reset(trap);
+        std::mem::swap(&mut self.tweezer, tweezer);
+        std::mem::swap(&mut self.safety, safety);
         self.missed = false;
         self.block_len = 0;
-        Ok(())
     }
 
     /// The controller part of one sample: `sensors` (the frame the

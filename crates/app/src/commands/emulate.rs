@@ -6,6 +6,15 @@
 //! `/dev/pts/3`), flushed at once, so that scripts and tests can read it
 //! and open the port; the emulator then runs until it is killed (or until
 //! an injected disconnect).
+//!
+//! Hardware in the loop on one machine: `emulate daq --participant
+//! operator:SEED` puts the study's simulated participant at the emulated
+//! handle ([`kilotouch_study::at_device::DeviceParticipant`]); a host's
+//! sitting on that port (`kilotouch study run --rig serial:PTY`) then runs
+//! as with a person at a real rig. `--free-running` makes the device run
+//! every sample at its time (holding the previous command when the host's
+//! is late, as firmware does), `--link-delay-ms` delays every byte in each
+//! direction.
 
 use anyhow::Context;
 use clap::Subcommand;
@@ -14,7 +23,8 @@ use kilotouch_rig::device::{Clock, SystemClock};
 use kilotouch_rig::serial::emulator::{
     Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
 };
-use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve};
+use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve_delayed};
+use kilotouch_study::at_device::DeviceParticipant;
 use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
 use std::io::Write;
 use std::path::PathBuf;
@@ -68,6 +78,20 @@ pub struct Args {
     /// host's progress watchdog).
     #[arg(long, value_enum)]
     pub misbehave: Option<MisbehaveArg>,
+    /// Run like firmware: every sample at its time; a command that has not
+    /// arrived is replaced by the previous one and the sample flagged
+    /// CMD_LATE (default: wait for it, simulated time standing still).
+    #[arg(long)]
+    pub free_running: bool,
+    /// Delay every byte by this long in each direction, ms (the round trip
+    /// grows by twice this).
+    #[arg(long, default_value_t = 0.0)]
+    pub link_delay_ms: f64,
+    /// Who is at the emulated handle: `operator:SEED` — the study's
+    /// simulated participant of study seed SEED (the protocol's
+    /// `seeds.study` gives `study simulate`'s participants). DAQ only.
+    #[arg(long, value_name = "operator:SEED")]
+    pub participant: Option<String>,
 }
 
 /// `--misbehave` modes (see [`Misbehaviour`]).
@@ -107,6 +131,7 @@ impl Args {
         let cfg = EmulatorConfig {
             watchdog: Duration::from_millis(self.watchdog_ms),
             batch: self.batch.unwrap_or(default_batch),
+            free_running: self.free_running,
             faults: FaultInjection {
                 corrupt_rate: self.corrupt_rate,
                 drop_rate: self.drop_rate,
@@ -131,7 +156,32 @@ impl Args {
     }
 }
 
-fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow::Result<()> {
+/// The link delay of `--link-delay-ms`.
+fn link_delay(ms: f64) -> anyhow::Result<Duration> {
+    if !(ms.is_finite() && (0.0..=1000.0).contains(&ms)) {
+        anyhow::bail!("--link-delay-ms must be in [0, 1000] ms, got {ms}");
+    }
+    Ok(Duration::from_secs_f64(ms * 1e-3))
+}
+
+/// The study seed of `--participant operator:SEED`.
+fn operator_seed(spec: &str) -> anyhow::Result<u64> {
+    let seed = spec.strip_prefix("operator:").ok_or_else(|| {
+        anyhow::anyhow!(
+            "--participant {spec}: expected `operator:SEED` (the study's simulated participant)"
+        )
+    })?;
+    seed.trim().parse().map_err(|_| {
+        anyhow::anyhow!("--participant {spec}: SEED must be a whole number (the study seed)")
+    })
+}
+
+fn run_on_pty<I: Instrument>(
+    inst: I,
+    cfg: EmulatorConfig,
+    delay: Duration,
+    what: &str,
+) -> anyhow::Result<()> {
     let pty = Pty::open().context("cannot create a pseudo-terminal")?;
     let clock = SystemClock::default();
     let mut emu = Emulator::new(inst, cfg, clock.now())?;
@@ -142,16 +192,22 @@ fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow
     }
     let h = emu.hello();
     eprintln!(
-        "kilotouch emulate {what}: `{}` at {} Hz on {} (watchdog {} ms, {} samples/frame); \
+        "kilotouch emulate {what}: `{}` at {} Hz on {} (watchdog {} ms, {} samples/frame{}{}); \
          stop with Ctrl-C",
         h.name,
         h.sample_rate_hz,
         pty.path(),
         h.watchdog_ms,
-        h.batch
+        h.batch,
+        if cfg.free_running { ", free-running" } else { "" },
+        if delay.is_zero() {
+            String::new()
+        } else {
+            format!(", link delay {:.2} ms each way", delay.as_secs_f64() * 1e3)
+        }
     );
     let stop = AtomicBool::new(false);
-    match serve(&mut emu, &pty, &clock, &stop)? {
+    match serve_delayed(&mut emu, &pty, &clock, &stop, delay)? {
         ServeEnd::Disconnect => {
             eprintln!("kilotouch emulate {what}: injected disconnect, closing the pty");
         }
@@ -164,12 +220,29 @@ fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow
 pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
     match cmd {
         EmulateCommand::Daq(a) => {
-            let inst = DaqInstrument::new(&a.rig_config()?)?;
-            run_on_pty(inst, a.config(10)?, "daq")
+            let rc = a.rig_config()?;
+            let mut inst = DaqInstrument::new(&rc)?;
+            if let Some(p) = &a.participant {
+                let seed = operator_seed(p)?;
+                let act_every = kilotouch_study::runner::RunnerConfig::default().act_every;
+                inst = inst.with_agent(Box::new(DeviceParticipant::new(
+                    seed,
+                    rc.rig.sample_rate_hz,
+                    act_every,
+                )));
+                eprintln!(
+                    "kilotouch emulate daq: the simulated participant of study seed {seed} is at \
+                     the handle"
+                );
+            }
+            run_on_pty(inst, a.config(10)?, link_delay(a.link_delay_ms)?, "daq")
         }
         EmulateCommand::Tweezer(a) => {
+            if a.participant.is_some() {
+                anyhow::bail!("--participant: a participant sits at the DAQ's handle, not the tweezer");
+            }
             let inst = TweezerInstrument::new(&a.rig_config()?)?;
-            run_on_pty(inst, a.config(1)?, "tweezer")
+            run_on_pty(inst, a.config(1)?, link_delay(a.link_delay_ms)?, "tweezer")
         }
     }
 }

@@ -46,7 +46,7 @@ use super::frame::{
     PROTOCOL_VERSION, Status, WireItem, fault, flag,
 };
 use crate::config::RigConfig;
-use crate::device::{ActuatorFrame, Rig, SensorFrame};
+use crate::device::{ActuatorFrame, HandAgent, HostInfo, Rig, SensorFrame};
 use crate::error::RigError;
 use crate::sim::SimRig;
 use rand::{RngExt, SeedableRng};
@@ -74,6 +74,11 @@ pub trait Instrument: Send {
     fn safe_command(&self, last: &Self::Command) -> Self::Command;
     /// Reset the instrument's state to `cmd` (frame type RESET).
     fn reset(&mut self, cmd: &Self::Command);
+    /// The host's information about the experiment (frame type INFO);
+    /// an instrument without a participant ignores it (the default).
+    fn info(&mut self, info: &HostInfo) {
+        let _ = info;
+    }
 }
 
 /// A device that keeps the link busy with valid frames but never advances
@@ -124,6 +129,10 @@ pub struct EmulatorConfig {
     pub watchdog: Duration,
     /// Samples per device frame at most (1 ..= 64).
     pub batch: usize,
+    /// Run like a physical device: every sample at its time, a missing
+    /// command replaced by the previous one and flagged `CMD_LATE`
+    /// (`false`: wait for the command, simulated time standing still).
+    pub free_running: bool,
     /// Fault injection.
     pub faults: FaultInjection,
 }
@@ -133,6 +142,7 @@ impl Default for EmulatorConfig {
         Self {
             watchdog: Duration::from_millis(100),
             batch: 10,
+            free_running: false,
             faults: FaultInjection::default(),
         }
     }
@@ -443,6 +453,10 @@ impl<I: Instrument> Emulator<I> {
                 self.send_status();
             }
             frame::ty::HEARTBEAT => {}
+            frame::ty::INFO => match frame::parse_info(payload) {
+                Some(i) => self.inst.info(&i),
+                None => self.send_fault(fault::BAD_FRAME),
+            },
             frame::ty::RESET => {
                 if payload.len() == I::Command::SIZE {
                     let c = I::Command::decode(payload);
@@ -551,10 +565,25 @@ impl<I: Instrument> Emulator<I> {
         let mut waiting = false;
         while self.next_seq < pos {
             let slot = (self.next_seq % COMMAND_RING as u64) as usize;
-            let cmd = match self.ring[slot] {
+            let (cmd, late) = match self.ring[slot] {
                 Some((q, c)) if q == self.next_seq => {
                     self.ring[slot] = None;
-                    c
+                    (c, 0)
+                }
+                // A physical device holds the previous command.
+                _ if self.cfg.free_running => {
+                    if now.saturating_sub(self.last_host) >= self.cfg.watchdog {
+                        // Out of commands and the host silent for the
+                        // watchdog window: outputs safe.
+                        self.flush_batch();
+                        self.stats.watchdog_trips += 1;
+                        self.go_idle(DeviceState::Tripped);
+                        self.send_fault(fault::WATCHDOG);
+                        self.send_status();
+                        return Next::WakeAt(now + Duration::from_millis(50));
+                    }
+                    self.stats.late_commands += 1;
+                    (self.applied, flag::CMD_LATE)
                 }
                 _ => {
                     waiting = true;
@@ -564,7 +593,7 @@ impl<I: Instrument> Emulator<I> {
             if self.batch.is_empty() {
                 self.batch_seq = self.next_seq;
             }
-            let s = self.inst.step(&cmd, 0);
+            let s = self.inst.step(&cmd, late);
             self.applied = cmd;
             self.batch.push(s);
             self.next_seq += 1;
@@ -619,6 +648,7 @@ pub struct DaqInstrument {
     name: String,
     fs: u32,
     frame: [SensorFrame; 1],
+    agent: Option<Box<dyn HandAgent>>,
 }
 
 impl DaqInstrument {
@@ -664,7 +694,20 @@ impl DaqInstrument {
             name: cfg.rig.name.clone(),
             fs: fs as u32,
             frame: [SensorFrame::default()],
+            agent: None,
         })
+    }
+
+    /// The same DAQ with `agent` at its handle (hardware in the loop): it
+    /// moves the simulated hand and hears the host's information frames.
+    pub fn with_agent(mut self, agent: Box<dyn HandAgent>) -> Self {
+        self.agent = Some(agent);
+        self
+    }
+
+    /// The participant at the handle, if any.
+    pub fn agent(&self) -> Option<&dyn HandAgent> {
+        self.agent.as_deref()
     }
 
     /// The simulated rig (ground truth for tests).
@@ -740,11 +783,17 @@ impl Instrument for DaqInstrument {
             ],
             haptuator_v: code_to_value(cmd.drive, c.drive_max_v),
         };
+        if let Some(h) = self.agent.as_mut().and_then(|ag| ag.hand()) {
+            self.rig.set_hand(h);
+        }
         let flags = match self.rig.process_block(&[a], &mut self.frame) {
             Ok(_) => self.frame[0].flags.0 & flag::HOST_MASK,
             Err(_) => flag::NONFINITE,
         };
         let f = self.frame[0];
+        if let Some(ag) = self.agent.as_mut() {
+            ag.observe(&a, &f);
+        }
         DaqSample {
             enc: [
                 sat_i32(crate::round_half_away(
@@ -766,6 +815,12 @@ impl Instrument for DaqInstrument {
     }
 
     fn reset(&mut self, _cmd: &DaqCommand) {}
+
+    fn info(&mut self, info: &HostInfo) {
+        if let Some(ag) = self.agent.as_mut() {
+            ag.info(info);
+        }
+    }
 }
 
 #[cfg(test)]

@@ -4,6 +4,11 @@
 //! firmware shares, with the host's conveniences around them: frames
 //! appended to a `Vec<u8>` and an owned [`Hello`].
 
+use crate::condition::Condition;
+use crate::coupling::mapping::HandMapping;
+use crate::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+use kilotouch_proto::info::{Info, TrialBegin, View};
+
 pub use kilotouch_proto::{
     CRC16, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DecoderStats, DeviceKind, DeviceState,
     FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION, SYNC, Status, TRAILER,
@@ -149,6 +154,120 @@ pub fn write_fault(out: &mut Vec<u8>, f: &FaultReport) {
 /// Parse a FAULT payload.
 pub fn parse_fault(payload: &[u8]) -> Option<FaultReport> {
     FaultReport::parse(payload)
+}
+
+/// Append an INFO frame: what the host tells the device about the
+/// experiment ([`HostInfo`], `docs/PROTOCOL.md` §5.5).
+pub fn write_info(out: &mut Vec<u8>, info: &HostInfo) {
+    let w = info_to_wire(info);
+    write_frame(out, ty::INFO, |o| {
+        let at = o.len();
+        o.resize(at + w.size(), 0);
+        let _ = w.encode(&mut o[at..]);
+    });
+}
+
+/// Parse an INFO payload (`None`: unknown kind, wrong length, or a code out
+/// of range).
+pub fn parse_info(payload: &[u8]) -> Option<HostInfo> {
+    match Info::parse(payload)? {
+        Info::TrialEnd => Some(HostInfo::TrialEnd),
+        Info::View(v) => Some(HostInfo::View(ViewInfo {
+            seq: u64::from(v.seq),
+            captured_s: v.captured_s,
+            bead_m: v.bead_m,
+            trap_m: v.trap_m,
+            obstacle_m: v.obstacle_m,
+            obstacle_radius_m: v.obstacle_radius_m,
+            bead_radius_m: v.bead_radius_m,
+        })),
+        Info::TrialBegin(t) => {
+            let m = t.mapping;
+            Some(HostInfo::TrialBegin(TrialInfo {
+                participant: t.participant,
+                condition: match t.condition {
+                    0 => Condition::V,
+                    1 => Condition::P,
+                    2 => Condition::D,
+                    _ => return None,
+                },
+                phase: match t.phase {
+                    0 => PhaseCode::Practice,
+                    1 => PhaseCode::Test,
+                    _ => return None,
+                },
+                index: t.index,
+                task: match t.task {
+                    0 => TaskCode::Circling,
+                    1 => TaskCode::BlindNavigation,
+                    _ => return None,
+                },
+                mapping: HandMapping {
+                    scale: m[0],
+                    handle_origin_m: [m[1], m[2]],
+                    trap_offset_m: [m[3], m[4]],
+                    trap_min_m: [m[5], m[6]],
+                    trap_max_m: [m[7], m[8]],
+                    force_scale: m[9],
+                },
+                start_trap_m: t.start_trap_m,
+                heading: t.heading,
+                retreat_distance_m: t.retreat_m,
+                first_seq: u64::from(t.first_seq),
+            }))
+        }
+    }
+}
+
+fn info_to_wire(info: &HostInfo) -> Info {
+    match info {
+        HostInfo::TrialEnd => Info::TrialEnd,
+        HostInfo::View(v) => Info::View(View {
+            seq: v.seq as u32,
+            captured_s: v.captured_s,
+            bead_m: v.bead_m,
+            trap_m: v.trap_m,
+            obstacle_m: v.obstacle_m,
+            obstacle_radius_m: v.obstacle_radius_m,
+            bead_radius_m: v.bead_radius_m,
+        }),
+        HostInfo::TrialBegin(t) => {
+            let m = &t.mapping;
+            Info::TrialBegin(TrialBegin {
+                participant: t.participant,
+                condition: match t.condition {
+                    Condition::V => 0,
+                    Condition::P => 1,
+                    Condition::D => 2,
+                },
+                phase: match t.phase {
+                    PhaseCode::Practice => 0,
+                    PhaseCode::Test => 1,
+                },
+                index: t.index,
+                task: match t.task {
+                    TaskCode::Circling => 0,
+                    TaskCode::BlindNavigation => 1,
+                },
+                mapping: [
+                    m.scale,
+                    m.handle_origin_m[0],
+                    m.handle_origin_m[1],
+                    m.trap_offset_m[0],
+                    m.trap_offset_m[1],
+                    m.trap_min_m[0],
+                    m.trap_min_m[1],
+                    m.trap_max_m[0],
+                    m.trap_max_m[1],
+                    m.force_scale,
+                ],
+                start_trap_m: t.start_trap_m,
+                heading: t.heading,
+                retreat_m: t.retreat_distance_m,
+                first_seq: t.first_seq as u32,
+            })
+        }
+    }
 }
 
 #[cfg(test)]

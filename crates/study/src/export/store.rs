@@ -198,6 +198,7 @@ impl StudyStore {
             calibration: meta.calibration.clone(),
             orders: orders.clone(),
             resumed,
+            device: meta.device.clone(),
         };
         open::journal_opening(&mut journal, start, &recovery, &verdict.completed)?;
         journal_checks(&mut journal, &recovery, &changes, meta)?;
