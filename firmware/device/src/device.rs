@@ -498,7 +498,9 @@ impl<F: Frontend, O: Outbox> Device<F, O> {
                 self.go_idle(DeviceState::Idle);
                 self.send_status();
             }
-            ty::HEARTBEAT => {}
+            // Host information (trial, participant's screen) is for devices
+            // with a participant at the handle; a DAQ ignores it (§5.5).
+            ty::HEARTBEAT | ty::INFO => {}
             // A tweezer frame: a well-formed one changes nothing on a DAQ.
             ty::RESET if payload.len() == DaqCommand::SIZE => {}
             ty::COMMANDS => self.commands(payload),

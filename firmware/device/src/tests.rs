@@ -302,6 +302,7 @@ fn malformed_stale_and_far_commands_are_refused() {
     d.handle(ty::COMMANDS, &[1, 2, 3]);
     d.handle(ty::RESET, &[0; 5]);
     d.handle(ty::RESET, &[0; 6]);
+    d.handle(ty::INFO, &[2]);
     let f = drain(&mut d);
     assert_eq!(
         faults(&f),
