@@ -14,11 +14,14 @@
 
 mod common;
 
-use common::{BIN, Emulator, json_ok, kilotouch as run};
+use common::{Emulator, json_ok, kilotouch as run};
+use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
+use kilotouch_rig::error::RigError;
 use kilotouch_rig::serial::frame::{
     self, DaqCommand, DaqSample, Decoder, DeviceState, FaultReport, Status, WireItem, fault, flag,
     ty,
 };
+use kilotouch_rig::serial::{SerialConfig, SerialRig};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::process::{Child, Command, Stdio};
@@ -240,64 +243,51 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
     assert_eq!(v["received"].as_u64().unwrap() + lost, frames);
 }
 
-/// Start a `rig check` of 600 s against the firmware, wait until it has
-/// exchanged samples (the firmware's STATUS shows host frames), then do
-/// `act` and return how long the check took to fail and its stderr.
-fn check_then(q: &Qemu, act: impl FnOnce()) -> (Duration, String) {
-    let check = Command::new(BIN)
-        .args([
-            "rig",
-            "check",
-            "--rig",
-            &q.rig(),
-            "--duration",
-            "600",
-            "--json",
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("rig check");
-    // Event: the kilotouch process holds the port exclusively once it
-    // streams; opening it again fails ("busy" / locked).
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while serialport::new(&q.path, 2_000_000).open().is_ok() {
-        assert!(Instant::now() < deadline, "rig check never opened the port");
-        std::thread::sleep(Duration::from_millis(20));
+/// Stream blocks from the firmware through `SerialRig` (the host backend
+/// `rig check` uses), do `act` once five blocks came back, and return how
+/// long the failing block took and its error.
+fn stream_then(q: &Qemu, act: impl FnOnce()) -> (Duration, RigError) {
+    let mut rig = SerialRig::open(&SerialConfig::new(q.path.clone())).expect("open the firmware");
+    rig.start().expect("start");
+    let cmds = vec![ActuatorFrame::default(); 100];
+    let mut sens = vec![SensorFrame::default(); 100];
+    for _ in 0..5 {
+        rig.process_block(&cmds, &mut sens).expect("a block");
     }
-    std::thread::sleep(Duration::from_millis(500));
     act();
     let t = Instant::now();
-    let out = check.wait_with_output().expect("rig check output");
-    assert!(!out.status.success());
-    (
-        t.elapsed(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    loop {
+        match rig.process_block(&cmds, &mut sens) {
+            Ok(_) => assert!(t.elapsed() < Duration::from_secs(10), "still streaming"),
+            Err(e) => return (t.elapsed(), e),
+        }
+    }
 }
 
 #[test]
 fn a_stalled_firmware_is_reported_promptly() {
     let Some(elf) = elf("stall") else { return };
     let q = Qemu::boot(&elf);
-    let (waited, err) = check_then(&q, || q.signal("-STOP"));
-    assert!(waited < Duration::from_secs(3), "exit took {waited:?}");
-    assert!(err.contains("did not advance"), "{err}");
+    let (waited, err) = stream_then(&q, || q.signal("-STOP"));
+    assert!(waited < Duration::from_secs(3), "took {waited:?}");
+    let msg = err.to_string();
+    assert!(
+        matches!(err, RigError::Disconnected(_)) && msg.contains("did not advance"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn a_vanished_firmware_is_reported_promptly() {
     let Some(elf) = elf("vanish") else { return };
     let mut q = Qemu::boot(&elf);
-    let (waited, err) = check_then(&q, || {
-        let _ = q.child.kill();
+    let pid = q.child.id().to_string();
+    let (waited, err) = stream_then(&q, || {
+        let _ = Command::new("kill").args(["-KILL", &pid]).status();
     });
     let _ = q.child.wait();
-    assert!(waited < Duration::from_secs(3), "exit took {waited:?}");
-    assert!(
-        err.contains("disconnected") && !err.contains("panicked"),
-        "{err}"
-    );
+    assert!(waited < Duration::from_secs(3), "took {waited:?}");
+    assert!(matches!(err, RigError::Disconnected(_)), "{err}");
 }
 
 /// A raw host session on a port: frames out, every device frame in.
