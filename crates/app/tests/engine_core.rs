@@ -14,11 +14,11 @@ use kilotouch::engine::{
     BlockCtx, BlockDriver, Command, Condition, EngineCore, EngineEvent, EngineHandle,
     EngineOptions, SafetyState, TelemetrySample, engine_pair, flags, splitter::SwapOutcome,
 };
-use kilotouch_rig::error::RigError;
 use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain, model_chain_design};
 use kilotouch_rig::device::ManualClock;
+use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::tweezer::Obstacle;
 use std::time::{Duration, Instant};

@@ -46,11 +46,7 @@ impl DeviceParticipant {
     pub fn new(study_seed: u64, sample_rate_hz: f64, act_every: usize) -> Self {
         let every = act_every.max(1);
         Self {
-            cohort: SimCohort::new(
-                study_seed,
-                sample_rate_hz / every as f64,
-                sample_rate_hz,
-            ),
+            cohort: SimCohort::new(study_seed, sample_rate_hz / every as f64, sample_rate_hz),
             study_seed,
             control: ControlPeriod::new(every),
             act_every: every as u64,
@@ -132,8 +128,12 @@ impl HandAgent for DeviceParticipant {
         let phase = self.k % self.act_every;
         if phase == 0 {
             let frame = if self.vision { self.frame } else { None };
-            self.control
-                .ask(&mut self.cohort, self.k as f64 * self.dt_s, self.dt_s, frame);
+            self.control.ask(
+                &mut self.cohort,
+                self.k as f64 * self.dt_s,
+                self.dt_s,
+                frame,
+            );
         }
         self.k += 1;
         Some(self.control.hand_at(phase))

@@ -24,8 +24,8 @@ use kilotouch_rig::serial::emulator::{
     Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
 };
 use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve_delayed};
-use kilotouch_study::at_device::DeviceParticipant;
 use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
+use kilotouch_study::at_device::DeviceParticipant;
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -199,7 +199,11 @@ fn run_on_pty<I: Instrument>(
         pty.path(),
         h.watchdog_ms,
         h.batch,
-        if cfg.free_running { ", free-running" } else { "" },
+        if cfg.free_running {
+            ", free-running"
+        } else {
+            ""
+        },
         if delay.is_zero() {
             String::new()
         } else {
@@ -239,7 +243,9 @@ pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
         }
         EmulateCommand::Tweezer(a) => {
             if a.participant.is_some() {
-                anyhow::bail!("--participant: a participant sits at the DAQ's handle, not the tweezer");
+                anyhow::bail!(
+                    "--participant: a participant sits at the DAQ's handle, not the tweezer"
+                );
             }
             let inst = TweezerInstrument::new(&a.rig_config()?)?;
             run_on_pty(inst, a.config(1)?, link_delay(a.link_delay_ms)?, "tweezer")

@@ -1,13 +1,13 @@
 //! The GUI side of the engine: commands in, telemetry and events out.
 
-use kilotouch_rig::AnyRig;
+use super::driver::FreeExploration;
 use super::runner::{EngineCore, Shared};
 use super::splitter::{ChainSwap, SwapOutcome};
-use super::driver::FreeExploration;
 use super::{
     BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, Health,
     TelemetrySample,
 };
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{Clock, RigIdentity, SystemClock};

@@ -5,11 +5,11 @@ use super::driver::{BlockCtx, BlockDriver, FreeExploration, Publisher};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
-    Command, Condition, EngineError, EngineEvent, EngineOptions, Garbage, Health,
-    TelemetrySample, flags,
+    Command, Condition, EngineError, EngineEvent, EngineOptions, Garbage, Health, TelemetrySample,
+    flags,
 };
-use kilotouch_rig::AnyRig;
 use kilotouch_dsp::chain::Chain;
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{Coupling, LoopChain};
 use kilotouch_rig::device::Clock;
 use kilotouch_rig::device::RigSpec;
@@ -493,7 +493,10 @@ impl<C: Clock> EngineCore<C> {
         let now = self.pacer.clock().now();
         let wall = now.saturating_sub(self.window_start).as_secs_f64();
         let (rate, load) = if wall > 0.0 {
-            (self.out.window_samples as f64 / wall, self.window_busy_s / wall)
+            (
+                self.out.window_samples as f64 / wall,
+                self.window_busy_s / wall,
+            )
         } else {
             (0.0, 0.0)
         };

@@ -25,10 +25,10 @@ use kilotouch_rig::haptic_loop::TrialStart;
 use kilotouch_rig::safety::SafetyLayer;
 use kilotouch_rig::sim::SimRig;
 use kilotouch_rig::tweezer::DetectedTweezer;
+use kilotouch_study::export::ExportError;
 use kilotouch_study::export::TaskKind;
 use kilotouch_study::runner::{RAW_CHANNELS, RawSink, RunError, TrialCore, TrialOutcome};
 use kilotouch_study::seeds::{Phase, TrialKey};
-use kilotouch_study::export::ExportError;
 use kilotouch_study::task::station::{Station, StationSample};
 
 use super::Telemetry;
@@ -317,7 +317,9 @@ impl SittingDriver {
         }
         let first_seq = lp.rig.next_seq();
         if ctx.live {
-            let _ = lp.rig.send_info(&HostInfo::TrialBegin(trial_info(&slot, first_seq)));
+            let _ = lp
+                .rig
+                .send_info(&HostInfo::TrialBegin(trial_info(&slot, first_seq)));
         }
         self.raw.dropped = 0;
         self.since_telemetry = 0;
@@ -390,7 +392,9 @@ impl SittingDriver {
         if let Some(key) = self.core.key() {
             let t = self.who.telemetry(key);
             if self.telemetry.push(t).is_err() {
-                self.counters.telemetry_dropped.fetch_add(1, Ordering::Relaxed);
+                self.counters
+                    .telemetry_dropped
+                    .fetch_add(1, Ordering::Relaxed);
             }
         }
     }
@@ -496,7 +500,9 @@ impl BlockDriver for SittingDriver {
         }
         if ctx.latched && !self.latched_seen {
             self.latched_seen = true;
-            let key = (self.state != State::Idle).then(|| self.core.key()).flatten();
+            let key = (self.state != State::Idle)
+                .then(|| self.core.key())
+                .flatten();
             self.tell(FromDriver::EmergencyStop(key));
             if self.state != State::Idle {
                 self.core.abort();

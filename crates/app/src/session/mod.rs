@@ -592,7 +592,9 @@ impl SessionHandle {
         };
         let base = |f: fn(&Health) -> u64| self.health0.as_ref().map_or(0, f);
         SessionHealth {
-            deadline_misses: h.deadline_misses.saturating_sub(base(|h| h.deadline_misses)),
+            deadline_misses: h
+                .deadline_misses
+                .saturating_sub(base(|h| h.deadline_misses)),
             overruns: h.overruns.saturating_sub(base(|h| h.overruns)),
             worst_lateness_s: h.worst_lateness_total_s,
             load: h.load,
@@ -772,11 +774,7 @@ fn participant_of(opts: &SessionOptions, protocol: &Protocol, fs: f64) -> Who {
         ParticipantKind::Mouse => Who::Mouse(MouseParticipant::default()),
         ParticipantKind::Handle => Who::Handle,
         ParticipantKind::Simulated => {
-            let mut c = SimCohort::new(
-                protocol.seeds.study,
-                fs / opts.runner.act_every as f64,
-                fs,
-            );
+            let mut c = SimCohort::new(protocol.seeds.study, fs / opts.runner.act_every as f64, fs);
             // Built here, not at the first trial on the engine thread.
             if let Some(p) = opts.only_participant {
                 c.prepare(p);

@@ -180,7 +180,8 @@ impl Worker {
                 let slot = match self.slot(*setup) {
                     Ok(s) => s,
                     Err(e) => {
-                        self.core.begin_failed("the trial's parts could not be built")?;
+                        self.core
+                            .begin_failed("the trial's parts could not be built")?;
                         return Err(e);
                     }
                 };
@@ -363,7 +364,9 @@ impl Worker {
         };
         self.emit(SessionEvent::Committed(Box::new(row)));
         if boundary {
-            return Ok(Some(FinishReason::ParticipantDone(self.participant_id(key))));
+            return Ok(Some(FinishReason::ParticipantDone(
+                self.participant_id(key),
+            )));
         }
         match next {
             Some(n) => self.apply(n),
@@ -371,7 +374,9 @@ impl Worker {
                 // Paused (an emergency stop or the experimenter): the
                 // sitting's participant may have no trial left.
                 if self.participant_done_after(key) {
-                    return Ok(Some(FinishReason::ParticipantDone(self.participant_id(key))));
+                    return Ok(Some(FinishReason::ParticipantDone(
+                        self.participant_id(key),
+                    )));
                 }
                 self.emit_state();
                 Ok(None)

@@ -1,5 +1,5 @@
 //! `--rig` specifications: `sim`,
-//! `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]`, `audio[:DEVICE]`.
+//! `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N][,min-rate=PERCENT]`, `audio[:DEVICE]`.
 
 use crate::error::RigError;
 use crate::serial::{CommandLead, SerialConfig};
@@ -38,7 +38,7 @@ impl RigSpec {
 fn bad(spec: &str, why: impl std::fmt::Display) -> RigError {
     RigError::InvalidInput(format!(
         "--rig {spec}: {why} (expected `sim`, \
-         `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]` or `audio[:DEVICE]`)"
+         `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N][,min-rate=PERCENT]` or `audio[:DEVICE]`)"
     ))
 }
 
@@ -80,7 +80,9 @@ impl std::str::FromStr for RigSpec {
                         _ => {
                             return Err(bad(
                                 s,
-                                format!("`lead` is `auto` or a number of blocks 0 ..= 64, got `{v}`"),
+                                format!(
+                                    "`lead` is `auto` or a number of blocks 0 ..= 64, got `{v}`"
+                                ),
                             ));
                         }
                     },
@@ -95,7 +97,10 @@ impl std::str::FromStr for RigSpec {
                 "timeout-ms" if (1..=60_000).contains(&num) => {
                     cfg.timeout = Duration::from_millis(num)
                 }
-                "baud" | "timeout-ms" => return Err(bad(s, format!("`{k}` = {num} out of range"))),
+                "min-rate" if num <= 100 => cfg.min_rate_fraction = num as f64 / 100.0,
+                "baud" | "timeout-ms" | "min-rate" => {
+                    return Err(bad(s, format!("`{k}` = {num} out of range")));
+                }
                 _ => return Err(bad(s, format!("unknown option `{k}`"))),
             }
         }

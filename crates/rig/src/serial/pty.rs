@@ -186,7 +186,10 @@ pub fn serve_delayed<I: Instrument>(
             }
         }
         let mut wake = wake;
-        for t in [to_host.next_due(), to_device.next_due()].into_iter().flatten() {
+        for t in [to_host.next_due(), to_device.next_due()]
+            .into_iter()
+            .flatten()
+        {
             wake = wake.min(t);
         }
         let wait = wake

@@ -58,6 +58,11 @@ pub struct SerialConfig {
     /// How far ahead of the samples it waits for the host sends commands
     /// ([`CommandLead`]).
     pub lead: CommandLead,
+    /// The host watchdog's least rate, as a fraction of the device's
+    /// nominal rate ([`super::watch`]; `min-rate=PERCENT` in the spec; 0
+    /// turns the rate check off, e.g. for the firmware under QEMU, whose
+    /// clock is not real time).
+    pub min_rate_fraction: f64,
 }
 
 /// The command lead of a DAQ link: how many blocks of commands the host
@@ -101,6 +106,7 @@ impl SerialConfig {
             handshake_timeout: Duration::from_secs(2),
             rearm_after_idle_trip: false,
             lead: CommandLead::Auto,
+            min_rate_fraction: super::watch::MIN_RATE_FRACTION,
         }
     }
 }
@@ -619,8 +625,13 @@ impl Link {
                 at_progress = seen;
             }
             // The rate check on the time spent waiting for the device.
-            rate.add(now - last_tick, &seen.since(&at_tick), rate_hz)
-                .map_err(LinkErr::Stalled)?;
+            rate.add(
+                now - last_tick,
+                &seen.since(&at_tick),
+                rate_hz,
+                cfg.min_rate_fraction,
+            )
+            .map_err(LinkErr::Stalled)?;
             (last_tick, at_tick) = (now, seen);
             if expected >= end {
                 return Ok(ex);
@@ -901,8 +912,7 @@ impl SerialRig {
     fn send(&mut self, s: u64, commands: &[ActuatorFrame]) -> Result<(), RigError> {
         let c = self.caps;
         for (i, a) in commands.iter().enumerate() {
-            self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] =
-                command_flags(a, &c);
+            self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] = command_flags(a, &c);
         }
         let mut off = 0usize;
         for chunk in commands.chunks(Self::FRAME_COMMANDS) {

@@ -314,8 +314,7 @@ impl TrialCore {
             let phase = self.k % every;
             if phase == 0 {
                 let frame = if self.vision { self.shown } else { None };
-                self.control
-                    .ask(participant, self.k as f64 * dt, dt, frame);
+                self.control.ask(participant, self.k as f64 * dt, dt, frame);
             }
             let until_act = usize::try_from(every - phase).unwrap_or(usize::MAX);
             let chunk = left.min(until_act).min(MAX_STATION_BLOCK);
@@ -352,8 +351,11 @@ impl TrialCore {
         self.k += 1;
         let t = self.k as f64 * dt;
         let tw = &ss.tweezer;
-        self.control
-            .record(ss.command.force_n, ss.sensors.accel_m_s2, ss.sensors.handle_m);
+        self.control.record(
+            ss.command.force_n,
+            ss.sensors.accel_m_s2,
+            ss.sensors.handle_m,
+        );
         let captured = self.capture_frame(t, tw);
         self.display_due_frames();
         let sample = TaskSample {
