@@ -71,12 +71,53 @@ impl TestLink {
             .open()
             .map_err(|e| RigError::Disconnected(format!("cannot open serial port {path}: {e}")))?;
         let _ = port.clear(serialport::ClearBuffer::Input);
-        Ok(Self {
+        let mut link = Self {
             path: path.to_owned(),
             port,
             decoder: Decoder::new(),
             tx: Vec::with_capacity(MAX_FRAME),
-        })
+        };
+        link.hello()?;
+        Ok(link)
+    }
+
+    /// Repeat HELLO_REQ every 250 ms until a HELLO comes back (a device
+    /// that is still booting — QEMU creates the pty before the firmware
+    /// runs — loses what it is sent before its USART is on), at most
+    /// [`ACK_TIMEOUT`].
+    fn hello(&mut self) -> Result<(), RigError> {
+        let deadline = Instant::now() + ACK_TIMEOUT;
+        let mut buf = [0u8; 1024];
+        while Instant::now() < deadline {
+            self.tx.clear();
+            frame::write_frame(&mut self.tx, ty::HELLO_REQ, |o| {
+                o.extend_from_slice(&frame::PROTOCOL_VERSION.to_le_bytes())
+            });
+            self.port
+                .write_all(&self.tx)
+                .map_err(|e| RigError::Disconnected(format!("{}: write failed: {e}", self.path)))?;
+            let step = Instant::now() + Duration::from_millis(250);
+            while Instant::now() < step {
+                match self.port.read(&mut buf) {
+                    Ok(n) if n > 0 => {
+                        self.decoder.push(&buf[..n]);
+                    }
+                    Ok(_) => {}
+                    Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => {}
+                    Err(e) => return Err(RigError::Disconnected(format!("{}: {e}", self.path))),
+                }
+                while let Some(f) = self.decoder.next_frame() {
+                    if f.ty == ty::HELLO {
+                        return Ok(());
+                    }
+                }
+            }
+        }
+        Err(RigError::Disconnected(format!(
+            "{}: no HELLO within {} s (is the firmware running?)",
+            self.path,
+            ACK_TIMEOUT.as_secs()
+        )))
     }
 
     /// Send TEST `op` with `args`; the ack (checked to be OK) and its data.
