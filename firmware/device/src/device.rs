@@ -22,7 +22,9 @@
 //!   sample t runs once it is due and its command is here — simulated time
 //!   stands still until then, and the device catches up afterwards, at most
 //!   [`MAX_CATCH_UP`] samples per tick. While it waits it sends the partial
-//!   batch and a STATUS, repeated every [`STATUS_PERIOD_TICKS`].
+//!   batch and a STATUS, repeated every [`STATUS_PERIOD_TICKS`]. It also
+//!   stands still while the transmit queue lacks room for two frames, so
+//!   that it never drops a frame (a board, holding, drops the frame whole).
 //!
 //! # Watchdog (§8)
 //!
@@ -647,6 +649,12 @@ impl<F: Frontend, O: Outbox> Device<F, O> {
         let mut waiting = false;
         let mut done = 0;
         while self.next_seq < pos && done < MAX_CATCH_UP {
+            // A simulated device lets time stand still rather than drop a
+            // frame when the link is behind (room for a SAMPLES frame and a
+            // STATUS).
+            if self.out.free() < 2 * MAX_FRAME {
+                break;
+            }
             let Some(c) = self.ring.take(self.next_seq) else {
                 waiting = true;
                 break;

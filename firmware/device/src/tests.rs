@@ -527,3 +527,42 @@ fn the_plant_model_clips_and_resets_on_non_finite_outputs() {
     assert_eq!(s.flags & flag::NONFINITE, flag::NONFINITE);
     assert!(s.enc == [0, 0]);
 }
+
+/// An outbox with a settable amount of room.
+#[derive(Debug, Default)]
+struct Tight {
+    bytes: Vec<u8>,
+    room: usize,
+}
+
+impl Outbox for Tight {
+    fn free(&self) -> usize {
+        self.room
+    }
+    fn write(&mut self, b: &[u8]) {
+        self.bytes.extend_from_slice(b);
+        self.room = self.room.saturating_sub(b.len());
+    }
+}
+
+/// A waiting device whose link is behind does not run samples (and so
+/// drops no frame) until the transmit queue has room again.
+#[test]
+fn a_waiting_device_stands_still_while_its_link_is_behind() {
+    let out = Tight {
+        bytes: Vec::new(),
+        room: 1 << 20,
+    };
+    let mut d = Device::new(cfg(LatePolicy::Wait), b"", Echo::default(), out);
+    d.handle(ty::START, &[]);
+    d.handle(ty::COMMANDS, &commands(0, &[cmd(1); 30]));
+    d.outbox().room = 100;
+    for _ in 0..20 {
+        d.tick();
+    }
+    assert_eq!(d.next_seq(), 0);
+    assert_eq!(d.counters().tx_dropped, 0);
+    d.outbox().room = 1 << 20;
+    d.tick();
+    assert_eq!(d.next_seq(), 21, "caught up");
+}
