@@ -22,8 +22,10 @@
 //! A loop is armed only with a [`Clearance`]: the stability analysis
 //! ([`crate::stability`]) of its rig file and chain met the configured
 //! minimum margins, or the caller overrode it explicitly (tests that study
-//! unstable settings, `sim press --allow-unstable`). The safety layer then
-//! brings forces on through its ramp.
+//! unstable settings, `sim press --allow-unstable`). A live loop's delay
+//! beyond the simulated one sample (block exchange, the link's command
+//! lead) is analysed with [`Clearance::check_with_latency`]. The safety
+//! layer then brings forces on through its ramp.
 
 use crate::condition::Condition;
 use crate::config::RigConfig;
@@ -44,16 +46,39 @@ pub const MAX_BLOCK: usize = 64;
 pub struct Clearance {
     report: Option<Box<StabilityReport>>,
     source: ChainSource,
+    latency_s: f64,
 }
 
 impl Clearance {
-    /// Analyse `cfg` with `chain`; refuse (naming the failing margin and
-    /// the largest safe force scale) when a margin is below the minimum.
+    /// Analyse `cfg` with `chain` as the simulated loop runs it (one
+    /// sample of loop delay); refuse (naming the failing margin and the
+    /// largest safe force scale) when a margin is below the minimum.
+    /// [`Self::check_with_latency`] at 0 s.
     ///
     /// # Errors
     /// [`RigError::LoopNotSafe`]; analysis failures.
     pub fn check(cfg: &RigConfig, chain: &LoopChain) -> Result<Self, RigError> {
-        let report = crate::stability::analyse(cfg, &chain.coefficients)?;
+        Self::check_with_latency(cfg, chain, 0.0)
+    }
+
+    /// Analyse `cfg` with `chain` and an extra loop delay of `latency_s`
+    /// seconds on top of the simulated loop's one sample (a live loop:
+    /// block exchange and the link's command lead;
+    /// [`crate::stability::analyse_with_latency`], rounded up to whole
+    /// samples); refuse when a margin is below the minimum at that delay,
+    /// naming the failing margin, the delay in ms and samples, and the
+    /// largest safe force scale at that delay.
+    ///
+    /// # Errors
+    /// [`RigError::LoopNotSafe`]; [`RigError::InvalidParameter`] for a
+    /// latency outside [0, [`crate::stability::MAX_LATENCY_S`]]; analysis
+    /// failures.
+    pub fn check_with_latency(
+        cfg: &RigConfig,
+        chain: &LoopChain,
+        latency_s: f64,
+    ) -> Result<Self, RigError> {
+        let report = crate::stability::analyse_with_latency(cfg, &chain.coefficients, latency_s)?;
         if let Some(why) = report.refusal() {
             return Err(RigError::LoopNotSafe(format!(
                 "{why} (chain: {})",
@@ -63,20 +88,8 @@ impl Clearance {
         Ok(Self {
             report: Some(Box::new(report)),
             source: chain.source.clone(),
+            latency_s,
         })
-    }
-
-    /// TEMPORARY until the latency analysis lands: [`Self::check`].
-    ///
-    /// # Errors
-    /// As [`Self::check`].
-    pub fn check_with_latency(
-        cfg: &RigConfig,
-        chain: &LoopChain,
-        latency_s: f64,
-    ) -> Result<Self, RigError> {
-        let _ = latency_s;
-        Self::check(cfg, chain)
     }
 
     /// Arm without the analysis. For tests and tools that study unsafe
@@ -85,7 +98,14 @@ impl Clearance {
         Self {
             report: None,
             source,
+            latency_s: 0.0,
         }
+    }
+
+    /// The extra loop delay the analysis was run for, s (0 for
+    /// [`Self::check`] and [`Self::overridden`]).
+    pub fn latency_s(&self) -> f64 {
+        self.latency_s
     }
 
     /// The analysis, when one was run.

@@ -28,6 +28,7 @@ pub mod lti;
 pub mod normal;
 pub mod plant;
 pub mod press;
+pub mod realtime;
 pub mod safety;
 pub mod serial;
 pub mod sim;

@@ -210,6 +210,13 @@ fn run_on_pty<I: Instrument>(
             format!(", link delay {:.2} ms each way", delay.as_secs_f64() * 1e3)
         }
     );
+    // A device keeps its own time: the serving thread runs real-time where
+    // the system allows it (it sleeps in poll between samples).
+    if let kilotouch_rig::realtime::Scheduling::Normal(why) =
+        kilotouch_rig::realtime::promote_current_thread()
+    {
+        eprintln!("kilotouch emulate {what}: {why}; timing will follow the machine's load");
+    }
     let stop = AtomicBool::new(false);
     match serve_delayed(&mut emu, &pty, &clock, &stop, delay)? {
         ServeEnd::Disconnect => {

@@ -149,7 +149,10 @@ impl EngineHandle {
         let (mut core, mut handle) = engine_pair_with_rig(cfg, rig, opts, SystemClock::default())?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
-            .spawn(move || while core.run_block() {})?;
+            .spawn(move || {
+                core.thread_started();
+                while core.run_block() {}
+            })?;
         handle.thread = Some(t);
         Ok(handle)
     }
@@ -163,7 +166,10 @@ impl EngineHandle {
         let (mut core, mut handle) = engine_pair(cfg, opts, clock)?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
-            .spawn(move || while core.run_block() {})?;
+            .spawn(move || {
+                core.thread_started();
+                while core.run_block() {}
+            })?;
         handle.thread = Some(t);
         Ok(handle)
     }

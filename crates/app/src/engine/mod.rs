@@ -195,6 +195,8 @@ pub struct Health {
     /// The trap calibration the tweezer reports through (None: the
     /// simulated bead and stiffness).
     pub trap_calibration: Option<AppliedTrap>,
+    /// The engine thread runs real-time (`SCHED_FIFO`).
+    pub realtime: bool,
 }
 
 impl Health {
@@ -302,6 +304,10 @@ pub struct EngineOptions {
     pub health_interval_blocks: u64,
     /// Start exchanging frames at once.
     pub start: bool,
+    /// Run the engine thread real-time (`SCHED_FIFO`,
+    /// [`kilotouch_rig::realtime`]) while it is paced (by the wall clock or
+    /// a live device), where the system allows it.
+    pub realtime: bool,
 }
 
 impl Default for EngineOptions {
@@ -316,6 +322,7 @@ impl Default for EngineOptions {
             telemetry_capacity: 1 << 15,
             health_interval_blocks: 100,
             start: true,
+            realtime: true,
         }
     }
 }

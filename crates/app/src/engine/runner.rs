@@ -83,6 +83,8 @@ pub struct EngineCore<C: Clock> {
     chain: LoopChain,
     /// The loop's delay beyond one sample, s (the clearance includes it).
     latency_s: f64,
+    /// The engine thread runs `SCHED_FIFO`.
+    realtime: bool,
 }
 
 impl<C: Clock> EngineCore<C> {
@@ -181,6 +183,7 @@ impl<C: Clock> EngineCore<C> {
             hand_alpha,
             latency_s,
             chain,
+            realtime: false,
         };
         if !opts.start {
             core.stop_rig();
@@ -201,6 +204,25 @@ impl<C: Clock> EngineCore<C> {
     /// Exchanging frames?
     pub fn is_running(&self) -> bool {
         self.running
+    }
+
+    /// Call first on the engine's own thread: it runs real-time while
+    /// paced ([`EngineOptions::realtime`]).
+    pub fn thread_started(&mut self) {
+        self.schedule();
+    }
+
+    /// Real-time while the thread sleeps or blocks between blocks (paced
+    /// by the wall clock or a live device), normal while it runs without
+    /// pause.
+    fn schedule(&mut self) {
+        let want = self.opts.realtime && (self.live || self.pacer.sleeps());
+        if want && !self.realtime {
+            self.realtime = kilotouch_rig::realtime::promote_current_thread().is_realtime();
+        } else if !want && self.realtime {
+            kilotouch_rig::realtime::demote_current_thread();
+            self.realtime = false;
+        }
     }
 
     /// The chain the loop was armed with at construction (the rig file's
@@ -382,6 +404,7 @@ impl<C: Clock> EngineCore<C> {
             Command::SetPaced(on) => {
                 if !self.live {
                     self.pacer.set_paced(on);
+                    self.schedule();
                 }
             }
             Command::Shutdown => self.stopped = true,
@@ -486,6 +509,7 @@ impl<C: Clock> EngineCore<C> {
             estop_zeroed_frames: st.counters.latched_zeroed,
             trapped: self.out.trapped,
             trap_calibration: self.lp.tweezer.calibration(),
+            realtime: self.realtime,
         }
     }
 

@@ -68,6 +68,9 @@ impl std::str::FromStr for RigSpec {
             return Err(bad(s, "missing port path"));
         }
         let mut cfg = SerialConfig::new(path);
+        // A closed loop over a link leads by default (`lead=0` for
+        // block-synchronous exchange).
+        cfg.lead = CommandLead::Auto;
         for opt in parts {
             let (k, v) = opt
                 .split_once('=')

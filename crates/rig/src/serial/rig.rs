@@ -56,7 +56,10 @@ pub struct SerialConfig {
     /// as an error and the rig stays faulted until `start`.
     pub rearm_after_idle_trip: bool,
     /// How far ahead of the samples it waits for the host sends commands
-    /// ([`CommandLead`]).
+    /// ([`CommandLead`]). [`SerialConfig::new`] is block-synchronous
+    /// (`Blocks(0)`: each block's sensor frames are those of its own
+    /// commands, the [`crate::Rig`] contract); a `--rig serial:…`
+    /// specification leads automatically unless it says `lead=N`.
     pub lead: CommandLead,
     /// The host watchdog's least rate, as a fraction of the device's
     /// nominal rate ([`super::watch`]; `min-rate=PERCENT` in the spec; 0
@@ -72,11 +75,10 @@ pub struct SerialConfig {
 /// stability analysis includes it, [`crate::Rig::loop_delay_samples`]), and
 /// the sensor frames a block returns are then those of the commands sent
 /// L samples earlier.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CommandLead {
     /// Enough whole blocks to cover the round trip measured at connection
     /// with a margin (1.5 × round trip + 0.5 ms), at least one block.
-    #[default]
     Auto,
     /// This many blocks (0: block-synchronous, sensor frames and commands
     /// of the same samples — what open-loop measurements such as the
@@ -105,7 +107,7 @@ impl SerialConfig {
             timeout: Self::DEFAULT_TIMEOUT,
             handshake_timeout: Duration::from_secs(2),
             rearm_after_idle_trip: false,
-            lead: CommandLead::Auto,
+            lead: CommandLead::Blocks(0),
             min_rate_fraction: super::watch::MIN_RATE_FRACTION,
         }
     }
