@@ -48,6 +48,11 @@ pub enum RigFault {
         /// Sequence number.
         seq: u64,
     },
+    /// The device's emergency stop was engaged: outputs zeroed.
+    EmergencyStop {
+        /// Sequence number.
+        seq: u64,
+    },
     /// The device disconnected.
     Disconnected,
 }
