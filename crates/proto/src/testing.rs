@@ -224,11 +224,14 @@ pub struct Profile {
     pub plant_max: u32,
     /// Sum of the plant model's counts.
     pub plant_sum: u64,
+    /// Frames the device dropped whole because its transmit queue was
+    /// full (not counts: frames).
+    pub tx_dropped: u32,
 }
 
 impl Profile {
     /// Size, bytes.
-    pub const SIZE: usize = 4 + 4 + 8 + 4 + 8;
+    pub const SIZE: usize = 4 + 4 + 8 + 4 + 8 + 4;
 
     /// Encoding.
     pub fn encode(&self) -> [u8; Self::SIZE] {
@@ -238,6 +241,7 @@ impl Profile {
         o[8..16].copy_from_slice(&self.sum.to_le_bytes());
         o[16..20].copy_from_slice(&self.plant_max.to_le_bytes());
         o[20..28].copy_from_slice(&self.plant_sum.to_le_bytes());
+        o[28..32].copy_from_slice(&self.tx_dropped.to_le_bytes());
         o
     }
 
@@ -249,6 +253,7 @@ impl Profile {
             sum: u64::from_le_bytes(rd(p, 8)),
             plant_max: u32::from_le_bytes(rd(p, 16)),
             plant_sum: u64::from_le_bytes(rd(p, 20)),
+            tx_dropped: u32::from_le_bytes(rd(p, 28)),
         })
     }
 }
@@ -332,6 +337,7 @@ mod tests {
             sum: 2000,
             plant_max: 700,
             plant_sum: 1500,
+            tx_dropped: 2,
         };
         assert_eq!(Profile::parse(&pr.encode()), Some(pr));
         let a = Ack {

@@ -571,9 +571,14 @@ impl<F: Frontend, O: Outbox> Device<F, O> {
                 Ok(0)
             }
             (testing::op::PROFILE, [reset @ (0 | 1)]) => {
-                let p = self.profile.encode();
+                let p = Profile {
+                    tx_dropped: self.counters.tx_dropped,
+                    ..self.profile
+                }
+                .encode();
                 if *reset == 1 {
                     self.profile = Profile::default();
+                    self.counters.tx_dropped = 0;
                 }
                 self.ack(op, Ok(0), &p);
                 return;

@@ -113,6 +113,8 @@ struct ProfileReport {
     mean: f64,
     plant_max: u32,
     plant_mean: f64,
+    /// Frames the device dropped whole for a full transmit queue.
+    tx_dropped: u32,
 }
 
 fn open(rig: &str) -> anyhow::Result<TestLink> {
@@ -179,11 +181,13 @@ pub fn run(cmd: &FirmwareCommand) -> anyhow::Result<()> {
                 mean: p.sum as f64 / n,
                 plant_max: p.plant_max,
                 plant_mean: p.plant_sum as f64 / n,
+                tx_dropped: p.tx_dropped,
             };
             emit(a.json, &r, || {
                 format!(
-                    "{} sample interrupts: mean {:.0}, max {} counts (plant model: mean {:.0}, max {})\n",
-                    r.ticks, r.mean, r.max, r.plant_mean, r.plant_max
+                    "{} sample interrupts: mean {:.0}, max {} counts (plant model: mean {:.0}, \
+                     max {}); {} frame(s) dropped for a full transmit queue\n",
+                    r.ticks, r.mean, r.max, r.plant_mean, r.plant_max, r.tx_dropped
                 )
             })
         }
