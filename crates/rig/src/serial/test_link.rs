@@ -22,8 +22,9 @@ use serialport::SerialPort;
 use std::io::{ErrorKind, Read, Write};
 use std::time::{Duration, Instant};
 
-/// How long to wait for each TEST_ACK.
-pub const ACK_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long to wait for each TEST_ACK (QEMU can hold the host's bytes up
+/// for seconds on a loaded machine).
+pub const ACK_TIMEOUT: Duration = Duration::from_secs(20);
 
 /// A port to a device that takes test frames.
 pub struct TestLink {
