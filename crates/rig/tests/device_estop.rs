@@ -100,7 +100,7 @@ fn status(out: &mut Vec<u8>, state: DeviceState, next: u64) {
 fn serve(mut master: PtyMaster, release: &AtomicBool, stop: &AtomicBool) {
     let hello = DaqInstrument::new(&RigConfig::default()).unwrap().hello();
     let mut dec = Decoder::new();
-    let mut buf = [0u8; 4096];
+    let mut buf = [0u8; 1024];
     let (mut state, mut next, mut engaged) = (DeviceState::Idle, 0u64, false);
     while !stop.load(Ordering::Relaxed) {
         let mut fds = [PollFd::new(master.as_fd(), PollFlags::POLLIN)];
@@ -110,8 +110,11 @@ fn serve(mut master: PtyMaster, release: &AtomicBool, stop: &AtomicBool) {
         let Ok(n) = master.read(&mut buf) else {
             continue;
         };
-        dec.push(&buf[..n]);
         let mut out = Vec::new();
+        // The host's frames are short: a read never holds more than the
+        // decoder takes after its frames were taken out.
+        let took = dec.push(&buf[..n]);
+        assert_eq!(took, n);
         while let Some(f) = dec.next_frame() {
             if engaged && release.load(Ordering::Relaxed) {
                 engaged = false;
