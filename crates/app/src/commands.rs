@@ -1,6 +1,7 @@
 //! One module per headless command.
 
 pub mod bench;
+pub mod bench_hil;
 pub mod calibrate;
 pub mod crossover;
 pub mod emulate;
@@ -8,6 +9,7 @@ pub mod firmware;
 pub mod frf;
 pub mod paper;
 pub mod progress;
+pub mod protocol_arg;
 pub mod psd;
 pub mod rig;
 pub mod sim;

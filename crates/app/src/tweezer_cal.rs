@@ -12,7 +12,9 @@ use kilotouch_rig::serial::LinkTweezer;
 use kilotouch_rig::tweezer::calibration::{
     MAX_RECORD_SAMPLES, TrapCalibration, TrapCalibrationSettings, calibrate_trap, record_detector,
 };
-use kilotouch_rig::tweezer::{DetectedTweezer, TrapCalibrationRecord, Tweezer, TweezerParams};
+use kilotouch_rig::tweezer::{
+    DetectedTweezer, SurfaceDrag, TrapCalibrationRecord, Tweezer, TweezerParams, surface_drag,
+};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -25,6 +27,39 @@ pub struct DetectorRecord {
     pub volts: [Vec<f64>; 2],
     /// The tweezer it came from (`sim`, `serial:PATH`).
     pub source: String,
+    /// For the simulated tweezer: the drag its obstacles add at the trap
+    /// spot (`None` for a live tweezer, whose surroundings are unknown).
+    pub surface: Option<SurfaceDrag>,
+}
+
+/// Prefix of the comment line of a record CSV that carries the predicted
+/// surface drag at the trap spot (`# surface-drag x=1.3112 y=1.1358 …`),
+/// read back by `kilotouch tweezer calibrate`.
+pub const SURFACE_DRAG_TAG: &str = "# surface-drag";
+
+/// The comment line [`SURFACE_DRAG_TAG`] for `d`.
+pub fn surface_drag_line(d: &SurfaceDrag) -> String {
+    format!(
+        "{SURFACE_DRAG_TAG} x={:.6} y={:.6} ({})",
+        d.drag_factor[0],
+        d.drag_factor[1],
+        d.describe()
+    )
+}
+
+/// The drag factors (x, y) of a record's [`SURFACE_DRAG_TAG`] line, if
+/// `line` is one.
+pub fn parse_surface_drag_line(line: &str) -> Option<[f64; 2]> {
+    let rest = line.strip_prefix(SURFACE_DRAG_TAG)?;
+    let mut f = [None, None];
+    for tok in rest.split_whitespace() {
+        for (k, key) in ["x=", "y="].iter().enumerate() {
+            if let Some(v) = tok.strip_prefix(key) {
+                f[k] = v.parse::<f64>().ok().filter(|b| b.is_finite() && *b > 0.0);
+            }
+        }
+    }
+    Some([f[0]?, f[1]?])
 }
 
 /// Record `duration_s` seconds of the detector signals of the tweezer
@@ -56,6 +91,8 @@ pub fn record(
             anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH")
         }
     };
+    let surface = matches!(spec, RigSpec::Sim)
+        .then(|| surface_drag(&TweezerParams::from_config(&rc.tweezer), trap_m));
     let fs = tw.sample_rate_hz();
     let n = (duration_s * fs).round();
     if n > MAX_RECORD_SAMPLES as f64 {
@@ -75,6 +112,7 @@ pub fn record(
         fs_hz: fs,
         volts,
         source: spec.describe(),
+        surface,
     })
 }
 

@@ -326,11 +326,14 @@ fn a_vanished_firmware_is_reported_promptly() {
     assert!(matches!(err, RigError::Disconnected(_)), "{err}");
 }
 
+/// Device frames in arrival order: type and payload.
+type Frames = Vec<(u8, Vec<u8>)>;
+
 /// A raw host session on a port: frames out, every device frame in.
 struct Raw {
     port: Box<dyn serialport::SerialPort>,
     dec: Decoder,
-    got: Vec<(u8, Vec<u8>)>,
+    got: Frames,
 }
 
 impl Raw {
@@ -717,7 +720,7 @@ fn events(g: &[(u8, Vec<u8>)], base: u64) -> Vec<Event> {
 /// START, 300 commands (one of them −32768: LIMITED), a stale and a far
 /// command, silence until the watchdog trips, commands while tripped,
 /// START, 50 more samples, STOP. Returns the frames and the base sequence.
-fn session(path: &str) -> (Vec<(u8, Vec<u8>)>, u64, Vec<(u64, DaqSample)>) {
+fn session(path: &str) -> (Frames, u64, Vec<(u64, DaqSample)>) {
     let mut r = Raw::open(path);
     let count = |t: u8| move |g: &[(u8, Vec<u8>)]| g.iter().filter(|(x, _)| *x == t).count();
     r.send(ty::HELLO_REQ, &2u16.to_le_bytes());

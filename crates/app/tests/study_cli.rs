@@ -210,3 +210,116 @@ fn killed_simulation_resumes_to_the_uninterrupted_rows() {
     assert_eq!(j["already_completed"].as_u64().unwrap() as usize, partial);
     assert_eq!(rows(&cut), reference);
 }
+
+/// Bytes of every file under `dir`.
+fn folder_bytes(dir: &Path) -> u64 {
+    let mut total = 0;
+    for e in std::fs::read_dir(dir).unwrap() {
+        let e = e.unwrap();
+        let m = e.metadata().unwrap();
+        total += if m.is_dir() {
+            folder_bytes(&e.path())
+        } else {
+            m.len()
+        };
+    }
+    total
+}
+
+#[test]
+fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
+    // 4 participants × 3 conditions × (1 practice + 2 test) = 36 trials with
+    // raw files (≈ 10 s each, time-out 20 s); the estimate comes from a
+    // pilot of 3 of the 12 trials of each condition, before anything is
+    // written.
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 2, 1);
+    for (raw, dir) in [(true, "raw"), (false, "no-raw")] {
+        let out = tmp.path().join(dir);
+        let mut args = vec![
+            "study",
+            "simulate",
+            "--protocol",
+            &proto,
+            "--participants",
+            "4",
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ];
+        if !raw {
+            args.push("--no-raw");
+        }
+        let o = run(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        // Stated before the run, on stderr (before the progress bar).
+        let said = err
+            .find("the run will write about")
+            .expect("estimate stated");
+        assert!(
+            said < err.find("36/36 trials").unwrap_or(usize::MAX),
+            "{err}"
+        );
+        let j: Value = serde_json::from_slice(&o.stdout).unwrap();
+        let e = &j["estimate"];
+        assert_eq!(e["trials"], 36, "{e}");
+        let estimate = e["bytes"].as_f64().unwrap();
+        let written = folder_bytes(&out) as f64;
+        assert!(
+            (written / estimate - 1.0).abs() < 0.2,
+            "raw {raw}: wrote {written} bytes, estimated {estimate} ({err})"
+        );
+        if raw {
+            assert_eq!(e["basis"]["kind"], "pilot", "{e}");
+            assert_eq!(e["basis"]["trials"], 9, "{e}");
+            // The upper bound (every trial to its 20 s time-out) is above.
+            assert!(e["timeout_bytes"].as_f64().unwrap() > written, "{e}");
+        }
+    }
+}
+
+#[test]
+fn simulate_refuses_a_run_larger_than_the_free_space() {
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 2, 1);
+    let out = tmp.path().join("study");
+    let o = run(&[
+        "study",
+        "simulate",
+        "--protocol",
+        &proto,
+        "--participants",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+        "--assume-free-bytes",
+        "2000000",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("not enough disk space")
+            && err.contains("2.0 MB free")
+            && err.contains("--no-raw")
+            && err.contains("--participants"),
+        "{err}"
+    );
+    // Nothing was written.
+    assert!(!out.join(TRIALS_FILE).exists());
+    // Without raw files the same study fits.
+    let o = run(&[
+        "study",
+        "simulate",
+        "--protocol",
+        &proto,
+        "--participants",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+        "--no-raw",
+        "--assume-free-bytes",
+        "2000000",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

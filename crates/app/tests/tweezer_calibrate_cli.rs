@@ -228,3 +228,127 @@ fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
         "κ {kappa:?} pN/µm vs 100"
     );
 }
+
+/// Calibrate one column of a simulated record (the default rig's bead,
+/// aliased Lorentzian): the JSON.
+fn calibrate_sim_column(rec: &Path, col: &str) -> serde_json::Value {
+    json_ok(&[
+        "tweezer",
+        "calibrate",
+        rec.to_str().unwrap(),
+        "--fs",
+        "10000",
+        "--column",
+        col,
+        "--radius-um",
+        "1.5",
+        "--viscosity-pa-s",
+        "1.0016e-3",
+        "--temperature-k",
+        "293.15",
+        "--fit-range",
+        "10,5000",
+        "--points-per-block",
+        "100",
+        "--aliased",
+        "--json",
+    ])
+}
+
+#[test]
+fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
+    // The default rig's scene has an obstacle of radius 5 µm at (12, 0) µm:
+    // a trap at (0, 0) holds the bead 5.5 µm from its surface, where
+    // Brenner's drag (x) and Faxén's (y) lower f_c and so κ by ≈ 24 % and
+    // 12 % (kilotouch_rig::tweezer::spot). By default the record is taken
+    // in free solution and calibrates to the rig's κ = 20 pN/µm.
+    let dir = tempfile::tempdir().unwrap();
+    let free = dir.path().join("free.csv");
+    let r = json_ok(&[
+        "tweezer",
+        "record",
+        "--rig",
+        "sim",
+        "--duration-s",
+        "10",
+        "--out",
+        free.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(r["spot"], "free", "{r}");
+    assert!(r["warnings"].as_array().unwrap().is_empty(), "{r}");
+    assert_eq!(r["kappa_bias"][0].as_f64(), Some(0.0), "{r}");
+    for col in ["x_v", "y_v"] {
+        let v = calibrate_sim_column(&free, col);
+        assert!(v.get("warnings").is_none(), "{v}");
+        let (k, se) = (f(&v, "kappa_pn_um"), f(&v, "kappa_se_pn_um"));
+        assert!(
+            (k - 20.0).abs() < 2.5 * se,
+            "{col}: free κ {k} ± {se} pN/µm vs the rig's 20"
+        );
+    }
+
+    let near = dir.path().join("near.csv");
+    let out = run(&[
+        "tweezer",
+        "record",
+        "--rig",
+        "sim",
+        "--duration-s",
+        "10",
+        "--trap-um",
+        "0,0",
+        "--out",
+        near.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(out.status.success());
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("warning") && err.contains("5.50 µm") && err.contains("(12.0, 0.0) µm"),
+        "{err}"
+    );
+    assert_eq!(r["spot"], "scene", "{r}");
+    let bias = [0, 1].map(|k| r["kappa_bias"][k].as_f64().unwrap());
+    for (k, col) in ["x_v", "y_v"].iter().enumerate() {
+        let out = run(&[
+            "tweezer",
+            "calibrate",
+            near.to_str().unwrap(),
+            "--fs",
+            "10000",
+            "--column",
+            col,
+            "--radius-um",
+            "1.5",
+            "--viscosity-pa-s",
+            "1.0016e-3",
+            "--temperature-k",
+            "293.15",
+            "--fit-range",
+            "10,5000",
+            "--points-per-block",
+            "100",
+            "--aliased",
+            "--json",
+        ]);
+        assert!(out.status.success());
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("warning") && err.contains("free solution"),
+            "{err}"
+        );
+        assert_eq!(v["warnings"].as_array().map(Vec::len), Some(1), "{v}");
+        // The measured κ is as soft as the predicted drag says (the
+        // prediction mixes the normal and tangential mobilities; within a
+        // few per cent of κ).
+        let (kappa, se) = (f(&v, "kappa_pn_um"), f(&v, "kappa_se_pn_um"));
+        let predicted = 20.0 * (1.0 + bias[k]);
+        assert!(
+            (kappa - 20.0).abs() > 5.0 * se && (kappa / predicted - 1.0).abs() < 0.05,
+            "{col}: κ {kappa} ± {se} pN/µm next to the obstacle, predicted {predicted}"
+        );
+    }
+}

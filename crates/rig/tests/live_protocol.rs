@@ -275,6 +275,43 @@ fn emulator_paces_by_the_clock_waits_for_commands_and_batches() {
     assert_eq!(e.stats().late_commands, 0);
 }
 
+/// `speed` scales the emulator's clock: at 4, sample t is due at
+/// (t + 1)/(4·fs) of wall time, the HELLO still announcing fs.
+#[test]
+fn a_faster_clock_serves_samples_at_speed_times_the_rate() {
+    let mut e = emulator(EmulatorConfig {
+        speed: 4.0,
+        ..cfg()
+    });
+    e.receive(&host(ty::START, |_| {}), Duration::ZERO);
+    drain(&mut e);
+    let cmds = vec![DaqCommand::default(); 1000];
+    e.receive(&commands(0, &cmds), Duration::ZERO);
+    // 25.05 ms of wall time: 4 × 250 = 1000 samples due.
+    e.advance(ms(6.2625));
+    assert_eq!(e.next_seq(), 250);
+    e.advance(ms(25.05));
+    assert_eq!(e.next_seq(), 1000);
+    assert_eq!(samples(&drain(&mut e)).len(), 1000);
+    assert!(
+        EmulatorConfig {
+            speed: 0.0,
+            ..cfg()
+        }
+        .validate()
+        .is_err(),
+        "a stopped clock is refused"
+    );
+    assert!(
+        EmulatorConfig {
+            speed: 50.0,
+            ..cfg()
+        }
+        .validate()
+        .is_err()
+    );
+}
+
 #[test]
 fn emulator_output_equals_the_simulated_rig_sample_for_sample() {
     // Reference: the simulated rig driven directly with the same commands.
@@ -348,6 +385,33 @@ fn emulator_output_equals_the_simulated_rig_sample_for_sample() {
         moved > 0.0,
         "the drive must move the handle for the test to mean anything"
     );
+}
+
+/// A waiting emulator that was descheduled (it runs samples long after
+/// they were due) does not blame the host: the host could not answer
+/// samples it never received, so the window starts when the device
+/// actually ran out of commands.
+#[test]
+fn a_descheduled_device_does_not_trip_on_samples_it_ran_late() {
+    let mut e = emulator(EmulatorConfig {
+        watchdog: Duration::from_millis(50),
+        ..cfg()
+    });
+    e.receive(&host(ty::START, |_| {}), Duration::ZERO);
+    e.receive(&commands(0, &[DaqCommand::default(); 100]), ms(1.0));
+    // The process wakes 300 ms later: the 100 samples run now.
+    e.advance(ms(300.0));
+    assert_eq!(e.next_seq(), 100);
+    assert_eq!(e.state(), DeviceState::Running);
+    e.advance(ms(349.0));
+    assert_eq!(
+        e.state(),
+        DeviceState::Running,
+        "within the window from 300 ms"
+    );
+    e.advance(ms(350.5));
+    assert_eq!(e.state(), DeviceState::Tripped);
+    assert_eq!(e.stats().watchdog_trips, 1);
 }
 
 #[test]

@@ -382,11 +382,16 @@ fn a_vanished_device_is_reported_at_once() {
 
 #[test]
 fn the_device_watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
+    // A window long enough that a loaded machine's scheduling never trips
+    // it while the host is talking; the host then goes silent for three.
+    let window = Duration::from_millis(250);
     let dev = daq(EmulatorConfig {
-        watchdog: Duration::from_millis(40),
+        watchdog: window,
         ..EmulatorConfig::default()
     });
-    let mut rig = SerialRig::open(&SerialConfig::new(&dev.path)).unwrap();
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.timeout = Duration::from_secs(2);
+    let mut rig = SerialRig::open(&cfg).unwrap();
     rig.start().unwrap();
     let on = [ActuatorFrame {
         force_n: [1.0, -1.0],
@@ -395,7 +400,7 @@ fn the_device_watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
     let mut out = [SensorFrame::default(); 30];
     rig.process_block(&on, &mut out).unwrap();
     // The host goes silent for longer than the window.
-    std::thread::sleep(Duration::from_millis(150));
+    std::thread::sleep(3 * window);
     let err = rig.process_block(&on, &mut out).unwrap_err();
     assert!(err.to_string().contains("watchdog"), "{err}");
     assert_eq!(rig.status().state, RigState::Faulted);
@@ -569,7 +574,12 @@ fn the_host_information_reaches_the_participant_at_the_handle() {
         .unwrap()
         .with_agent(Box::new(agent));
     let dev = Device::spawn(inst, emu_cfg());
-    let mut rig = SerialRig::open(&SerialConfig::new(&dev.path)).unwrap();
+    // A generous host timeout: what is tested is what reaches the device,
+    // not fault timing (a loaded machine may deschedule the device thread
+    // for longer than the default 100 ms).
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.timeout = Duration::from_secs(2);
+    let mut rig = SerialRig::open(&cfg).unwrap();
     rig.start().unwrap();
     let rc = RigConfig::default();
     let begin = HostInfo::TrialBegin(TrialInfo {

@@ -39,6 +39,7 @@ pub mod screens;
 pub mod seeds;
 pub mod shard;
 pub mod simulate;
+pub mod size;
 pub mod stats;
 mod storage;
 pub mod task;

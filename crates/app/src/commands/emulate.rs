@@ -87,6 +87,12 @@ pub struct Args {
     /// grows by twice this).
     #[arg(long, default_value_t = 0.0)]
     pub link_delay_ms: f64,
+    /// Clock speed: simulated seconds per wall-clock second (1 = real
+    /// time). The device still announces its rig's rate, so the host's
+    /// loop delay and time-outs in samples are unchanged; for benchmarks
+    /// that run many sittings. 0.1 ..= 20.
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
     /// Who is at the emulated handle: `operator:SEED` — the study's
     /// simulated participant of study seed SEED (the protocol's
     /// `seeds.study` gives `study simulate`'s participants). DAQ only.
@@ -132,6 +138,7 @@ impl Args {
             watchdog: Duration::from_millis(self.watchdog_ms),
             batch: self.batch.unwrap_or(default_batch),
             free_running: self.free_running,
+            speed: self.speed,
             faults: FaultInjection {
                 corrupt_rate: self.corrupt_rate,
                 drop_rate: self.drop_rate,

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::RunnerConfig;
 use kilotouch_study::simulate::{SimulateOptions, SimulateReport, simulate};
+use kilotouch_study::size::{available_space, check_free_space, estimate_simulated_study};
 
 use super::progress::Progress;
 use crate::output::emit;
@@ -98,6 +98,10 @@ pub struct SimulateArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Free space of the target disk in bytes, instead of asking the
+    /// operating system (tests of the refusal).
+    #[arg(long, hide = true, value_name = "BYTES")]
+    pub assume_free_bytes: Option<u64>,
 }
 
 /// Run a `study` subcommand.
@@ -108,20 +112,6 @@ pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
         StudyCommand::Power(a) => super::study_power::run(a),
         StudyCommand::Merge(a) => run_merge(a),
     }
-}
-
-pub(crate) fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
-    let path = PathBuf::from(spec);
-    if path.is_file() {
-        return Protocol::load(&path).map_err(anyhow::Error::from);
-    }
-    if kilotouch_study::protocol::BUILTIN_NAMES.contains(&spec) {
-        return Protocol::builtin(spec).map_err(anyhow::Error::from);
-    }
-    anyhow::bail!(
-        "--protocol {spec}: no such file, and not a built-in protocol (expected a TOML file or one of: {})",
-        kilotouch_study::protocol::BUILTIN_NAMES.join(", ")
-    )
 }
 
 fn human(r: &SimulateReport) -> String {
@@ -161,7 +151,7 @@ fn human(r: &SimulateReport) -> String {
 }
 
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
-    let mut protocol = load_protocol(&a.protocol)?;
+    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
     if let Some(n) = a.participants {
         protocol.participants = n;
     }
@@ -193,10 +183,32 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
         fidelity: a.fidelity,
         shard: a.shard,
     };
+    let size = estimate_simulated_study(&opts)
+        .with_context(|| format!("estimating the size of the study in {}", a.out.display()))?;
+    eprintln!("kilotouch: the run will write {}", size.describe());
+    let available = match a.assume_free_bytes {
+        Some(b) => b,
+        None => available_space(&a.out)
+            .with_context(|| format!("free space of the disk of {}", a.out.display()))?,
+    };
+    check_free_space(&size, &a.out, available)?;
     let mut bar = Progress::new("trials");
     let report = simulate(&opts, &mut |done, total| bar.count(done, total))
         .with_context(|| format!("study simulate into {}", a.out.display()))?;
-    emit(a.json, &report, || human(&report))
+    let out = SimulateOutput {
+        report: &report,
+        estimate: &size,
+    };
+    emit(a.json, &out, || human(&report))
+}
+
+/// JSON of `kilotouch study simulate`: the report and the size estimated
+/// before the run.
+#[derive(serde::Serialize)]
+struct SimulateOutput<'a> {
+    #[serde(flatten)]
+    report: &'a SimulateReport,
+    estimate: &'a kilotouch_study::size::StudySize,
 }
 
 fn run_merge(a: &MergeArgs) -> anyhow::Result<()> {

@@ -99,6 +99,23 @@ pub struct RunReport {
 
 /// Run the command.
 pub fn run(a: &RunArgs) -> anyhow::Result<()> {
+    let (report, finish) = sitting(a, None)?;
+    emit(a.json, &report, || human(&report))?;
+    match finish {
+        FinishReason::Failed(why) => anyhow::bail!("the sitting failed: {why}"),
+        FinishReason::Stopped => anyhow::bail!("the sitting was stopped before its end"),
+        _ => Ok(()),
+    }
+}
+
+/// One sitting as `a` asks (`protocol` instead of `--protocol` for a new
+/// study, e.g. a benchmark's): spawns the engine on the rig, runs the
+/// sitting to its end with a progress bar on stderr, closes both. Returns
+/// the report and how the sitting ended.
+pub fn sitting(
+    a: &RunArgs,
+    protocol: Option<kilotouch_study::protocol::Protocol>,
+) -> anyhow::Result<(RunReport, FinishReason)> {
     if !(a.timeout_s.is_finite() && a.timeout_s > 0.0) {
         anyhow::bail!("--timeout-s must be finite and > 0, got {}", a.timeout_s);
     }
@@ -110,7 +127,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
     }
     let spec: RigSpec = a.rig.parse()?;
     let rig = RigConfig::load_or_default(a.loop_args.rig_config.as_ref())?;
-    let protocol = folder_or_new_protocol(a)?;
+    let protocol = match protocol {
+        Some(p) if !a.resume => p,
+        _ => folder_or_new_protocol(a)?,
+    };
     let table = protocol.assignment()?;
     let pid = validate_participant_id(&a.participant, &table)
         .map_err(|e| anyhow::anyhow!("--participant: {e}"))?;
@@ -155,12 +175,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
     let _ = session.close(&mut engine);
     let report = report(a, &pid.id, &info, committed, &finish, health, t0);
     engine.shutdown();
-    emit(a.json, &report, || human(&report))?;
-    match finish {
-        FinishReason::Failed(why) => anyhow::bail!("the sitting failed: {why}"),
-        FinishReason::Stopped => anyhow::bail!("the sitting was stopped before its end"),
-        _ => Ok(()),
-    }
+    Ok((report, finish))
 }
 
 /// The protocol of the folder (a resume) or the one named.
@@ -182,7 +197,7 @@ fn folder_or_new_protocol(a: &RunArgs) -> anyhow::Result<kilotouch_study::protoc
             a.out.display()
         );
     }
-    super::study::load_protocol(&a.protocol)
+    super::protocol_arg::load_protocol(&a.protocol)
 }
 
 /// Polls the sitting until it ends: progress on stderr, the engine's rig

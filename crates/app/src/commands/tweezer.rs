@@ -89,16 +89,37 @@ pub struct RecordArgs {
     /// Duration, s.
     #[arg(long)]
     pub duration_s: f64,
-    /// Trap position held during the record, µm: X,Y (choose a spot far from obstacles and
-    /// surfaces other than the coverslip, whose drag the calibration does not model).
-    #[arg(long, value_parser = parse_range, default_value = "0,0")]
-    pub trap_um: (f64, f64),
+    /// Where the trap is held: `free` (free solution: the rig file's obstacles left out, as a
+    /// trap is calibrated away from the specimen) or X,Y in µm in the rig file's scene, obstacles
+    /// included; the record warns when an obstacle is close enough to bias κ by more than 1 %.
+    #[arg(long, value_parser = parse_spot, default_value = "free", value_name = "free|X,Y")]
+    pub trap_um: TrapSpot,
     /// Output CSV (columns t_s, x_v, y_v).
     #[arg(long)]
     pub out: PathBuf,
     /// Print JSON (sample rate, samples, file).
     #[arg(long)]
     pub json: bool,
+}
+
+/// Where `kilotouch tweezer record` holds the trap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrapSpot {
+    /// Free solution: the rig file's obstacles left out, trap at (0, 0).
+    Free,
+    /// This position (µm) in the rig file's scene, obstacles included.
+    At(f64, f64),
+}
+
+fn parse_spot(s: &str) -> Result<TrapSpot, String> {
+    if s.trim() == "free" {
+        return Ok(TrapSpot::Free);
+    }
+    let (x, y) = parse_range(s).map_err(|_| format!("`{s}`: expected `free` or X,Y in µm"))?;
+    if !(x.is_finite() && y.is_finite()) {
+        return Err(format!("`{s}`: the trap position must be finite"));
+    }
+    Ok(TrapSpot::At(x, y))
 }
 
 fn parse_range(s: &str) -> Result<(f64, f64), String> {
@@ -138,6 +159,16 @@ pub fn run(c: &TweezerCommand) -> anyhow::Result<()> {
     }
 }
 
+/// JSON of `kilotouch tweezer calibrate`: the calibration's fields and the
+/// warnings (a record taken next to a known surface).
+#[derive(Debug, serde::Serialize)]
+struct CalibrateReport {
+    #[serde(flatten)]
+    cal: kilotouch_rig::tweezer::TrapCalibration,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    warnings: Vec<String>,
+}
+
 fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
     let cols = read_columns(&a.file, &[a.column.as_str()], &[])?;
     let s = a.settings();
@@ -147,7 +178,17 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
         crate::tweezer_cal::plot_fit(p, &fit, &cal, &s)
             .with_context(|| format!("writing the plot {}", p.display()))?;
     }
-    emit(a.json, &cal, || {
+    let warnings: Vec<String> = record_surface_warning(&a.file, &a.column)
+        .into_iter()
+        .collect();
+    for m in &warnings {
+        eprintln!("warning: {m}");
+    }
+    let report = CalibrateReport {
+        cal: cal.clone(),
+        warnings,
+    };
+    emit(a.json, &report, || {
         let mut t = format!(
             "Trap calibration of `{}` ({} samples at {} Hz; {}; {} points of {} bins)\n",
             a.column,
@@ -194,30 +235,106 @@ struct RecordReport {
     file: String,
     fs_hz: f64,
     n_samples: usize,
+    /// `free` or `scene`.
+    spot: &'static str,
+    trap_um: [f64; 2],
+    /// Predicted drag of the nearest obstacle at the spot (x, y), relative
+    /// to free solution (simulated tweezer only).
+    drag_factor: Option<[f64; 2]>,
+    /// Predicted relative error of κ (x, y).
+    kappa_bias: Option<[f64; 2]>,
+    warnings: Vec<String>,
 }
 
 fn record(a: &RecordArgs) -> anyhow::Result<()> {
     let spec: RigSpec = a.rig.parse()?;
-    let rc = RigConfig::load_or_default(a.rig_config.as_deref())?;
-    let trap = [a.trap_um.0 * 1e-6, a.trap_um.1 * 1e-6];
+    let mut rc = RigConfig::load_or_default(a.rig_config.as_deref())?;
+    let (spot, trap_um) = match a.trap_um {
+        TrapSpot::Free => {
+            rc.tweezer.obstacles.clear();
+            ("free", [0.0, 0.0])
+        }
+        TrapSpot::At(x, y) => ("scene", [x, y]),
+    };
+    let trap = trap_um.map(|v| v * 1e-6);
     let rec = crate::tweezer_cal::record(&spec, &rc, a.duration_s, trap, &mut |_| {})?;
     let (fs, n, [x, y]) = (rec.fs_hz, rec.volts[0].len(), &rec.volts);
+    let mut warnings = Vec::new();
+    if let Some(d) = rec.surface.filter(|d| d.biased()) {
+        warnings.push(format!(
+            "{}; record in free solution (--trap-um free) or farther from the obstacles",
+            d.describe()
+        ));
+    }
     let file =
         std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut w = std::io::BufWriter::new(file);
+    writeln!(
+        w,
+        "# kilotouch tweezer record: {}, trap at ({}, {}) µm{}",
+        rec.source,
+        trap_um[0],
+        trap_um[1],
+        match (&spec, spot) {
+            (RigSpec::Sim, "free") => " in free solution",
+            (RigSpec::Sim, _) => " in the rig file's scene",
+            _ => "",
+        }
+    )?;
+    if let Some(d) = &rec.surface {
+        writeln!(w, "{}", crate::tweezer_cal::surface_drag_line(d))?;
+    }
     writeln!(w, "t_s,x_v,y_v")?;
     for (i, (xv, yv)) in x.iter().zip(y).enumerate() {
         writeln!(w, "{},{xv:e},{yv:e}", i as f64 / fs)?;
     }
     w.flush()
         .with_context(|| format!("writing {}", a.out.display()))?;
+    for m in &warnings {
+        eprintln!("warning: {m}");
+    }
     emit(
         a.json,
         &RecordReport {
             file: a.out.display().to_string(),
             fs_hz: fs,
             n_samples: n,
+            spot,
+            trap_um,
+            drag_factor: rec.surface.map(|d| d.drag_factor),
+            kappa_bias: rec.surface.map(|d| d.kappa_bias()),
+            warnings: warnings.clone(),
         },
         || format!("{n} samples at {fs} Hz written to {}\n", a.out.display()),
     )
+}
+
+/// The surface-drag warning for column `column` of the record `file`
+/// (written by `kilotouch tweezer record` next to a known surface), if the
+/// record's header says the spot biases κ by more than 1 %.
+fn record_surface_warning(file: &std::path::Path, column: &str) -> Option<String> {
+    use std::io::BufRead;
+    let f = std::fs::File::open(file).ok()?;
+    let factors = std::io::BufReader::new(f)
+        .lines()
+        .map_while(Result::ok)
+        .take_while(|l| l.starts_with('#'))
+        .find_map(|l| crate::tweezer_cal::parse_surface_drag_line(&l))?;
+    let axes: &[usize] = match column {
+        "x_v" => &[0],
+        "y_v" => &[1],
+        _ => &[0, 1],
+    };
+    let worst = axes
+        .iter()
+        .map(|&k| 1.0 / factors[k] - 1.0)
+        .max_by(|a, b| a.abs().total_cmp(&b.abs()))?;
+    (worst.abs() > kilotouch_rig::tweezer::KAPPA_BIAS_WARN).then(|| {
+        format!(
+            "the record was taken next to an obstacle whose drag biases κ of `{column}` by about \
+             {:+.1} % (the record's header says why); calibrate a record taken in free solution \
+             (`kilotouch tweezer record --trap-um free`)",
+            100.0 * worst
+        )
+    })
 }

@@ -9,7 +9,13 @@ use kilotouch_rig::device::Clock;
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::MAX_BLOCK;
 
-use super::runner::EngineLoop;
+/// The closed loop the engine runs (simulated or live rig, the tweezer
+/// detected or not, the swappable chain).
+pub type EngineLoop = kilotouch_rig::haptic_loop::HapticLoop<
+    kilotouch_rig::AnyRig,
+    kilotouch_rig::tweezer::DetectedTweezer,
+    super::splitter::SwappableChain,
+>;
 
 /// One block as the engine hands it to its driver.
 pub struct BlockCtx<'a> {

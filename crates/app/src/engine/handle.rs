@@ -304,7 +304,15 @@ impl EngineHandle {
 
     /// Swap in a new (force-normalised) chain, e.g. a calibration's. The
     /// loop must have been cleared with it: `clearance` is the analysis of
-    /// this rig file with this chain ([`Clearance::check`]).
+    /// this rig file with this chain ([`Clearance::check`]). A clearance
+    /// analysed for less loop delay than this engine's rig adds
+    /// ([`Self::latency_s`]: a live rig's block and command lead) is
+    /// analysed again with the engine's delay first, and the chain is
+    /// refused when its margins do not hold at that delay.
+    ///
+    /// # Errors
+    /// [`RigError::LoopNotSafe`] naming the failing margin and the delay;
+    /// a clearance of another chain; a full command queue.
     pub fn apply_chain(
         &mut self,
         chain: &LoopChain,
@@ -316,6 +324,13 @@ impl EngineHandle {
                 reason: "the clearance is for another chain",
             });
         }
+        let rechecked;
+        let clearance = if clearance.report().is_some() && clearance.latency_s() < self.latency_s {
+            rechecked = Clearance::check_with_latency(&self.config, chain, self.latency_s)?;
+            &rechecked
+        } else {
+            clearance
+        };
         self.send(Command::ApplyChain(ChainSwap::new(
             chain.coefficients.clone(),
         )))

@@ -76,10 +76,11 @@ mod runner;
 pub mod soak;
 pub mod splitter;
 
+pub use driver::EngineLoop;
 pub use driver::{BlockCtx, BlockDriver, FreeExploration, Publisher, run_live_block};
 pub use handle::{EngineHandle, EstopTrigger, engine_pair, engine_pair_with_rig};
 pub use kilotouch_rig::AnyRig;
-pub use runner::{EngineCore, EngineLoop};
+pub use runner::EngineCore;
 
 use kilotouch_rig::ActuatorFrame;
 use kilotouch_rig::coupling::CouplingCounters;

@@ -1,7 +1,7 @@
 //! The engine's loop body: one block per call (see the module docs of
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
-use super::driver::{BlockCtx, BlockDriver, FreeExploration, Publisher};
+use super::driver::{BlockCtx, BlockDriver, EngineLoop, FreeExploration, Publisher};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
@@ -30,9 +30,6 @@ pub(crate) struct Shared {
     /// Ask the engine thread to end.
     pub shutdown: AtomicBool,
 }
-
-/// The closed loop the engine runs.
-pub type EngineLoop = HapticLoop<AnyRig, DetectedTweezer, SwappableChain>;
 
 /// The loop delay of `rig` exchanging blocks of `block_len` samples at
 /// `fs` Hz beyond the one sample of the simulated loop, s: what the
@@ -444,6 +441,22 @@ impl<C: Clock> EngineCore<C> {
             self.push_notice(EngineEvent::RigError(RigError::InvalidInput(format!(
                 "the rig now runs at {} Hz, the engine at {} Hz: disconnect and connect instead",
                 id.sample_rate_hz, self.fs
+            ))));
+            return;
+        }
+        // The new device's loop delay (its link's round trip sizes the
+        // command lead) must be within what the stability clearance was
+        // made for; a longer one needs a new connection, which checks the
+        // margins again.
+        let latency = extra_latency_s(&self.lp.rig, self.opts.block_len, self.fs);
+        if latency > self.latency_s + 0.5 / self.fs {
+            let _ = self.lp.rig.stop();
+            self.faulted = true;
+            self.push_notice(EngineEvent::RigError(RigError::LoopNotSafe(format!(
+                "the reconnected device's loop adds {:.2} ms of delay, the stability check was made \
+                 for {:.2} ms: disconnect and connect again so the margins are checked with it",
+                latency * 1e3,
+                self.latency_s * 1e3
             ))));
             return;
         }

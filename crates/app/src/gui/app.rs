@@ -65,6 +65,8 @@ struct Notice {
     text: String,
     error: bool,
     at: Instant,
+    /// How many times the same text was notified (shown as "×N").
+    count: u32,
 }
 
 /// Screenshot-and-quit plan (`kilotouch gui --screenshot FILE --quit-after S`).
@@ -180,6 +182,7 @@ impl KilotouchApp {
                 text: format!("rig file not loaded, using the built-in default: {e}"),
                 error: true,
                 at: Instant::now(),
+                count: 1,
             });
         }
         let (gpu, gpu_status) = match wgpu {
@@ -191,6 +194,7 @@ impl KilotouchApp {
                         text: format!("microscope scene falls back to the egui painter: {e}"),
                         error: false,
                         at: Instant::now(),
+                        count: 1,
                     });
                     (false, format!("egui painter ({e})"))
                 }
@@ -253,11 +257,24 @@ impl KilotouchApp {
         app
     }
 
+    /// Show a message; the same text again counts up ("×N") and refreshes
+    /// the existing notice instead of stacking copies.
     fn notify(&mut self, text: impl Into<String>, error: bool) {
+        let text = text.into();
+        if let Some(i) = self.notices.iter().position(|n| n.text == text) {
+            if let Some(mut n) = self.notices.remove(i) {
+                n.count = n.count.saturating_add(1);
+                n.at = Instant::now();
+                n.error |= error;
+                self.notices.push_back(n);
+            }
+            return;
+        }
         self.notices.push_back(Notice {
-            text: text.into(),
+            text,
             error,
             at: Instant::now(),
+            count: 1,
         });
         while self.notices.len() > 20 {
             self.notices.pop_front();
@@ -371,9 +388,19 @@ impl KilotouchApp {
 
     /// THE emergency stop of the GUI (button and Esc): never blocks.
     pub fn emergency_stop(&mut self) {
+        let sitting = self.study.is_running();
         self.study.emergency_stop();
         match &self.engine {
-            Some(e) => e.emergency_stop(),
+            Some(e) => {
+                e.emergency_stop();
+                if sitting {
+                    self.notify(
+                        "emergency stop: the study's trial was aborted and the sitting paused; \
+                         outputs held at zero until the stop is reset",
+                        true,
+                    );
+                }
+            }
             None => self.notify(
                 "emergency stop: no rig connected (outputs already off)",
                 false,
@@ -541,14 +568,12 @@ impl KilotouchApp {
         let mut msgs = Vec::new();
         for ev in e.poll_events() {
             match ev {
-                EngineEvent::ChainSwapped(o) => {
-                    msgs.push((format!("calibration applied to the engine ({o:?})"), false))
-                }
+                EngineEvent::ChainSwapped(o) => msgs.push((swap_words(o).to_owned(), false)),
                 EngineEvent::RigError(err) => msgs.push((format!("rig stopped: {err}"), true)),
                 EngineEvent::Reconnected(id) => {
                     msgs.push((format!("rig reconnected: {}", id.name), false))
                 }
-                EngineEvent::RigFault(f) => msgs.push((format!("rig: {f:?}"), false)),
+                EngineEvent::RigFault(f) => msgs.push((format!("rig: {}", f.describe()), false)),
                 EngineEvent::Refused(why) => msgs.push((why.to_owned(), true)),
                 EngineEvent::Health(_) | EngineEvent::Garbage(_) => {}
             }
@@ -643,19 +668,15 @@ impl KilotouchApp {
                         };
                         ui.colored_label(col, h.status_label().to_owned());
                         ui.separator();
-                        ui.label(format!("{} · {}", h.condition.code(), if h.running { "running" } else { "paused" }));
+                        ui.label(format!(
+                            "{} · {}",
+                            h.condition.code(),
+                            if h.running { "running" } else { "paused" }
+                        ));
                         ui.separator();
                         ui.label(format!("loop {:.0} Hz", h.loop_rate_hz));
                         ui.label(format!("load {:.1} %", 100.0 * h.load));
-                        let miss_col = if h.deadline_misses > 0 { Color32::from_rgb(230, 150, 40) } else { ui.visuals().text_color() };
-                        ui.colored_label(miss_col, format!("deadline misses {}", h.deadline_misses))
-                            .on_hover_text(
-                                "1 ms blocks finished more than 2 ms after their deadline. A few a minute on a \
-                                 virtual or busy machine are the machine's own late wake-ups: \
-                                 `kilotouch bench --paced 60` compares the engine with an idle thread.",
-                            );
-                        ui.label(format!("worst late {:.2} ms", 1e3 * h.worst_lateness_s.max(0.0)))
-                            .on_hover_text("largest lateness of a block past its deadline in the last 100 ms (0 = all on time)");
+                        deadline_ui(ui, h);
                         if h.telemetry_dropped > 0 {
                             ui.label(format!("telemetry dropped {}", h.telemetry_dropped));
                         }
@@ -671,23 +692,34 @@ impl KilotouchApp {
             ui.separator();
             ui.weak(format!("scene: {}", self.gpu_status));
         });
-        // Messages: errors stay until dismissed, others fade after 8 s.
+        // Messages: errors stay until dismissed, others fade after 8 s. One
+        // line of fixed height (the newest, the others behind "+N more"),
+        // so messages coming and going never move the page above.
         let now = Instant::now();
         self.notices
             .retain(|n| n.error || now.duration_since(n.at).as_secs_f64() < 8.0);
         let mut dismiss = None;
-        for (i, n) in self.notices.iter().enumerate().rev().take(3) {
-            ui.horizontal(|ui| {
-                if n.error {
-                    ui.colored_label(Color32::from_rgb(235, 80, 70), n.text.clone());
-                    if ui.small_button("dismiss").clicked() {
-                        dismiss = Some(i);
-                    }
-                } else {
-                    ui.label(&n.text);
+        let line_h = ui.text_style_height(&egui::TextStyle::Body) + 6.0;
+        let width = ui.available_width();
+        ui.allocate_ui_with_layout(
+            egui::vec2(width, line_h),
+            egui::Layout::left_to_right(egui::Align::Center),
+            |ui| {
+                ui.set_min_size(egui::vec2(width, line_h));
+                let newest = self.notices.len().checked_sub(1);
+                if let Some(i) = newest {
+                    notice_ui(ui, &self.notices[i], i, &mut dismiss, true);
                 }
-            });
-        }
+                if self.notices.len() > 1 {
+                    let label = format!("+{} more", self.notices.len() - 1);
+                    ui.menu_button(label, |ui| {
+                        for (i, n) in self.notices.iter().enumerate().rev().skip(1) {
+                            ui.horizontal(|ui| notice_ui(ui, n, i, &mut dismiss, false));
+                        }
+                    });
+                }
+            },
+        );
         if let Some(i) = dismiss {
             self.notices.remove(i);
         }
@@ -842,6 +874,113 @@ impl KilotouchApp {
         }
     }
 }
+
+/// What a chain swap did, in words.
+pub fn swap_words(o: crate::engine::splitter::SwapOutcome) -> &'static str {
+    use crate::engine::splitter::SwapOutcome;
+    match o {
+        SwapOutcome::Faded => {
+            "calibration applied to the engine: the forces cross-faded to the new compensation"
+        }
+        SwapOutcome::Replaced => {
+            "calibration applied to the engine: its filters took over, starting from rest"
+        }
+        SwapOutcome::WrongSampleRate => {
+            "calibration refused by the engine: it was made for another sample rate"
+        }
+    }
+}
+
+/// One notice: red with a dismiss button for an error, its repeat count.
+fn notice_ui(ui: &mut egui::Ui, n: &Notice, i: usize, dismiss: &mut Option<usize>, truncate: bool) {
+    let text = if n.count > 1 {
+        format!("{} (×{})", n.text, n.count)
+    } else {
+        n.text.clone()
+    };
+    let color = if n.error {
+        Color32::from_rgb(235, 80, 70)
+    } else {
+        ui.visuals().text_color()
+    };
+    if n.error && ui.small_button("dismiss").clicked() {
+        *dismiss = Some(i);
+    }
+    let label = egui::Label::new(RichText::new(text.clone()).color(color));
+    let label = if truncate { label.truncate() } else { label };
+    ui.add(label).on_hover_text(text);
+}
+
+/// Deadline misses in the status bar: the count, their share of the blocks
+/// and the worst lateness, coloured by what they mean, with the
+/// explanation and the check to run on hover.
+fn deadline_ui(ui: &mut egui::Ui, h: &crate::engine::Health) {
+    let share = if h.blocks > 0 {
+        h.deadline_misses as f64 / h.blocks as f64
+    } else {
+        0.0
+    };
+    let worst_ms = 1e3 * h.worst_lateness_total_s.max(0.0);
+    let col = match deadline_verdict(share, worst_ms) {
+        TimingVerdict::Clean => ui.visuals().text_color(),
+        TimingVerdict::MachineFloor => Color32::from_rgb(230, 150, 40),
+        TimingVerdict::Degraded => Color32::from_rgb(235, 80, 70),
+    };
+    ui.colored_label(
+        col,
+        format!(
+            "deadline misses {} ({:.1} ‰, worst {worst_ms:.0} ms) [?]",
+            h.deadline_misses,
+            1e3 * share
+        ),
+    )
+    .on_hover_text(DEADLINE_HELP);
+    ui.label(format!(
+        "worst late {:.2} ms",
+        1e3 * h.worst_lateness_s.max(0.0)
+    ))
+    .on_hover_text(
+        "largest lateness of a block past its deadline in the last 100 ms (0 = all on time)",
+    );
+}
+
+/// How the deadline misses of the running engine read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum TimingVerdict {
+    /// No block was late.
+    Clean,
+    /// Under 1 ‰ of the blocks late and none by more than 10 ms: the late
+    /// wake-ups of a busy or virtual machine.
+    MachineFloor,
+    /// More, or a block later than 10 ms: the forces were felt late.
+    Degraded,
+}
+
+fn deadline_verdict(share: f64, worst_ms: f64) -> TimingVerdict {
+    if share <= 0.0 {
+        TimingVerdict::Clean
+    } else if share < 1e-3 && worst_ms <= 10.0 {
+        TimingVerdict::MachineFloor
+    } else {
+        TimingVerdict::Degraded
+    }
+}
+
+/// The status bar's explanation of deadline misses (docs/GUI.md, "Deadline
+/// misses: what to do").
+const DEADLINE_HELP: &str = "A deadline miss is a 1 ms block of the loop that finished more \
+than 2 ms after its deadline. The simulation never skips a sample (a late block is caught up), \
+so the recorded samples are complete; what a miss changes is *when* the force reached the \
+hand: up to the worst lateness shown, late.\n\n\
+• none (grey): the timing is clean.\n\
+• orange: under 1 ‰ of the blocks, none later than 10 ms: the late wake-ups of a busy or \
+virtual machine; fine for exploring and dry runs.\n\
+• red: more, or a block later than 10 ms: the finger felt forces late. Do not run \
+participants on this machine as it is.\n\n\
+To qualify a lab PC, close other programs and run in a terminal:\n\
+    kilotouch bench --paced 60\n\
+It runs the engine for 60 s beside an idle reference thread; a machine fit for a study shows \
+(almost) no misses and no more than the reference. See docs/GUI.md, \"Deadline misses\".";
 
 impl eframe::App for KilotouchApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {

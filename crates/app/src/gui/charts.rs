@@ -559,6 +559,10 @@ pub fn bars_with_whiskers(
             }
         })
         .show(ui, |p| {
+            // Bars first, whiskers over them: a whisker's lower half lies
+            // inside its bar. Each whisker is a dark line under a light
+            // one, visible over the bar and over the background.
+            let mut whiskers = Vec::new();
             for (j, s) in series.iter().enumerate() {
                 let mut bars = Vec::new();
                 for (i, v) in s.values.iter().enumerate() {
@@ -570,15 +574,26 @@ pub fn bars_with_whiskers(
                     let fill = s.group_colors.get(i).copied().unwrap_or(s.color);
                     bars.push(Bar::new(x, mean).width(width * 0.9).fill(fill));
                     if let Some(pts) = sd.and_then(|sd| whisker(x, mean, sd, width * 0.2)) {
+                        whiskers.push(pts);
+                    }
+                }
+                p.bar_chart(BarChart::new(s.name.clone(), bars).color(s.color));
+            }
+            // Three separate segments (bottom cap, stem, top cap): a
+            // polyline that doubles back on itself draws spikes at the turns
+            // when it is wide.
+            for pts in whiskers {
+                let segments = [[pts[0], pts[1]], [pts[2], pts[3]], [pts[4], pts[5]]];
+                for (color, width) in [(Color32::from_gray(20), 3.0), (ui_text_color(), 1.4)] {
+                    for seg in segments {
                         p.line(
-                            Line::new("", PlotPoints::new(pts.to_vec()))
-                                .color(ui_text_color())
-                                .width(1.2)
+                            Line::new("", PlotPoints::new(seg.to_vec()))
+                                .color(color)
+                                .width(width)
                                 .allow_hover(false),
                         );
                     }
                 }
-                p.bar_chart(BarChart::new(s.name.clone(), bars).color(s.color));
             }
         });
 }

@@ -12,6 +12,7 @@ pub mod charts;
 pub mod env;
 pub mod pages;
 pub mod participant_screen;
+pub mod path_field;
 pub mod plot;
 pub mod scene;
 pub mod scene_wgpu;

@@ -12,7 +12,6 @@
 
 use egui_plot::{GridMark, Line, Plot, PlotPoints};
 use kilotouch_dsp::spectral::{Spectrum, WelchConfig, welch};
-use std::ops::RangeInclusive;
 
 /// Fixed-capacity ring of samples (the oldest is overwritten).
 #[derive(Debug, Clone)]
@@ -183,6 +182,130 @@ pub fn tick_label(mark: egui_plot::GridMark, _range: &std::ops::RangeInclusive<f
     format!("{v:.decimals$}")
 }
 
+/// An SI prefix and its factor for values up to `peak` in magnitude: the
+/// prefix (p … k) whose scaled peak lies in [1, 1000), e.g. 0.0032 N →
+/// (1000, "m"): 3.2 mN. Zero, tiny or non-finite peaks give no prefix.
+pub fn si_prefix(peak: f64) -> (f64, &'static str) {
+    const PREFIXES: [(i32, &str); 7] = [
+        (-12, "p"),
+        (-9, "n"),
+        (-6, "µ"),
+        (-3, "m"),
+        (0, ""),
+        (3, "k"),
+        (6, "M"),
+    ];
+    if !(peak.is_finite() && peak > 1e-15) {
+        return (1.0, "");
+    }
+    let e = (3.0 * (peak.log10() / 3.0).floor()).clamp(-12.0, 6.0) as i32;
+    let (e, p) = PREFIXES
+        .iter()
+        .copied()
+        .find(|(x, _)| *x == e)
+        .unwrap_or((0, ""));
+    (10f64.powi(-e), p)
+}
+
+/// A value with an SI prefix and 3 significant digits, e.g.
+/// `format_si(0.0312, "m/s²")` = "31.2 mm/s²".
+pub fn format_si(v: f64, unit: &str) -> String {
+    if !v.is_finite() {
+        return format!("– {unit}");
+    }
+    let (f, p) = si_prefix(v.abs());
+    let x = v * f;
+    let decimals = if x.abs() >= 100.0 {
+        0
+    } else if x.abs() >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{x:.decimals$} {p}{unit}")
+}
+
+/// The SI prefix of a live axis, with hysteresis: it changes only when the
+/// data's peak leaves [0.5, 2000) of the current unit, so a trace that
+/// hovers around 1 mN does not flip between "mN" and "µN" every frame.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct AxisScale {
+    current: Option<(f64, &'static str)>,
+}
+
+impl AxisScale {
+    /// Update with the data's peak magnitude; the factor to multiply the
+    /// values by and the prefix of their unit.
+    pub fn update(&mut self, peak: f64) -> (f64, &'static str) {
+        let keep = self.current.is_some_and(|(f, _)| {
+            !peak.is_finite() || peak <= 0.0 || (0.5..2000.0).contains(&(peak * f))
+        });
+        if !keep {
+            self.current = Some(si_prefix(peak));
+        }
+        self.current.unwrap_or((1.0, ""))
+    }
+}
+
+/// Grid marks on the 1-2-(2.5)-5 series spaced at least `min_px` screen points
+/// apart (egui_plot's default spacer steps by powers of ten only, so a
+/// ±0.5 range got ticks every 0.1 — too close to label — or only "0").
+/// When that leaves fewer than three marks in view (a short plot), the next
+/// smaller steps are taken down to `floor_px`, the spacing below which
+/// egui_plot would not label them. Every mark returned is far enough apart
+/// for egui_plot to label it.
+pub fn ticks_125(input: egui_plot::GridInput, min_px: f64, floor_px: f64) -> Vec<GridMark> {
+    // base_step_size is the value of egui_plot's 8-point minimum grid spacing.
+    let per_px = input.base_step_size / 8.0;
+    let (lo, hi) = input.bounds;
+    let want = per_px * min_px;
+    if !(want.is_finite() && want > 0.0 && lo.is_finite() && hi.is_finite() && hi > lo) {
+        return Vec::new();
+    }
+    let e = want.log10().floor();
+    let base = 10f64.powf(e);
+    // The 1-2-5 series with 2.5 (a short axis then keeps ±250 beside 0).
+    let series = [0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0];
+    let Some(mut k) = series.iter().position(|m| m * base >= want * (1.0 - 1e-9)) else {
+        return Vec::new();
+    };
+    let marks = |step: f64| -> Vec<GridMark> {
+        let first = (lo / step).ceil() as i64;
+        let last = (hi / step).floor() as i64;
+        if last < first || last - first > 1000 {
+            return Vec::new();
+        }
+        (first..=last)
+            .map(|j| GridMark {
+                value: j as f64 * step,
+                step_size: step,
+            })
+            .collect()
+    };
+    let mut out = marks(series[k] * base);
+    while out.len() < 3 && k > 0 && series[k - 1] * base >= per_px * floor_px * (1.0 + 1e-9) {
+        k -= 1;
+        out = marks(series[k] * base);
+    }
+    out
+}
+
+/// What an axis of a live plot showed: its label and the tick labels
+/// (read by the tests; egui_plot paints them as text, not as widgets).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct AxisReadout {
+    /// The axis label, e.g. "Pantograph force sent (mN)".
+    pub label: String,
+    /// The tick labels drawn, e.g. ["-2", "0", "2"].
+    pub ticks: Vec<String>,
+}
+
+/// Spacing of labelled ticks, screen points: wanted, and the least
+/// ([`ticks_125`]); egui_plot hides x labels closer than 60 pt and y labels
+/// closer than 20 pt.
+const X_TICK_PX: (f64, f64) = (80.0, 62.0);
+const Y_TICK_PX: (f64, f64) = (32.0, 21.0);
+
 /// Names of the live traces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Trace {
@@ -278,34 +401,63 @@ impl LiveTraces {
     }
 }
 
-/// Draw decimated traces (time axis: seconds before now) in one plot.
+/// Draw decimated traces (time axis: seconds before now) in one plot, the
+/// values in `unit` scaled by an SI prefix chosen by `scale` (e.g. N → mN);
+/// the y axis is labelled with the unit alone (the legend names the
+/// quantities: a long axis label ran into the next plot on a small
+/// window); `time_label`: label the time axis. Returns what the y axis
+/// showed.
+#[allow(clippy::too_many_arguments)]
 pub fn trace_plot(
     ui: &mut egui::Ui,
     id: &str,
     height: f32,
-    y_label: &str,
+    unit: &str,
+    scale: &mut AxisScale,
     series: &[(&str, egui::Color32, &[f32])],
     fs: f64,
-) {
+    time_label: bool,
+) -> AxisReadout {
     let columns = (ui.available_width().max(50.0) as usize).min(4000);
+    let peak = series
+        .iter()
+        .flat_map(|(_, _, s)| s.iter())
+        .filter(|v| v.is_finite())
+        .fold(0f64, |m, v| m.max(f64::from(v.abs())));
+    let (factor, prefix) = scale.update(peak);
     let lines: Vec<Line<'static>> = series
         .iter()
         .map(|(name, color, s)| {
             let t = s.len() as f64 / fs;
-            Line::new(
-                *name,
-                PlotPoints::from(envelope_points(s, columns, -t, 0.0)),
-            )
-            .color(*color)
-            .width(1.0)
+            let mut pts = envelope_points(s, columns, -t, 0.0);
+            for p in &mut pts {
+                p[1] *= factor;
+            }
+            Line::new(*name, PlotPoints::from(pts))
+                .color(*color)
+                .width(1.0)
         })
         .collect();
+    let label = format!("{prefix}{unit}");
+    let shown = std::cell::RefCell::new(Vec::new());
     Plot::new(id.to_owned())
         .height(height)
-        .y_axis_label(y_label.to_owned())
-        .y_axis_formatter(tick_label)
+        .y_axis_label(label.clone())
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
+        .y_axis_formatter(|m, r| {
+            let t = tick_label(m, r);
+            shown.borrow_mut().push(t.clone());
+            t
+        })
         .y_axis_min_width(44.0)
-        .x_axis_label("time (s)")
+        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
+        .x_axis_formatter(tick_label)
+        .x_axis_label(if time_label {
+            "time before now (s)"
+        } else {
+            ""
+        })
+        .include_y(0.0)
         .allow_scroll(false)
         .allow_drag(false)
         .allow_zoom(false)
@@ -315,16 +467,77 @@ pub fn trace_plot(
                 p.line(l);
             }
         });
+    AxisReadout {
+        label,
+        ticks: shown.into_inner(),
+    }
 }
 
-/// Draw a histogram (counts normalised to a probability density) over ±range.
-pub fn histogram_plot(ui: &mut egui::Ui, id: &str, height: f32, samples: &[f32], range: f32) {
-    let bins = 61;
-    let h = histogram(samples, -range, range, bins);
+/// Bins of a histogram of a quantised signal: `bins` bins over ±`range`,
+/// widened to an odd multiple k of the quantisation step `lsb` (when
+/// `lsb` > 0) and centred on its levels, so each bin holds exactly k
+/// levels. Equal-width bins that are not a multiple of the step hold one
+/// level or two depending on where they fall, which draws spikes that are
+/// not in the signal (the 14.5 mm/s² steps of the simulated accelerometer
+/// binned at ±0.5 m/s² / 61). Returns (first bin's lower edge, bin width,
+/// number of bins).
+pub fn quantised_bins(range: f64, bins: usize, lsb: f64) -> (f64, f64, usize) {
+    let bins = bins.max(1);
+    let w = 2.0 * range / bins as f64;
+    if !(lsb.is_finite() && lsb > 0.0 && w.is_finite() && w > 0.0) {
+        return (-range, w, bins);
+    }
+    let mut k = (w / lsb).round().max(1.0) as u64;
+    if k.is_multiple_of(2) {
+        k += 1;
+    }
+    let w = k as f64 * lsb;
+    // Bins centred on 0, ±w, ±2w … (level j·lsb falls into bin round(j/k);
+    // k odd puts no level on an edge).
+    let half = (range / w).ceil().max(1.0);
+    let n = 2 * half as usize + 1;
+    (-(half + 0.5) * w, w, n)
+}
+
+/// Standard deviation of the finite samples (population, 1/n), `None`
+/// below 2 samples.
+pub fn sd(samples: &[f32]) -> Option<f64> {
+    let (mut n, mut mean, mut m2) = (0f64, 0f64, 0f64);
+    for &v in samples {
+        if v.is_finite() {
+            // Welford's update.
+            n += 1.0;
+            let x = f64::from(v);
+            let d = x - mean;
+            mean += d / n;
+            m2 += d * (x - mean);
+        }
+    }
+    (n >= 2.0).then(|| (m2 / n).sqrt())
+}
+
+/// Draw a histogram of `samples` (unit `unit`, e.g. "m/s²") over ±`range`
+/// as a probability density, bins aligned with the quantisation step `lsb`
+/// ([`quantised_bins`]), the x axis with an SI prefix. Returns what the x
+/// axis showed.
+#[allow(clippy::too_many_arguments)]
+pub fn histogram_plot(
+    ui: &mut egui::Ui,
+    id: &str,
+    height: f32,
+    quantity: &str,
+    unit: &str,
+    samples: &[f32],
+    range: f32,
+    lsb: f64,
+) -> AxisReadout {
+    let (factor, prefix) = si_prefix(f64::from(range));
+    let (lo, w, bins) = quantised_bins(f64::from(range), 61, lsb);
+    let h = histogram(samples, lo as f32, (lo + w * bins as f64) as f32, bins);
     let total: u32 = h.iter().sum();
-    let w = 2.0 * f64::from(range) / bins as f64;
+    let wf = w * factor;
     let norm = if total > 0 {
-        1.0 / (f64::from(total) * w)
+        1.0 / (f64::from(total) * wf)
     } else {
         0.0
     };
@@ -332,28 +545,39 @@ pub fn histogram_plot(ui: &mut egui::Ui, id: &str, height: f32, samples: &[f32],
         .iter()
         .enumerate()
         .map(|(k, &c)| {
-            egui_plot::Bar::new(
-                -f64::from(range) + (k as f64 + 0.5) * w,
-                f64::from(c) * norm,
-            )
-            .width(w)
+            egui_plot::Bar::new((lo + (k as f64 + 0.5) * w) * factor, f64::from(c) * norm).width(wf)
         })
         .collect();
+    let label = format!("{quantity} ({prefix}{unit})");
+    let shown = std::cell::RefCell::new(Vec::new());
+    let r = f64::from(range) * factor;
     Plot::new(id.to_owned())
         .height(height)
-        .x_axis_label("tip acceleration x (m/s²)")
-        .x_axis_formatter(tick_label)
-        .y_axis_label("density (s²/m)")
+        .x_axis_label(label.clone())
+        .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
+        .x_axis_formatter(|m, rr| {
+            let t = tick_label(m, rr);
+            shown.borrow_mut().push(t.clone());
+            t
+        })
+        .y_axis_label("density")
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
+        .y_axis_formatter(tick_label)
+        .y_axis_min_width(44.0)
         .allow_scroll(false)
         .allow_drag(false)
         .allow_zoom(false)
-        .include_x(-f64::from(range))
-        .include_x(f64::from(range))
+        .include_x(-r)
+        .include_x(r)
         .show(ui, |p| {
             p.bar_chart(
                 egui_plot::BarChart::new("histogram", bars).color(egui::Color32::LIGHT_BLUE),
             );
         });
+    AxisReadout {
+        label,
+        ticks: shown.into_inner(),
+    }
 }
 
 /// Welch PSD of the last samples (periodic Hann, 50 % overlap, one-sided
@@ -369,17 +593,6 @@ pub fn spectrum(samples: &[f32], fs: f64, nperseg: usize) -> Option<Spectrum> {
     welch(&x, fs, &WelchConfig::new(nperseg)).ok()
 }
 
-fn log_tick(mark: GridMark, _range: &RangeInclusive<f64>) -> String {
-    let f = 10f64.powf(mark.value);
-    if f >= 1000.0 {
-        format!("{:.0}k", f / 1000.0)
-    } else if f >= 1.0 {
-        format!("{f:.0}")
-    } else {
-        format!("{f:.2}")
-    }
-}
-
 /// Draw a PSD on log axes: x = log10 f (ticks in Hz), y = 10 log10 PSD (dB).
 pub fn spectrum_plot(ui: &mut egui::Ui, id: &str, height: f32, spec: Option<&Spectrum>) {
     let pts: Vec<[f64; 2]> = spec
@@ -393,9 +606,13 @@ pub fn spectrum_plot(ui: &mut egui::Ui, id: &str, height: f32, spec: Option<&Spe
         .unwrap_or_default();
     Plot::new(id.to_owned())
         .height(height)
-        .x_axis_label("frequency (Hz, log)")
-        .y_axis_label("PSD (dB re 1 (m/s²)²/Hz)")
-        .x_axis_formatter(log_tick)
+        .x_axis_label("frequency (Hz)")
+        .y_axis_label("dB")
+        .x_grid_spacer(|i| crate::gui::charts::log_freq_marks(i.bounds))
+        .x_axis_formatter(|m, _| crate::gui::charts::log_freq_label(m.value))
+        .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
+        .y_axis_formatter(tick_label)
+        .y_axis_min_width(44.0)
         .allow_scroll(false)
         .allow_drag(false)
         .allow_zoom(false)
@@ -516,5 +733,155 @@ mod tests {
         let p: f64 = s.p.iter().sum::<f64>() * df;
         assert!((p - 0.5).abs() < 0.01, "{p}");
         assert!(spectrum(&x[..100], fs, 1024).is_none());
+    }
+
+    /// Gaussian samples (Box–Muller on the xorshift of [`noise`]).
+    fn gauss(n: usize, sigma: f64, seed: u64) -> Vec<f64> {
+        let mut s = seed | 1;
+        let mut u = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|_| {
+                let (a, b) = (u(), u());
+                sigma * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+            })
+            .collect()
+    }
+
+    /// Largest |count − expected| / √expected over the bins holding more
+    /// than 1 % of the samples, for quantised Gaussian noise (σ = 6 LSB,
+    /// the simulated accelerometer at rest) binned over ±0.5 (the page's
+    /// range) by `edges` = (first edge, width, bins).
+    fn worst_z(x: &[f32], sigma: f64, edges: (f64, f64, usize)) -> f64 {
+        let (lo, w, n) = edges;
+        let h = histogram(x, lo as f32, (lo + w * n as f64) as f32, n);
+        let cdf = |v: f64| 0.5 * (1.0 + libm_erf(v / (sigma * std::f64::consts::SQRT_2)));
+        let q = 1.4528e-2;
+        let mut worst: f64 = 0.0;
+        for (k, &c) in h.iter().enumerate() {
+            // Expected count: the probability of the quantised levels the
+            // bin holds (level j·q collects (j ± ½)·q).
+            let (a, b) = (lo + k as f64 * w, lo + (k + 1) as f64 * w);
+            let (ja, jb) = ((a / q).ceil() as i64, (b / q).ceil() as i64 - 1);
+            let p: f64 = (ja..=jb)
+                .filter(|j| (*j as f64) * q >= a && (*j as f64) * q < b)
+                .map(|j| cdf((j as f64 + 0.5) * q) - cdf((j as f64 - 0.5) * q))
+                .sum();
+            let e = p * x.len() as f64;
+            if e > 0.01 * x.len() as f64 {
+                // Against the smooth density the plot means to show.
+                let smooth = (cdf(b) - cdf(a)) * x.len() as f64;
+                worst = worst.max((f64::from(c) - smooth).abs() / smooth.sqrt());
+            }
+        }
+        worst
+    }
+
+    /// erf by Abramowitz & Stegun 7.1.26 (|error| < 1.5e-7).
+    fn libm_erf(x: f64) -> f64 {
+        let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
+        let y = 1.0
+            - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736)
+                * t
+                + 0.254_829_592)
+                * t
+                * (-x * x).exp();
+        if x < 0.0 { -y } else { y }
+    }
+
+    #[test]
+    fn quantised_bins_remove_the_spikes_of_equal_width_bins() {
+        // The simulated accelerometer: steps of q = 14.5 mm/s², noise
+        // σ = 86 mm/s² ≈ 6 q. 61 bins over ±0.5 m/s² are 1.13 q wide: most
+        // hold one level, some two, which draws spikes twice as high as
+        // their neighbours. Bins of an odd number of levels, centred on a
+        // level, follow the smooth density.
+        let q = 1.4528e-2;
+        let sigma = 0.0858;
+        let x: Vec<f32> = gauss(200_000, sigma, 7)
+            .iter()
+            .map(|v| ((v / q).round() * q) as f32)
+            .collect();
+        let naive = (-0.5, 1.0 / 61.0, 61);
+        let aligned = quantised_bins(0.5, 61, q);
+        let (z_naive, z_aligned) = (worst_z(&x, sigma, naive), worst_z(&x, sigma, aligned));
+        assert!(z_naive > 20.0, "equal-width bins: worst z {z_naive}");
+        assert!(z_aligned < 5.0, "aligned bins: worst z {z_aligned}");
+        // The aligned bins: odd multiples of q, centred on 0, covering ±0.5.
+        let (lo, w, n) = aligned;
+        let k = (w / q).round();
+        assert!(
+            (w / q - k).abs() < 1e-9 && k % 2.0 == 1.0,
+            "{w} = {} q",
+            w / q
+        );
+        assert!(
+            (lo + 0.5 * w * n as f64).abs() < 1e-12 && lo <= -0.5,
+            "{lo} {n}"
+        );
+        // Without a step: the plain bins.
+        assert_eq!(quantised_bins(0.5, 61, 0.0), (-0.5, 1.0 / 61.0, 61));
+    }
+
+    #[test]
+    fn si_prefixes_ticks_and_numbers() {
+        assert_eq!(si_prefix(0.0032), (1e3, "m"));
+        assert_eq!(si_prefix(3.2e-13).1, "p");
+        assert_eq!(si_prefix(0.0).1, "");
+        assert_eq!(si_prefix(f64::NAN).1, "");
+        assert_eq!(format_si(0.0312, "m/s²"), "31.2 mm/s²");
+        assert_eq!(format_si(0.1, "N"), "100 mN");
+        let mut a = AxisScale::default();
+        assert_eq!(a.update(0.002).1, "m");
+        // Within [0.5, 2000) of the unit: kept.
+        assert_eq!(a.update(0.0009).1, "m");
+        assert_eq!(a.update(0.0000009).1, "n");
+        // Ticks: 1-2-5 steps at least the spacing apart, all in range.
+        let marks = ticks_125(
+            egui_plot::GridInput {
+                bounds: (-0.5, 0.5),
+                // 400 points across: 1/400 per point, ×8.
+                base_step_size: 8.0 / 400.0,
+            },
+            80.0,
+            62.0,
+        );
+        let v: Vec<f64> = marks.iter().map(|m| m.value).collect();
+        assert_eq!(v, vec![-0.4, -0.2, 0.0, 0.2, 0.4]);
+        let labels: Vec<String> = marks
+            .iter()
+            .map(|m| tick_label(*m, &(-0.5..=0.5)))
+            .collect();
+        assert_eq!(labels, ["-0.4", "-0.2", "0", "0.2", "0.4"]);
+        // A short axis: ±450 over 130 points wants steps of 500 (only 0 in
+        // view); the next smaller steps still ≥ 21 points apart (250) are
+        // taken.
+        let short = ticks_125(
+            egui_plot::GridInput {
+                bounds: (-450.0, 450.0),
+                base_step_size: 8.0 * 900.0 / 130.0,
+            },
+            32.0,
+            21.0,
+        );
+        let v: Vec<f64> = short.iter().map(|m| m.value).collect();
+        assert_eq!(v, vec![-250.0, 0.0, 250.0]);
+        assert!(
+            ticks_125(
+                egui_plot::GridInput {
+                    bounds: (f64::NAN, 1.0),
+                    base_step_size: 0.1
+                },
+                80.0,
+                62.0
+            )
+            .is_empty()
+        );
+        assert_eq!(sd(&[1.0, 3.0, f32::NAN]), Some(1.0));
+        assert_eq!(sd(&[1.0]), None);
     }
 }

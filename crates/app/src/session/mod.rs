@@ -623,8 +623,8 @@ impl SessionHandle {
     }
 
     /// Ends the sitting (a `Stop` if it still runs), waits for the worker
-    /// and gives the engine back to free exploration: its driver, its
-    /// pacing and the chain it ran before. The remaining events are
+    /// and gives the engine back to free exploration, stopped: its driver,
+    /// its pacing and the chain it ran before. The remaining events are
     /// returned.
     pub fn close(mut self, engine: &mut EngineHandle) -> Vec<SessionEvent> {
         if self.is_alive() {
@@ -634,6 +634,9 @@ impl SessionHandle {
             let _ = t.join();
         }
         engine.free_exploration();
+        // Free exploration takes the loop back stopped: nothing arms itself
+        // after a sitting (Resume on the Rig page starts it).
+        let _ = engine.send(crate::engine::Command::Stop);
         if self.fast {
             engine.set_paced(true);
         }

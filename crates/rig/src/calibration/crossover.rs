@@ -189,7 +189,7 @@ pub fn choose_crossover(
             ctx.report(
                 step,
                 k as f64 / (n + 1) as f64,
-                &format!("{fc:.1} Hz: {p:.2} dB"),
+                &format!("trying f_c = {fc:.1} Hz: predicted deviation {p:.2} dB"),
             );
             if p <= c.budget_db {
                 chosen = Some((fc, p));

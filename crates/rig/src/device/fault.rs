@@ -57,6 +57,34 @@ pub enum RigFault {
     Disconnected,
 }
 
+impl RigFault {
+    /// What happened, in a researcher's words (no sequence numbers: the
+    /// GUI counts repeats of the same message).
+    pub fn describe(&self) -> &'static str {
+        match self {
+            RigFault::LostFrames { .. } => "the device lost samples from its stream",
+            RigFault::Overrun { .. } => "the computer stalled and samples were skipped",
+            RigFault::NonFiniteCommand { .. } => {
+                "an invalid (non-finite) force command was replaced by zero"
+            }
+            RigFault::ActuatorLimited { .. } => {
+                "a force command exceeded the actuator's limit and was clamped"
+            }
+            RigFault::SensorClipped { .. } => {
+                "the fingertip accelerometer saturated (acceleration beyond its range)"
+            }
+            RigFault::EndStop { .. } => "the Haptuator's magnet hit its end stop",
+            RigFault::WatchdogTripped { .. } => {
+                "the device's watchdog zeroed the outputs (commands came too late)"
+            }
+            RigFault::EmergencyStop { .. } => {
+                "the device's emergency stop was engaged and zeroed the outputs"
+            }
+            RigFault::Disconnected => "the device disconnected",
+        }
+    }
+}
+
 /// Fixed-capacity FIFO of faults (no allocation after creation; the oldest
 /// entry is dropped when full).
 #[derive(Debug, Clone)]

@@ -133,6 +133,13 @@ pub struct EmulatorConfig {
     /// command replaced by the previous one and flagged `CMD_LATE`
     /// (`false`: wait for the command, simulated time standing still).
     pub free_running: bool,
+    /// Clock speed: simulated seconds per wall-clock second (1 = real
+    /// time, the device's rate; 4 serves 40 000 samples per wall second
+    /// from a 10 kHz rig). The HELLO still announces the rig's rate, so a
+    /// host's loop, delays and time-outs in samples are those of the real
+    /// device; for benchmarks that need many sittings (`kilotouch bench
+    /// --hil`). Range 0.1 ..= 20.
+    pub speed: f64,
     /// Fault injection.
     pub faults: FaultInjection,
 }
@@ -143,6 +150,7 @@ impl Default for EmulatorConfig {
             watchdog: Duration::from_millis(100),
             batch: 10,
             free_running: false,
+            speed: 1.0,
             faults: FaultInjection::default(),
         }
     }
@@ -164,6 +172,13 @@ impl EmulatorConfig {
         };
         p("corrupt_rate", self.faults.corrupt_rate)?;
         p("drop_rate", self.faults.drop_rate)?;
+        if !(0.1..=20.0).contains(&self.speed) {
+            return Err(RigError::InvalidParameter {
+                name: "speed",
+                value: self.speed,
+                reason: "the emulator's clock speed must be in 0.1 ..= 20 (1 = real time)".into(),
+            });
+        }
         let wd = self.watchdog.as_secs_f64();
         if !(0.001..=60.0).contains(&wd) {
             return Err(RigError::InvalidParameter {
@@ -511,7 +526,10 @@ impl<I: Instrument> Emulator<I> {
 
     /// Wall time at which sample `seq` is due (end of its period).
     fn due_time(&self, seq: u64) -> Duration {
-        self.anchor_time + Duration::from_secs_f64((seq + 1 - self.anchor_seq) as f64 / self.fs)
+        self.anchor_time
+            + Duration::from_secs_f64(
+                (seq + 1 - self.anchor_seq) as f64 / (self.fs * self.cfg.speed),
+            )
     }
 
     /// One frame of a misbehaving device ([`Misbehaviour`]).
@@ -561,7 +579,7 @@ impl<I: Instrument> Emulator<I> {
             return Next::WakeAt(now + Misbehaviour::PERIOD);
         }
         let elapsed = now.saturating_sub(self.anchor_time).as_secs_f64();
-        let pos = self.anchor_seq + (elapsed * self.fs).floor() as u64;
+        let pos = self.anchor_seq + (elapsed * self.fs * self.cfg.speed).floor() as u64;
         let mut waiting = false;
         while self.next_seq < pos {
             let slot = (self.next_seq % COMMAND_RING as u64) as usize;
@@ -608,10 +626,19 @@ impl<I: Instrument> Emulator<I> {
         } else {
             self.flush_batch();
             // The watchdog window runs from the later of the last valid host
-            // frame and the moment the device ran out of commands.
-            let since = *self
-                .waiting_since
-                .get_or_insert(self.due_time(self.next_seq).min(now));
+            // frame and the moment the device ran out of commands: on its
+            // clock (the sample that is due without a command), unless the
+            // device is far behind its clock (the emulating process was
+            // descheduled: it ran the samples only now, so the host could
+            // not have answered them earlier) — then from now.
+            let ran_out = self.due_time(self.next_seq);
+            let since = *self.waiting_since.get_or_insert(
+                if now.saturating_sub(ran_out) > self.cfg.watchdog / 2 {
+                    now
+                } else {
+                    ran_out.min(now)
+                },
+            );
             let deadline = self.last_host.max(since) + self.cfg.watchdog;
             if now >= deadline {
                 // Watchdog: outputs safe, report, stop streaming.

@@ -133,14 +133,31 @@ pub fn serve_delayed<I: Instrument>(
     // Delayed output waiting to be written (partially written chunks).
     let mut pending: Vec<u8> = Vec::new();
     loop {
-        if stop.load(Ordering::Relaxed) {
-            return Ok(ServeEnd::Stopped);
-        }
         let now = clock.now();
+        // Everything the host has written so far, stamped `now`, before the
+        // device runs: a device that was busy (its participant preparing a
+        // trial) or descheduled must not trip its watchdog on host frames
+        // waiting unread in its input.
+        loop {
+            match master.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) if delay.is_zero() => emu.receive(&buf[..n], now),
+                Ok(n) => to_device.push(now + delay, &buf[..n]),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                // EIO: no slave open (cannot happen: we hold one).
+                Err(_) => break,
+            }
+        }
         while to_device.next_due().is_some_and(|t| t <= now) {
             if let Some((t, bytes)) = to_device.q.pop_front() {
                 emu.receive(&bytes, t);
             }
+        }
+        // Stopped after the host's last frames were taken in (a STOP the
+        // host sent before the emulator was stopped is obeyed).
+        if stop.load(Ordering::Relaxed) {
+            return Ok(ServeEnd::Stopped);
         }
         let wake = match emu.advance(now) {
             Next::Disconnect => return Ok(ServeEnd::Disconnect),
@@ -203,25 +220,10 @@ pub fn serve_delayed<I: Instrument>(
             flags |= PollFlags::POLLOUT;
         }
         let mut fds = [PollFd::new(pty.master.as_fd(), flags)];
+        // Input is read at the top of the loop.
         match poll(&mut fds, PollTimeout::from(ms)) {
             Ok(_) | Err(nix::Error::EINTR) => {}
             Err(e) => return Err(sys("poll", e)),
-        }
-        let readable = fds[0]
-            .revents()
-            .is_some_and(|r| r.intersects(PollFlags::POLLIN));
-        if readable {
-            loop {
-                match master.read(&mut buf) {
-                    Ok(0) => break,
-                    Ok(n) if delay.is_zero() => emu.receive(&buf[..n], clock.now()),
-                    Ok(n) => to_device.push(clock.now() + delay, &buf[..n]),
-                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                    Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                    // EIO: no slave open (cannot happen: we hold one).
-                    Err(_) => break,
-                }
-            }
         }
     }
 }

@@ -199,7 +199,10 @@ impl StabilityReport {
             .filter(|c| !c.meets_minimum)
             .map(|c| {
                 if !c.stable {
-                    format!("{} is unstable", c.condition)
+                    format!(
+                        "{} is unstable (phase margin {:.1}°, gain margin {:.1} dB)",
+                        c.condition, c.phase_margin_deg, c.gain_margin_db
+                    )
                 } else if c.gain_margin_db < self.min_gain_margin_db {
                     format!(
                         "{} has a gain margin of {:.1} dB (minimum {} dB)",

@@ -49,6 +49,7 @@ pub mod calibration;
 pub mod detector;
 pub mod drag;
 pub mod sim;
+pub mod spot;
 pub mod table;
 
 pub use applied::{AppliedTrap, TrapCalibrationRecord, check_applicable, check_loop_gain};
@@ -59,6 +60,7 @@ pub use drag::{
     perpendicular_mobility_ds, stokes_drag,
 };
 pub use sim::{CONTACT_EXACT_MARGIN_SD, SimTweezer};
+pub use spot::{KAPPA_BIAS_WARN, SurfaceDrag, surface_drag};
 pub use table::DRAG_TABLE_PIECES;
 
 use crate::config::TweezerConfig;

@@ -101,6 +101,10 @@ pub struct RecoveryRecord {
 }
 
 /// A journal record (`type` member of the line).
+// A sitting's opening record is the large one (protocol, orders, device);
+// records are read and written once per event, never on a hot path, so the
+// enum's size does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum Record {

@@ -49,13 +49,15 @@ mod raw;
 mod session;
 mod setup;
 mod sitting;
+mod state;
 mod trial;
 
 pub use crate::error::RunError;
 pub use config::RunnerConfig;
 pub use engine::TrialEngine;
 pub use raw::{NoRaw, RAW_CHANNELS, RawSink, raw_channels, raw_layout, with_scene};
-pub use session::{RunnerEvents, RunnerState, SessionRunner};
+pub use session::{RunnerEvents, SessionRunner};
 pub use setup::TrialSetup;
 pub use sitting::{Next, Resumed, SittingCore, StationFrame};
+pub use state::RunnerState;
 pub use trial::{TrialCore, TrialOutcome, trajectory_capacity};

@@ -21,8 +21,8 @@ use crate::rawsig::{Dtype, NpyWriter};
 use crate::seeds::{Phase, TrialKey};
 
 use super::raw::{raw_layout, with_scene};
-use super::session::RunnerState;
 use super::setup::TrialSetup;
+use super::state::RunnerState;
 use super::trial::TrialOutcome;
 
 /// What the trial side must do next.

@@ -30,6 +30,7 @@ use crate::gui::charts::{
 };
 use crate::gui::env::{AppliedCalibration, PageEnv, ShellRequest};
 use crate::gui::pages::rig::margins_ui;
+use crate::gui::path_field::{PathField, PathKind, TOML};
 use crate::gui::work::calibration::{CalibrationRun, RunEnd, StepProgress};
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_rig::RigConfig;
@@ -139,6 +140,32 @@ fn phase_deg(h: &[kilotouch_dsp::C64]) -> Vec<f64> {
     unwrap_phase_deg(&h.iter().map(|z| z.arg()).collect::<Vec<_>>())
 }
 
+/// The measured phase unwrapped along the model's, and the model's, in
+/// degrees at the bins `f_hz`: the model's phase unwrapped over the bins,
+/// plus the measured-minus-model difference wrapped into (−180°, 180°].
+/// Unwrapping the measurement on its own carried every 360° slip of its
+/// incoherent bins (the Haptuator hardly moves below ~50 Hz, so its phase
+/// there is noise) into the band above, where the curve then sat whole
+/// turns away from the model it matches within the fit's tolerance.
+pub fn phase_along_model(
+    f_hz: &[f64],
+    h: &[kilotouch_dsp::C64],
+    model: impl Fn(f64) -> kilotouch_dsp::C64,
+) -> (Vec<f64>, Vec<f64>) {
+    let m: Vec<kilotouch_dsp::C64> = f_hz.iter().map(|&f| model(f)).collect();
+    let model_deg = phase_deg(&m);
+    let meas = h
+        .iter()
+        .zip(&m)
+        .zip(&model_deg)
+        .map(|((hi, mi), md)| {
+            let d = (hi / mi).arg().to_degrees();
+            md + d
+        })
+        .collect();
+    (meas, model_deg)
+}
+
 /// Magnitude (dB), unwrapped phase (deg) and coherence curves of a measured
 /// FRF (empty for an FRF not in memory, e.g. a loaded file).
 fn measured_series(
@@ -188,11 +215,35 @@ fn build_plots(f: &CalibrationFile) -> Plots {
         log_points(&grid, &mag_db(&model)),
         SUM_COLOR,
     ));
-    high_phase.push(Series::dashed(
-        "fitted model Ĝ_H",
-        log_points(&grid, &phase_deg(&model)),
-        SUM_COLOR,
-    ));
+    if high_frf.f_hz.is_empty() {
+        high_phase.push(Series::dashed(
+            "fitted model Ĝ_H",
+            log_points(&grid, &phase_deg(&model)),
+            SUM_COLOR,
+        ));
+    } else {
+        // With a measurement, both phases on the measurement's bins, the
+        // measurement unwrapped along the model (phase_along_model).
+        let (meas, model_deg) =
+            phase_along_model(&high_frf.f_hz, &high_frf.h, |fr| f.high.response(fr));
+        let in_band: Vec<usize> = (0..high_frf.f_hz.len())
+            .filter(|&i| (a.f_min_hz..=a.f_max_hz).contains(&high_frf.f_hz[i]))
+            .collect();
+        let pick = |v: &[f64]| -> (Vec<f64>, Vec<f64>) {
+            in_band.iter().map(|&i| (high_frf.f_hz[i], v[i])).unzip()
+        };
+        high_phase = vec![Series::solid(
+            "measured H1",
+            log_points(&high_frf.f_hz, &meas),
+            HIGH_COLOR,
+        )];
+        let (fm, pm) = pick(&model_deg);
+        high_phase.push(Series::dashed(
+            "fitted model Ĝ_H",
+            log_points(&fm, &pm),
+            SUM_COLOR,
+        ));
+    }
     // Crossover L, H and L + H (magnitudes, dB).
     let xo_grid = log_grid(1.0, 0.45 * fs, 300);
     let mut crossover = Vec::new();
@@ -287,8 +338,21 @@ pub struct CalibrationPage {
     status: Option<Status>,
     save_path: String,
     load_path: String,
+    save_field: PathField,
+    load_field: PathField,
     overwrite: bool,
     apply_despite_fail: bool,
+}
+
+/// Where calibrations are saved unless the user chooses: the app's data
+/// folder (`~/.local/share/kilotouch/calibrations/` on Linux, the
+/// platform's application-data folder elsewhere, as eframe stores the
+/// settings), not the folder the app happened to be started from.
+pub fn default_calibration_path() -> PathBuf {
+    eframe::storage_dir("kilotouch")
+        .map(|d| d.join("calibrations"))
+        .unwrap_or_else(|| PathBuf::from("calibrations"))
+        .join("calibration.toml")
 }
 
 impl Default for CalibrationPage {
@@ -311,8 +375,10 @@ impl CalibrationPage {
             last_elapsed: None,
             shown: None,
             status: None,
-            save_path: "calibration.toml".into(),
-            load_path: "calibration.toml".into(),
+            save_path: default_calibration_path().display().to_string(),
+            load_path: default_calibration_path().display().to_string(),
+            save_field: PathField::default(),
+            load_field: PathField::default(),
             overwrite: false,
             apply_despite_fail: false,
         }
@@ -457,6 +523,13 @@ impl CalibrationPage {
                 "{} exists; tick \"overwrite\" to replace it",
                 path.display()
             )));
+            return;
+        }
+        if let Some(dir) = path.parent()
+            && !dir.as_os_str().is_empty()
+            && let Err(e) = std::fs::create_dir_all(dir)
+        {
+            self.status = Some(Status::Error(format!("cannot make {}: {e}", dir.display())));
             return;
         }
         match shown.file.save(&path) {
@@ -778,20 +851,21 @@ impl CalibrationPage {
         if let Some(step) = self.progress.current
             && !self.progress.message.is_empty()
         {
-            ui.label(format!("{}: {}", step.name(), self.progress.message));
+            ui.label(format!("{}: {}", step_title(step), self.progress.message));
         }
     }
 
     fn files_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
         let have = self.shown.is_some();
         ui.horizontal(|ui| {
-            let l = ui.label("Save to");
-            ui.add(
-                egui::TextEdit::singleline(&mut self.save_path)
-                    .hint_text("calibration file (.toml)")
-                    .desired_width(320.0),
-            )
-            .labelled_by(l.id);
+            self.save_field.ui(
+                ui,
+                "Save to",
+                &mut self.save_path,
+                PathKind::Save(TOML.0, TOML.1),
+                "calibration file (.toml)",
+                420.0,
+            );
             ui.checkbox(&mut self.overwrite, "overwrite");
             if ui
                 .add_enabled(have, egui::Button::new("Save calibration"))
@@ -801,13 +875,14 @@ impl CalibrationPage {
             }
         });
         ui.horizontal(|ui| {
-            let l = ui.label("Load from");
-            ui.add(
-                egui::TextEdit::singleline(&mut self.load_path)
-                    .hint_text("calibration file (.toml)")
-                    .desired_width(320.0),
-            )
-            .labelled_by(l.id);
+            self.load_field.ui(
+                ui,
+                "Load from",
+                &mut self.load_path,
+                PathKind::Open(TOML.0, TOML.1),
+                "calibration file (.toml)",
+                420.0,
+            );
             if ui
                 .add_enabled(!self.is_running(), egui::Button::new("Load calibration"))
                 .clicked()
@@ -873,7 +948,7 @@ impl CalibrationPage {
                          C_L = 1 N/N): the force rendered at low frequency is the same as without \
                          calibration; only the crossover's compensation changes.",
                     );
-                    margins_ui(ui, &lc.report, "cal-margins");
+                    margins_ui(ui, &lc.report, "cal-margins", None);
                 }
                 Err(e) => {
                     ui.colored_label(FAIL_COLOR, format!("cannot build the closed loop: {e}"));
@@ -913,27 +988,12 @@ impl CalibrationPage {
                     ui.label(val);
                     ui.end_row();
                 };
-                row(
-                    "crossover",
-                    format!(
-                        "LR{} at {:.1} Hz ({:?}; predicted max deviation {:.2} dB){}",
-                        f.crossover.order,
-                        f.crossover.fc_hz,
-                        f.crossover.rule,
-                        f.crossover.predicted_max_abs_dev_db,
-                        if f.crossover.over_budget {
-                            " — over budget"
-                        } else {
-                            ""
-                        }
-                    ),
-                );
+                row("crossover", crossover_words(f));
                 row(
                     "low channel",
                     format!(
                         "G0_L = {:.5} (m/s²)/N over the flat band {:.0}–{:.0} Hz; C_L uses \
-                         G0_L = {:.5} (m/s²)/N, the flat band below the crossover (the CLI's \
-                         `low_gain`)",
+                         G0_L = {:.5} (m/s²)/N, the flat band below the crossover",
                         f.low.g0, f.low.flat_band_hz[0], f.low.flat_band_hz[1], f.compensators.g0_l
                     ),
                 );
@@ -1032,6 +1092,42 @@ impl CalibrationPage {
     }
 }
 
+/// The crossover row: the frequency, how it was chosen, and the predicted
+/// deviation set against the design target — with the measured
+/// verification as the verdict, so an over-target prediction beside a
+/// passed verification does not read as a contradiction.
+fn crossover_words(f: &CalibrationFile) -> String {
+    let c = &f.crossover;
+    let how = match c.rule {
+        kilotouch_rig::calibration::crossover::CrossoverRule::Automatic => "chosen automatically",
+        kilotouch_rig::calibration::crossover::CrossoverRule::Override => "fixed by the settings",
+    };
+    let target = f.settings.crossover.budget_db;
+    let prediction = if c.over_budget {
+        format!(
+            "no frequency met the design target of {target} dB predicted deviation, so the one \
+             with the smallest was taken ({:.2} dB)",
+            c.predicted_max_abs_dev_db
+        )
+    } else {
+        format!(
+            "predicted deviation {:.2} dB (design target {target} dB)",
+            c.predicted_max_abs_dev_db
+        )
+    };
+    let v = &f.verification;
+    let verdict = format!(
+        "the measured verification is the verdict: {:.2} dB against ±{} dB, {}",
+        v.max_abs_dev_db,
+        v.tolerance_db,
+        if v.passed { "passed" } else { "failed" }
+    );
+    format!(
+        "LR{} at {:.1} Hz, {how}; {prediction}; {verdict}",
+        c.order, c.fc_hz
+    )
+}
+
 /// Polynomial coefficients, 4 significant digits.
 fn coefs(c: &[f64]) -> String {
     c.iter()
@@ -1065,6 +1161,80 @@ mod tests {
             assert!((a / b - 1.0).abs() < 1e-12);
         }
         assert_eq!(log_grid(1.0, 2.0, 0).len(), 2);
+    }
+
+    #[test]
+    fn measured_phase_follows_the_model_through_noisy_low_bins() {
+        use kilotouch_dsp::C64;
+        // A delay of 0.3 ms measured exactly above 50 Hz and as noise of
+        // random phase below: unwrapped alone, its slips below 50 Hz shift
+        // the whole curve by turns; along the model it equals the model
+        // wherever the measurement does.
+        let tau = 3e-4;
+        let f: Vec<f64> = (1..=1000).map(|k| f64::from(k) * 2.0).collect();
+        let model = |fr: f64| C64::from_polar(1.0, -std::f64::consts::TAU * fr * tau);
+        let h: Vec<C64> = f
+            .iter()
+            .enumerate()
+            .map(|(i, &fr)| {
+                if fr < 50.0 {
+                    // Phases jumping by ±170°: unwrap takes some as slips.
+                    C64::from_polar(1e-3, if i % 2 == 0 { 3.0 } else { -3.0 })
+                } else {
+                    model(fr)
+                }
+            })
+            .collect();
+        let (meas, model_deg) = phase_along_model(&f, &h, model);
+        let alone = phase_deg(&h);
+        for i in (0..f.len()).filter(|&i| f[i] >= 50.0) {
+            assert!((meas[i] - model_deg[i]).abs() < 1e-9, "{} Hz", f[i]);
+            assert!((model_deg[i] + 360.0 * f[i] * tau).abs() < 1e-9);
+        }
+        let i = f.len() - 1;
+        assert!(
+            (alone[i] - model_deg[i]).abs() > 180.0,
+            "the plain unwrap slips"
+        );
+    }
+
+    #[test]
+    fn on_the_simulated_rig_the_fit_follows_the_measured_phase_and_the_plain_unwrap_does_not() {
+        // The cause of the high-channel phase plot's mismatch: in the
+        // reliable band the measurement is within a few degrees of the
+        // fitted model once unwrapped along it (the fit is judged in
+        // magnitude and phase there), while the measurement unwrapped on its
+        // own from the lowest bin sits whole turns away.
+        let cfg = RigConfig::default();
+        let mut rig = RigAdapter::sim(&cfg, Some(1)).unwrap();
+        let flag = std::sync::atomic::AtomicBool::new(false);
+        let out = kilotouch_rig::calibration::calibrate(
+            &mut rig,
+            &CalibrationConfig::default(),
+            None,
+            &mut kilotouch_rig::calibration::NoProgress,
+            &flag,
+        )
+        .unwrap();
+        let file = out.file().unwrap();
+        let frf = &file.high.frf;
+        let (meas, model) = phase_along_model(&frf.f_hz, &frf.h, |f| file.high.response(f));
+        let alone = phase_deg(&frf.h);
+        let [lo, hi] = file.high.reliable_band_hz;
+        let band: Vec<usize> = (0..frf.f_hz.len())
+            .filter(|&i| frf.f_hz[i] >= lo && frf.f_hz[i] <= hi && frf.coherence[i] > 0.9)
+            .collect();
+        assert!(band.len() > 50, "{} bins in {lo}–{hi} Hz", band.len());
+        let worst_along = band
+            .iter()
+            .map(|&i| (meas[i] - model[i]).abs())
+            .fold(0.0, f64::max);
+        let worst_alone = band
+            .iter()
+            .map(|&i| (alone[i] - model[i]).abs())
+            .fold(0.0, f64::max);
+        assert!(worst_along < 20.0, "along the model: {worst_along}°");
+        assert!(worst_alone > 180.0, "unwrapped alone: {worst_alone}°");
     }
 
     #[test]

@@ -11,7 +11,7 @@
 
 use crate::engine::{Condition, EngineHandle, TelemetrySample, flags};
 use crate::gui::env::PageEnv;
-use crate::gui::plot::{self, LiveTraces, Trace};
+use crate::gui::plot::{self, AxisReadout, AxisScale, LiveTraces, Ring, Trace};
 use crate::gui::scene::{self, Camera, CameraModel, SceneFrame, Snapshot, View};
 use crate::gui::scene_wgpu::SceneCallback;
 use egui::{Color32, RichText, Sense};
@@ -28,6 +28,23 @@ pub enum Tool {
     Place,
     /// Click an obstacle to remove it.
     Remove,
+}
+
+/// What the Explore page's plots showed last frame: their axes and the
+/// agitation's standard deviations (egui_plot paints tick labels as text,
+/// so the tests read them here).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PlotReadouts {
+    /// Force trace, y axis.
+    pub force: AxisReadout,
+    /// Acceleration trace, y axis.
+    pub accel: AxisReadout,
+    /// Histogram, x axis.
+    pub histogram: AxisReadout,
+    /// SD of the tip acceleration x over the last second, m/s².
+    pub sd_now_m_s2: Option<f64>,
+    /// SD over the last second of samples without contact, m/s².
+    pub sd_free_m_s2: Option<f64>,
 }
 
 /// Half width of the scene, µm.
@@ -63,6 +80,20 @@ pub struct ExplorePage {
     spectrum: Option<Spectrum>,
     spectrum_age: f64,
     hist_range: f32,
+    /// Tip acceleration x of the last samples without contact (1 s), m/s²:
+    /// the free agitation the histogram's SD is compared with.
+    free_accel: Ring,
+    /// A Reset bead waiting for the trap to reach this clear spot (m), and
+    /// the frames waited.
+    pending_reset: Option<([f64; 2], u32)>,
+    /// Condition the free samples were taken in (cleared on a change).
+    free_condition: Option<Condition>,
+    /// The accelerometer's quantisation step, m/s² (histogram bins).
+    accel_lsb: f64,
+    force_scale: AxisScale,
+    accel_scale: AxisScale,
+    /// What the plots' axes showed last frame (tests read them).
+    readouts: PlotReadouts,
     /// Why the Pantograph force sent is zero (outputs held, condition V).
     force_note: Option<&'static str>,
     escapes: u64,
@@ -124,7 +155,14 @@ impl ExplorePage {
             hand_m: cfg.coupling.handle_origin_m,
             spectrum: None,
             spectrum_age: f64::INFINITY,
-            hist_range: 1.0,
+            hist_range: 0.0,
+            free_accel: Ring::new(fs.ceil().max(1.0) as usize),
+            free_condition: None,
+            pending_reset: None,
+            accel_lsb: cfg.accelerometer.lsb_m_s2,
+            force_scale: AxisScale::default(),
+            accel_scale: AxisScale::default(),
+            readouts: PlotReadouts::default(),
             force_note: None,
             escapes: 0,
             contacts: 0,
@@ -144,7 +182,53 @@ impl ExplorePage {
         self.obstacles = config_obstacles(cfg);
         self.hand_m = cfg.coupling.handle_origin_m;
         self.spectrum = None;
+        self.free_accel = Ring::new(fs.ceil().max(1.0) as usize);
+        self.accel_lsb = cfg.accelerometer.lsb_m_s2;
         self.fs = fs;
+    }
+
+    /// Reset bead: at once when the trap is clear of the obstacles;
+    /// otherwise the hand first moves the trap to the nearest spot clear of
+    /// them ([`clear_spot`]) and the reset follows when the telemetry shows
+    /// the trap there ([`Self::poll_reset`]): a bead put back inside an
+    /// obstacle would be pushed out of the trap at once.
+    fn reset_bead(&mut self, cfg: &RigConfig, e: &mut EngineHandle) {
+        let trap = self.last.map_or([0.0; 2], |s| s.trap_m);
+        let clearance = cfg.tweezer.radius_m + 0.5e-6;
+        match clear_spot(trap, &self.obstacles, clearance) {
+            None => {
+                let _ = e.send(crate::engine::Command::ResetBead);
+                self.pending_reset = None;
+            }
+            Some(spot) => {
+                let hand = Self::hand_for_trap(cfg, spot);
+                self.hand_m = hand;
+                e.set_hand(hand);
+                self.pending_reset = Some((spot, 0));
+            }
+        }
+    }
+
+    /// Send a deferred Reset bead once the trap has reached its clear spot
+    /// (within 0.2 µm), or after 3 s of frames at most.
+    fn poll_reset(&mut self, e: &mut EngineHandle) {
+        let Some((spot, frames)) = self.pending_reset else {
+            return;
+        };
+        let arrived = self
+            .last
+            .is_some_and(|s| (s.trap_m[0] - spot[0]).hypot(s.trap_m[1] - spot[1]) < 0.2e-6);
+        if arrived || frames > 180 {
+            let _ = e.send(crate::engine::Command::ResetBead);
+            self.pending_reset = None;
+        } else {
+            self.pending_reset = Some((spot, frames + 1));
+        }
+    }
+
+    /// What the plots showed last frame (axes, SD numbers).
+    pub fn readouts(&self) -> &PlotReadouts {
+        &self.readouts
     }
 
     /// Read all waiting telemetry (called by the shell every frame, whatever
@@ -155,6 +239,7 @@ impl ExplorePage {
         let camera = &mut self.camera;
         let last = &mut self.last;
         let (esc, con) = (&mut self.escapes, &mut self.contacts);
+        let free = &mut self.free_accel;
         #[cfg(feature = "audio")]
         let (playing, sound_buf) = (self.sound.monitor.is_some(), &mut self.sound.buf);
         let n = engine.drain_telemetry(|s| {
@@ -175,6 +260,9 @@ impl ExplorePage {
             }
             if s.has(flags::CONTACT_START) {
                 *con += 1;
+            }
+            if !s.has(flags::IN_CONTACT) {
+                free.push(s.accel_m_s2[0] as f32);
             }
             *last = Some(*s);
         });
@@ -251,6 +339,15 @@ impl ExplorePage {
         mut engine: Option<&mut EngineHandle>,
     ) {
         let cfg = env.rig_config;
+        if let Some(e) = engine.as_deref_mut() {
+            self.poll_reset(e);
+        }
+        let condition = engine.as_ref().map(|e| e.condition());
+        if condition != self.free_condition {
+            // The free agitation belongs to one condition.
+            self.free_accel.clear();
+            self.free_condition = condition;
+        }
         // ---------------------------------------------------------- controls
         ui.horizontal_wrapped(|ui| {
             ui.label(RichText::new("Condition").strong());
@@ -268,11 +365,22 @@ impl ExplorePage {
                     e.set_condition(c);
                 }
             }
-            // Fixed width: the toolbar wraps the same way in V, P and D, so
-            // the scene below does not jump when the condition changes.
+            // Fixed width, that of the longest description: the toolbar wraps
+            // the same way in V, P and D, so the scene below does not jump
+            // when the condition changes, and no description is cut.
             let desc = current.map(|c| c.description()).unwrap_or_default();
-            ui.add_sized([300.0, 18.0], egui::Label::new(desc).truncate())
-                .on_hover_text(desc);
+            let font = egui::TextStyle::Body.resolve(ui.style());
+            let width = Condition::ALL
+                .iter()
+                .map(|c| {
+                    ui.painter()
+                        .layout_no_wrap(c.description().to_owned(), font.clone(), Color32::WHITE)
+                        .size()
+                        .x
+                })
+                .fold(0.0, f32::max)
+                + 4.0;
+            ui.add_sized([width, 18.0], egui::Label::new(desc));
             ui.separator();
             ui.label(RichText::new("Tool").strong());
             ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
@@ -304,10 +412,16 @@ impl ExplorePage {
                 self.obstacles = config_obstacles(cfg);
                 self.push_obstacles(engine.as_deref_mut());
             }
-            if ui.button("Reset bead").clicked()
+            if ui
+                .button("Reset bead")
+                .on_hover_text(
+                    "put the bead back in the trap (the trap first moves off an obstacle it \
+                     sits over, else the bead would be pushed out at once)",
+                )
+                .clicked()
                 && let Some(e) = engine.as_deref_mut()
             {
-                let _ = e.send(crate::engine::Command::ResetBead);
+                self.reset_bead(cfg, e);
             }
         });
         ui.horizontal_wrapped(|ui| {
@@ -537,31 +651,39 @@ impl ExplorePage {
     fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
         let fs = self.traces.fs();
         let secs = self.trace_seconds;
-        let h = ((height - 40.0) / 3.0).max(80.0);
+        let h = ((height - 70.0) / 3.0).max(100.0);
         let fx = self.traces.last(Trace::ForceX, secs).to_vec();
         let fy = self.traces.last(Trace::ForceY, secs).to_vec();
         if let Some(n) = self.force_note {
             ui.colored_label(Color32::from_rgb(230, 150, 40), n);
         }
-        plot::trace_plot(
+        self.readouts.force = plot::trace_plot(
             ui,
             "force",
             h,
-            "Pantograph force sent (N)",
+            "N",
+            &mut self.force_scale,
             &[
-                ("x", Color32::from_rgb(90, 170, 255), &fx),
+                (
+                    "Pantograph force sent x",
+                    Color32::from_rgb(90, 170, 255),
+                    &fx,
+                ),
                 ("y", Color32::from_rgb(255, 150, 60), &fy),
             ],
             fs,
+            false,
         );
         let ax = self.traces.last(Trace::AccelX, secs).to_vec();
-        plot::trace_plot(
+        self.readouts.accel = plot::trace_plot(
             ui,
             "accel",
             h,
-            "tip accel. x (m/s²)",
-            &[("x", Color32::from_rgb(120, 220, 120), &ax)],
+            "m/s²",
+            &mut self.accel_scale,
+            &[("tip acceleration x", Color32::from_rgb(120, 220, 120), &ax)],
             fs,
+            true,
         );
         // Histogram of the last second; spectrum of the last ~1.6 s (5 Hz refresh).
         let hist = self.traces.last(Trace::AccelX, 1.0).to_vec();
@@ -569,11 +691,18 @@ impl ExplorePage {
             .iter()
             .filter(|v| v.is_finite())
             .fold(0f32, |m, v| m.max(v.abs()));
-        let want = plot::nice_range(peak);
+        // ±4 SD of the last second (the peak when it is all one value), so
+        // the distribution fills the plot instead of a sliver of ±peak.
+        let spread = plot::sd(&hist).map_or(peak, |sd| (4.0 * sd) as f32);
+        let want = plot::nice_range(if spread > 0.0 { spread } else { peak });
         // Hysteresis: widen at once, narrow only when 2.5× too wide.
         if want > self.hist_range || want * 2.5 < self.hist_range {
             self.hist_range = want;
         }
+        let mut free = Vec::new();
+        self.free_accel.last_into(self.free_accel.len(), &mut free);
+        self.readouts.sd_now_m_s2 = plot::sd(&hist);
+        self.readouts.sd_free_m_s2 = plot::sd(&free);
         let dt = f64::from(ui.input(|i| i.stable_dt));
         self.spectrum_age += dt;
         if self.spectrum_age > 0.2 {
@@ -582,11 +711,66 @@ impl ExplorePage {
             self.spectrum = plot::spectrum(&x, fs, 1024);
             self.spectrum_age = 0.0;
         }
+        let (lsb, range) = (self.accel_lsb, self.hist_range);
+        let (now, free_sd) = (self.readouts.sd_now_m_s2, self.readouts.sd_free_m_s2);
+        let mut hist_axis = AxisReadout::default();
         ui.columns(2, |c| {
-            plot::histogram_plot(&mut c[0], "hist", h, &hist, self.hist_range);
+            agitation_ui(&mut c[0], now, free_sd);
+            hist_axis = plot::histogram_plot(
+                &mut c[0],
+                "hist",
+                h,
+                "tip acceleration x",
+                "m/s²",
+                &hist,
+                range,
+                lsb,
+            );
+            c[1].add(egui::Label::new("acceleration spectrum, dB re 1 (m/s²)²/Hz").truncate());
             plot::spectrum_plot(&mut c[1], "spectrum", h, self.spectrum.as_ref());
         });
+        self.readouts.histogram = hist_axis;
     }
+}
+
+/// The agitation's standard deviation now and free, beside the histogram
+/// (the paper's Fig. 9 e/g: contact narrows the distribution).
+fn agitation_ui(ui: &mut egui::Ui, now: Option<f64>, free: Option<f64>) {
+    let fmt = |v: Option<f64>| v.map_or_else(|| "–".to_owned(), |v| plot::format_si(v, "m/s²"));
+    let ratio = match (now, free) {
+        (Some(n), Some(f)) if f > 0.0 => format!(" (now/free {:.2})", n / f),
+        _ => String::new(),
+    };
+    ui.add(egui::Label::new(format!("SD now {} · free {}", fmt(now), fmt(free))).truncate())
+        .on_hover_text(format!(
+            "standard deviation of the tip acceleration x{ratio}: now = the last second; free = \
+             the last second without contact (in this condition). Pressing against an obstacle \
+             narrows the agitation (the paper's Fig. 9 e/g)."
+        ));
+}
+
+/// The nearest spot to `trap` (m) whose distance to every obstacle's
+/// centre is at least its radius plus `clearance` (m), or `None` when
+/// `trap` is already such a spot: searched on rings around `trap` every
+/// 0.25 µm out to 50 µm, 64 directions each (the first clear point of the
+/// nearest ring), so clusters of touching obstacles are left too.
+pub fn clear_spot(trap: [f64; 2], obstacles: &[Obstacle], clearance: f64) -> Option<[f64; 2]> {
+    let clear = |p: [f64; 2]| {
+        obstacles
+            .iter()
+            .all(|o| (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]) >= o.radius_m + clearance)
+    };
+    if clear(trap) {
+        return None;
+    }
+    (1..=200).find_map(|k| {
+        let d = 0.25e-6 * f64::from(k);
+        (0..64).find_map(|j| {
+            let a = std::f64::consts::TAU * f64::from(j) / 64.0;
+            let p = [trap[0] + d * a.cos(), trap[1] + d * a.sin()];
+            clear(p).then_some(p)
+        })
+    })
 }
 
 /// The obstacles of a rig file.
@@ -599,4 +783,36 @@ pub fn config_obstacles(cfg: &RigConfig) -> Vec<Obstacle> {
             radius_m: o.radius_m,
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reset_spot_leaves_every_obstacle_with_the_clearance() {
+        let obs = [
+            Obstacle {
+                centre_m: [12e-6, 0.0],
+                radius_m: 5e-6,
+            },
+            // Touching the first one on its right.
+            Obstacle {
+                centre_m: [22e-6, 0.0],
+                radius_m: 5e-6,
+            },
+        ];
+        let c = 2e-6;
+        // Already clear: nothing to do.
+        assert_eq!(clear_spot([0.0, 0.0], &obs, c), None);
+        // Over the first obstacle, next to the second: out of both.
+        let p = clear_spot([13e-6, 0.0], &obs, c).unwrap();
+        for o in &obs {
+            let d = (p[0] - o.centre_m[0]).hypot(p[1] - o.centre_m[1]);
+            assert!(d >= o.radius_m + c, "{p:?} is {d} from {:?}", o.centre_m);
+        }
+        // At an obstacle's centre: the first direction (+x), just outside.
+        let q = clear_spot([12e-6, 0.0], &obs[..1], c).unwrap();
+        assert!((q[0] - 19.0e-6).abs() < 0.26e-6 && q[1] == 0.0, "{q:?}");
+    }
 }

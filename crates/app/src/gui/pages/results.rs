@@ -18,6 +18,7 @@
 
 use crate::gui::charts::{self, BarSeries, FAIL_COLOR, Trace, condition_color};
 use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::path_field::{PathField, PathKind};
 use crate::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, Trajectory,
     read_trajectory,
@@ -62,6 +63,7 @@ pub struct ResultsPage {
     traj_participant: String,
     traj_condition: String,
     traj: Traj,
+    folder_field: PathField,
 }
 
 impl Default for ResultsPage {
@@ -84,6 +86,7 @@ impl ResultsPage {
             traj_participant: String::new(),
             traj_condition: String::new(),
             traj: Traj::None,
+            folder_field: PathField::default(),
         }
     }
 
@@ -260,14 +263,15 @@ impl ResultsPage {
             .show(ui, |ui| {
                 ui.heading("Results");
                 ui.horizontal(|ui| {
-                    let l = ui.label("Study folder");
-                    ui.add(
-                        egui::TextEdit::singleline(&mut self.dir_text)
-                            .hint_text("study output folder")
-                            .desired_width(380.0),
-                    )
-                    .labelled_by(l.id);
-                    if ui.button("Open").clicked() {
+                    let r = self.folder_field.ui(
+                        ui,
+                        "Study folder",
+                        &mut self.dir_text,
+                        PathKind::Folder,
+                        "study output folder",
+                        380.0,
+                    );
+                    if ui.button("Open").clicked() || r.submitted || r.picked {
                         self.open(env);
                     }
                     if ui
@@ -597,15 +601,28 @@ fn stats_ui(ui: &mut egui::Ui, t: &StatsTable) {
         t.rows.sentence(),
         t.row_rule.describe()
     ));
-    // The table scrolls sideways inside the page's width, so a long note
-    // does not widen the page (and the panels below it) past the window.
-    egui::ScrollArea::horizontal()
+    // The table scrolls sideways inside the page's width if it must; the
+    // notes, which can be long, are footnotes under it (wrapped to the
+    // page), so no column is cut at any window width.
+    let notes = egui::ScrollArea::horizontal()
         .id_salt("res-stats-scroll")
-        .show(ui, |ui| stats_grid(ui, t));
+        .show(ui, |ui| stats_grid(ui, t))
+        .inner;
+    for (k, (note, failed)) in notes.iter().enumerate() {
+        let text = format!("[{}] {note}", k + 1);
+        if *failed {
+            ui.colored_label(FAIL_COLOR, text);
+        } else {
+            ui.label(text);
+        }
+    }
 }
 
-/// The statistics table of [`stats_ui`].
-fn stats_grid(ui: &mut egui::Ui, t: &StatsTable) {
+/// The statistics table of [`stats_ui`]; returns its notes (text, and
+/// whether it says why a test has no result), numbered [1], [2], … in the
+/// note column.
+fn stats_grid(ui: &mut egui::Ui, t: &StatsTable) -> Vec<(String, bool)> {
+    let mut notes: Vec<(String, bool)> = Vec::new();
     egui::Grid::new("res-stats")
         .striped(true)
         .num_columns(10)
@@ -654,12 +671,27 @@ fn stats_grid(ui: &mut egui::Ui, t: &StatsTable) {
                 } else {
                     String::new()
                 });
-                if r.statistic.is_none() && !r.note.is_empty() {
-                    ui.colored_label(FAIL_COLOR, r.note.as_str());
+                if !r.note.is_empty() {
+                    let failed = r.statistic.is_none();
+                    let k = match notes.iter().position(|(n, _)| *n == r.note) {
+                        Some(k) => k,
+                        None => {
+                            notes.push((r.note.clone(), failed));
+                            notes.len() - 1
+                        }
+                    };
+                    let mark = format!("[{}]", k + 1);
+                    if failed {
+                        ui.colored_label(FAIL_COLOR, mark)
+                    } else {
+                        ui.label(mark)
+                    }
+                    .on_hover_text(r.note.as_str());
                 } else {
-                    ui.label(r.note.as_str());
+                    ui.label("");
                 }
                 ui.end_row();
             }
         });
+    notes
 }

@@ -7,6 +7,8 @@
 use super::rig_tweezer::TweezerSection;
 use crate::engine::{EngineHandle, SafetyState};
 use crate::gui::env::PageEnv;
+use crate::gui::path_field::{PathField, PathKind, TOML};
+use crate::gui::plot::format_si;
 use egui::{Color32, RichText};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::stability::StabilityReport;
@@ -45,6 +47,7 @@ pub struct RigPage {
     pub path_text: String,
     /// The Tweezer section (trap calibration).
     pub tweezer: TweezerSection,
+    rig_file_field: PathField,
 }
 
 impl Default for RigPage {
@@ -60,6 +63,7 @@ impl RigPage {
             rig_text: "sim".to_owned(),
             path_text: String::new(),
             tweezer: TweezerSection::new(),
+            rig_file_field: PathField::default(),
         }
     }
 
@@ -163,13 +167,15 @@ impl RigPage {
             ui.group(|ui| {
                 ui.label(RichText::new("Rig file").strong());
                 ui.horizontal(|ui| {
-                    let edit = ui.add(
-                        egui::TextEdit::singleline(&mut self.path_text)
-                            .hint_text("built-in default (assets/rigs/default.toml)")
-                            .desired_width(420.0),
+                    let r = self.rig_file_field.ui(
+                        ui,
+                        "Rig file:",
+                        &mut self.path_text,
+                        PathKind::Open(TOML.0, TOML.1),
+                        "built-in default (assets/rigs/default.toml)",
+                        420.0,
                     );
-                    let enter = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
-                    if ui.button("Load").clicked() || enter {
+                    if ui.button("Load").clicked() || r.submitted || r.picked {
                         if self.path_text.trim().is_empty() {
                             actions.push(RigAction::UseDefault);
                         } else {
@@ -283,7 +289,12 @@ impl RigPage {
                     ui.label(RichText::new("Closed-loop stability").strong());
                     ui.label(format!("D chain: {}", h.chain_source().describe()));
                     match h.stability() {
-                        Some(r) => margins_ui(ui, r, "rig-margins"),
+                        Some(r) => margins_ui(
+                            ui,
+                            r,
+                            "rig-margins",
+                            env.trap_applied.map(|t| t.kappa_pn_um),
+                        ),
                         None => {
                             ui.label("not analysed (the loop was armed without the analysis)");
                         }
@@ -341,7 +352,7 @@ impl RigPage {
                                 }
                             });
                             if let Some(o) = h.last_swap() {
-                                ui.label(format!("last chain swap: {o:?}"));
+                                ui.label(crate::gui::app::swap_words(o));
                             }
                         }
                     }
@@ -350,6 +361,30 @@ impl RigPage {
         });
         actions
     }
+}
+
+/// A factor in scientific notation with a superscript exponent, e.g.
+/// 1.0·10¹¹.
+fn sci(x: f64) -> String {
+    if !(x.is_finite() && x > 0.0) {
+        return if x.is_infinite() {
+            "∞".into()
+        } else {
+            format!("{x}")
+        };
+    }
+    let e = x.log10().floor() as i32;
+    let m = x / 10f64.powi(e);
+    let sup: String = e
+        .to_string()
+        .chars()
+        .map(|c| match c {
+            '-' => '⁻',
+            d => ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹']
+                [d.to_digit(10).unwrap_or(0) as usize],
+        })
+        .collect();
+    format!("{m:.1}·10{sup}")
 }
 
 /// Green/red for a margin against its minimum.
@@ -374,7 +409,15 @@ fn fmt_or_inf(x: f64, unit: &str) -> String {
 /// The stability report as a table: per condition the worst-case gain and
 /// phase margins over the hand range and the free/pressed states, the
 /// verdict, and the critical values (Rig and Calibration pages).
-pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
+///
+/// `applied_kappa_pn_um`: the trap stiffness of an applied trap
+/// calibration, shown instead of the rig file's.
+pub fn margins_ui(
+    ui: &mut egui::Ui,
+    r: &StabilityReport,
+    id: &str,
+    applied_kappa_pn_um: Option<f64>,
+) {
     egui::Grid::new(id).striped(true).show(ui, |ui| {
         for h in ["", "gain margin", "phase margin", "verdict", "worst at"] {
             ui.label(RichText::new(h).strong());
@@ -426,18 +469,36 @@ pub fn margins_ui(ui: &mut egui::Ui, r: &StabilityReport, id: &str) {
             ),
             (
                 "trap stiffness",
+                match applied_kappa_pn_um {
+                    Some(k) => format!(
+                        "{k:.2} pN/µm from the applied trap calibration (the margins are for \
+                         the rig file's {:.2}; unstable above {})",
+                        r.trap_stiffness_pn_um,
+                        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                    ),
+                    None => format!(
+                        "{:.2} pN/µm, the rig file's (unstable above {})",
+                        r.trap_stiffness_pn_um,
+                        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                    ),
+                },
+            ),
+            (
+                "force scale",
                 format!(
-                    "{:.1} pN/µm (unstable: {})",
-                    r.trap_stiffness_pn_um,
-                    fmt_or_inf(r.critical_trap_stiffness_pn_um, "")
+                    "1 pN on the bead is felt as {} at the hand (×{})",
+                    format_si(1e-12 * r.force_scale, "N"),
+                    sci(r.force_scale)
                 ),
             ),
-            ("force scale", format!("{:.3e} N/N", r.force_scale)),
             (
-                "largest safe / unstable",
+                "largest safe force scale",
                 format!(
-                    "{:.3e} / {:.3e} N/N",
-                    r.max_force_scale, r.critical_force_scale
+                    "1 pN → {} (×{}); the loop is unstable from 1 pN → {} (×{})",
+                    format_si(1e-12 * r.max_force_scale, "N"),
+                    sci(r.max_force_scale),
+                    format_si(1e-12 * r.critical_force_scale, "N"),
+                    sci(r.critical_force_scale)
                 ),
             ),
             (

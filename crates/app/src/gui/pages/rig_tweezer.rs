@@ -434,10 +434,31 @@ fn rows(c: &TrapCalibration) -> Vec<(&'static str, String)> {
         ));
         r.push(("α", pm(al, c.alpha_se.unwrap_or(f64::NAN), 3)));
     }
-    r.push(("χ²/dof", format!("{:.3}", c.chi2_per_dof)));
-    r.push(("backing (%)", format!("{:.1}", c.backing_pct)));
+    r.push(("χ²/dof [?]", format!("{:.3}", c.chi2_per_dof)));
+    r.push(("fit backing (%) [?]", format!("{:.1}", c.backing_pct)));
     r.push(("points fitted", c.n_points.to_string()));
     r
+}
+
+/// What a value row means, for the rows a non-specialist cannot read.
+fn row_help(name: &str) -> Option<&'static str> {
+    if name.starts_with("fit backing") {
+        Some(
+            "Statistical backing of the fit (pylake's): the probability, in %, that a spectrum \
+             following the model exactly would fit it this badly or worse (χ² test on the \
+             blocked periodogram). It varies from record to record like any p-value: x and y \
+             at 46 % and 96 % both mean the model fits. Below 0.1 % the model does not \
+             describe the spectrum (a wrong fit range, a surface nearby, a noisy detector) and \
+             the calibration is refused.",
+        )
+    } else if name.starts_with("χ²/dof") {
+        Some(
+            "χ² per degree of freedom of the fit: about 1 when the model fits the spectrum to \
+             within its statistical scatter; accepted between 0.5 and 2.",
+        )
+    } else {
+        None
+    }
 }
 
 fn result_ui(
@@ -503,7 +524,10 @@ fn result_ui(
                 }
                 ui.end_row();
                 for ((name, vx), (_, vy)) in rows(&r.x).into_iter().zip(rows(&r.y)) {
-                    ui.label(name);
+                    let l = ui.label(name);
+                    if let Some(help) = row_help(name) {
+                        l.on_hover_text(help);
+                    }
                     ui.label(vx);
                     ui.label(vy);
                     ui.end_row();
