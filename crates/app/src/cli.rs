@@ -47,6 +47,9 @@ pub enum Command {
     /// Device emulators serving the serial protocol on a pseudo-terminal (for tests and firmware work).
     #[command(subcommand)]
     Emulate(commands::emulate::EmulateCommand),
+    /// The DAQ firmware's QEMU build: load its plant model, set its test options, read its costs.
+    #[command(subcommand)]
+    Firmware(commands::firmware::FirmwareCommand),
     /// Studies: simulated runs of a protocol.
     #[command(subcommand)]
     Study(commands::study::StudyCommand),
@@ -139,6 +142,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sim(c)) => commands::sim::run(&c),
         Some(Command::Bench(a)) => commands::bench::run(&a),
         Some(Command::Emulate(c)) => commands::emulate::run(&c),
+        Some(Command::Firmware(c)) => commands::firmware::run(&c),
         Some(Command::Study(c)) => commands::study::run(&c),
         Some(Command::Paper(a)) => commands::paper::run_cmd(&a),
         Some(Command::Tweezer(c)) => commands::tweezer::run(&c),

@@ -5,6 +5,7 @@ pub mod bench_hil;
 pub mod calibrate;
 pub mod crossover;
 pub mod emulate;
+pub mod firmware;
 pub mod frf;
 pub mod paper;
 pub mod progress;

@@ -89,6 +89,11 @@ pub mod ty {
     pub const FAULT: u8 = 0x84;
     /// Device → host: tweezer samples (block of [`crate::TweezerWireSample`]).
     pub const TWEEZER_SAMPLES: u8 = 0x85;
+    /// Host → device: a test frame ([`crate::testing`]); only test builds
+    /// (the firmware's QEMU build) act on it, others answer FAULT BAD_FRAME.
+    pub const TEST: u8 = 0x3F;
+    /// Device → host: the answer to a [`TEST`] frame ([`crate::testing::Ack`]).
+    pub const TEST_ACK: u8 = 0xBF;
 }
 
 /// Per-sample flag bits of device samples (`docs/PROTOCOL.md` §6.1).
@@ -127,6 +132,9 @@ pub mod fault {
     pub const LATE: u8 = 0x05;
     /// Commands received while idle (no START).
     pub const NOT_RUNNING: u8 = 0x06;
+    /// The emergency-stop input is engaged: outputs zeroed, device tripped
+    /// until it is released and the host sends START.
+    pub const ESTOP: u8 = 0x07;
 
     /// Human-readable name of a fault code.
     pub fn name(code: u8) -> &'static str {
@@ -137,6 +145,7 @@ pub mod fault {
             OVERFLOW => "command buffer overflow",
             LATE => "late command",
             NOT_RUNNING => "command while idle",
+            ESTOP => "emergency stop",
             _ => "unknown fault",
         }
     }

@@ -15,6 +15,8 @@
 //! * [`info`]: the host's optional information frames (trial, screen).
 //! * [`decoder`]: the resynchronising stream decoder with a fixed buffer.
 //! * [`seq`]: extension of the wire's 32-bit sequence numbers.
+//! * [`testing`]: test frames (plant model, late-command policy, simulated
+//!   emergency stop, fault injection, cost counters).
 
 #![no_std]
 
@@ -25,6 +27,7 @@ pub mod info;
 pub mod items;
 pub mod message;
 pub mod seq;
+pub mod testing;
 
 pub use decoder::{Decoder, DecoderStats, FrameRef};
 pub use frame::{

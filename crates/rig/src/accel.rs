@@ -121,6 +121,16 @@ impl Accelerometer {
         self.corner_hz
     }
 
+    /// The discrete pole per axis, α_i = e^{−2π f_i/f_s} (module docs).
+    pub fn alpha(&self) -> [f64; 3] {
+        self.alpha
+    }
+
+    /// Static acceleration (gravity) per axis, m/s².
+    pub fn offset_m_s2(&self) -> [f64; 3] {
+        self.offset
+    }
+
     /// White-noise density in the pass band, (m/s²)/√Hz.
     pub fn noise_density_m_s2_per_rthz(&self) -> f64 {
         self.noise_density

@@ -465,6 +465,9 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
                  outputs are held at zero"
                     .into()
             }
+            crate::device::LinkErrorKind::EmergencyStop => {
+                "the tweezer's emergency stop was engaged; outputs are held at zero".into()
+            }
         })
     }
 

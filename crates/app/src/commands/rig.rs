@@ -123,6 +123,9 @@ pub struct CheckArgs {
     /// Frames per block.
     #[arg(long, default_value_t = 100)]
     pub block: usize,
+    /// Stop after this many blocks (within --duration, which stays the hard bound).
+    #[arg(long)]
+    pub blocks: Option<u64>,
     /// Rig file of the simulated rig.
     #[arg(long)]
     pub rig_config: Option<PathBuf>,
@@ -158,6 +161,8 @@ pub struct CheckReport {
     pub firmware: String,
     /// Nominal sample rate, Hz.
     pub nominal_rate_hz: f64,
+    /// Blocks exchanged (`process_block` calls that returned).
+    pub blocks: u64,
     /// Frames exchanged (received + lost).
     pub frames: u64,
     /// Frames received.
@@ -234,6 +239,7 @@ impl CheckReport {
 /// Counters of a streaming run (kept when it ends in an error).
 #[derive(Debug, Clone, Copy, Default)]
 struct Streamed {
+    blocks: u64,
     frames: u64,
     lost: u64,
     elapsed_s: f64,
@@ -250,7 +256,12 @@ const STARTUP_S: f64 = 0.1;
 /// Stream zero commands through `rig` for `duration` s in blocks of
 /// `block`. The counters are returned with the error that ended the run,
 /// if one did.
-fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<anyhow::Error>) {
+fn stream(
+    rig: &mut dyn Rig,
+    duration: f64,
+    block: usize,
+    blocks: Option<u64>,
+) -> (Streamed, Option<anyhow::Error>) {
     let cmds = vec![ActuatorFrame::default(); block];
     let mut sens = vec![SensorFrame::default(); block];
     let mut s = Streamed::default();
@@ -263,13 +274,16 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
     let t0 = Instant::now();
     let mut error = None;
     let mut late_at_startup = None;
-    while t0.elapsed().as_secs_f64() < duration {
+    let mut done = 0u64;
+    while t0.elapsed().as_secs_f64() < duration && blocks.is_none_or(|n| done < n) {
+        done += 1;
         if late_at_startup.is_none() && t0.elapsed().as_secs_f64() >= STARTUP_S {
             late_at_startup = Some(rig.status().late_commands);
         }
         let tb = Instant::now();
         match rig.process_block(&cmds, &mut sens) {
             Ok(r) => {
+                s.blocks += 1;
                 s.frames += r.frames as u64;
                 s.lost += u64::from(r.lost_frames);
             }
@@ -327,6 +341,9 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
     if !(1..=65_536).contains(&a.block) {
         anyhow::bail!("--block must be in 1..=65536, got {}", a.block);
     }
+    if a.blocks == Some(0) {
+        anyhow::bail!("--blocks must be at least 1");
+    }
     for (name, v) in [
         ("--max-loss", a.max_loss),
         ("--max-crc-errors", a.max_crc_errors),
@@ -358,13 +375,14 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
             .saturating_sub(a.block as u32),
     ) * u64::from(rig.is_live());
     let round_trip_ms = rig.round_trip_s().map(|s| s * 1e3);
-    let (streamed, error) = stream(&mut rig, a.duration, a.block);
+    let (streamed, error) = stream(&mut rig, a.duration, a.block, a.blocks);
     let link = match rig.device() {
         Device::Serial(r) => r.link_stats(),
         _ => LinkStats::default(),
     };
     let id = rig.identity().clone();
     let Streamed {
+        blocks,
         frames,
         lost,
         elapsed_s,
@@ -383,6 +401,7 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         device: id.name,
         firmware: id.firmware,
         nominal_rate_hz: id.sample_rate_hz,
+        blocks,
         frames,
         received: frames - lost,
         lost,

@@ -48,6 +48,11 @@ pub enum RigFault {
         /// Sequence number.
         seq: u64,
     },
+    /// The device's emergency stop was engaged: outputs zeroed.
+    EmergencyStop {
+        /// Sequence number.
+        seq: u64,
+    },
     /// The device disconnected.
     Disconnected,
 }
@@ -71,6 +76,9 @@ impl RigFault {
             RigFault::EndStop { .. } => "the Haptuator's magnet hit its end stop",
             RigFault::WatchdogTripped { .. } => {
                 "the device's watchdog zeroed the outputs (commands came too late)"
+            }
+            RigFault::EmergencyStop { .. } => {
+                "the device's emergency stop was engaged and zeroed the outputs"
             }
             RigFault::Disconnected => "the device disconnected",
         }
@@ -246,4 +254,7 @@ pub enum LinkErrorKind {
     Disconnected,
     /// The device watchdog tripped (outputs safe until restarted).
     Watchdog,
+    /// The device's emergency stop was engaged (outputs safe; START is
+    /// refused until it is released).
+    EmergencyStop,
 }

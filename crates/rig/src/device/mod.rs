@@ -22,7 +22,8 @@
 //!   so it neither locks nor allocates; callback under-runs surface as
 //!   [`RigFault::Overrun`] and lost frames.
 //! * **Device watchdog.** A device that zeroes its outputs after missing
-//!   commands reports [`RigFault::WatchdogTripped`]; the rig enters
+//!   commands reports [`RigFault::WatchdogTripped`], one whose emergency
+//!   stop was engaged [`RigFault::EmergencyStop`]; the rig enters
 //!   [`RigState::Faulted`] until `start` is called again.
 //! * **Disconnects.** `process_block` returns [`RigError::Disconnected`] and
 //!   the state becomes [`RigState::Disconnected`].

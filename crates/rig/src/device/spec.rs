@@ -1,5 +1,5 @@
 //! `--rig` specifications: `sim`,
-//! `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]`, `audio[:DEVICE]`.
+//! `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N][,min-rate=PERCENT]`, `audio[:DEVICE]`.
 
 use crate::error::RigError;
 use crate::serial::{CommandLead, SerialConfig};
@@ -38,7 +38,7 @@ impl RigSpec {
 fn bad(spec: &str, why: impl std::fmt::Display) -> RigError {
     RigError::InvalidInput(format!(
         "--rig {spec}: {why} (expected `sim`, \
-         `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]` or `audio[:DEVICE]`)"
+         `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N][,min-rate=PERCENT]` or `audio[:DEVICE]`)"
     ))
 }
 
@@ -97,10 +97,16 @@ impl std::str::FromStr for RigSpec {
                 .map_err(|_| bad(s, format!("`{k}` needs a whole number, got `{v}`")))?;
             match k {
                 "baud" if (1..=u64::from(u32::MAX)).contains(&num) => cfg.baud = num as u32,
+                // The answers to HELLO and START are waited for as long
+                // (at least the default 2 s).
                 "timeout-ms" if (1..=60_000).contains(&num) => {
-                    cfg.timeout = Duration::from_millis(num)
+                    cfg.timeout = Duration::from_millis(num);
+                    cfg.handshake_timeout = cfg.handshake_timeout.max(cfg.timeout);
                 }
-                "baud" | "timeout-ms" => return Err(bad(s, format!("`{k}` = {num} out of range"))),
+                "min-rate" if num <= 100 => cfg.min_rate_fraction = num as f64 / 100.0,
+                "baud" | "timeout-ms" | "min-rate" => {
+                    return Err(bad(s, format!("`{k}` = {num} out of range")));
+                }
                 _ => return Err(bad(s, format!("unknown option `{k}`"))),
             }
         }
@@ -134,7 +140,19 @@ mod tests {
         };
         assert_eq!((c.path.as_str(), c.baud), ("/dev/pts/3", 921_600));
         assert_eq!(c.timeout, Duration::from_millis(40));
+        assert_eq!(c.handshake_timeout, Duration::from_secs(2));
         assert_eq!(c.lead, CommandLead::Auto);
+        // A long time-out covers the answers to HELLO and START too; the
+        // rate check's share is a percentage.
+        let RigSpec::Serial(c) = "serial:/dev/pts/3,timeout-ms=30000,min-rate=0"
+            .parse()
+            .unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!(c.timeout, Duration::from_secs(30));
+        assert_eq!(c.handshake_timeout, Duration::from_secs(30));
+        assert_eq!(c.min_rate_fraction, 0.0);
         let RigSpec::Serial(c) = "serial:/dev/pts/3,lead=0".parse().unwrap() else {
             panic!()
         };

@@ -42,6 +42,7 @@ pub mod axis_sim;
 pub mod kernel;
 pub mod modal;
 pub mod model;
+pub mod sections;
 
 pub use axis_sim::AxisSim;
 pub use model::AxisModel;

@@ -154,7 +154,9 @@ impl SlowInputs {
 /// eigenvalue (ascending), Λ block-diagonal with T⁻¹ΦT = Λ. `None` for
 /// repeated eigenvalues, an ill-conditioned basis (κ(T) ≥ 1e8) or a residual
 /// ‖ΦT − TΛ‖ above 1e-11 relative. Eigenvectors by inverse iteration.
-fn real_eigenbasis(phi: &DMatrix<f64>) -> Option<(DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
+pub(super) fn real_eigenbasis(
+    phi: &DMatrix<f64>,
+) -> Option<(DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
     use num_complex::Complex64 as C;
     let n = phi.nrows();
     let ev = lti::eigenvalues(phi);

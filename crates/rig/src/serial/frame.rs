@@ -13,7 +13,7 @@ pub use kilotouch_proto::{
     CRC16, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DecoderStats, DeviceKind, DeviceState,
     FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION, SYNC, Status, TRAILER,
     TrapCommand, TweezerCaps, TweezerWireSample, WireItem, block_header, block_item, fault, flag,
-    max_items, tweezer_status, ty, unwrap_seq,
+    max_items, testing, tweezer_status, ty, unwrap_seq,
 };
 
 /// Handshake answer (device → host, [`ty::HELLO`]): the owned form of

@@ -10,6 +10,8 @@
 //!   instrument ([`emulator::DaqInstrument`]).
 //! * [`pty`]: pseudo-terminal creation and the serving loop.
 //! * [`rig`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`rig::Link`].
+//! * [`test_link`]: the host side of test frames (the firmware's QEMU build:
+//!   plant model, late-command policy, e-stop, fault injection, cost).
 //! * [`tweezer_link`]: [`LinkTweezer`] ([`crate::Tweezer`]) and the tweezer
 //!   instrument.
 //! * [`watch`]: the host's watchdog on stream progress (new samples, not
@@ -19,6 +21,7 @@ pub mod emulator;
 pub mod frame;
 pub mod pty;
 pub mod rig;
+pub mod test_link;
 pub mod tweezer_link;
 pub mod watch;
 

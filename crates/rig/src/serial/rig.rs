@@ -61,6 +61,11 @@ pub struct SerialConfig {
     /// commands, the [`crate::Rig`] contract); a `--rig serial:…`
     /// specification leads automatically unless it says `lead=N`.
     pub lead: CommandLead,
+    /// The host watchdog's least rate, as a fraction of the device's
+    /// nominal rate ([`super::watch`]; `min-rate=PERCENT` in the spec; 0
+    /// turns the rate check off, e.g. for the firmware under QEMU, whose
+    /// clock is not real time).
+    pub min_rate_fraction: f64,
 }
 
 /// The command lead of a DAQ link: how many blocks of commands the host
@@ -108,6 +113,7 @@ impl SerialConfig {
             handshake_timeout: Duration::from_secs(2),
             rearm_after_idle_trip: false,
             lead: CommandLead::Blocks(0),
+            min_rate_fraction: super::watch::MIN_RATE_FRACTION,
         }
     }
 }
@@ -145,12 +151,26 @@ enum LinkErr {
     Stalled(Stall),
     /// I/O error or end of file.
     Io(std::io::Error),
-    /// The device's watchdog tripped (or it rejected commands as idle).
-    Watchdog {
+    /// The device tripped: its watchdog or its emergency stop zeroed the
+    /// outputs (or it rejected commands as idle).
+    Tripped {
         seq: u64,
         /// Samples of the block received before.
         received: bool,
+        /// What tripped it.
+        cause: Trip,
     },
+}
+
+/// What tripped a device, from the FAULT frame that reported it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Trip {
+    /// FAULT `WATCHDOG` (or `NOT_RUNNING`: it stopped without the host).
+    Watchdog,
+    /// FAULT `ESTOP`: the emergency-stop input was engaged.
+    EmergencyStop,
+    /// STATUS `tripped` without a FAULT naming the cause (it was lost).
+    Unknown,
 }
 
 /// Outcome of one exchange.
@@ -360,10 +380,32 @@ impl Link {
                 self.disconnected(&format!("{why}; outputs commanded to zero"))
             }
             LinkErr::Io(e) => self.disconnected(&format!("the device vanished ({e})")),
-            LinkErr::Watchdog { seq, .. } => RigError::Device(format!(
+            LinkErr::Tripped {
+                seq,
+                cause: Trip::Watchdog,
+                ..
+            } => RigError::Device(format!(
                 "{}: the device watchdog tripped at sample {seq} (no host frame within {} ms); \
                  outputs are zero, call start() to resume",
                 self.cfg.path, self.hello.watchdog_ms
+            )),
+            LinkErr::Tripped {
+                seq,
+                cause: Trip::EmergencyStop,
+                ..
+            } => RigError::Device(format!(
+                "{}: the emergency stop was engaged at sample {seq}; outputs are zero, \
+                 release the emergency stop, then call start() to resume",
+                self.cfg.path
+            )),
+            LinkErr::Tripped {
+                seq,
+                cause: Trip::Unknown,
+                ..
+            } => RigError::Device(format!(
+                "{}: the device tripped at sample {seq} (its watchdog or its emergency stop; \
+                 the FAULT frame naming which was lost); outputs are zero, call start() to resume",
+                self.cfg.path
             )),
         }
     }
@@ -427,12 +469,21 @@ impl Link {
                 }
                 if f.ty == frame::ty::FAULT
                     && let Some(fr) = frame::parse_fault(f.payload)
-                    && fr.code == fault::VERSION
                 {
-                    return Err(RigError::Device(format!(
-                        "{}: the device does not speak protocol version {PROTOCOL_VERSION}",
-                        self.cfg.path
-                    )));
+                    if fr.code == fault::VERSION {
+                        return Err(RigError::Device(format!(
+                            "{}: the device does not speak protocol version {PROTOCOL_VERSION}",
+                            self.cfg.path
+                        )));
+                    }
+                    // START refused: the device stays tripped.
+                    if fr.code == fault::ESTOP && want == frame::ty::STATUS {
+                        return Err(RigError::Device(format!(
+                            "{}: the device refuses to start: its emergency stop is engaged \
+                             (release it, then start again)",
+                            self.cfg.path
+                        )));
+                    }
                 }
             }
             let now = Instant::now();
@@ -698,9 +749,10 @@ impl Link {
                                 expected = to;
                             }
                             DeviceState::Tripped if next >= expected => {
-                                return Err(LinkErr::Watchdog {
+                                return Err(LinkErr::Tripped {
                                     seq: next,
                                     received: expected > first,
+                                    cause: Trip::Unknown,
                                 });
                             }
                             _ => {}
@@ -709,10 +761,11 @@ impl Link {
                     frame::ty::FAULT => {
                         seen.faults += 1;
                         stats.device_faults += 1;
-                        if let Some(seq) = watchdog_fault(f.payload, expected) {
-                            return Err(LinkErr::Watchdog {
+                        if let Some((seq, cause)) = trip_fault(f.payload, expected) {
+                            return Err(LinkErr::Tripped {
                                 seq,
                                 received: expected > first,
+                                cause,
                             });
                         }
                     }
@@ -726,8 +779,13 @@ impl Link {
                 at_progress = seen;
             }
             // The rate check on the time spent waiting for the device.
-            rate.add(now - last_tick, &seen.since(&at_tick), rate_hz)
-                .map_err(LinkErr::Stalled)?;
+            rate.add(
+                now - last_tick,
+                &seen.since(&at_tick),
+                rate_hz,
+                cfg.min_rate_fraction,
+            )
+            .map_err(LinkErr::Stalled)?;
             (last_tick, at_tick) = (now, seen);
             if expected >= end {
                 return Ok(ex);
@@ -766,13 +824,18 @@ impl Link {
     }
 }
 
-/// The sequence number of a FAULT frame that means the device stopped
-/// (its watchdog tripped at or after `expected`, or it is not running).
-fn watchdog_fault(payload: &[u8], expected: u64) -> Option<u64> {
+/// The sequence number and cause of a FAULT frame that means the device
+/// stopped: its watchdog or its emergency stop tripped it at or after
+/// `expected`, or it is not running.
+fn trip_fault(payload: &[u8], expected: u64) -> Option<(u64, Trip)> {
     let fr = frame::parse_fault(payload)?;
     let seq = frame::unwrap_seq(fr.seq, expected);
-    ((fr.code == fault::WATCHDOG && seq >= expected) || fr.code == fault::NOT_RUNNING)
-        .then_some(seq)
+    match fr.code {
+        fault::WATCHDOG if seq >= expected => Some((seq, Trip::Watchdog)),
+        fault::ESTOP if seq >= expected => Some((seq, Trip::EmergencyStop)),
+        fault::NOT_RUNNING => Some((seq, Trip::Watchdog)),
+        _ => None,
+    }
 }
 
 /// Wait up to `wait` for bytes on the port and feed them to the decoder
@@ -833,13 +896,19 @@ impl Link {
             self.flush_tx().map_err(|_| LinkErrorKind::Disconnected)?;
             match self.exchange::<S>(sample_ty, *first, cmds.len(), &mut sink) {
                 Ok(_) => return Ok(()),
-                Err(LinkErr::Watchdog {
-                    received: false, ..
+                Err(LinkErr::Tripped {
+                    received: false,
+                    cause: Trip::Watchdog | Trip::Unknown,
+                    ..
                 }) if self.cfg.rearm_after_idle_trip && !retried => {
                     retried = true;
                     *first = self.start().map_err(|_| LinkErrorKind::Disconnected)?;
                 }
-                Err(LinkErr::Watchdog { .. }) => return Err(LinkErrorKind::Watchdog),
+                Err(LinkErr::Tripped {
+                    cause: Trip::EmergencyStop,
+                    ..
+                }) => return Err(LinkErrorKind::EmergencyStop),
+                Err(LinkErr::Tripped { .. }) => return Err(LinkErrorKind::Watchdog),
                 Err(_) => return Err(LinkErrorKind::Disconnected),
             }
         }
@@ -1026,9 +1095,12 @@ impl SerialRig {
 
     fn fail(&mut self, e: LinkErr) -> RigError {
         match e {
-            LinkErr::Watchdog { seq, .. } => {
+            LinkErr::Tripped { seq, cause, .. } => {
                 self.state = RigState::Faulted;
-                self.counters.push(RigFault::WatchdogTripped { seq });
+                self.counters.push(match cause {
+                    Trip::EmergencyStop => RigFault::EmergencyStop { seq },
+                    Trip::Watchdog | Trip::Unknown => RigFault::WatchdogTripped { seq },
+                });
             }
             LinkErr::Stalled(_) | LinkErr::Io(_) => {
                 self.link.stop();
@@ -1108,7 +1180,7 @@ impl Rig for SerialRig {
             }
             RigState::Faulted => {
                 return Err(RigError::NotReady(
-                    "the device watchdog tripped: call start() to resume".into(),
+                    "the device tripped (its watchdog or its emergency stop): call start() to resume".into(),
                 ));
             }
             // Idle refuses in `open_block`.
@@ -1175,8 +1247,10 @@ impl Rig for SerialRig {
             }
             match r {
                 Ok(ex) => break ex,
-                Err(LinkErr::Watchdog {
-                    received: false, ..
+                Err(LinkErr::Tripped {
+                    received: false,
+                    cause: Trip::Watchdog | Trip::Unknown,
+                    ..
                 }) if self.link.config().rearm_after_idle_trip && !retried => {
                     retried = true;
                     self.counters.push(RigFault::WatchdogTripped { seq: s });

@@ -173,9 +173,15 @@ pub struct RateWindow {
 
 impl RateWindow {
     /// Adds `waited` (time inside an exchange) and what arrived in it;
-    /// when the window is full, judges it against `rate_hz` and opens a
-    /// new one.
-    pub fn add(&mut self, waited: Duration, seen: &Activity, rate_hz: u32) -> Result<(), Stall> {
+    /// when the window is full, judges it against `fraction` (normally
+    /// [`MIN_RATE_FRACTION`]) of `rate_hz` and opens a new one.
+    pub fn add(
+        &mut self,
+        waited: Duration,
+        seen: &Activity,
+        rate_hz: u32,
+        fraction: f64,
+    ) -> Result<(), Stall> {
         self.waited += waited;
         let a = &mut self.activity;
         a.frames += seen.frames;
@@ -189,7 +195,7 @@ impl RateWindow {
             return Ok(());
         }
         let secs = self.waited.as_secs_f64();
-        let required = (MIN_RATE_FRACTION * f64::from(rate_hz) * secs).floor();
+        let required = (fraction.clamp(0.0, 1.0) * f64::from(rate_hz) * secs).floor();
         // `required` ≤ 0.1 · u32::MAX · (window + one exchange), far below 2^53.
         let required = required as u64;
         let window = *self;
@@ -224,7 +230,10 @@ mod tests {
             new_samples: 5000,
             ..Activity::default()
         };
-        assert!(w.add(Duration::from_millis(500), &ok, 10_000).is_ok());
+        assert!(
+            w.add(Duration::from_millis(500), &ok, 10_000, MIN_RATE_FRACTION)
+                .is_ok()
+        );
         let trickle = Activity {
             frames: 400,
             status: 390,
@@ -232,7 +241,12 @@ mod tests {
             ..Activity::default()
         };
         let e = w
-            .add(Duration::from_millis(600), &trickle, 10_000)
+            .add(
+                Duration::from_millis(600),
+                &trickle,
+                10_000,
+                MIN_RATE_FRACTION,
+            )
             .unwrap_err();
         let text = e.to_string();
         assert!(
