@@ -475,6 +475,14 @@ impl SafetyConfig {
                 v.push((k, x, format!("must be finite and > 0 (got {x})")));
             }
         }
+        let n = self.force_norm_max_n;
+        if n.is_finite() && n > MAX_ACTUATOR_LIMIT {
+            v.push((
+                "force_norm_max_n",
+                n,
+                format!("must be at most {MAX_ACTUATOR_LIMIT:e} N (got {n:e})"),
+            ));
+        }
         let r = self.ramp_time_s;
         if !(r.is_finite() && (0.0..=3600.0).contains(&r)) {
             v.push((
@@ -657,6 +665,11 @@ pub const MAX_STIFFNESS_N_PER_M: f64 = 1e10;
 pub const MAX_DAMPING_N_S_PER_M: f64 = 1e6;
 /// Most obstacles in a tweezer scene.
 pub const MAX_OBSTACLES: usize = 1_000;
+/// Largest actuator limit of a rig file (Pantograph force per axis and
+/// norm, N; Haptuator drive, V): squares of limited values cannot
+/// overflow, and every command builds its safety limits from the same
+/// bound ([`crate::safety::HardLimits::new`]).
+pub const MAX_ACTUATOR_LIMIT: f64 = 1e6;
 
 /// A problem unless `x` is finite and ≥ 0.
 fn non_negative(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64) {
@@ -960,6 +973,20 @@ impl LimitsConfig {
             "haptuator_drive_max_v",
             self.haptuator_drive_max_v,
             "drive limit",
+        );
+        at_most(
+            &mut v,
+            "pantograph_force_max_n",
+            self.pantograph_force_max_n,
+            MAX_ACTUATOR_LIMIT,
+            "N",
+        );
+        at_most(
+            &mut v,
+            "haptuator_drive_max_v",
+            self.haptuator_drive_max_v,
+            MAX_ACTUATOR_LIMIT,
+            "V",
         );
         v
     }

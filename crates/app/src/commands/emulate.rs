@@ -68,6 +68,14 @@ pub struct Args {
     /// host's progress watchdog).
     #[arg(long, value_enum)]
     pub misbehave: Option<MisbehaveArg>,
+    /// Test device: set every flag bit (clipped, limited, end stop,
+    /// non-finite, late command, watchdog) on every sample.
+    #[arg(long)]
+    pub flag_every_sample: bool,
+    /// Test device: stream this many times faster than the sample rate
+    /// announced in HELLO (0.01 to 100).
+    #[arg(long, value_name = "FACTOR")]
+    pub speedup: Option<f64>,
 }
 
 /// `--misbehave` modes (see [`Misbehaviour`]).
@@ -115,6 +123,18 @@ impl Args {
                 disconnect_after: secs("disconnect-after-s", self.disconnect_after_s)?,
                 seed: self.seed.unwrap_or(0),
                 misbehave: self.misbehave.map(Misbehaviour::from),
+                sample_flags: if self.flag_every_sample {
+                    use kilotouch_rig::serial::frame::flag;
+                    flag::CLIPPED
+                        | flag::LIMITED
+                        | flag::END_STOP
+                        | flag::NONFINITE
+                        | flag::CMD_LATE
+                        | flag::WATCHDOG
+                } else {
+                    0
+                },
+                speedup: self.speedup,
             },
         };
         cfg.validate()?;

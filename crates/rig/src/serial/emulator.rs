@@ -114,6 +114,13 @@ pub struct FaultInjection {
     pub seed: u64,
     /// Stream valid frames that never advance the sample stream.
     pub misbehave: Option<Misbehaviour>,
+    /// Flag bits ([`flag`]) set on every sample: a device that reports a
+    /// fault (or a late command, or its watchdog) on everything it sends.
+    pub sample_flags: u8,
+    /// Stream this many times faster than the HELLO's sample rate (`None`:
+    /// at the HELLO rate): a device whose clock disagrees with what it
+    /// announces.
+    pub speedup: Option<f64>,
 }
 
 /// Emulator settings.
@@ -153,6 +160,15 @@ impl EmulatorConfig {
             }
         };
         p("corrupt_rate", self.faults.corrupt_rate)?;
+        if let Some(x) = self.faults.speedup
+            && !(x.is_finite() && (0.01..=100.0).contains(&x))
+        {
+            return Err(RigError::InvalidParameter {
+                name: "speedup",
+                value: x,
+                reason: "must be in 0.01 ..= 100".into(),
+            });
+        }
         p("drop_rate", self.faults.drop_rate)?;
         let wd = self.watchdog.as_secs_f64();
         if !(0.001..=60.0).contains(&wd) {
@@ -245,7 +261,7 @@ impl<I: Instrument> Emulator<I> {
         let mut hello = inst.hello();
         hello.watchdog_ms = cfg.watchdog.as_millis().min(u128::from(u16::MAX)) as u16;
         hello.batch = cfg.batch as u8;
-        let fs = f64::from(hello.sample_rate_hz);
+        let fs = f64::from(hello.sample_rate_hz) * cfg.faults.speedup.unwrap_or(1.0);
         if fs.is_nan() || fs <= 0.0 {
             return Err(RigError::InvalidParameter {
                 name: "sample_rate_hz",
@@ -564,7 +580,7 @@ impl<I: Instrument> Emulator<I> {
             if self.batch.is_empty() {
                 self.batch_seq = self.next_seq;
             }
-            let s = self.inst.step(&cmd, 0);
+            let s = self.inst.step(&cmd, self.cfg.faults.sample_flags);
             self.applied = cmd;
             self.batch.push(s);
             self.next_seq += 1;

@@ -15,6 +15,7 @@
 //! * [`watch`]: the host's watchdog on stream progress (new samples, not
 //!   frames).
 
+pub mod announce;
 pub mod emulator;
 pub mod frame;
 pub mod pty;
