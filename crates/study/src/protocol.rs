@@ -491,7 +491,8 @@ impl Protocol {
             return Err(invalid(
                 "tolerances.contact_gap_um",
                 format!(
-                    "must be a distance in [0, {SCENE_REACH_UM}] µm (the scene's reach), got {gap}"
+                    "must be a non-negative distance of at most {SCENE_REACH_UM} µm (the \
+                     scene's reach), got {gap}"
                 ),
             ));
         }

@@ -4,7 +4,7 @@
 //! or accepts, and what it accepts is accepted by everything downstream:
 //! an accepted protocol plans, counterbalances, hashes and draws scenes
 //! that fit the scene's reach; an accepted rig file builds the chain, the
-//! stability analysis, the simulated rig and the safety limits (so no
+//! designed chain, the simulated rig and the safety limits (so no
 //! command refuses later what the loader let through: `rig margins` and
 //! `sim press` agree).
 //!
@@ -137,11 +137,10 @@ proptest! {
                 return Ok(());
             }
         };
-        // What `rig margins` builds …
+        // What `rig margins` builds (its stability analysis costs seconds:
+        // the command-level test covers it) …
         let chain = LoopChain::as_designed(&cfg);
         prop_assert!(chain.is_ok(), "chain: {:?}", chain.err());
-        let report = kilotouch_rig::stability::analyse(&cfg, &chain.unwrap().coefficients);
-        prop_assert!(report.is_ok(), "analysis: {:?}", report.err());
         // … and what `sim press`, `rig check --rig sim` and the engine build.
         let rig = SimRig::new(&cfg);
         prop_assert!(rig.is_ok(), "simulated rig: {:?}", rig.err());

@@ -34,7 +34,7 @@ fn value() -> impl Strategy<Value = f64> {
         4 => (0_i32..5).prop_map(f64::from),
         4 => -1e3_f64..1e3,
         1 => prop_oneof![Just(1e308), Just(-1e308), Just(1.7e308), Just(5e-324), Just(1e-308)],
-        1 => (-1e300_f64..1e300),
+        1 => -1e300_f64..1e300,
         1 => any::<f64>(),
     ]
 }

@@ -356,7 +356,7 @@ fn verdict(r: &CheckReport) -> Option<String> {
     }
     if r.frames > 0 && r.nominal_rate_hz > 0.0 {
         let off = r.rate_hz / r.nominal_rate_hz - 1.0;
-        if !(off.abs() <= r.rate_tolerance) {
+        if off.is_nan() || off.abs() > r.rate_tolerance {
             why.push(format!(
                 "measured rate {:.1} Hz is {:+.1} % off the nominal {:.0} Hz the device \
                  announced, limit ±{:.1} % (--rate-tolerance)",
