@@ -686,6 +686,8 @@ pub const MIN_SAMPLE_RATE_HZ: f64 = 100.0;
 /// Smallest mass of the plant model, kg (1 µg: below it the plant's
 /// state matrices overflow).
 pub const MIN_MASS_KG: f64 = 1e-9;
+/// Smallest stiffness of the plant model, N/m.
+pub const MIN_STIFFNESS_N_PER_M: f64 = 1e-3;
 /// Largest mass of the plant model, kg.
 pub const MAX_MASS_KG: f64 = 1e3;
 /// Largest stiffness of the plant model, N/m.
@@ -777,6 +779,7 @@ impl PlantConfig {
         ] {
             positive(&mut v, k, x, "stiffness");
             at_most(&mut v, k, x, MAX_STIFFNESS_N_PER_M, "N/m");
+            at_least(&mut v, k, x, MIN_STIFFNESS_N_PER_M, "N/m");
         }
         for (k, x) in [
             ("b_v", self.b_v),
@@ -804,6 +807,13 @@ impl BranchConfig {
             "stiffness",
             self.stiffness,
             MAX_STIFFNESS_N_PER_M,
+            "N/m",
+        );
+        at_least(
+            &mut v,
+            "stiffness",
+            self.stiffness,
+            MIN_STIFFNESS_N_PER_M,
             "N/m",
         );
         non_negative(&mut v, "damping", self.damping);
@@ -853,6 +863,13 @@ impl HaptuatorConfig {
             1e3,
             "N/V",
         );
+        at_least(
+            &mut v,
+            "drive_gain_n_per_v",
+            self.drive_gain_n_per_v,
+            1e-6,
+            "N/V",
+        );
         at_least(&mut v, "drive_corner_hz", self.drive_corner_hz, 1e-3, "Hz");
         at_most(&mut v, "stroke_m", self.stroke_m, 1.0, "m");
         at_least(&mut v, "stroke_m", self.stroke_m, 1e-9, "m");
@@ -898,10 +915,10 @@ impl AccelerometerConfig {
         if fs.is_finite() && fs > 0.0 {
             let nyq = 0.5 * fs;
             for (i, fc) in self.corner_hz.iter().enumerate() {
-                if !(fc.is_finite() && *fc > 0.0 && *fc < nyq) {
+                if !(fc.is_finite() && *fc >= 1e-3 && *fc < nyq) {
                     v.push((
                         "corner_hz",
-                        format!("axis {i}: corner must be in (0, {nyq}) Hz, got {fc}"),
+                        format!("axis {i}: corner must be in [0.001, {nyq}) Hz, got {fc}"),
                     ));
                 }
             }
