@@ -1,6 +1,7 @@
 //! One module per headless command.
 
 pub mod bench;
+pub mod bench_hil;
 pub mod calibrate;
 pub mod crossover;
 pub mod emulate;
@@ -13,5 +14,6 @@ pub mod sim;
 pub mod stats;
 pub mod study;
 pub mod study_power;
+pub mod study_run;
 pub mod tfest;
 pub mod tweezer;

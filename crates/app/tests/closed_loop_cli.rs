@@ -168,3 +168,60 @@ fn an_unsafe_setting_is_reported_and_refused() {
     ]));
     assert!(v["stable"].is_boolean());
 }
+
+/// `rig margins --latency-ms 3 --json`: the same report for a loop with
+/// 3 ms (30 samples at 10 kHz) of extra delay. Every key of the plain
+/// report is kept; D's phase margin is lower by the phase of the delay at
+/// its gain crossover, 360°·f_c·d/f_s (the delay leaves |L| and so the
+/// crossover alone); bad values are refused naming the option.
+#[test]
+fn margins_with_an_extra_loop_delay() {
+    let v0 = json(&kilotouch(&["rig", "margins", "--json"]));
+    let v3 = json(&kilotouch(&[
+        "rig",
+        "margins",
+        "--latency-ms",
+        "3",
+        "--json",
+    ]));
+    let keys = |v: &Value| -> Vec<String> { v.as_object().unwrap().keys().cloned().collect() };
+    for k in keys(&v0) {
+        assert!(v3.get(&k).is_some(), "{k} missing with --latency-ms");
+    }
+    assert_eq!(v0["latency_ms"], 0.0);
+    assert_eq!(v0["latency_samples"], 0);
+    assert_eq!(v3["latency_ms"], 3.0);
+    assert_eq!(v3["latency_samples"], 30);
+    let (d0, d3) = (&v0["conditions"][1], &v3["conditions"][1]);
+    assert_eq!(d3["condition"], "D");
+    // The same worst case and crossover: the delay moves neither.
+    assert_eq!(d0["worst_phase_case"], d3["worst_phase_case"]);
+    let fc = d0["gain_crossover_hz"].as_f64().unwrap();
+    assert!((d3["gain_crossover_hz"].as_f64().unwrap() / fc - 1.0).abs() < 1e-9);
+    let fs = kilotouch_rig::RigConfig::default().rig.sample_rate_hz;
+    let drop = 360.0 * fc * 30.0 / fs;
+    let (pm0, pm3) = (
+        d0["phase_margin_deg"].as_f64().unwrap(),
+        d3["phase_margin_deg"].as_f64().unwrap(),
+    );
+    assert!(
+        (pm0 - pm3 - drop).abs() < 1e-6,
+        "PM {pm0}° → {pm3}°, predicted drop {drop}°"
+    );
+    // Below the rig file's 30°: the report says so.
+    assert!(pm3 < 30.0);
+    assert_eq!(v3["safe"], false);
+    assert!(v3["max_force_scale"].as_f64().unwrap() < v0["max_force_scale"].as_f64().unwrap());
+    // The text states the delay.
+    let out = kilotouch(&["rig", "margins", "--latency-ms", "3"]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("3.00 ms (30 samples)"), "{text}");
+    assert!(text.contains("NOT SAFE"), "{text}");
+    for bad in ["nan", "-1", "1000", "inf", "3ms"] {
+        let out = kilotouch(&["rig", "margins", "--latency-ms", bad, "--json"]);
+        assert!(!out.status.success(), "{bad}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--latency-ms"), "{bad}: {err}");
+    }
+}

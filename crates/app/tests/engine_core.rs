@@ -11,13 +11,14 @@ mod common;
 
 use common::rms;
 use kilotouch::engine::{
-    BlockDriver, Command, Condition, EngineCore, EngineEvent, EngineHandle, EngineOptions,
-    SafetyState, TelemetrySample, engine_pair, flags, splitter::SwapOutcome,
+    BlockCtx, BlockDriver, Command, Condition, EngineCore, EngineEvent, EngineHandle,
+    EngineOptions, SafetyState, TelemetrySample, engine_pair, flags, splitter::SwapOutcome,
 };
 use kilotouch_dsp::chain::{ChainCoefficients, ChainDesign};
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain, model_chain_design};
 use kilotouch_rig::device::ManualClock;
+use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::tweezer::Obstacle;
 use std::time::{Duration, Instant};
@@ -286,12 +287,16 @@ struct Circle {
 }
 
 impl BlockDriver for Circle {
-    fn hand_target(&mut self, _gui: [f64; 2], first_seq: u64) -> [f64; 2] {
-        let a = first_seq as f64 * 1e-3;
-        [self.r * a.cos(), self.r * a.sin()]
-    }
-    fn observe(&mut self, _s: &TelemetrySample) {
-        self.seen += 1;
+    fn run_block(&mut self, ctx: &mut BlockCtx<'_>) -> Result<usize, RigError> {
+        for _ in 0..ctx.n {
+            let a = ctx.lp.rig.next_seq() as f64 * 1e-3;
+            let hand = [self.r * a.cos(), self.r * a.sin()];
+            ctx.lp.rig.set_hand(hand);
+            ctx.lp.advance()?;
+            ctx.out.publish(ctx.lp.last(), hand);
+            self.seen += 1;
+        }
+        Ok(ctx.n)
     }
 }
 
@@ -308,7 +313,7 @@ fn a_block_driver_replaces_free_exploration() {
     h.poll_events();
     assert!(
         h.send(Command::SetDriver(Box::new(
-            kilotouch::engine::FreeExploration
+            kilotouch::engine::FreeExploration::new(1.0)
         )))
         .is_ok()
     );

@@ -119,7 +119,8 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
     // Generous host timeout: a shared machine may deschedule a process for
     // tens of ms; what is tested here is the stream, not fault timing.
     let cfg = RigConfig::default();
-    let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(",timeout-ms=1000"), opts()).unwrap();
+    let mut h =
+        EngineHandle::spawn_spec(&cfg, &emu.spec(",timeout-ms=1000,lead=1"), opts()).unwrap();
     assert!(h.is_live());
     let fs = h.sample_rate_hz();
     assert_eq!(
@@ -222,7 +223,7 @@ fn serial_loop_runs_at_the_device_rate_closes_the_loop_and_estop_zeroes() {
 fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
     let mut emu = Emulator::start();
     let cfg = RigConfig::default();
-    let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(""), opts()).unwrap();
+    let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(",lead=1"), opts()).unwrap();
     let (t, ev) = collect(&mut h, Duration::from_millis(300));
     assert!(
         t.len() > 1000 && ev.is_empty(),
@@ -258,7 +259,7 @@ fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
     })
     .expect("reconnect to a dead port reports an error");
     let emu2 = Emulator::start();
-    assert!(h.reconnect(Some(emu2.spec(""))));
+    assert!(h.reconnect(Some(emu2.spec(",lead=1"))));
     wait_event(&mut h, Duration::from_secs(5), |e| {
         matches!(e, EngineEvent::Reconnected(_))
     })
@@ -283,7 +284,8 @@ fn stalled_device_times_out_and_the_same_port_reconnects() {
     // The device hangs 0.4 s after start, for 0.5 s.
     let emu = Emulator::spawn("daq", &["--stall-after-s", "0.4", "--stall-for-s", "0.5"]);
     let cfg = RigConfig::default();
-    let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(",timeout-ms=100"), opts()).unwrap();
+    let mut h =
+        EngineHandle::spawn_spec(&cfg, &emu.spec(",timeout-ms=100,lead=1"), opts()).unwrap();
     let t0 = Instant::now();
     let mut last_sample = None;
     let mut err_at = None;
@@ -322,4 +324,72 @@ fn stalled_device_times_out_and_the_same_port_reconnects() {
     assert!(t.len() > 1500, "{} samples after reconnect", t.len());
     assert_contiguous(&t);
     h.shutdown();
+}
+
+/// The loop delay of a live rig (its block plus the link's command lead)
+/// is in the stability clearance: the engine arms the loop only when the
+/// margins hold with that delay (THEORY.md, loop delay), re-analyses a
+/// chain cleared for less delay before swapping it in, and refuses a lead
+/// long enough to break D's phase margin, naming the delay.
+#[test]
+fn the_loop_delay_of_a_live_rig_is_in_the_stability_clearance() {
+    use kilotouch_rig::haptic_loop::Clearance;
+    let emu = Emulator::start();
+    let cfg = RigConfig::default();
+    let mut h = EngineHandle::spawn_spec(&cfg, &emu.spec(",lead=1"), opts()).unwrap();
+    let fs = h.sample_rate_hz();
+    // Block 10 + lead 1 block = 20 samples, 19 beyond the simulated loop's one.
+    assert_eq!(h.loop_delay_samples(), 20);
+    assert!(
+        (h.latency_s() - 19.0 / fs).abs() < 1e-12,
+        "{}",
+        h.latency_s()
+    );
+    let (chain, armed) = h.chain_and_clearance().unwrap();
+    assert_eq!(armed.latency_s(), h.latency_s());
+    assert_eq!(armed.report().unwrap().latency_samples, 19);
+    // A clearance analysed without the delay is analysed again with it.
+    let at_zero = Clearance::check(&cfg, &chain).unwrap();
+    assert_eq!(at_zero.latency_s(), 0.0);
+    h.apply_chain(&chain, &at_zero).unwrap();
+    let (_, applied) = h.chain_and_clearance().unwrap();
+    assert_eq!(applied.latency_s(), h.latency_s());
+    let pm = |c: &Clearance, cond: Condition| {
+        c.report()
+            .unwrap()
+            .condition(cond)
+            .unwrap()
+            .phase_margin_deg
+    };
+    // D's worst case loses 0.27° per sample of delay at f_c = 7.43 Hz.
+    let lost = pm(&at_zero, Condition::D) - pm(&applied, Condition::D);
+    assert!((lost - 19.0 * 360.0 * 7.43 / fs).abs() < 0.2, "{lost}");
+    // Reconnecting to a device whose link needs a longer lead (3 blocks:
+    // 39 samples beyond one) is refused: the clearance was made for 19.
+    let emu3 = Emulator::start();
+    assert!(h.reconnect(Some(emu3.spec(",lead=3"))));
+    wait_event(&mut h, Duration::from_secs(5), |e| {
+        matches!(e, EngineEvent::RigError(_))
+    })
+    .expect("a longer loop delay on reconnection is refused");
+    let msg = h.last_error().unwrap().to_owned();
+    assert!(
+        msg.contains("3.90 ms") && msg.contains("connect again"),
+        "{msg}"
+    );
+    assert!(
+        wait_health(&mut h, |x| !x.running).is_some(),
+        "the loop stays stopped"
+    );
+    h.shutdown();
+    drop(emu);
+
+    // A lead of 8 blocks: 90 samples, 9 ms; D's phase margin is far below
+    // the rig file's 30°: refused before the loop runs.
+    let emu = Emulator::start();
+    let err = EngineHandle::spawn_spec(&cfg, &emu.spec(",lead=8"), opts())
+        .err()
+        .expect("a 9 ms loop delay is refused")
+        .to_string();
+    assert!(err.contains("ms") && err.contains("89"), "{err}");
 }

@@ -237,10 +237,8 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         h.query_by_label_contains("the study's trial was aborted")
             .is_some()
     );
-    assert!(
-        h.query_by_label_contains("rig in use by the study sitting")
-            .is_some()
-    );
+    // The status bar: the engine's stop and the sitting's state.
+    assert!(h.query_by_label_contains("study sitting: P01").is_some());
     assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
     let rows = read_trials(&dir.path().join("out").join(TRIALS_FILE))
         .unwrap()
@@ -329,4 +327,142 @@ fn an_unreset_stop_keeps_the_engine_latched_after_the_sitting() {
     h.get_by_label("Stop sitting").click();
     assert!(step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()));
     assert!(h.state().any_estop_latched());
+}
+
+/// Press Space whenever the participant's screen waits for it, until
+/// `want` (a person at the rig moving on through the screens).
+fn space_through_screens_until(h: &mut H, secs: f64, want: impl Fn(&H) -> bool) -> bool {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        if want(h) {
+            return true;
+        }
+        match routine(h) {
+            Some(Routine::Instructions { .. } | Routine::Ready { .. } | Routine::Break { .. }) => {
+                press_space(h)
+            }
+            _ => {
+                h.step();
+                std::thread::sleep(POLL);
+            }
+        }
+    }
+    want(h)
+}
+
+/// A short sitting on the emulated rig from the Study page, as a lab runs
+/// one: the DAQ emulator hosts the simulated participant at its handle;
+/// the experimenter connects it (the Study page's rig line shows it and its
+/// loop delay), opens the session, starts; an emergency stop mid-trial
+/// aborts the trial (its row kept) with the outputs held at zero, the
+/// confirmed reset and Resume continue, the sitting completes on the
+/// device and `session.json` records it.
+#[test]
+fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("screens.toml");
+    std::fs::write(&proto, PROTOCOL).unwrap();
+    let seed = kilotouch_study::protocol::Protocol::load(&proto)
+        .unwrap()
+        .seeds
+        .study;
+    let emu = common::Emulator::spawn("daq", &["--participant", &format!("operator:{seed}")]);
+    let out = dir.path().join("out");
+    let app = common::fresh_app(Some(Page::Study));
+    let mut h = common::app_harness(app, 1100.0, 1400.0, None);
+    {
+        let a = h.state_mut();
+        // A fixed lead of one block (hil_sitting.rs: a loaded machine
+        // stretches the round trips the automatic lead measures).
+        a.rig_page_mut().rig_text = format!("{},lead=1", emu.rig());
+        a.connect();
+        let s = &mut a.study;
+        s.source = ProtocolSource::File;
+        s.protocol_file = proto.display().to_string();
+        s.participant_text = "P01".into();
+        s.out_text = out.display().to_string();
+        s.separate_window = false;
+    }
+    assert!(
+        step_until_every(&mut h, POLL, 20.0, |a| a
+            .engine
+            .as_ref()
+            .is_some_and(|e| e.is_live() && e.health().is_some())),
+        "the emulated rig did not come up"
+    );
+    h.step();
+    h.step();
+    // The rig choice: the connected rig with its loop delay, and the way
+    // back to the simulation.
+    assert!(h.query_by_label_contains(&emu.path).is_some());
+    assert!(h.query_by_label_contains("loop delay").is_some());
+    assert!(h.query_by_label("Use the simulated rig").is_some());
+    h.get_by_label("Open session").click();
+    h.step();
+    assert!(
+        h.state().study.is_running(),
+        "{:?}",
+        h.state().study.error()
+    );
+    h.step();
+    h.get_by_label("Start").click();
+    h.step();
+    // Into the first trial, then the emergency stop.
+    assert!(space_through_screens_until(&mut h, 20.0, |h| matches!(
+        routine(h),
+        Some(Routine::Trial(_))
+    )));
+    h.key_press(egui::Key::Escape);
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
+        a.study.runner_state(),
+        Some(RunnerState::Paused(None))
+    )));
+    h.step();
+    h.step();
+    assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
+    assert!(
+        step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()),
+        "the engine's stop is latched"
+    );
+    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].reject_reason, "aborted");
+    // The confirmed reset, then Resume.
+    h.get_by_label("Reset emergency stop…").click();
+    h.step();
+    h.step();
+    h.step();
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    // The engine reports the reset with its next health report.
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| !a.any_estop_latched()));
+    h.get_by_label("Resume").click();
+    h.step();
+    // The rest of the sitting on the device: every trial's row.
+    assert!(
+        space_through_screens_until(&mut h, 60.0, |h| h.state().study.finished().is_some()),
+        "the sitting did not finish"
+    );
+    assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));
+    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(
+        rows.len(),
+        5,
+        "the aborted trial and the four of the protocol"
+    );
+    assert_eq!(
+        rows.iter().filter(|r| r.reject_reason != "aborted").count(),
+        4
+    );
+    let session: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let devices: Vec<_> = session["sittings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["device"]["spec"].as_str().unwrap_or_default().to_owned())
+        .collect();
+    assert!(devices.iter().all(|d| d.contains(&emu.path)), "{devices:?}");
 }

@@ -1,8 +1,9 @@
 //! UI test of the Study page with egui_kittest: load a tiny protocol file,
 //! choose the simulated participant (as fast as possible) and the inline
-//! participant view, open the session (the Explore engine stops: one rig at
-//! a time), click Start, and see the rows appear in the page's table and in
-//! `trials.csv`; the engine comes back when the sitting ends.
+//! participant view, open the session (the sitting becomes the engine's
+//! driver), click Start, and see the rows appear in the page's table and in
+//! `trials.csv`; free exploration takes the engine back, stopped, when the
+//! sitting ends.
 
 #![allow(clippy::unwrap_used)]
 
@@ -89,8 +90,10 @@ fn study_page_runs_a_simulated_sitting() {
     h.state_mut().study.participant_text = "P01".into();
     h.step();
     open_session(&mut h);
-    // One rig at a time: the Explore engine is parked while the session is open.
-    assert!(h.state().engine.is_none());
+    // One engine: the sitting is its driver, the status bar says so.
+    assert!(h.state().engine.is_some());
+    h.step();
+    assert!(h.query_by_label_contains("study sitting: P01").is_some());
     assert!(
         h.query_by_label_contains("Participant view (inline)")
             .is_some()
@@ -112,8 +115,12 @@ fn study_page_runs_a_simulated_sitting() {
     assert_eq!(rows.len(), 3);
     assert_eq!(h.state().study.rows(), &rows[..]);
     assert!(rows.iter().all(|r| r.participant == "P01"));
-    // The engine is back.
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| a.engine.is_some()));
+    // Free exploration has the engine back, stopped.
+    assert!(step_until_every(&mut h, POLL, 5.0, |a| a
+        .engine
+        .as_ref()
+        .and_then(|e| e.health())
+        .is_some_and(|h| !h.running)));
     // The folder now offers to resume at P02's first trial.
     h.step();
     assert!(h.query_by_label_contains("Resume at trial P02").is_some());

@@ -53,7 +53,7 @@ fn a_device_that_flags_every_sample_fails_with_the_reasons() {
 
 #[test]
 fn a_device_streaming_seven_times_its_announced_rate_fails() {
-    let emu = Emulator::spawn("daq", &["--speedup", "7"]);
+    let emu = Emulator::spawn("daq", &["--speed", "7"]);
     let (code, v, e) = check(&emu, "1");
     assert_eq!(code, Some(1), "{v} {e}");
     assert_eq!(v["nominal_rate_hz"].as_f64(), Some(10_000.0));

@@ -1,18 +1,20 @@
-//! The session thread without any GUI (`kilotouch::session`): simulated
-//! participant as fast as possible, fsync ordering of committed rows,
-//! participant sittings, pause/resume, abort, kill + resume.
+//! Sittings on the real-time engine without any GUI (`kilotouch::session`):
+//! simulated participant as fast as possible, fsync ordering of committed
+//! rows, participant sittings, pause/resume, abort, kill + resume.
 //!
 //! Reference: `kilotouch_study::simulate::simulate` (the headless
 //! `kilotouch study simulate`, an independent driver of the same trials:
 //! worker threads, rows committed in plan order). Every trial is a pure
-//! function of its key, so the rows written through the session thread must
-//! equal the headless rows in every column but `started_utc`.
+//! function of its key, so the rows written through the engine (its own
+//! closed loop on the simulated rig) must equal the headless rows in every
+//! column but `started_utc`.
 
 #![allow(clippy::unwrap_used)]
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::{
     FinishReason, FolderStatus, ParticipantKind, SessionCommand, SessionEvent, SessionHandle,
     SessionOptions, Speed, inspect_folder, validate_participant_id,
@@ -37,6 +39,11 @@ fn runner_cfg(raw: bool) -> RunnerConfig {
         raw: raw.then_some(kilotouch_study::rawsig::Dtype::F32),
         ..RunnerConfig::default()
     }
+}
+
+/// The real-time engine on the simulated rig, as the app starts it.
+fn engine() -> EngineHandle {
+    EngineHandle::spawn(&RigConfig::default(), EngineOptions::default()).unwrap()
 }
 
 fn opts(out: &Path, protocol: Option<Protocol>, raw: bool) -> SessionOptions {
@@ -100,6 +107,7 @@ fn run_until_finished(
 
 #[test]
 fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
+    let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let want = reference(&dir.path().join("ref"), false);
     assert_eq!(want.len(), 12);
@@ -110,7 +118,7 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
     let p1 = validate_participant_id("P01", &table).unwrap();
     let mut o = opts(&out, Some(tiny()), false);
     o.only_participant = Some(p1.index);
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert_eq!(h.info().planned, 12);
     assert!(h.send(SessionCommand::Start));
     let mut seen = 0usize;
@@ -157,13 +165,13 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
     // P01 again: refused (the folder's next trial is P02's).
     let mut o = opts(&out, Some(tiny()), false);
     o.only_participant = Some(0);
-    let e = SessionHandle::spawn(o).unwrap_err().to_string();
+    let e = SessionHandle::spawn(o, &mut eng).unwrap_err().to_string();
     assert!(e.contains("P02"), "{e}");
 
     // Sitting 2: P02 closes the study.
     let mut o = opts(&out, Some(tiny()), false);
     o.only_participant = Some(1);
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
     assert_eq!(fin, Some(FinishReason::StudyDone));
@@ -174,10 +182,11 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
 
 #[test]
 fn kill_mid_session_then_resume_gives_the_uninterrupted_rows() {
+    let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let want = reference(&dir.path().join("ref"), true);
     let out = dir.path().join("gui");
-    let mut h = SessionHandle::spawn(opts(&out, Some(tiny()), true)).unwrap();
+    let mut h = SessionHandle::spawn(opts(&out, Some(tiny()), true), &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     // Kill (drop the handle) right after the second row.
     let t0 = Instant::now();
@@ -199,7 +208,7 @@ fn kill_mid_session_then_resume_gives_the_uninterrupted_rows() {
     );
     assert_same_rows(&partial, &want[..partial.len()]);
     // Resume from the folder alone (its own protocol).
-    let mut h = SessionHandle::spawn(opts(&out, None, true)).unwrap();
+    let mut h = SessionHandle::spawn(opts(&out, None, true), &mut eng).unwrap();
     assert!(h.info().recovery.resumed);
     assert_eq!(h.info().completed, partial.len());
     assert_eq!(
@@ -229,23 +238,29 @@ fn kill_mid_session_then_resume_gives_the_uninterrupted_rows() {
 
 #[test]
 fn pause_holds_the_trial_and_resume_continues_it() {
+    let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s");
     let mut o = opts(&out, Some(tiny()), false);
     o.speed = Speed::RealTime;
     o.participant = ParticipantKind::Mouse;
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     let t_start = Instant::now();
     let mut last_sim = 0.0;
     let mut state = None;
-    let wait = |h: &mut SessionHandle, state: &mut Option<RunnerState>, sim: &mut f64, ms: u64| {
+    let wait = |h: &mut SessionHandle,
+                eng: &mut EngineHandle,
+                state: &mut Option<RunnerState>,
+                sim: &mut f64,
+                ms: u64| {
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_millis(ms) {
+            let _ = eng.poll_events();
+            *sim = h.health(eng).simulated_s;
             for e in h.poll() {
                 match e {
                     SessionEvent::State(s) => *state = Some(s),
-                    SessionEvent::Health(x) => *sim = x.simulated_s,
                     SessionEvent::Error(m) => panic!("{m}"),
                     _ => {}
                 }
@@ -253,22 +268,22 @@ fn pause_holds_the_trial_and_resume_continues_it() {
             std::thread::sleep(Duration::from_millis(2));
         }
     };
-    wait(&mut h, &mut state, &mut last_sim, 300);
+    wait(&mut h, &mut eng, &mut state, &mut last_sim, 300);
     assert!(matches!(state, Some(RunnerState::Training(_))), "{state:?}");
     // Real-time pacing: the simulated time never runs ahead of the wall clock.
     assert!(last_sim > 0.0 && last_sim <= t_start.elapsed().as_secs_f64() + 0.01);
     assert!(h.send(SessionCommand::Pause));
-    wait(&mut h, &mut state, &mut last_sim, 150);
+    wait(&mut h, &mut eng, &mut state, &mut last_sim, 150);
     assert!(
         matches!(state, Some(RunnerState::Paused(Some(_)))),
         "{state:?}"
     );
     let held = last_sim;
-    wait(&mut h, &mut state, &mut last_sim, 250);
+    wait(&mut h, &mut eng, &mut state, &mut last_sim, 250);
     assert_eq!(last_sim, held, "no sample runs while paused");
     assert!(h.send(SessionCommand::Note("participant sneezed".into())));
     assert!(h.send(SessionCommand::Resume));
-    wait(&mut h, &mut state, &mut last_sim, 250);
+    wait(&mut h, &mut eng, &mut state, &mut last_sim, 250);
     assert!(matches!(state, Some(RunnerState::Training(_))), "{state:?}");
     assert!(last_sim > held, "the trial continues");
     drop(h);
@@ -290,13 +305,14 @@ fn pause_holds_the_trial_and_resume_continues_it() {
 
 #[test]
 fn abort_and_emergency_stop_commit_aborted_rows() {
+    let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s");
     let mut o = opts(&out, Some(tiny()), false);
     o.speed = Speed::RealTime;
     o.participant = ParticipantKind::Mouse;
     o.only_participant = Some(0);
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     let mut committed: Vec<TrialRow> = Vec::new();
     let mut state = None;
@@ -369,10 +385,11 @@ fn participant_ids_are_pseudonyms() {
         assert!(validate_participant_id(bad, &table).is_err(), "{bad}");
     }
     // Fast pacing is for the simulated participant only.
+    let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let mut o = opts(dir.path(), Some(tiny()), false);
     o.participant = ParticipantKind::Mouse;
-    assert!(SessionHandle::spawn(o).is_err());
+    assert!(SessionHandle::spawn(o, &mut eng).is_err());
     assert_eq!(
         inspect_folder(&dir.path().join("none")),
         FolderStatus::Empty
@@ -381,6 +398,7 @@ fn participant_ids_are_pseudonyms() {
 
 #[test]
 fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
+    let mut eng = engine();
     // The trap calibration the Rig page applies: 10 s of the simulated
     // tweezer's detector, both axes calibrated (aliased Lorentzian, the
     // simulated detector point-samples at the loop rate).
@@ -406,7 +424,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     let mut o = opts(&out, Some(tiny()), false);
     o.only_participant = Some(0);
     o.trap_calibration = Some(cal.clone());
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
     assert_eq!(fin, Some(FinishReason::ParticipantDone("P01".into())));
@@ -446,12 +464,12 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     other.kappa_pn_um *= 1.1;
     let mut o = opts(&out, Some(tiny()), false);
     o.trap_calibration = Some(other);
-    let e = SessionHandle::spawn(o).unwrap_err().to_string();
+    let e = SessionHandle::spawn(o, &mut eng).unwrap_err().to_string();
     assert!(e.contains("trap calibration"), "{e}");
     // The same one (as the GUI keeps it) resumes: P02 closes the study.
     let mut o = opts(&out, Some(tiny()), false);
     o.trap_calibration = Some(cal.clone());
-    let mut h = SessionHandle::spawn(o).unwrap();
+    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
     let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
     assert_eq!(fin, Some(FinishReason::StudyDone));

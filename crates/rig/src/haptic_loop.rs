@@ -22,8 +22,10 @@
 //! A loop is armed only with a [`Clearance`]: the stability analysis
 //! ([`crate::stability`]) of its rig file and chain met the configured
 //! minimum margins, or the caller overrode it explicitly (tests that study
-//! unstable settings, `sim press --allow-unstable`). The safety layer then
-//! brings forces on through its ramp.
+//! unstable settings, `sim press --allow-unstable`). A live loop's delay
+//! beyond the simulated one sample (block exchange, the link's command
+//! lead) is analysed with [`Clearance::check_with_latency`]. The safety
+//! layer then brings forces on through its ramp.
 
 use crate::condition::Condition;
 use crate::config::RigConfig;
@@ -44,16 +46,39 @@ pub const MAX_BLOCK: usize = 64;
 pub struct Clearance {
     report: Option<Box<StabilityReport>>,
     source: ChainSource,
+    latency_s: f64,
 }
 
 impl Clearance {
-    /// Analyse `cfg` with `chain`; refuse (naming the failing margin and
-    /// the largest safe force scale) when a margin is below the minimum.
+    /// Analyse `cfg` with `chain` as the simulated loop runs it (one
+    /// sample of loop delay); refuse (naming the failing margin and the
+    /// largest safe force scale) when a margin is below the minimum.
+    /// [`Self::check_with_latency`] at 0 s.
     ///
     /// # Errors
     /// [`RigError::LoopNotSafe`]; analysis failures.
     pub fn check(cfg: &RigConfig, chain: &LoopChain) -> Result<Self, RigError> {
-        let report = crate::stability::analyse(cfg, &chain.coefficients)?;
+        Self::check_with_latency(cfg, chain, 0.0)
+    }
+
+    /// Analyse `cfg` with `chain` and an extra loop delay of `latency_s`
+    /// seconds on top of the simulated loop's one sample (a live loop:
+    /// block exchange and the link's command lead;
+    /// [`crate::stability::analyse_with_latency`], rounded up to whole
+    /// samples); refuse when a margin is below the minimum at that delay,
+    /// naming the failing margin, the delay in ms and samples, and the
+    /// largest safe force scale at that delay.
+    ///
+    /// # Errors
+    /// [`RigError::LoopNotSafe`]; [`RigError::InvalidParameter`] for a
+    /// latency outside [0, [`crate::stability::MAX_LATENCY_S`]]; analysis
+    /// failures.
+    pub fn check_with_latency(
+        cfg: &RigConfig,
+        chain: &LoopChain,
+        latency_s: f64,
+    ) -> Result<Self, RigError> {
+        let report = crate::stability::analyse_with_latency(cfg, &chain.coefficients, latency_s)?;
         if let Some(why) = report.refusal() {
             return Err(RigError::LoopNotSafe(format!(
                 "{why} (chain: {})",
@@ -63,6 +88,7 @@ impl Clearance {
         Ok(Self {
             report: Some(Box::new(report)),
             source: chain.source.clone(),
+            latency_s,
         })
     }
 
@@ -72,7 +98,14 @@ impl Clearance {
         Self {
             report: None,
             source,
+            latency_s: 0.0,
         }
+    }
+
+    /// The extra loop delay the analysis was run for, s (0 for
+    /// [`Self::check`] and [`Self::overridden`]).
+    pub fn latency_s(&self) -> f64 {
+        self.latency_s
     }
 
     /// The analysis, when one was run.
@@ -120,6 +153,16 @@ pub struct HapticLoop<R: Rig, T: Tweezer, S: ForceSplitter = Chain> {
     block_cmd: [ActuatorFrame; MAX_BLOCK],
     block_out: [SensorFrame; MAX_BLOCK],
     block_len: usize,
+}
+
+/// Where the handle is when a trial begins ([`HapticLoop::begin_trial`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrialStart {
+    /// A fresh simulated rig: the handle rests at its origin.
+    Fresh,
+    /// A live rig: the handle is wherever the participant left it; the hand
+    /// mapping is re-centred there, so the trap starts at rest.
+    AtHandle,
 }
 
 /// The simulated loop.
@@ -232,18 +275,41 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
         mut safety: SafetyLayer,
     ) -> Result<(), RigError> {
         rig.start()?;
-        self.coupling.set_condition_now(condition);
-        self.coupling.reset();
-        self.sensors = SensorFrame::default();
-        let trap = self.coupling.trap_target(self.sensors.handle_m);
-        tweezer.reset(trap);
         safety.arm()?;
         self.rig = rig;
-        self.tweezer = tweezer;
-        self.safety = safety;
+        self.begin_trial(&mut tweezer, condition, &mut safety, TrialStart::Fresh);
+        Ok(())
+    }
+
+    /// Start a trial on the loop as it runs, without allocating or freeing
+    /// (the engine): the trial's tweezer and its (armed) safety layer are
+    /// swapped in — the old ones are left in the arguments, to be dropped
+    /// off the real-time path — the condition switches at once, the filters
+    /// are cleared and the bead sits in the trap at rest. `start` says where
+    /// the handle is ([`TrialStart`]). The rig is not touched: a simulated
+    /// rig is swapped by the caller beforehand ([`crate::AnyRig::swap_sim`]).
+    pub fn begin_trial(
+        &mut self,
+        tweezer: &mut T,
+        condition: Condition,
+        safety: &mut SafetyLayer,
+        start: TrialStart,
+    ) {
+        self.coupling.set_condition_now(condition);
+        self.coupling.reset();
+        match start {
+            TrialStart::Fresh => {
+                self.sensors = SensorFrame::default();
+                self.block_in = [SensorFrame::default(); MAX_BLOCK];
+            }
+            TrialStart::AtHandle => self.coupling.set_handle_origin(self.sensors.handle_m),
+        }
+        let trap = self.coupling.trap_target(self.sensors.handle_m);
+        tweezer.reset(trap);
+        std::mem::swap(&mut self.tweezer, tweezer);
+        std::mem::swap(&mut self.safety, safety);
         self.missed = false;
         self.block_len = 0;
-        Ok(())
     }
 
     /// The controller part of one sample: `sensors` (the frame the

@@ -14,6 +14,7 @@
 pub mod accel;
 #[cfg(feature = "audio")]
 pub mod audio;
+pub mod backend;
 pub mod calibration;
 pub mod condition;
 pub mod config;
@@ -27,6 +28,7 @@ pub mod lti;
 pub mod normal;
 pub mod plant;
 pub mod press;
+pub mod realtime;
 pub mod safety;
 pub mod serial;
 pub mod sim;
@@ -35,6 +37,7 @@ pub mod text;
 pub mod toml_location;
 pub mod tweezer;
 
+pub use backend::{AnyRig, open_rig};
 pub use condition::{Condition, PMode};
 pub use config::{RigConfig, default_config_text};
 pub use device::{ActuatorFrame, Rig, SensorFrame};

@@ -275,6 +275,43 @@ fn emulator_paces_by_the_clock_waits_for_commands_and_batches() {
     assert_eq!(e.stats().late_commands, 0);
 }
 
+/// `speed` scales the emulator's clock: at 4, sample t is due at
+/// (t + 1)/(4·fs) of wall time, the HELLO still announcing fs.
+#[test]
+fn a_faster_clock_serves_samples_at_speed_times_the_rate() {
+    let mut e = emulator(EmulatorConfig {
+        speed: 4.0,
+        ..cfg()
+    });
+    e.receive(&host(ty::START, |_| {}), Duration::ZERO);
+    drain(&mut e);
+    let cmds = vec![DaqCommand::default(); 1000];
+    e.receive(&commands(0, &cmds), Duration::ZERO);
+    // 25.05 ms of wall time: 4 × 250 = 1000 samples due.
+    e.advance(ms(6.2625));
+    assert_eq!(e.next_seq(), 250);
+    e.advance(ms(25.05));
+    assert_eq!(e.next_seq(), 1000);
+    assert_eq!(samples(&drain(&mut e)).len(), 1000);
+    assert!(
+        EmulatorConfig {
+            speed: 0.0,
+            ..cfg()
+        }
+        .validate()
+        .is_err(),
+        "a stopped clock is refused"
+    );
+    assert!(
+        EmulatorConfig {
+            speed: 50.0,
+            ..cfg()
+        }
+        .validate()
+        .is_err()
+    );
+}
+
 #[test]
 fn emulator_output_equals_the_simulated_rig_sample_for_sample() {
     // Reference: the simulated rig driven directly with the same commands.

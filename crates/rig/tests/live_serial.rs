@@ -38,6 +38,8 @@ impl<I: Instrument + 'static> Device<I> {
         let stop = Arc::new(AtomicBool::new(false));
         let s = stop.clone();
         let handle = std::thread::spawn(move || {
+            // As `kilotouch emulate` does: a device keeps its own time.
+            let _ = kilotouch_rig::realtime::promote_current_thread();
             let clock = SystemClock::default();
             let mut emu = Emulator::new(inst, cfg, clock.now()).unwrap();
             serve(&mut emu, &pty, &clock, &s).unwrap();
@@ -380,11 +382,16 @@ fn a_vanished_device_is_reported_at_once() {
 
 #[test]
 fn the_device_watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
+    // A window long enough that a loaded machine's scheduling never trips
+    // it while the host is talking; the host then goes silent for three.
+    let window = Duration::from_millis(250);
     let dev = daq(EmulatorConfig {
-        watchdog: Duration::from_millis(40),
+        watchdog: window,
         ..EmulatorConfig::default()
     });
-    let mut rig = SerialRig::open(&SerialConfig::new(&dev.path)).unwrap();
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.timeout = Duration::from_secs(2);
+    let mut rig = SerialRig::open(&cfg).unwrap();
     rig.start().unwrap();
     let on = [ActuatorFrame {
         force_n: [1.0, -1.0],
@@ -393,7 +400,7 @@ fn the_device_watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
     let mut out = [SensorFrame::default(); 30];
     rig.process_block(&on, &mut out).unwrap();
     // The host goes silent for longer than the window.
-    std::thread::sleep(Duration::from_millis(150));
+    std::thread::sleep(3 * window);
     let err = rig.process_block(&on, &mut out).unwrap_err();
     assert!(err.to_string().contains("watchdog"), "{err}");
     assert_eq!(rig.status().state, RigState::Faulted);
@@ -480,4 +487,138 @@ fn link_tweezer_follows_the_simulated_tweezer_exactly() {
     assert!(contact, "the sweep must reach the obstacle");
     assert_eq!(tw.failures(), 0);
     assert_eq!(tw.link_stats().lost, 0);
+}
+
+/// Late commands of `blocks` blocks of 10 samples (zero commands) against a
+/// free-running emulated device, with a command lead of `lead` blocks.
+fn late_commands_with_lead(lead: u32, blocks: usize) -> (u64, u64) {
+    let dev = daq(EmulatorConfig {
+        free_running: true,
+        ..emu_cfg()
+    });
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.lead = kilotouch_rig::serial::CommandLead::Blocks(lead);
+    let mut rig = SerialRig::open(&cfg).unwrap();
+    // The host's loop thread runs real-time too, as the engine's does.
+    let _ = kilotouch_rig::realtime::promote_current_thread();
+    rig.start().unwrap();
+    let cmds = vec![ActuatorFrame::default(); 10];
+    let mut out = vec![SensorFrame::default(); 10];
+    let mut seqs = Vec::new();
+    for _ in 0..blocks {
+        rig.process_block(&cmds, &mut out).unwrap();
+        seqs.extend(out.iter().map(|f| f.seq));
+    }
+    // Every sample is accounted for, in order, whatever the lead.
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+    assert_eq!(
+        kilotouch_rig::Rig::loop_delay_samples(&rig, 10),
+        10 + 10 * lead
+    );
+    let late = rig.link_stats().late_commands;
+    kilotouch_rig::realtime::demote_current_thread();
+    (late, rig.status().late_commands)
+}
+
+#[test]
+fn a_command_lead_keeps_a_free_running_device_in_commands() {
+    // Block-synchronous: the device runs out of commands at the end of
+    // every block until the next one arrives (one round trip) and holds
+    // the previous command; with a lead of two blocks it always has the
+    // next ones. Counted, not timed: the host can be late on a busy
+    // machine, but not on nearly every block.
+    let (sync, sync_status) = late_commands_with_lead(0, 300);
+    let (led, led_status) = late_commands_with_lead(2, 300);
+    assert_eq!(sync, sync_status);
+    assert_eq!(led, led_status);
+    assert!(
+        sync >= 150,
+        "block-synchronous: only {sync} late commands in 3000 samples"
+    );
+    assert!(
+        led * 10 < sync,
+        "with a lead of 2 blocks {led} late commands, block-synchronous {sync}"
+    );
+}
+
+/// A participant at the emulated handle that records what the host told
+/// the device and moves the hand along x.
+#[derive(Debug, Default)]
+struct Recorder {
+    infos: Arc<std::sync::Mutex<Vec<kilotouch_rig::device::HostInfo>>>,
+    k: u64,
+}
+
+impl kilotouch_rig::device::HandAgent for Recorder {
+    fn info(&mut self, info: &kilotouch_rig::device::HostInfo) {
+        if let Ok(mut v) = self.infos.lock() {
+            v.push(*info);
+        }
+    }
+    fn hand(&mut self) -> Option<[f64; 2]> {
+        self.k += 1;
+        Some([1e-6 * self.k as f64, 0.0])
+    }
+    fn observe(&mut self, _a: &ActuatorFrame, _s: &SensorFrame) {}
+}
+
+#[test]
+fn the_host_information_reaches_the_participant_at_the_handle() {
+    use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+    let infos = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let agent = Recorder {
+        infos: infos.clone(),
+        k: 0,
+    };
+    let inst = DaqInstrument::new(&RigConfig::default())
+        .unwrap()
+        .with_agent(Box::new(agent));
+    let dev = Device::spawn(inst, emu_cfg());
+    // A generous host timeout: what is tested is what reaches the device,
+    // not fault timing (a loaded machine may deschedule the device thread
+    // for longer than the default 100 ms).
+    let mut cfg = SerialConfig::new(&dev.path);
+    cfg.timeout = Duration::from_secs(2);
+    let mut rig = SerialRig::open(&cfg).unwrap();
+    rig.start().unwrap();
+    let rc = RigConfig::default();
+    let begin = HostInfo::TrialBegin(TrialInfo {
+        participant: 3,
+        condition: kilotouch_rig::Condition::D,
+        phase: PhaseCode::Test,
+        index: 7,
+        task: TaskCode::BlindNavigation,
+        mapping: kilotouch_rig::coupling::HandMapping::from_config(&rc.coupling),
+        start_trap_m: [1e-6, -1e-6],
+        heading: [0.6, 0.8],
+        retreat_distance_m: 2e-6,
+        first_seq: 12,
+    });
+    let view = HostInfo::View(ViewInfo {
+        seq: 5,
+        captured_s: 0.2,
+        bead_m: [1e-6, 2e-6],
+        trap_m: [1.5e-6, 2e-6],
+        obstacle_m: [5e-6, 0.0],
+        obstacle_radius_m: 1.5e-6,
+        bead_radius_m: 1.5e-6,
+    });
+    let cmds = vec![ActuatorFrame::default(); 10];
+    let mut out = vec![SensorFrame::default(); 10];
+    for info in [begin, view, HostInfo::TrialEnd] {
+        rig.send_info(&info).unwrap();
+        rig.process_block(&cmds, &mut out).unwrap();
+    }
+    for _ in 0..20 {
+        rig.process_block(&cmds, &mut out).unwrap();
+    }
+    // The handle follows the participant's hand (1 µm per sample along x,
+    // behind the finger's impedance); it rests at 0 without a hand.
+    assert!(out[9].handle_m[0] > 10e-6, "{:?}", out[9].handle_m);
+    let emu = dev.finish();
+    assert_eq!(
+        infos.lock().unwrap().as_slice(),
+        &[begin, view, HostInfo::TrialEnd]
+    );
+    assert_eq!(emu.stats().host_frames, emu.stats().host_frames);
 }

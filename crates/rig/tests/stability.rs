@@ -9,8 +9,10 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::plant::Axis;
-use kilotouch_rig::stability::margins::{grid, margins};
-use kilotouch_rig::stability::{Case, Hand, LoopAnalysis, LoopState, analyse};
+use kilotouch_rig::stability::margins::{grid, grid_for_delay, margins};
+use kilotouch_rig::stability::{
+    Case, Hand, LoopAnalysis, LoopState, analyse, analyse_with_latency, delay_samples,
+};
 use kilotouch_rig::{Condition, RigError};
 use num_complex::Complex64 as C64;
 use serde_json::Value;
@@ -53,6 +55,43 @@ fn margins_match_python_control() {
             cmp(m.phase_crossover_hz, &g["phase_crossover_hz"], 1e-6, "f180");
         }
         if m.gain_crossover_hz.is_finite() {
+            cmp(m.gain_crossover_hz, &g["gain_crossover_hz"], 1e-6, "fc");
+        }
+    }
+}
+
+/// Small loops with a long pure delay (the phase turns hundreds of times up
+/// to Nyquist): the grid refined for the delay and the refinement of the
+/// decisive crossings only give python-control's margins.
+#[test]
+fn delayed_margins_match_python_control() {
+    let r = reference();
+    for g in r["generic_delayed"].as_array().unwrap() {
+        let num: Vec<f64> = serde_json::from_value(g["num"].clone()).unwrap();
+        let den: Vec<f64> = serde_json::from_value(g["den"].clone()).unwrap();
+        let fs = g["fs"].as_f64().unwrap();
+        let d = g["delay_samples"].as_u64().unwrap() as usize;
+        let l = |f: f64| {
+            let z = C64::from_polar(1.0, 2.0 * PI * f / fs);
+            poly_z(&num, z) / poly_z(&den, z) * z.powi(-(d as i32))
+        };
+        let fr = grid_for_delay(fs, d);
+        // Increasing, the delay turning by at most 45° between points.
+        assert!(fr.len() >= grid(fs).len());
+        assert!(
+            fr.windows(2)
+                .all(|w| { w[1] > w[0] && 360.0 * (w[1] - w[0]) * d as f64 / fs <= 45.0 + 1e-9 })
+        );
+        let v: Vec<C64> = fr.iter().map(|&f| l(f)).collect();
+        let m = margins(&fr, &v, &l, fs);
+        let cmp = |got: f64, want: &Value, tol: f64, what: &str| match want.as_f64() {
+            Some(w) => assert!((got - w).abs() <= tol, "{what}: {got} vs {w} (d = {d})"),
+            None => assert!(!got.is_finite(), "{what}: {got} vs none (d = {d})"),
+        };
+        cmp(m.gain_margin_db, &g["gain_margin_db"], 1e-4, "GM dB");
+        cmp(m.phase_margin_deg, &g["phase_margin_deg"], 1e-3, "PM deg");
+        cmp(m.phase_crossover_hz, &g["phase_crossover_hz"], 1e-6, "f180");
+        if g["gain_crossover_hz"].is_number() {
             cmp(m.gain_crossover_hz, &g["gain_crossover_hz"], 1e-6, "fc");
         }
     }
@@ -235,4 +274,278 @@ fn condition_margins_are_the_worst_over_cases() {
             assert!(xm.phase_margin_deg >= m.phase_margin_deg - 1e-12);
         }
     }
+}
+
+fn case_from(c: &Value) -> Case {
+    Case {
+        condition: c["condition"].as_str().unwrap().parse().unwrap(),
+        axis: Axis::X,
+        state: if c["state"] == "pressed" {
+            LoopState::Pressed
+        } else {
+            LoopState::Free
+        },
+        hand: Hand {
+            stiffness_n_per_m: c["hand_stiffness_n_per_m"].as_f64().unwrap(),
+            damping_n_s_per_m: c["hand_damping_n_s_per_m"].as_f64().unwrap(),
+        },
+    }
+}
+
+/// The analysis of `cfg`'s loop with `d` samples of extra delay.
+fn delayed(cfg: &RigConfig, chain: &LoopChain, d: usize) -> LoopAnalysis {
+    let fs = cfg.rig.sample_rate_hz;
+    let a = LoopAnalysis::new(cfg, &chain.coefficients)
+        .unwrap()
+        .with_latency(d as f64 / fs)
+        .unwrap();
+    assert_eq!(a.latency_samples(), d);
+    a
+}
+
+/// The loop with an extra delay z⁻ᵈ against python-control (margins of
+/// the delayed frequency response, poles of its own state space with the
+/// delay appended) and the delay at which the pressed D loop turns
+/// unstable (bisection on python-control's poles).
+#[test]
+fn delayed_loop_matches_python_control() {
+    let r = reference();
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let (kappa, g) = (cfg.tweezer.stiffness_n_per_m, cfg.coupling.force_scale);
+    for c in r["delay_cases"].as_array().unwrap() {
+        let d = c["delay_samples"].as_u64().unwrap() as usize;
+        let case = case_from(c);
+        let got = delayed(&cfg, &chain, d)
+            .case(&case, kappa, g, true)
+            .unwrap();
+        let m = got.margins.unwrap();
+        let what = format!("{case:?} d = {d}");
+        let gm = c["gain_margin_db"].as_f64().unwrap();
+        assert!(
+            (m.gain_margin_db - gm).abs() < 0.02,
+            "{what}: GM {} vs {gm}",
+            m.gain_margin_db
+        );
+        let f180 = c["phase_crossover_hz"].as_f64().unwrap();
+        assert!(
+            (m.phase_crossover_hz / f180 - 1.0).abs() < 1e-3,
+            "{what}: f180 {} vs {f180}",
+            m.phase_crossover_hz
+        );
+        match c["phase_margin_deg"].as_f64() {
+            Some(pm) => {
+                assert!(
+                    (m.phase_margin_deg - pm).abs() < 0.05,
+                    "{what}: PM {} vs {pm}",
+                    m.phase_margin_deg
+                );
+                let fc = c["gain_crossover_hz"].as_f64().unwrap();
+                assert!((m.gain_crossover_hz / fc - 1.0).abs() < 1e-3, "{what}: fc");
+            }
+            None => assert!(m.phase_margin_deg.is_infinite(), "{what}: no crossover"),
+        }
+        let rho = c["spectral_radius"].as_f64().unwrap();
+        assert!(
+            (got.spectral_radius - rho).abs() < 1e-8,
+            "{what}: ρ {} vs {rho}",
+            got.spectral_radius
+        );
+    }
+    // The delay at which the pressed D loop with the rig file's finger
+    // turns unstable, by the eigenvalues of the delay-augmented loop.
+    let cd = &r["critical_delay"];
+    let case = case_from(cd);
+    let last = cd["last_stable_samples"].as_u64().unwrap() as usize;
+    let first = cd["first_unstable_samples"].as_u64().unwrap() as usize;
+    assert!(
+        delayed(&cfg, &chain, last)
+            .case(&case, kappa, g, false)
+            .unwrap()
+            .stable
+    );
+    assert!(
+        !delayed(&cfg, &chain, first)
+            .case(&case, kappa, g, false)
+            .unwrap()
+            .stable
+    );
+}
+
+/// A pure delay leaves |L| and so the gain crossover where it is and turns
+/// the phase there by 360°·f_c·d/f_s: on every case of the real loop whose
+/// crossover the delay does not change (the smallest |PM| of several
+/// crossovers can move to another one), PM_d = PM_0 − 360°·f_c·d/f_s
+/// (wrapped to [−180°, 180°)).
+#[test]
+fn a_delay_lowers_the_phase_margin_by_the_phase_of_the_delay() {
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let fs = cfg.rig.sample_rate_hz;
+    let (kappa, g) = (cfg.tweezer.stiffness_n_per_m, cfg.coupling.force_scale);
+    let a0 = LoopAnalysis::new(&cfg, &chain.coefficients).unwrap();
+    let base = a0.evaluate(kappa, g, true).unwrap();
+    let mut checked = 0;
+    for d in [1usize, 30, 100] {
+        let ad = delayed(&cfg, &chain, d);
+        for (r0, rd) in base.iter().zip(ad.evaluate(kappa, g, true).unwrap()) {
+            assert_eq!(r0.case, rd.case);
+            let (m0, md) = (r0.margins.unwrap(), rd.margins.unwrap());
+            let what = format!("{:?} d = {d}", r0.case);
+            if !m0.gain_crossover_hz.is_finite() {
+                // No gain crossover: |L| < 1 everywhere, with or without delay.
+                assert!(!md.gain_crossover_hz.is_finite(), "{what}");
+                continue;
+            }
+            if (md.gain_crossover_hz / m0.gain_crossover_hz - 1.0).abs() > 1e-9 {
+                continue;
+            }
+            let want = (m0.phase_margin_deg - 360.0 * m0.gain_crossover_hz * d as f64 / fs + 180.0)
+                .rem_euclid(360.0)
+                - 180.0;
+            assert!(
+                (md.phase_margin_deg - want).abs() < 1e-6,
+                "{what}: PM {} vs {want} (PM₀ {} at {} Hz)",
+                md.phase_margin_deg,
+                m0.phase_margin_deg,
+                m0.gain_crossover_hz
+            );
+            checked += 1;
+        }
+    }
+    // Every pressed case has a gain crossover (the pressed spring against
+    // the finger), and with a single one it cannot move.
+    let pressed = base
+        .iter()
+        .filter(|r| r.case.state == LoopState::Pressed)
+        .count();
+    assert!(checked >= 3 * pressed, "{checked} cases checked");
+}
+
+/// The eigenvalue verdict and the margins agree on the delay at which the
+/// loop turns unstable: bisecting the delay at which D's worst phase case
+/// loses stability (eigenvalues of the delay-augmented loop), its phase
+/// margin changes sign there and is within one sample's phase of zero.
+#[test]
+fn eigenvalues_and_phase_margin_agree_on_the_critical_delay() {
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let fs = cfg.rig.sample_rate_hz;
+    let (kappa, g) = (cfg.tweezer.stiffness_n_per_m, cfg.coupling.force_scale);
+    let r0 = LoopAnalysis::new(&cfg, &chain.coefficients)
+        .unwrap()
+        .report()
+        .unwrap();
+    let d0 = r0.condition(Condition::D).unwrap();
+    let case = d0.worst_phase_case;
+    let stable = |d: usize| {
+        delayed(&cfg, &chain, d)
+            .case(&case, kappa, g, false)
+            .unwrap()
+    };
+    let (mut lo, mut hi) = (0usize, 400usize);
+    assert!(stable(lo).stable && !stable(hi).stable);
+    while hi - lo > 1 {
+        let mid = (lo + hi) / 2;
+        if stable(mid).stable {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let one_sample_deg = 360.0 * d0.gain_crossover_hz / fs;
+    let pm = |d: usize| {
+        delayed(&cfg, &chain, d)
+            .case(&case, kappa, g, true)
+            .unwrap()
+            .margins
+            .unwrap()
+            .phase_margin_deg
+    };
+    let (pm_lo, pm_hi) = (pm(lo), pm(hi));
+    assert!(
+        pm_lo > 0.0 && pm_lo < one_sample_deg + 1e-9,
+        "last stable delay {lo}: PM {pm_lo}°"
+    );
+    assert!(
+        pm_hi < 0.0 && pm_hi > -one_sample_deg - 1e-9,
+        "first unstable delay {hi}: PM {pm_hi}°"
+    );
+    // The spectral radius crosses 1 there.
+    assert!(stable(lo).spectral_radius < 1.0 && stable(hi).spectral_radius >= 1.0);
+}
+
+/// The report at an extra delay: it states the delay, zero delay is the
+/// plain analysis, and the clearance is refused once D's phase margin falls
+/// below the minimum, with the delay and the largest safe force scale at
+/// that delay in the message.
+#[test]
+fn the_clearance_at_a_delay_names_it() {
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let r0 = analyse(&cfg, &chain.coefficients).unwrap();
+    let z = analyse_with_latency(&cfg, &chain.coefficients, 0.0).unwrap();
+    assert_eq!(
+        serde_json::to_value(&r0).unwrap(),
+        serde_json::to_value(&z).unwrap()
+    );
+    assert_eq!((r0.latency_s, r0.latency_samples), (0.0, 0));
+    assert!(!r0.summary().contains("delay"), "{}", r0.summary());
+
+    let ok = Clearance::check_with_latency(&cfg, &chain, 2e-3).unwrap();
+    assert_eq!(ok.latency_s(), 2e-3);
+    let r2 = ok.report().unwrap();
+    assert_eq!(r2.latency_samples, 20);
+    assert!(r2.safe && r2.summary().contains("2.00 ms (20 samples)"));
+    assert_eq!(Clearance::check(&cfg, &chain).unwrap().latency_s(), 0.0);
+
+    let r3 = analyse_with_latency(&cfg, &chain.coefficients, 3e-3).unwrap();
+    assert_eq!((r3.latency_s, r3.latency_samples), (3e-3, 30));
+    let d3 = r3.condition(Condition::D).unwrap();
+    assert!(!r3.safe && d3.phase_margin_deg < 30.0, "{}", r3.summary());
+    assert!(r3.max_force_scale < r0.max_force_scale);
+    assert!(r3.critical_force_scale < r0.critical_force_scale);
+    assert!(r3.critical_trap_stiffness_pn_um < r0.critical_trap_stiffness_pn_um);
+    match Clearance::check_with_latency(&cfg, &chain, 3e-3) {
+        Err(RigError::LoopNotSafe(m)) => {
+            for part in [
+                "extra loop delay of 3.00 ms (30 samples)",
+                "D has a phase margin of",
+                "largest safe force scale at that delay",
+            ] {
+                assert!(m.contains(part), "{part:?} in {m}");
+            }
+        }
+        other => panic!("{other:?}"),
+    }
+    for bad in [f64::NAN, f64::INFINITY, -1e-3, 0.5] {
+        assert!(
+            matches!(
+                analyse_with_latency(&cfg, &chain.coefficients, bad),
+                Err(RigError::InvalidParameter {
+                    name: "latency",
+                    ..
+                })
+            ),
+            "{bad}"
+        );
+    }
+}
+
+/// Whole samples, rounded up; 3 ms at 10 kHz is 30, not 31.
+#[test]
+fn latency_rounds_up_to_whole_samples() {
+    for (s, fs, d) in [
+        (0.0, 1e4, 0),
+        (1e-9, 1e4, 1),
+        (3e-3, 1e4, 30),
+        (0.25e-3, 1e4, 3),
+        (14e-3, 1e4, 140),
+        (1e-3, 48e3, 48),
+        (0.1, 1e4, 1000),
+    ] {
+        assert_eq!(delay_samples(s, fs).unwrap(), d, "{s} s at {fs} Hz");
+    }
+    assert!(delay_samples(0.1, 2e4).is_err());
+    assert!(delay_samples(f64::NAN, 1e4).is_err());
 }

@@ -4,7 +4,7 @@ reference values for crates/rig/tests/stability.rs.
 
 1. Margins of small discrete loops from python-control's
    `stability_margins` (the definitions kilotouch's `stability::margins`
-   follows).
+   follows), also with a long pure delay.
 2. The bilateral loop of the default rig file, built here from the paper's
    equations with numpy/scipy (plant of eq. 1 with the two side branches,
    exact ZOH by scipy.linalg.expm, Linkwitz-Riley crossover from
@@ -13,9 +13,12 @@ reference values for crates/rig/tests/stability.rs.
    and analysed with python-control: margins from a dense frequency
    response (`frd`), closed-loop poles from the state-space feedback, and
    the critical force scale by bisection on the poles.
+3. The same loop with an extra delay of d samples (z^-d): margins, poles
+   with python-control's state space of the delay appended, and the delay
+   at which the pressed D loop turns unstable.
 
 Regenerate with `python3 crates/rig/tests/stability_reference.py` (numpy,
-scipy, control). Recorded with numpy 2.4, scipy 1.17, control 0.10.
+scipy, control). Recorded with numpy 2.4, scipy 1.17, control 0.10.2.
 """
 import json
 import os
@@ -50,6 +53,29 @@ for num, den, fs in [
         "gain_crossover_hz": float(wgc / (2 * np.pi)) if np.isfinite(wgc) else None,
     })
 out["generic"] = generic
+
+# Small loops with a long pure delay z^-d (the phase turns d/2 times up to
+# Nyquist): margins from a dense frequency response (`frd`, 20000 points
+# from 0.01 Hz, the lower end of kilotouch's grid, to Nyquist: the delay
+# turns by at most 35 deg between points; 50000 points change the margins
+# by < 1e-9 dB and < 1e-4 deg).
+generic_delayed = []
+for num, den, fs, d in [
+    ([0.02, 0.01], [1.0, -1.4, 0.45], 1.0, 1000),
+    ([0.0, 0.3, 0.1], [1.0, -1.5, 0.7], 1.0, 300),
+]:
+    f = np.logspace(-2, np.log10(fs / 2 * (1 - 1e-9)), 20000)
+    z = np.exp(2j * np.pi * f / fs)
+    resp = np.polyval(num, z) / np.polyval(den, z) * z ** (-d)
+    gm, pm, sm, wpc, wgc, wms = control.stability_margins(control.frd(resp, 2 * np.pi * f))
+    generic_delayed.append({
+        "num": num, "den": den, "fs": fs, "delay_samples": d,
+        "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) else None,
+        "phase_margin_deg": float(pm) if np.isfinite(pm) else None,
+        "phase_crossover_hz": float(wpc / (2 * np.pi)) if np.isfinite(wpc) else None,
+        "gain_crossover_hz": float(wgc / (2 * np.pi)) if np.isfinite(wgc) else None,
+    })
+out["generic_delayed"] = generic_delayed
 
 
 # ----------------------------------------------------------------- 2. plant
@@ -233,6 +259,56 @@ for condition, state, kf, bf in [
         "critical_force_scale": float(np.sqrt(lo * hi)),
     })
 out["loop_cases"] = cases
+
+# ------------------------------------------- 3. an extra loop delay z^-d
+# A live loop's block exchange and command lead delay the command by d more
+# samples: L_d = z^-d L. Margins from the delayed frequency response
+# (python-control `frd`), the closed-loop poles from python-control's own
+# state space of z^-d appended to the loop, and the delay at which the
+# pressed D loop with the rig file's finger turns unstable (bisection on
+# the poles over whole samples).
+def delayed(L, d):
+    return L * control.ss(control.tf([1.0], [1.0] + [0.0] * d, DT))
+
+
+delay_cases = []
+for condition, state, kf, bf, d in [
+    ("D", "pressed", pl["k_f"], pl["b_f"], 30),
+    ("D", "pressed", pl["k_f"], pl["b_f"], 100),
+    ("P", "pressed", pl["k_f"], pl["b_f"], 60),
+    ("D", "pressed", 200.0, 2.0, 30),
+    ("D", "free", pl["k_f"], pl["b_f"], 100),
+]:
+    L = loop(condition, state, kf, bf, cp["force_scale"])
+    zs = np.exp(2j * np.pi * freqs / FS)
+    resp = np.asarray(L(zs)).reshape(-1) * zs ** (-d)
+    frd = control.frd(resp, 2 * np.pi * freqs)
+    gm, pm, sm, wpc, wgc, wms = control.stability_margins(frd)
+    delay_cases.append({
+        "condition": condition, "state": state, "hand_stiffness_n_per_m": kf,
+        "hand_damping_n_s_per_m": bf, "delay_samples": d,
+        "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) else None,
+        "phase_margin_deg": float(pm) if np.isfinite(pm) else None,
+        "gain_crossover_hz": float(wgc / (2 * np.pi)) if np.isfinite(wgc) else None,
+        "phase_crossover_hz": float(wpc / (2 * np.pi)) if np.isfinite(wpc) else None,
+        "spectral_radius": rho(delayed(L, d)),
+    })
+out["delay_cases"] = delay_cases
+
+L = loop("D", "pressed", pl["k_f"], pl["b_f"], cp["force_scale"])
+lo, hi = 0, 400                       # stable at lo, unstable at hi
+assert rho(L) < 1 and rho(delayed(L, hi)) >= 1
+while hi - lo > 1:
+    mid = (lo + hi) // 2
+    if rho(delayed(L, mid)) < 1:
+        lo = mid
+    else:
+        hi = mid
+out["critical_delay"] = {
+    "condition": "D", "state": "pressed", "hand_stiffness_n_per_m": pl["k_f"],
+    "hand_damping_n_s_per_m": pl["b_f"],
+    "last_stable_samples": lo, "first_unstable_samples": hi,
+}
 
 os.makedirs(os.path.join(HERE, "data"), exist_ok=True)
 with open(os.path.join(HERE, "data", "stability_reference.json"), "w") as f:

@@ -22,6 +22,7 @@
 //! `docs/THEORY.md`; the output folder and its formats in
 //! `docs/STUDY.md`.
 
+pub mod at_device;
 pub mod counterbalance;
 mod error;
 pub mod export;

@@ -314,6 +314,7 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
         raw_signals: s.raw_signals,
         trap_calibration: s.trap_calibration.clone(),
         recorded_change: None,
+        device: None,
     };
     let mut store = StudyStore::open(out, &s.protocol, &meta)?;
     if let Some(sim) = s.simulation {

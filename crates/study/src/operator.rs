@@ -849,27 +849,31 @@ impl SimCohort {
     pub fn operator(&self) -> Option<&SimOperator> {
         self.current.as_ref().map(|(_, o)| o)
     }
+
+    /// Build participant `index`'s operator now (it allocates its delay
+    /// lines), so that its first trial's `begin_trial` does not: for a
+    /// real-time sitting of that one participant.
+    pub fn prepare(&mut self, index: u32) {
+        if self.current.as_ref().is_some_and(|(p, _)| *p == index) {
+            return;
+        }
+        let params = OperatorParams::for_participant(self.study_seed, index);
+        match SimOperator::new(params, self.control_rate_hz, self.sample_rate_hz) {
+            Ok(op) => {
+                self.current = Some((index, op));
+                self.failed = None;
+            }
+            Err(e) => {
+                self.current = None;
+                self.failed = Some(e.to_string());
+            }
+        }
+    }
 }
 
 impl Participant for SimCohort {
     fn begin_trial(&mut self, brief: &TrialBrief) {
-        if self
-            .current
-            .as_ref()
-            .is_none_or(|(p, _)| *p != brief.participant)
-        {
-            let params = OperatorParams::for_participant(self.study_seed, brief.participant);
-            match SimOperator::new(params, self.control_rate_hz, self.sample_rate_hz) {
-                Ok(op) => {
-                    self.current = Some((brief.participant, op));
-                    self.failed = None;
-                }
-                Err(e) => {
-                    self.current = None;
-                    self.failed = Some(e.to_string());
-                }
-            }
-        }
+        self.prepare(brief.participant);
         if let Some((_, op)) = &mut self.current {
             op.begin_trial(brief);
         }

@@ -108,3 +108,102 @@ impl Participant for MouseParticipant {
         self.hand_m
     }
 }
+
+/// The participant's control period: asked for a hand target every
+/// `every` samples with what happened since (the force and acceleration of
+/// each sample, the handle), the hand moving linearly from the previous
+/// target to the new one over the period. One schedule for every place a
+/// participant drives a hand: the trial runner, and a device hosting the
+/// simulated participant at its handle (hardware in the loop).
+/// Allocation-free after construction.
+#[derive(Debug, Clone)]
+pub struct ControlPeriod {
+    every: u64,
+    prev: [f64; 2],
+    next: [f64; 2],
+    force: Vec<[f64; 2]>,
+    accel: Vec<[f64; 3]>,
+    handle: [f64; 2],
+}
+
+impl ControlPeriod {
+    /// A schedule whose periods hold at most `capacity` samples.
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        Self {
+            every: capacity as u64,
+            prev: [0.0; 2],
+            next: [0.0; 2],
+            force: Vec::with_capacity(capacity),
+            accel: Vec::with_capacity(capacity),
+            handle: [0.0; 2],
+        }
+    }
+
+    /// Start over with periods of `every` samples (at most the capacity),
+    /// the hand resting at `rest_m` (m).
+    pub fn start(&mut self, every: u64, rest_m: [f64; 2]) {
+        self.every = every.clamp(1, self.force.capacity().max(1) as u64);
+        self.prev = rest_m;
+        self.next = rest_m;
+        self.force.clear();
+        self.accel.clear();
+        self.handle = [0.0; 2];
+    }
+
+    /// Samples per period.
+    pub fn every(&self) -> u64 {
+        self.every
+    }
+
+    /// Asks `participant` for the target of the next period at trial time
+    /// `t_s` (s; sample period `dt_s`), showing it `frame`, with what
+    /// happened since the last call; a non-finite target keeps the previous
+    /// one.
+    #[inline]
+    pub fn ask<P: Participant + ?Sized>(
+        &mut self,
+        participant: &mut P,
+        t_s: f64,
+        dt_s: f64,
+        frame: Option<VisualFrame>,
+    ) {
+        let obs = Observation {
+            t_s,
+            dt_s,
+            frame,
+            force_n: &self.force,
+            accel_m_s2: &self.accel,
+            handle_m: self.handle,
+        };
+        let target = participant.act(&obs);
+        self.force.clear();
+        self.accel.clear();
+        self.prev = self.next;
+        if target.iter().all(|v| v.is_finite()) {
+            self.next = target;
+        }
+    }
+
+    /// The hand at sample `phase` (0-based) of the period: linear from the
+    /// previous target to the next, m.
+    #[inline]
+    pub fn hand_at(&self, phase: u64) -> [f64; 2] {
+        let a = (phase + 1) as f64 / self.every as f64;
+        [
+            self.prev[0] + a * (self.next[0] - self.prev[0]),
+            self.prev[1] + a * (self.next[1] - self.prev[1]),
+        ]
+    }
+
+    /// What a sample gave: the Pantograph force (N), the fingertip
+    /// acceleration (m/s²) and the handle (m) at its end.
+    #[inline]
+    pub fn record(&mut self, force_n: [f64; 2], accel_m_s2: [f64; 3], handle_m: [f64; 2]) {
+        self.handle = handle_m;
+        if self.force.len() < self.force.capacity() {
+            self.force.push(force_n);
+            self.accel.push(accel_m_s2);
+        }
+    }
+}

@@ -7,12 +7,13 @@
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
-use kilotouch_study::export::{Metric, TRIALS_FILE, TrialRow, read_session, read_trials};
+use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_session, read_trials};
 use kilotouch_study::fidelity::Fidelity;
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::runner::RunnerConfig;
 use kilotouch_study::seeds::Phase;
 use kilotouch_study::simulate::{SimulateOptions, simulate};
+use kilotouch_study::stats::agreement::{Compared, agreement};
 
 fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
     let mut protocol = Protocol::paper().unwrap();
@@ -38,51 +39,22 @@ fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
         .collect()
 }
 
-/// A metric of a row.
-type Getter = fn(&TrialRow) -> Option<f64>;
-
-/// Mean and variance of the mean.
-fn mean_var(x: &[f64]) -> (f64, f64) {
-    let n = x.len() as f64;
-    let m = x.iter().sum::<f64>() / n;
-    let v = x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0);
-    (m, v / n)
-}
-
 #[test]
 fn scene_and_full_studies_agree_within_sampling_error() {
     let tmp = tempfile::tempdir().unwrap();
     let full = run(Fidelity::Full, &tmp.path().join("full"));
     let scene = run(Fidelity::Scene, &tmp.path().join("scene"));
     assert_eq!(full.len(), scene.len());
-    let metrics: [(&str, Getter); 5] = [
-        ("success", |r| Some(f64::from(u8::from(r.success)))),
-        ("time_s", |r| Metric::TimeS.get(r)),
-        ("force_mean_pn", |r| Metric::ForceMeanPn.get(r)),
-        ("disp_err_mean_um", |r| Metric::DispErrMeanUm.get(r)),
-        ("contact_fraction", |r| Metric::ContactFraction.get(r)),
-    ];
-    let mut compared = 0;
-    for c in Condition::ALL {
-        for (name, get) in &metrics {
-            let values = |rows: &[TrialRow]| -> Vec<f64> {
-                rows.iter()
-                    .filter(|r| r.condition == c)
-                    .filter_map(get)
-                    .collect()
-            };
-            let (a, b) = (values(&full), values(&scene));
-            assert!(a.len() >= 10 && b.len() >= 10, "{c} {name}: too few trials");
-            let ((ma, va), (mb, vb)) = (mean_var(&a), mean_var(&b));
-            let se = (va + vb).sqrt();
-            assert!(
-                (ma - mb).abs() <= 2.5 * se + 1e-12 * ma.abs(),
-                "{c} {name}: full {ma} scene {mb}, pooled SE {se}"
-            );
-            compared += 1;
-        }
+    let table = agreement(&full, &scene, &Compared::CIRCLING, 2.5);
+    assert_eq!(table.len(), 15, "every condition × metric compared");
+    for a in &table {
+        assert!(a.n_a >= 10 && a.n_b >= 10, "too few trials: {a:?}");
+        assert!(
+            a.agrees,
+            "{} {}: full {} scene {}, pooled SE {}",
+            a.condition, a.metric, a.mean_a, a.mean_b, a.pooled_se
+        );
     }
-    assert_eq!(compared, 15);
 }
 
 /// Which trials the scene runs at the control rate: V without a raw file;

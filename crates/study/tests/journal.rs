@@ -5,7 +5,7 @@ use std::fs;
 
 use kilotouch_study::export::ExportError;
 use kilotouch_study::export::checksum::{Sha256, crc32, sha256_hex};
-use kilotouch_study::export::session::{CalibrationRef, OrderRow};
+use kilotouch_study::export::session::{CalibrationRef, DeviceRecord, OrderRow};
 use kilotouch_study::export::utc::UtcTime;
 use kilotouch_study::journal::{
     Entry, Journal, Record, RecoveryRecord, SessionStart, decode_line, encode_line, parse_journal,
@@ -96,6 +96,19 @@ fn all_records() -> Vec<Record> {
                 sessions: vec![Condition::D, Condition::V, Condition::P],
             }],
             resumed: false,
+            device: Some(DeviceRecord {
+                spec: "serial:/dev/ttyACM0".into(),
+                kind: "serial DAQ".into(),
+                name: "kilotouch-daq".into(),
+                serial: "KT-0001".into(),
+                firmware: "0.1.0".into(),
+                sample_rate_hz: 10_000.0,
+                block_samples: 10,
+                loop_delay_samples: 21,
+                loop_delay_ms: 2.1,
+                extra_latency_ms: 2.0,
+                round_trip_ms: Some(0.8),
+            }),
         }),
         Record::Recovered(RecoveryRecord {
             journal_torn_bytes: 17,

@@ -36,6 +36,29 @@ pub struct Args {
     /// Rig file for `--paced` (default: the built-in rig).
     #[arg(long, value_name = "FILE", requires = "paced")]
     pub rig_config: Option<std::path::PathBuf>,
+    /// Instead of the speed figures: hardware in the loop against the
+    /// simulation. The paper's protocol runs through `study simulate` and,
+    /// sitting by sitting, through `study run` on the DAQ emulator hosting
+    /// the same simulated participants; each condition's success rate,
+    /// time, force, displacement error and contact fraction are compared
+    /// (within 2.5 pooled SE). Takes about 10 min per participant of real
+    /// time divided by `--speed`.
+    #[arg(long, conflicts_with = "paced")]
+    pub hil: bool,
+    /// `--hil`: participants (10 test trials per condition each).
+    #[arg(long, default_value_t = 6, requires = "hil")]
+    pub participants: usize,
+    /// `--hil`: the study seed.
+    #[arg(long, default_value_t = 1, requires = "hil")]
+    pub seed: u64,
+    /// `--hil`: the emulator's clock speed (1 = real time; the loop delay
+    /// in samples is the same at any speed).
+    #[arg(long, default_value_t = 4.0, requires = "hil")]
+    pub speed: f64,
+    /// `--hil`: folder for both studies (default: a new temporary folder,
+    /// kept and named in the report).
+    #[arg(long, requires = "hil")]
+    pub out: Option<std::path::PathBuf>,
 }
 
 /// JSON document.
@@ -115,6 +138,30 @@ pub fn white_noise(n: usize, seed: u64) -> Vec<f64> {
 pub fn run(a: &Args) -> anyhow::Result<()> {
     if let Some(seconds) = a.paced {
         return run_paced(a, seconds);
+    }
+    if a.hil {
+        let out = match &a.out {
+            Some(p) => p.clone(),
+            None => std::env::temp_dir().join(format!(
+                "kilotouch-bench-hil-{}-{}",
+                std::process::id(),
+                std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_secs())
+            )),
+        };
+        let report = super::bench_hil::run(&super::bench_hil::HilBench {
+            participants: a.participants,
+            seed: a.seed,
+            speed: a.speed,
+            out,
+            threads: std::thread::available_parallelism().map_or(1, usize::from),
+        })?;
+        emit(a.json, &report, || report.describe())?;
+        if !report.all_agree {
+            anyhow::bail!("hardware in the loop and the simulation differ (see the table)");
+        }
+        return Ok(());
     }
     let x = white_noise(N, 1);
     let chain = chain_figures(&x, a.reps)?;

@@ -97,6 +97,9 @@ fn calibrate_serial(
     // The device idles between runs while the host computes; its watchdog
     // may trip then, with nothing owed: restart it instead of failing.
     cfg.rearm_after_idle_trip = true;
+    // Open-loop measurement: each block's sensor frames must be those of
+    // its own commands (no command lead).
+    cfg.lead = kilotouch_rig::serial::CommandLead::Blocks(0);
     let rig = SerialRig::open(&cfg)?;
     let fs = rig.sample_rate_hz();
     if (fs - rc.rig.sample_rate_hz).abs() > 1e-9 * fs {

@@ -6,6 +6,15 @@
 //! `/dev/pts/3`), flushed at once, so that scripts and tests can read it
 //! and open the port; the emulator then runs until it is killed (or until
 //! an injected disconnect).
+//!
+//! Hardware in the loop on one machine: `emulate daq --participant
+//! operator:SEED` puts the study's simulated participant at the emulated
+//! handle ([`kilotouch_study::at_device::DeviceParticipant`]); a host's
+//! sitting on that port (`kilotouch study run --rig serial:PTY`) then runs
+//! as with a person at a real rig. `--free-running` makes the device run
+//! every sample at its time (holding the previous command when the host's
+//! is late, as firmware does), `--link-delay-ms` delays every byte in each
+//! direction.
 
 use anyhow::Context;
 use clap::Subcommand;
@@ -14,8 +23,9 @@ use kilotouch_rig::device::{Clock, SystemClock};
 use kilotouch_rig::serial::emulator::{
     Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
 };
-use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve};
+use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve_delayed};
 use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
+use kilotouch_study::at_device::DeviceParticipant;
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -68,14 +78,30 @@ pub struct Args {
     /// host's progress watchdog).
     #[arg(long, value_enum)]
     pub misbehave: Option<MisbehaveArg>,
+    /// Run like firmware: every sample at its time; a command that has not
+    /// arrived is replaced by the previous one and the sample flagged
+    /// CMD_LATE (default: wait for it, simulated time standing still).
+    #[arg(long)]
+    pub free_running: bool,
+    /// Delay every byte by this long in each direction, ms (the round trip
+    /// grows by twice this).
+    #[arg(long, default_value_t = 0.0)]
+    pub link_delay_ms: f64,
+    /// Clock speed: simulated seconds per wall-clock second (1 = real
+    /// time). The device still announces its rig's rate, so the host's
+    /// loop delay and time-outs in samples are unchanged; for benchmarks
+    /// that run many sittings. 0.1 ..= 20.
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Who is at the emulated handle: `operator:SEED` — the study's
+    /// simulated participant of study seed SEED (the protocol's
+    /// `seeds.study` gives `study simulate`'s participants). DAQ only.
+    #[arg(long, value_name = "operator:SEED")]
+    pub participant: Option<String>,
     /// Test device: set every flag bit (clipped, limited, end stop,
     /// non-finite, late command, watchdog) on every sample.
     #[arg(long)]
     pub flag_every_sample: bool,
-    /// Test device: stream this many times faster than the sample rate
-    /// announced in HELLO (0.01 to 100).
-    #[arg(long, value_name = "FACTOR")]
-    pub speedup: Option<f64>,
 }
 
 /// `--misbehave` modes (see [`Misbehaviour`]).
@@ -115,6 +141,8 @@ impl Args {
         let cfg = EmulatorConfig {
             watchdog: Duration::from_millis(self.watchdog_ms),
             batch: self.batch.unwrap_or(default_batch),
+            free_running: self.free_running,
+            speed: self.speed,
             faults: FaultInjection {
                 corrupt_rate: self.corrupt_rate,
                 drop_rate: self.drop_rate,
@@ -134,7 +162,6 @@ impl Args {
                 } else {
                     0
                 },
-                speedup: self.speedup,
             },
         };
         cfg.validate()?;
@@ -151,7 +178,32 @@ impl Args {
     }
 }
 
-fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow::Result<()> {
+/// The link delay of `--link-delay-ms`.
+fn link_delay(ms: f64) -> anyhow::Result<Duration> {
+    if !(ms.is_finite() && (0.0..=1000.0).contains(&ms)) {
+        anyhow::bail!("--link-delay-ms must be in [0, 1000] ms, got {ms}");
+    }
+    Ok(Duration::from_secs_f64(ms * 1e-3))
+}
+
+/// The study seed of `--participant operator:SEED`.
+fn operator_seed(spec: &str) -> anyhow::Result<u64> {
+    let seed = spec.strip_prefix("operator:").ok_or_else(|| {
+        anyhow::anyhow!(
+            "--participant {spec}: expected `operator:SEED` (the study's simulated participant)"
+        )
+    })?;
+    seed.trim().parse().map_err(|_| {
+        anyhow::anyhow!("--participant {spec}: SEED must be a whole number (the study seed)")
+    })
+}
+
+fn run_on_pty<I: Instrument>(
+    inst: I,
+    cfg: EmulatorConfig,
+    delay: Duration,
+    what: &str,
+) -> anyhow::Result<()> {
     let pty = Pty::open().context("cannot create a pseudo-terminal")?;
     let clock = SystemClock::default();
     let mut emu = Emulator::new(inst, cfg, clock.now())?;
@@ -162,16 +214,33 @@ fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow
     }
     let h = emu.hello();
     eprintln!(
-        "kilotouch emulate {what}: `{}` at {} Hz on {} (watchdog {} ms, {} samples/frame); \
+        "kilotouch emulate {what}: `{}` at {} Hz on {} (watchdog {} ms, {} samples/frame{}{}); \
          stop with Ctrl-C",
         h.name,
         h.sample_rate_hz,
         pty.path(),
         h.watchdog_ms,
-        h.batch
+        h.batch,
+        if cfg.free_running {
+            ", free-running"
+        } else {
+            ""
+        },
+        if delay.is_zero() {
+            String::new()
+        } else {
+            format!(", link delay {:.2} ms each way", delay.as_secs_f64() * 1e3)
+        }
     );
+    // A device keeps its own time: the serving thread runs real-time where
+    // the system allows it (it sleeps in poll between samples).
+    if let kilotouch_rig::realtime::Scheduling::Normal(why) =
+        kilotouch_rig::realtime::promote_current_thread()
+    {
+        eprintln!("kilotouch emulate {what}: {why}; timing will follow the machine's load");
+    }
     let stop = AtomicBool::new(false);
-    match serve(&mut emu, &pty, &clock, &stop)? {
+    match serve_delayed(&mut emu, &pty, &clock, &stop, delay)? {
         ServeEnd::Disconnect => {
             eprintln!("kilotouch emulate {what}: injected disconnect, closing the pty");
         }
@@ -184,12 +253,31 @@ fn run_on_pty<I: Instrument>(inst: I, cfg: EmulatorConfig, what: &str) -> anyhow
 pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
     match cmd {
         EmulateCommand::Daq(a) => {
-            let inst = DaqInstrument::new(&a.rig_config()?)?;
-            run_on_pty(inst, a.config(10)?, "daq")
+            let rc = a.rig_config()?;
+            let mut inst = DaqInstrument::new(&rc)?;
+            if let Some(p) = &a.participant {
+                let seed = operator_seed(p)?;
+                let act_every = kilotouch_study::runner::RunnerConfig::default().act_every;
+                inst = inst.with_agent(Box::new(DeviceParticipant::new(
+                    seed,
+                    rc.rig.sample_rate_hz,
+                    act_every,
+                )));
+                eprintln!(
+                    "kilotouch emulate daq: the simulated participant of study seed {seed} is at \
+                     the handle"
+                );
+            }
+            run_on_pty(inst, a.config(10)?, link_delay(a.link_delay_ms)?, "daq")
         }
         EmulateCommand::Tweezer(a) => {
+            if a.participant.is_some() {
+                anyhow::bail!(
+                    "--participant: a participant sits at the DAQ's handle, not the tweezer"
+                );
+            }
             let inst = TweezerInstrument::new(&a.rig_config()?)?;
-            run_on_pty(inst, a.config(1)?, "tweezer")
+            run_on_pty(inst, a.config(1)?, link_delay(a.link_delay_ms)?, "tweezer")
         }
     }
 }

@@ -2,14 +2,15 @@
 
 use anyhow::Context;
 use clap::Subcommand;
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::RigConfig;
+use kilotouch_rig::backend::Device;
 use kilotouch_rig::config::default_config_text;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{ActuatorFrame, FrameFlags, Rig, SensorFrame};
-use kilotouch_rig::serial::{LinkStats, SerialRig};
-use kilotouch_rig::sim::SimRig;
-use kilotouch_rig::stability::{StabilityReport, analyse};
+use kilotouch_rig::serial::LinkStats;
+use kilotouch_rig::stability::{MAX_LATENCY_S, StabilityReport, analyse_with_latency};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -31,7 +32,8 @@ pub enum RigCommand {
     /// Stream zero commands to a rig for a while and report frames, lost frames, CRC errors and the rate.
     Check(CheckArgs),
     /// Closed-loop stability: gain and phase margins of P and D (worst case over the hand range,
-    /// free and pressed), critical trap stiffness and the largest safe force scale.
+    /// free and pressed), critical trap stiffness and the largest safe force scale; with
+    /// `--latency-ms`, for a loop with that much extra delay (a live rig's block and link).
     Margins(MarginsArgs),
 }
 
@@ -67,9 +69,33 @@ pub struct MarginsArgs {
     /// Rig and chain.
     #[command(flatten)]
     pub rig: LoopArgs,
+    /// Extra loop delay, ms, on top of the simulated loop's one sample: a live rig's block
+    /// length plus its link's command lead. Rounded up to whole samples; 0 to 100 ms.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "MS",
+        allow_negative_numbers = true
+    )]
+    pub latency_ms: f64,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+impl MarginsArgs {
+    /// `--latency-ms` in seconds, checked: finite, ≥ 0, at most
+    /// [`MAX_LATENCY_S`].
+    pub fn latency_s(&self) -> anyhow::Result<f64> {
+        let ms = self.latency_ms;
+        let max_ms = 1e3 * MAX_LATENCY_S;
+        if !(ms.is_finite() && (0.0..=max_ms).contains(&ms)) {
+            anyhow::bail!(
+                "--latency-ms must be a number of milliseconds from 0 to {max_ms}, got {ms}"
+            );
+        }
+        Ok(1e-3 * ms)
+    }
 }
 
 /// `kilotouch rig margins --json`: the stability report and the chain it is for.
@@ -80,6 +106,9 @@ pub struct MarginsReport {
     pub report: StabilityReport,
     /// Where the chain came from.
     pub chain: ChainSource,
+    /// The extra loop delay asked for (`--latency-ms`), ms; the report's
+    /// `latency_samples` is it in whole samples.
+    pub latency_ms: f64,
 }
 
 /// Arguments of `kilotouch rig check`.
@@ -104,7 +133,7 @@ pub struct CheckArgs {
     #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_CRC)]
     pub max_crc_errors: f64,
     /// Verdict: fail when more than this fraction of the samples ran with a
-    /// late (held) command.
+    /// late (held) command after the start-up window (the first 100 ms).
     #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_LATE)]
     pub max_late: f64,
     /// Verdict: fail when more than this fraction of the frames carries a
@@ -164,7 +193,14 @@ pub struct CheckReport {
     pub bytes_skipped: u64,
     /// Samples executed by the device with a held (late) command.
     pub late_commands: u64,
-    /// late_commands / frames.
+    /// Of these, after the first 100 ms (a command lead keeps a
+    /// free-running device in commands once running: only start-up is late).
+    pub late_commands_after_startup: u64,
+    /// The command lead, samples (serial rigs; 0: block-synchronous).
+    pub command_lead_samples: u64,
+    /// The link's round trip measured at connection, ms (serial rigs).
+    pub round_trip_ms: Option<f64>,
+    /// late_commands_after_startup / frames (the verdict's late fraction).
     pub late_fraction: f64,
     /// Frames with a fault flag (clipped, limited, end stop, non-finite).
     pub flagged: u64,
@@ -254,6 +290,8 @@ struct Streamed {
     flagged: u64,
     elapsed_s: f64,
     max_block_s: f64,
+    /// Late commands after the start-up window ([`STARTUP_S`]).
+    late_after_startup: u64,
 }
 
 /// Flags of a frame that report a fault of the device or its commands.
@@ -261,6 +299,11 @@ const FAULT_FLAGS: u8 = FrameFlags::CLIPPED
     | FrameFlags::LIMITED
     | FrameFlags::END_STOP
     | FrameFlags::NONFINITE_COMMAND;
+
+/// The start-up window of a check, s: the device runs from START while the
+/// host's first commands travel (and, with a command lead, while the lead
+/// fills), so late commands there are expected.
+const STARTUP_S: f64 = 0.1;
 
 /// Stream zero commands through `rig` for `duration` s in blocks of
 /// `block`. The counters are returned with the error that ended the run,
@@ -272,9 +315,16 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
     if let Err(e) = rig.start() {
         return (s, Some(e.into()));
     }
+    // The exchange runs real-time where the system allows it, as the
+    // engine's loop does.
+    let rt = kilotouch_rig::realtime::promote_current_thread().is_realtime();
     let t0 = Instant::now();
     let mut error = None;
+    let mut late_at_startup = None;
     while t0.elapsed().as_secs_f64() < duration {
+        if late_at_startup.is_none() && t0.elapsed().as_secs_f64() >= STARTUP_S {
+            late_at_startup = Some(rig.status().late_commands);
+        }
         let tb = Instant::now();
         match rig.process_block(&cmds, &mut sens) {
             Ok(r) => {
@@ -293,6 +343,11 @@ fn stream(rig: &mut dyn Rig, duration: f64, block: usize) -> (Streamed, Option<a
         }
     }
     s.elapsed_s = t0.elapsed().as_secs_f64();
+    let late = rig.status().late_commands;
+    s.late_after_startup = late - late_at_startup.unwrap_or(late).min(late);
+    if rt {
+        kilotouch_rig::realtime::demote_current_thread();
+    }
     if let Err(e) = rig.stop() {
         error.get_or_insert(e.into());
     }
@@ -324,8 +379,9 @@ fn verdict(r: &CheckReport) -> Option<String> {
     }
     if r.late_fraction > r.max_late {
         why.push(format!(
-            "{} late commands, {:.3} % of the samples, limit {:.3} % (--max-late)",
-            r.late_commands,
+            "{} late commands after start-up, {:.3} % of the samples, limit {:.3} % \
+             (--max-late)",
+            r.late_commands_after_startup,
             100.0 * r.late_fraction,
             100.0 * r.max_late
         ));
@@ -391,34 +447,41 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         }
     }
     let spec: RigSpec = a.rig.parse()?;
-    let (id, (streamed, error), link) = match &spec {
-        RigSpec::Sim => {
-            let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
-            let mut rig = SimRig::paced(&rc, 0.5)?;
-            let streamed = stream(&mut rig, a.duration, a.block);
-            (rig.identity().clone(), streamed, LinkStats::default())
-        }
-        RigSpec::Serial(cfg) => {
-            let mut rig = SerialRig::open(cfg)?;
-            // START may take up to the handshake time-out; then the
-            // streaming time and the grace: a hard bound on every block.
-            rig.set_deadline(Some(
-                Instant::now()
-                    + cfg.handshake_timeout
-                    + Duration::from_secs_f64(a.duration)
-                    + CheckArgs::GRACE,
-            ));
-            let streamed = stream(&mut rig, a.duration, a.block);
-            (rig.identity().clone(), streamed, rig.link_stats())
-        }
-        RigSpec::Audio(_) => return Err(RigSpec::audio_not_built().into()),
+    let rc = RigConfig::load_or_default(a.rig_config.as_ref())?;
+    let mut rig = match &spec {
+        // The simulated rig paced by the wall clock, as a device would be.
+        RigSpec::Sim => AnyRig::sim_paced(&rc, 0.5)?,
+        _ => kilotouch_rig::open_rig(&spec, &rc)?,
     };
+    if let Device::Serial(r) = rig.device_mut() {
+        // START may take up to the handshake time-out; then the streaming
+        // time and the grace: a hard bound on every block.
+        let hs = match &spec {
+            RigSpec::Serial(c) => c.handshake_timeout,
+            _ => Duration::ZERO,
+        };
+        r.set_deadline(Some(
+            Instant::now() + hs + Duration::from_secs_f64(a.duration) + CheckArgs::GRACE,
+        ));
+    }
+    let lead = u64::from(
+        rig.loop_delay_samples(a.block)
+            .saturating_sub(a.block as u32),
+    ) * u64::from(rig.is_live());
+    let round_trip_ms = rig.round_trip_s().map(|s| s * 1e3);
+    let (streamed, error) = stream(&mut rig, a.duration, a.block);
+    let link = match rig.device() {
+        Device::Serial(r) => r.link_stats(),
+        _ => LinkStats::default(),
+    };
+    let id = rig.identity().clone();
     let Streamed {
         frames,
         lost,
         flagged,
         elapsed_s,
         max_block_s,
+        late_after_startup,
     } = streamed;
     let ratio = |n: u64| {
         if frames == 0 {
@@ -438,7 +501,10 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         crc_errors: link.crc_errors,
         bytes_skipped: link.bytes_skipped,
         late_commands: link.late_commands,
-        late_fraction: ratio(link.late_commands),
+        late_commands_after_startup: late_after_startup,
+        command_lead_samples: lead,
+        round_trip_ms,
+        late_fraction: ratio(late_after_startup),
         flagged,
         flagged_fraction: ratio(flagged),
         watchdog_samples: link.watchdog_samples,
@@ -489,11 +555,14 @@ pub fn run(cmd: &RigCommand) -> anyhow::Result<()> {
             }
         }
         RigCommand::Margins(a) => {
+            let latency_s = a.latency_s()?;
             let (cfg, chain) = a.rig.load()?;
-            let report = analyse(&cfg, &chain.coefficients).context("rig margins")?;
+            let report = analyse_with_latency(&cfg, &chain.coefficients, latency_s)
+                .context("rig margins")?;
             let out = MarginsReport {
                 report,
                 chain: chain.source.clone(),
+                latency_ms: a.latency_ms,
             };
             emit(a.json, &out, || {
                 let mut t = format!("chain: {}\n", chain.source.describe());

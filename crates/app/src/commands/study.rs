@@ -20,6 +20,11 @@ use crate::output::emit;
 pub enum StudyCommand {
     /// Run a whole study with simulated participants on the simulated rig.
     Simulate(SimulateArgs),
+    /// One participant's sitting on the real-time engine, headless: the
+    /// simulated participant on the simulated rig, or a live rig whose
+    /// handle a real hand moves (hardware in the loop with the emulator's
+    /// `--participant`).
+    Run(super::study_run::RunArgs),
     /// How many participants? Power of the planned analysis, simulated from a pilot.
     Power(super::study_power::PowerArgs),
     /// Join study folders of one protocol and seed (the shards of
@@ -99,12 +104,13 @@ pub struct SimulateArgs {
 pub fn run(c: &StudyCommand) -> anyhow::Result<()> {
     match c {
         StudyCommand::Simulate(a) => run_simulate(a),
+        StudyCommand::Run(a) => super::study_run::run(a),
         StudyCommand::Power(a) => super::study_power::run(a),
         StudyCommand::Merge(a) => run_merge(a),
     }
 }
 
-fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
+pub(crate) fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
     let path = PathBuf::from(spec);
     if path.is_file() {
         return Protocol::load(&path).map_err(anyhow::Error::from);

@@ -1,12 +1,13 @@
 //! The GUI side of the engine: commands in, telemetry and events out.
 
-use super::backend::EngineRig;
+use super::driver::FreeExploration;
 use super::runner::{EngineCore, Shared};
 use super::splitter::{ChainSwap, SwapOutcome};
 use super::{
     BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, Health,
     TelemetrySample,
 };
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{Clock, RigIdentity, SystemClock};
@@ -29,14 +30,14 @@ pub fn engine_pair<C: Clock>(
     opts: EngineOptions,
     clock: C,
 ) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
-    engine_pair_with_rig(cfg, EngineRig::sim(cfg)?, opts, clock)
+    engine_pair_with_rig(cfg, AnyRig::sim(cfg)?, opts, clock)
 }
 
 /// [`engine_pair`] on a given rig (simulated or live, see
-/// [`EngineRig::open`]).
+/// [`AnyRig::open`]).
 pub fn engine_pair_with_rig<C: Clock>(
     cfg: &RigConfig,
-    rig: EngineRig,
+    rig: AnyRig,
     opts: EngineOptions,
     clock: C,
 ) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
@@ -54,9 +55,16 @@ pub fn engine_pair_with_rig<C: Clock>(
     let core = EngineCore::new(cfg, rig, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
     let identity = kilotouch_rig::Rig::identity(&core.closed_loop().rig).clone();
     let config = core.config().clone();
+    let free = core.free_exploration();
+    let latency_s = core.latency_s();
+    let block_len = opts.block_len;
+    let loop_delay = kilotouch_rig::Rig::loop_delay_samples(&core.closed_loop().rig, block_len);
+    let round_trip_s = kilotouch_rig::Rig::round_trip_s(&core.closed_loop().rig);
+    let chain = core.initial_chain().clone();
     let clearance = core.closed_loop().clearance();
     let chain_source = clearance.source().clone();
     let stability = clearance.report().cloned();
+    let applied = Some((chain, clearance.clone()));
     let handle = EngineHandle {
         commands: cmd_tx,
         telemetry: tel_rx,
@@ -72,6 +80,12 @@ pub fn engine_pair_with_rig<C: Clock>(
         last_swap: None,
         chain_source,
         stability,
+        free,
+        latency_s,
+        block_len,
+        loop_delay,
+        round_trip_s,
+        applied,
     };
     Ok((core, handle))
 }
@@ -94,6 +108,25 @@ pub struct EngineHandle {
     last_swap: Option<SwapOutcome>,
     chain_source: ChainSource,
     stability: Option<StabilityReport>,
+    free: FreeExploration,
+    latency_s: f64,
+    block_len: usize,
+    loop_delay: u32,
+    round_trip_s: Option<f64>,
+    /// The chain the engine runs and the clearance it was armed with.
+    applied: Option<(LoopChain, Clearance)>,
+}
+
+/// Presses the engine's emergency stop from anywhere (a cloneable handle on
+/// the same atomic counter as [`EngineHandle::emergency_stop`]).
+#[derive(Debug, Clone)]
+pub struct EstopTrigger(Arc<Shared>);
+
+impl EstopTrigger {
+    /// Emergency stop: never blocks, never fails.
+    pub fn fire(&self) {
+        self.0.estop_count.fetch_add(1, Ordering::AcqRel);
+    }
 }
 
 impl EngineHandle {
@@ -112,11 +145,14 @@ impl EngineHandle {
         spec: &RigSpec,
         opts: EngineOptions,
     ) -> Result<Self, EngineError> {
-        let rig = EngineRig::open(spec, cfg)?;
+        let rig = AnyRig::open(spec, cfg)?;
         let (mut core, mut handle) = engine_pair_with_rig(cfg, rig, opts, SystemClock::default())?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
-            .spawn(move || while core.run_block() {})?;
+            .spawn(move || {
+                core.thread_started();
+                while core.run_block() {}
+            })?;
         handle.thread = Some(t);
         Ok(handle)
     }
@@ -130,7 +166,10 @@ impl EngineHandle {
         let (mut core, mut handle) = engine_pair(cfg, opts, clock)?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
-            .spawn(move || while core.run_block() {})?;
+            .spawn(move || {
+                core.thread_started();
+                while core.run_block() {}
+            })?;
         handle.thread = Some(t);
         Ok(handle)
     }
@@ -154,7 +193,7 @@ impl EngineHandle {
     /// A live rig? (The hand is then the real handle: [`Self::set_hand`]
     /// has no effect.)
     pub fn is_live(&self) -> bool {
-        super::backend::is_live_kind(self.identity.kind)
+        kilotouch_rig::backend::is_live_kind(self.identity.kind)
     }
 
     /// The last rig error reported (cleared by a successful reconnect).
@@ -265,7 +304,15 @@ impl EngineHandle {
 
     /// Swap in a new (force-normalised) chain, e.g. a calibration's. The
     /// loop must have been cleared with it: `clearance` is the analysis of
-    /// this rig file with this chain ([`Clearance::check`]).
+    /// this rig file with this chain ([`Clearance::check`]). A clearance
+    /// analysed for less loop delay than this engine's rig adds
+    /// ([`Self::latency_s`]: a live rig's block and command lead) is
+    /// analysed again with the engine's delay first, and the chain is
+    /// refused when its margins do not hold at that delay.
+    ///
+    /// # Errors
+    /// [`RigError::LoopNotSafe`] naming the failing margin and the delay;
+    /// a clearance of another chain; a full command queue.
     pub fn apply_chain(
         &mut self,
         chain: &LoopChain,
@@ -277,6 +324,13 @@ impl EngineHandle {
                 reason: "the clearance is for another chain",
             });
         }
+        let rechecked;
+        let clearance = if clearance.report().is_some() && clearance.latency_s() < self.latency_s {
+            rechecked = Clearance::check_with_latency(&self.config, chain, self.latency_s)?;
+            &rechecked
+        } else {
+            clearance
+        };
         self.send(Command::ApplyChain(ChainSwap::new(
             chain.coefficients.clone(),
         )))
@@ -286,6 +340,7 @@ impl EngineHandle {
         })?;
         self.chain_source = chain.source.clone();
         self.stability = clearance.report().cloned();
+        self.applied = Some((chain.clone(), clearance.clone()));
         Ok(())
     }
 
@@ -299,9 +354,60 @@ impl EngineHandle {
         self.stability.as_ref()
     }
 
-    /// Replace the block driver (e.g. a study session).
+    /// Replace the block driver (e.g. a study sitting); the old one is
+    /// detached on the engine thread and dropped here.
     pub fn set_driver(&mut self, d: Box<dyn BlockDriver>) -> bool {
         self.send(Command::SetDriver(d)).is_ok()
+    }
+
+    /// Back to free exploration (after a sitting).
+    pub fn free_exploration(&mut self) -> bool {
+        self.set_driver(Box::new(self.free))
+    }
+
+    /// The free-exploration driver of this engine (its hand smoothing).
+    pub fn free_exploration_driver(&self) -> FreeExploration {
+        self.free
+    }
+
+    /// A handle that presses this engine's emergency stop.
+    pub fn estop_trigger(&self) -> EstopTrigger {
+        EstopTrigger(self.shared.clone())
+    }
+
+    /// Samples per block.
+    pub fn block_len(&self) -> usize {
+        self.block_len
+    }
+
+    /// The loop delay, samples: from a sensor sample to the sample its
+    /// command acts in (1 on the simulated rig; block + command lead on a
+    /// live rig).
+    pub fn loop_delay_samples(&self) -> u32 {
+        self.loop_delay
+    }
+
+    /// The link round trip a live rig measured when it connected, s.
+    pub fn round_trip_s(&self) -> Option<f64> {
+        self.round_trip_s
+    }
+
+    /// The chain the engine runs and the clearance it was armed with.
+    pub fn chain_and_clearance(&self) -> Option<(LoopChain, Clearance)> {
+        self.applied.clone()
+    }
+
+    /// Sleep to the wall clock (`true`, the default) or run as fast as
+    /// possible (`false`; the simulated rig only).
+    pub fn set_paced(&mut self, on: bool) -> bool {
+        self.send(Command::SetPaced(on)).is_ok()
+    }
+
+    /// The loop's delay beyond the simulated loop's one sample, s (the
+    /// block and the command lead of a live rig; 0 on the simulated rig):
+    /// what the stability clearance of the running chain includes.
+    pub fn latency_s(&self) -> f64 {
+        self.latency_s
     }
 
     /// Read every telemetry sample waiting; returns how many.

@@ -31,7 +31,7 @@
 //!
 //! # Live rigs
 //!
-//! The rig is any [`backend::EngineRig`]: simulated (default), a serial DAQ
+//! The rig is any [`AnyRig`]: simulated (default), a serial DAQ
 //! (`serial:PATH`, or the emulator on a pty) or, with the `audio` feature,
 //! an audio interface, chosen with the `--rig` syntax
 //! ([`kilotouch_rig::device::RigSpec`]). A live rig differs in three ways:
@@ -60,19 +60,26 @@
 //! on the engine thread and resumes; forces come back through the safety
 //! layer's arming and ramp.
 //!
-//! Study sessions later plug in as a [`BlockDriver`] (the default is free
-//! exploration: the hand follows the GUI's mouse).
+//! # Drivers
+//!
+//! What runs in a block is the [`BlockDriver`]'s: free exploration (the
+//! default, [`FreeExploration`]: the hand follows the GUI's mouse on the
+//! simulated rig, the real handle on a live one) or a study sitting
+//! (`crate::session`: the study's trials on this same loop). The engine
+//! keeps what every activity shares: the commands, the emergency stop, the
+//! pacing, the telemetry and the health reports.
 
-pub mod backend;
+mod driver;
 mod handle;
 pub mod pacing;
 mod runner;
 pub mod soak;
 pub mod splitter;
 
-pub use backend::EngineRig;
-pub use handle::{EngineHandle, engine_pair, engine_pair_with_rig};
-pub use runner::EngineCore;
+pub use driver::{BlockCtx, BlockDriver, FreeExploration, Publisher, run_live_block};
+pub use handle::{EngineHandle, EstopTrigger, engine_pair, engine_pair_with_rig};
+pub use kilotouch_rig::AnyRig;
+pub use runner::{EngineCore, EngineLoop};
 
 use kilotouch_rig::ActuatorFrame;
 use kilotouch_rig::coupling::CouplingCounters;
@@ -162,6 +169,9 @@ pub struct Health {
     pub worst_lateness_total_s: f64,
     /// Blocks run since start.
     pub blocks: u64,
+    /// Samples run since start (what the loop advanced; a sitting's
+    /// simulated loop stands still between trials).
+    pub samples: u64,
     /// Telemetry samples dropped because the GUI did not drain the queue.
     pub telemetry_dropped: u64,
     /// Health/notice events dropped (event queue full).
@@ -185,6 +195,8 @@ pub struct Health {
     /// The trap calibration the tweezer reports through (None: the
     /// simulated bead and stiffness).
     pub trap_calibration: Option<AppliedTrap>,
+    /// The engine thread runs real-time (`SCHED_FIFO`).
+    pub realtime: bool,
 }
 
 impl Health {
@@ -197,28 +209,6 @@ impl Health {
             self.safety.label()
         }
     }
-}
-
-/// Replaces free exploration for a block-driven activity (a study session):
-/// it decides where the hand goes and sees every sample.
-/// Implementations must not allocate, lock or block in these methods.
-pub trait BlockDriver: Send + std::fmt::Debug {
-    /// Start of a block (first sample `first_seq`): the GUI's hand request
-    /// (m) in, the hand position to drive the rig toward during the block out.
-    fn hand_target(&mut self, gui_hand_m: [f64; 2], first_seq: u64) -> [f64; 2];
-    /// Every sample after it ran.
-    fn observe(&mut self, sample: &TelemetrySample);
-}
-
-/// The default driver: the hand follows the GUI (mouse or real handle).
-#[derive(Debug, Default, Clone, Copy)]
-pub struct FreeExploration;
-
-impl BlockDriver for FreeExploration {
-    fn hand_target(&mut self, gui_hand_m: [f64; 2], _first_seq: u64) -> [f64; 2] {
-        gui_hand_m
-    }
-    fn observe(&mut self, _sample: &TelemetrySample) {}
 }
 
 /// GUI → engine.
@@ -252,8 +242,12 @@ pub enum Command {
     /// device; `Some`: open this one instead, same sample rate). Blocks the
     /// engine thread for the handshake; the loop is stopped meanwhile.
     Reconnect(Option<Box<RigSpec>>),
-    /// Replace the block driver (returns the old one).
+    /// Replace the block driver (returns the old one, detached).
     SetDriver(Box<dyn BlockDriver>),
+    /// Sleep to the wall clock (`true`) or run as fast as possible
+    /// (`false`: a simulated participant's dry run on the simulated rig;
+    /// ignored by live rigs, which the device paces).
+    SetPaced(bool),
     /// End the engine thread.
     Shutdown,
 }
@@ -284,6 +278,9 @@ pub enum EngineEvent {
     Reconnected(Box<RigIdentity>),
     /// Something to drop on the GUI side.
     Garbage(Garbage),
+    /// A command was refused (why): a study sitting owns the loop, and
+    /// only the sitting sets the condition, the scene and the chain.
+    Refused(&'static str),
 }
 
 /// Options of the engine.
@@ -307,6 +304,10 @@ pub struct EngineOptions {
     pub health_interval_blocks: u64,
     /// Start exchanging frames at once.
     pub start: bool,
+    /// Run the engine thread real-time (`SCHED_FIFO`,
+    /// [`kilotouch_rig::realtime`]) while it is paced (by the wall clock or
+    /// a live device), where the system allows it.
+    pub realtime: bool,
 }
 
 impl Default for EngineOptions {
@@ -321,6 +322,7 @@ impl Default for EngineOptions {
             telemetry_capacity: 1 << 15,
             health_interval_blocks: 100,
             start: true,
+            realtime: true,
         }
     }
 }

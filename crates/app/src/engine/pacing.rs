@@ -105,6 +105,17 @@ impl<C: Clock> Pacer<C> {
         self.sleeps = false;
     }
 
+    /// Sleep to the deadlines (`true`, when not device-paced) or run as
+    /// fast as possible (`false`); the schedule restarts at the present.
+    pub fn set_paced(&mut self, on: bool) {
+        let device_paced = self.paced && !self.sleeps;
+        if !device_paced {
+            self.paced = on;
+            self.sleeps = on;
+        }
+        self.reanchor();
+    }
+
     /// Does the pacer sleep to the deadlines?
     pub fn sleeps(&self) -> bool {
         self.sleeps

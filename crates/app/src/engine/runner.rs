@@ -1,19 +1,20 @@
 //! The engine's loop body: one block per call (see the module docs of
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
-use super::backend::EngineRig;
+use super::driver::{BlockCtx, BlockDriver, FreeExploration, Publisher};
 use super::pacing::Pacer;
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
-    BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, FreeExploration,
-    Garbage, Health, TelemetrySample, flags,
+    Command, Condition, EngineError, EngineEvent, EngineOptions, Garbage, Health, TelemetrySample,
+    flags,
 };
 use kilotouch_dsp::chain::Chain;
+use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{Coupling, LoopChain};
 use kilotouch_rig::device::Clock;
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::error::RigError;
-use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, LoopSample, MAX_BLOCK};
+use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, MAX_BLOCK};
 use kilotouch_rig::safety::{SafetyLayer, SafetyState, TripReason};
 use kilotouch_rig::tweezer::DetectedTweezer;
 use kilotouch_rig::{Rig, RigConfig, Tweezer, TweezerParams};
@@ -31,7 +32,14 @@ pub(crate) struct Shared {
 }
 
 /// The closed loop the engine runs.
-pub type EngineLoop = HapticLoop<EngineRig, DetectedTweezer, SwappableChain>;
+pub type EngineLoop = HapticLoop<AnyRig, DetectedTweezer, SwappableChain>;
+
+/// The loop delay of `rig` exchanging blocks of `block_len` samples at
+/// `fs` Hz beyond the one sample of the simulated loop, s: what the
+/// stability analysis adds ([`Rig::loop_delay_samples`]).
+pub fn extra_latency_s(rig: &AnyRig, block_len: usize, fs: f64) -> f64 {
+    f64::from(rig.loop_delay_samples(block_len).saturating_sub(1)) / fs
+}
 
 /// Idle period while the rig is stopped, s.
 const IDLE_SLEEP_S: f64 = 5e-3;
@@ -46,7 +54,7 @@ pub struct EngineCore<C: Clock> {
     pacer: Pacer<C>,
     driver: Box<dyn BlockDriver>,
     commands: rtrb::Consumer<Command>,
-    telemetry: rtrb::Producer<TelemetrySample>,
+    out: Publisher,
     events: rtrb::Producer<EngineEvent>,
     shared: Arc<Shared>,
     opts: EngineOptions,
@@ -56,16 +64,10 @@ pub struct EngineCore<C: Clock> {
     faulted: bool,
     stopped: bool,
     gui_hand: [f64; 2],
-    hand: [f64; 2],
-    hand_alpha: f64,
     estop_seen: u64,
-    last_trap: [f64; 2],
-    trapped: bool,
-    telemetry_dropped: u64,
     events_dropped: u64,
     blocks: u64,
     window_start: Duration,
-    window_samples: u64,
     window_busy_s: f64,
     window_worst_s: f64,
     idle_ticks: u64,
@@ -75,6 +77,14 @@ pub struct EngineCore<C: Clock> {
     live: bool,
     /// Live: time spent waiting for the device in this block, s (not load).
     wait_s: f64,
+    /// Hand smoothing of free exploration, per sample.
+    hand_alpha: f64,
+    /// The chain the loop was armed with at construction.
+    chain: LoopChain,
+    /// The loop's delay beyond one sample, s (the clearance includes it).
+    latency_s: f64,
+    /// The engine thread runs `SCHED_FIFO`.
+    realtime: bool,
 }
 
 impl<C: Clock> EngineCore<C> {
@@ -82,7 +92,7 @@ impl<C: Clock> EngineCore<C> {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         cfg: &RigConfig,
-        rig: EngineRig,
+        rig: AnyRig,
         opts: EngineOptions,
         clock: C,
         commands: rtrb::Consumer<Command>,
@@ -121,9 +131,12 @@ impl<C: Clock> EngineCore<C> {
             &cfg.tweezer.detector,
             fs,
         )?;
-        // The loop is armed only if its margins meet the rig file's minimum.
+        // The loop is armed only if its margins meet the rig file's minimum
+        // with the loop's own delay: one sample on the simulated rig, the
+        // block and the link's command lead on a live one.
+        let latency_s = extra_latency_s(&rig, opts.block_len, fs);
         let chain = LoopChain::as_designed(cfg)?;
-        let clearance = Clearance::check(cfg, &chain)?;
+        let clearance = Clearance::check_with_latency(cfg, &chain, latency_s)?;
         let (splitter, swap_port) = SwappableChain::new(Chain::new(&chain.coefficients));
         let coupling = Coupling::with_splitter(cfg, splitter)?;
         let condition = coupling.condition();
@@ -145,9 +158,9 @@ impl<C: Clock> EngineCore<C> {
             lp,
             swap_port,
             pacer,
-            driver: Box::new(FreeExploration),
+            driver: Box::new(FreeExploration::new(hand_alpha)),
             commands,
-            telemetry,
+            out: Publisher::new(telemetry, trap0),
             events,
             shared,
             opts,
@@ -157,22 +170,20 @@ impl<C: Clock> EngineCore<C> {
             faulted: false,
             stopped: false,
             gui_hand: [0.0; 2],
-            hand: [0.0; 2],
-            hand_alpha,
             estop_seen: 0,
-            last_trap: trap0,
-            trapped: true,
-            telemetry_dropped: 0,
             events_dropped: 0,
             blocks: 0,
             window_start,
-            window_samples: 0,
             window_busy_s: 0.0,
             window_worst_s: f64::NEG_INFINITY,
             idle_ticks: 0,
             cfg: cfg.clone(),
             live,
             wait_s: 0.0,
+            hand_alpha,
+            latency_s,
+            chain,
+            realtime: false,
         };
         if !opts.start {
             core.stop_rig();
@@ -193,6 +204,43 @@ impl<C: Clock> EngineCore<C> {
     /// Exchanging frames?
     pub fn is_running(&self) -> bool {
         self.running
+    }
+
+    /// Call first on the engine's own thread: it runs real-time while
+    /// paced ([`EngineOptions::realtime`]).
+    pub fn thread_started(&mut self) {
+        self.schedule();
+    }
+
+    /// Real-time while the thread sleeps or blocks between blocks (paced
+    /// by the wall clock or a live device), normal while it runs without
+    /// pause.
+    fn schedule(&mut self) {
+        let want = self.opts.realtime && (self.live || self.pacer.sleeps());
+        if want && !self.realtime {
+            self.realtime = kilotouch_rig::realtime::promote_current_thread().is_realtime();
+        } else if !want && self.realtime {
+            kilotouch_rig::realtime::demote_current_thread();
+            self.realtime = false;
+        }
+    }
+
+    /// The chain the loop was armed with at construction (the rig file's
+    /// as-designed chain).
+    pub fn initial_chain(&self) -> &LoopChain {
+        &self.chain
+    }
+
+    /// The driver free exploration uses (the engine's hand smoothing).
+    pub fn free_exploration(&self) -> FreeExploration {
+        FreeExploration::new(self.hand_alpha)
+    }
+
+    /// The loop's delay beyond the simulated loop's one sample, s: the
+    /// block and the link's command lead of a live rig (0 on the simulated
+    /// rig). The clearance the loop was armed with includes it.
+    pub fn latency_s(&self) -> f64 {
+        self.latency_s
     }
 
     /// A live rig (block exchange, the hand is the real handle)?
@@ -254,6 +302,7 @@ impl<C: Clock> EngineCore<C> {
         loop {
             let needs_room = match self.commands.peek() {
                 Ok(Command::SetTweezer(_)) | Ok(Command::SetDriver(_)) => 2,
+                Ok(Command::ApplyChain(_)) if self.driver.owns_loop() => 2,
                 Ok(Command::ApplyChain(_)) => {
                     if self.swap_port.to_chain.is_full() {
                         return;
@@ -274,6 +323,27 @@ impl<C: Clock> EngineCore<C> {
     }
 
     fn apply(&mut self, cmd: Command) {
+        if self.driver.owns_loop()
+            && matches!(
+                cmd,
+                Command::SetCondition(_)
+                    | Command::SetTweezer(_)
+                    | Command::SetTrapCalibration(_)
+                    | Command::ApplyChain(_)
+                    | Command::ResetBead
+            )
+        {
+            self.push_notice(EngineEvent::Refused(
+                "a study sitting is running: the condition, the scene and the calibrations \
+                 are the sitting's until it ends",
+            ));
+            if let Command::SetTweezer(t) = cmd {
+                self.push_event(EngineEvent::Garbage(Garbage::Tweezer(t)));
+            } else if let Command::ApplyChain(c) = cmd {
+                self.push_event(EngineEvent::Garbage(Garbage::Chain(c)));
+            }
+            return;
+        }
         match cmd {
             Command::SetHand(h) => {
                 if h.iter().all(|v| v.is_finite()) {
@@ -286,7 +356,7 @@ impl<C: Clock> EngineCore<C> {
             }
             Command::SetTweezer(mut t) => {
                 let bead = self.lp.tweezer.bead();
-                t.reset(self.last_trap);
+                t.reset(self.out.last_trap);
                 t.set_bead(bead);
                 // Validated when it was applied.
                 let _ = t.set_calibration(self.lp.tweezer.calibration());
@@ -315,7 +385,7 @@ impl<C: Clock> EngineCore<C> {
                     }
                 }
             }
-            Command::ResetBead => self.lp.tweezer.reset(self.last_trap),
+            Command::ResetBead => self.lp.tweezer.reset(self.out.last_trap),
             Command::Start => {
                 if !self.running {
                     match self.lp.rig.start() {
@@ -328,7 +398,14 @@ impl<C: Clock> EngineCore<C> {
             Command::Stop => self.stop_rig(),
             Command::SetDriver(mut d) => {
                 std::mem::swap(&mut d, &mut self.driver);
+                d.detach(&mut self.lp);
                 self.push_event(EngineEvent::Garbage(Garbage::Driver(d)));
+            }
+            Command::SetPaced(on) => {
+                if !self.live {
+                    self.pacer.set_paced(on);
+                    self.schedule();
+                }
             }
             Command::Shutdown => self.stopped = true,
         }
@@ -367,6 +444,22 @@ impl<C: Clock> EngineCore<C> {
             self.push_notice(EngineEvent::RigError(RigError::InvalidInput(format!(
                 "the rig now runs at {} Hz, the engine at {} Hz: disconnect and connect instead",
                 id.sample_rate_hz, self.fs
+            ))));
+            return;
+        }
+        // The new device's loop delay (its link's round trip sizes the
+        // command lead) must be within what the stability clearance was
+        // made for; a longer one needs a new connection, which checks the
+        // margins again.
+        let latency = extra_latency_s(&self.lp.rig, self.opts.block_len, self.fs);
+        if latency > self.latency_s + 0.5 / self.fs {
+            let _ = self.lp.rig.stop();
+            self.faulted = true;
+            self.push_notice(EngineEvent::RigError(RigError::LoopNotSafe(format!(
+                "the reconnected device's loop adds {:.2} ms of delay, the stability check was made \
+                 for {:.2} ms: disconnect and connect again so the margins are checked with it",
+                latency * 1e3,
+                self.latency_s * 1e3
             ))));
             return;
         }
@@ -420,7 +513,8 @@ impl<C: Clock> EngineCore<C> {
             worst_lateness_s: worst,
             worst_lateness_total_s: self.pacer.worst_lateness_s,
             blocks: self.blocks,
-            telemetry_dropped: self.telemetry_dropped,
+            samples: self.out.samples,
+            telemetry_dropped: self.out.dropped,
             events_dropped: self.events_dropped,
             safety: st.state,
             last_trip: st.last_trip,
@@ -429,8 +523,9 @@ impl<C: Clock> EngineCore<C> {
             rig: self.lp.rig.status(),
             coupling: self.lp.coupling.counters(),
             estop_zeroed_frames: st.counters.latched_zeroed,
-            trapped: self.trapped,
+            trapped: self.out.trapped,
             trap_calibration: self.lp.tweezer.calibration(),
+            realtime: self.realtime,
         }
     }
 
@@ -438,7 +533,10 @@ impl<C: Clock> EngineCore<C> {
         let now = self.pacer.clock().now();
         let wall = now.saturating_sub(self.window_start).as_secs_f64();
         let (rate, load) = if wall > 0.0 {
-            (self.window_samples as f64 / wall, self.window_busy_s / wall)
+            (
+                self.out.window_samples as f64 / wall,
+                self.window_busy_s / wall,
+            )
         } else {
             (0.0, 0.0)
         };
@@ -450,7 +548,7 @@ impl<C: Clock> EngineCore<C> {
         let h = self.health(rate, load, worst);
         self.push_notice(EngineEvent::Health(h));
         self.window_start = now;
-        self.window_samples = 0;
+        self.out.window_samples = 0;
         self.window_busy_s = 0.0;
         self.window_worst_s = f64::NEG_INFINITY;
     }
@@ -468,89 +566,38 @@ impl<C: Clock> EngineCore<C> {
         }
     }
 
-    /// Telemetry of one sample: flags, the driver, the queue.
-    #[inline]
-    fn publish(&mut self, l: &LoopSample, hand: [f64; 2], estop_flag: u16) {
-        let s = &l.tweezer;
-        self.last_trap = s.trap_m;
-        self.trapped = s.trapped;
-        let e = s.events;
-        let mut fl = estop_flag;
-        for (on, bit) in [
-            (s.in_contact, flags::IN_CONTACT),
-            (s.trapped, flags::TRAPPED),
-            (e.contact_start, flags::CONTACT_START),
-            (e.contact_end, flags::CONTACT_END),
-            (e.escaped, flags::ESCAPED),
-            (e.recaptured, flags::RECAPTURED),
-            (l.sensors.flags.0 != 0, flags::RIG_FLAG),
-        ] {
-            if on {
-                fl |= bit;
-            }
-        }
-        let r = &l.rendered;
-        let t = TelemetrySample {
-            seq: l.sensors.seq,
-            hand_m: hand,
-            handle_m: l.sensors.handle_m,
-            handle_force_n: [r.image_n[0] + r.damping_n[0], r.image_n[1] + r.damping_n[1]],
-            output: l.command,
-            accel_m_s2: l.sensors.accel_m_s2,
-            trap_m: s.trap_m,
-            bead_m: s.bead_m,
-            bead_force_n: s.force_n,
-            gap_m: s.gap_m,
-            flags: fl,
+    /// The driver runs one block (module docs of [`crate::engine`]).
+    fn run_driver(&mut self, n: usize) {
+        let latched = self.lp.safety.state().latched();
+        self.out.estop_flag = if self.lp.safety.state() == SafetyState::EStop {
+            flags::ESTOP
+        } else {
+            0
         };
-        self.driver.observe(&t);
-        if self.telemetry.push(t).is_err() {
-            self.telemetry_dropped += 1;
-        }
-        self.window_samples += 1;
-    }
-
-    /// Simulated rig: one exchange per sample ([`HapticLoop::step`]: the
-    /// force computed from sample k acts at k + 1); the hand follows
-    /// `target` through the smoothing filter.
-    fn run_sim(&mut self, n: usize, target: [f64; 2], estop_flag: u16) {
-        for _ in 0..n {
-            self.hand[0] += self.hand_alpha * (target[0] - self.hand[0]);
-            self.hand[1] += self.hand_alpha * (target[1] - self.hand[1]);
-            self.lp.rig.set_hand(self.hand);
-            match self.lp.step() {
-                Ok(l) => self.publish(&l, self.hand, estop_flag),
-                Err(e) => {
-                    self.rig_failed(e);
-                    break;
-                }
-            }
-        }
-    }
-
-    /// Live rig: one exchange per block ([`HapticLoop::step_block`], module
-    /// docs of [`crate::engine`]): the commands of block b are computed,
-    /// sample by sample, from the sensor frames of block b − 1, so the loop
-    /// delay is `block_len` samples instead of 1. The hand is the real
-    /// handle.
-    fn run_live(&mut self, n: usize, estop_flag: u16) {
-        let n = n.min(MAX_BLOCK);
-        let t0 = self.pacer.clock().now();
-        let res = self.lp.step_block(n);
-        self.wait_s = self.pacer.clock().now().saturating_sub(t0).as_secs_f64();
+        let mut ctx = BlockCtx {
+            lp: &mut self.lp,
+            n: n.min(MAX_BLOCK),
+            live: self.live,
+            gui_hand: self.gui_hand,
+            latched,
+            out: &mut self.out,
+            clock: self.pacer.clock(),
+            wait_s: 0.0,
+        };
+        let res = self.driver.run_block(&mut ctx);
+        // Load counts computation only, not the wait for a live device.
+        self.wait_s = ctx.wait_s;
         match res {
-            Ok(_) => {
-                let mut block = [LoopSample::default(); MAX_BLOCK];
-                let got = self.lp.block();
-                let m = got.len();
-                block[..m].copy_from_slice(got);
-                for l in &block[..m] {
-                    self.publish(l, l.sensors.handle_m, estop_flag);
-                }
-                if let Some(last) = block[..m].last() {
-                    self.hand = last.sensors.handle_m;
-                }
+            Ok(0) if !self.live && !self.pacer.sleeps() => {
+                // Nothing to run (a sitting between trials) and nothing to
+                // pace: yield instead of spinning.
+                let now = self.pacer.clock().now();
+                self.pacer
+                    .clock()
+                    .sleep_until(now + Duration::from_secs_f64(IDLE_SLEEP_S / 10.0));
+                self.pacer.reanchor();
             }
+            Ok(_) => {}
             Err(e) => self.rig_failed(e),
         }
     }
@@ -583,24 +630,7 @@ impl<C: Clock> EngineCore<C> {
             return !self.stopped;
         }
         self.pacer.begin_block();
-        let first_seq = self.lp.rig.next_seq();
-        let target = self.driver.hand_target(self.gui_hand, first_seq);
-        let target = if target.iter().all(|v| v.is_finite()) {
-            target
-        } else {
-            self.hand
-        };
-        let n = self.opts.block_len;
-        let estop_flag = if self.lp.safety.state() == SafetyState::EStop {
-            flags::ESTOP
-        } else {
-            0
-        };
-        if self.live {
-            self.run_live(n, estop_flag);
-        } else {
-            self.run_sim(n, target, estop_flag);
-        }
+        self.run_driver(self.opts.block_len);
         self.forward_swaps_and_faults();
         let timing = self.pacer.end_block();
         self.blocks += 1;

@@ -9,7 +9,6 @@
 
 use super::env::AppliedCalibration;
 use super::env::{PageEnv, ShellRequest};
-use super::pages::study::EngineTransition;
 use super::pages::study::ProtocolSource;
 use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
 use super::settings::{Page, Settings};
@@ -375,12 +374,16 @@ impl KilotouchApp {
         let sitting = self.study.is_running();
         self.study.emergency_stop();
         match &self.engine {
-            Some(e) => e.emergency_stop(),
-            None if sitting => self.notify(
-                "emergency stop: the study's trial was aborted and the sitting paused; \
-                 outputs held at zero until the stop is reset",
-                true,
-            ),
+            Some(e) => {
+                e.emergency_stop();
+                if sitting {
+                    self.notify(
+                        "emergency stop: the study's trial was aborted and the sitting paused; \
+                         outputs held at zero until the stop is reset",
+                        true,
+                    );
+                }
+            }
             None => self.notify(
                 "emergency stop: no rig connected (outputs already off)",
                 false,
@@ -484,6 +487,15 @@ impl KilotouchApp {
         for r in std::mem::take(&mut self.requests) {
             match r {
                 ShellRequest::Notify(s) => self.notify(s, false),
+                ShellRequest::ShowRigPage => self.page = Page::Rig,
+                ShellRequest::ConnectRig(spec) => {
+                    if self.study.is_running() {
+                        self.notify("the rig cannot change while a sitting runs", true);
+                    } else {
+                        self.rig_page.rig_text = spec.describe();
+                        self.connect();
+                    }
+                }
                 ShellRequest::SetOutputDir(p) => self.settings.output_dir = Some(p),
                 ShellRequest::ApplyTrapCalibration(t) => match (&mut self.engine, t) {
                     (None, _) => {
@@ -547,6 +559,7 @@ impl KilotouchApp {
                     msgs.push((format!("rig reconnected: {}", id.name), false))
                 }
                 EngineEvent::RigFault(f) => msgs.push((format!("rig: {f:?}"), false)),
+                EngineEvent::Refused(why) => msgs.push((why.to_owned(), true)),
                 EngineEvent::Health(_) | EngineEvent::Garbage(_) => {}
             }
         }
@@ -659,6 +672,12 @@ impl KilotouchApp {
                     }
                 },
             }
+            if self.engine.is_some()
+                && let Some(line) = self.study.status_line()
+            {
+                ui.separator();
+                ui.label(line);
+            }
             ui.separator();
             ui.weak(format!("scene: {}", self.gpu_status));
         });
@@ -764,39 +783,13 @@ impl KilotouchApp {
                 }
                 Page::Calibration => self.calibration.ui(ui, &mut env),
                 Page::Explore => self.explore.ui(ui, &mut env, self.engine.as_mut()),
-                Page::Study => self.study.ui(ui, &mut env),
+                Page::Study => self.study.ui(ui, &mut env, self.engine.as_mut()),
                 Page::Results => self.results.ui(ui, &mut env),
             }
         });
         self.handle_requests();
-        // Study sessions: drain events, participant window; one rig at a time.
-        self.study.background(&ctx);
-        match self.study.engine_transition(self.engine.is_some()) {
-            EngineTransition::Stop => {
-                if let Some(e) = self.engine.take() {
-                    e.shutdown();
-                }
-            }
-            EngineTransition::Restart => {
-                // The engine takes the rig back stopped: the experimenter
-                // arms it (Rig page), and a stop of the sitting that was
-                // never reset stays latched.
-                self.connect();
-                let latched = self.study.take_estop_latch();
-                if let Some(e) = &mut self.engine {
-                    let _ = e.send(crate::engine::Command::Stop);
-                    if latched {
-                        e.emergency_stop();
-                    }
-                }
-                self.notify(
-                    "the study released the rig: the Explore engine is back, stopped \
-                     (Resume on the Rig page arms it)",
-                    false,
-                );
-            }
-            EngineTransition::Keep => {}
-        }
+        // Study sittings: drain events, the participant window.
+        self.study.background(&ctx, self.engine.as_mut());
         self.reset_dialog_ui(&ctx);
         self.settings.page = self.page;
         self.settings.camera = self.explore.camera.model;

@@ -46,4 +46,8 @@ pub enum ShellRequest {
     SetOutputDir(PathBuf),
     /// Show a short message to the user (status line / toast).
     Notify(String),
+    /// Connect the engine to this rig instead (the Study page's rig choice).
+    ConnectRig(kilotouch_rig::device::RigSpec),
+    /// Show the Rig page (to choose and connect a live rig).
+    ShowRigPage,
 }

@@ -1,109 +1,103 @@
-//! Study sessions from the app: a real-time **session thread** that owns a
-//! [`SessionRunner`] on the simulated station, independent of egui (the
-//! Study page is a thin layer over [`SessionHandle`]).
+//! Study sittings from the app: the study's trials run on the one
+//! real-time engine ([`crate::engine`]) that Explore uses — its rig
+//! (simulated or live), its pacing, its telemetry, its safety layer and its
+//! emergency stop — while the store side runs on a worker thread. The Study
+//! page and `kilotouch study run` are thin layers over [`SessionHandle`].
 //!
 //! # Architecture
 //!
 //! ```text
-//!  GUI thread                                   session thread
-//!  ──────────                                   ──────────────
-//!  SessionHandle ── hand position (rtrb, 256) ─▶ MouseParticipant.hand_m (latest wins)
-//!                ── SessionCommand (rtrb, 64) ▶ start / pause / resume / abort / note /
-//!                                                emergency stop / stop
-//!                ◀─ SessionEvent (rtrb, 8192) ─ state, trial started/ended, committed rows,
-//!                                                telemetry (decimated), health, errors
+//!  GUI / CLI thread               worker thread "kilotouch-sitting"     engine thread
+//!  ────────────────               ─────────────────────────────────     ─────────────
+//!  SessionHandle ── SessionCommand (mpsc) ─▶ SittingCore (journal,       SittingDriver
+//!                ◀─ SessionEvent  (mpsc) ──  rows, raw files, states)    (BlockDriver):
+//!                                            builds each trial's parts   TrialCore on the
+//!                                            ── Begin(slot) (rtrb) ────▶ engine's loop
+//!                                            ◀─ Ended(slot), stop … ───  (LoopStation)
+//!                                            ◀─ raw rows (rtrb) ───────
+//!                ◀─ Telemetry (rtrb) ────────────────────────────────────
+//!  EngineHandle ── hand, emergency stop (the engine's own) ────────────▶
 //! ```
 //!
-//! One loop iteration = one block of `block` samples (default 10 = 1 ms at
-//! 10 kHz): drain commands, [`SessionRunner::advance`], publish telemetry,
-//! then — only when the runner asks for it (`needs_service`, i.e. a trial
-//! ended) — [`SessionRunner::service`] commits the row (append + fsync)
-//! and begins the next trial (journal + fsync). Row I/O therefore happens
-//! between trials, never inside the sample loop.
+//! **One loop.** The engine's block loop is the only real-time loop: the
+//! trial side ([`driver::SittingDriver`]) runs inside it as its driver and
+//! steps the study's [`kilotouch_study::runner::TrialCore`] on the
+//! engine's closed loop, so pacing, deadline misses, telemetry, the safety
+//! layer and the emergency stop are the engine's. A trial's parts (a fresh
+//! simulated rig, the scene's tweezer, a fresh safety layer) are built by
+//! the worker — the same builder as `study simulate`'s station, so a trial
+//! on the simulated rig is the same function of its key — and swapped in by
+//! the driver; the old parts travel back to be dropped on the worker.
+//! Journal writes, fsyncs and raw-file writes happen on the worker, never
+//! on the engine thread.
 //!
-//! **Pacing** reuses the engine's [`Pacer`]: block k is due at
-//! t_a + (k+1)·N/f_s (anchor t_a, N samples per block), so the simulated
-//! sample position follows the wall clock; late blocks are caught up by the
-//! next ones (they run without sleeping), a block finishing more than
-//! 2 ms late counts as a deadline miss, and a stall beyond 50 ms re-anchors
-//! the schedule (an *overrun*). The schedule is re-anchored after every
-//! trial boundary and pause. [`Speed::Fast`] (simulated participant only)
-//! never sleeps: dry runs and tests run as fast as the CPU allows.
+//! **Live rigs.** On a live rig the hand at the handle is real (a person,
+//! or the device's own simulated participant): the sitting observes and
+//! records it ([`ParticipantKind::Handle`]). Each trial starts wherever the
+//! handle is (the hand mapping is re-centred on it); the device is told
+//! what the participant's screen shows ([`kilotouch_rig::device::HostInfo`]).
+//! Between trials the loop keeps running with the outputs at zero.
 //!
-//! **Telemetry** is what the participant sees: the runner's camera frame
-//! ([`VisualFrame`], at the operator model's frame rate and latency,
-//! `None` in the blind task), plus the handle position, the force rendered
-//! at the handle and live estimates of the running trial's metrics
-//! ([`LiveMetrics`]). It is pushed at most every `telemetry_every` samples
-//! of session time and every 10 ms of wall time; a full queue drops it
-//! (counted), never blocks. Events that must not be lost (state changes,
-//! committed rows, errors) are kept in an overflow list on the session
-//! thread and sent as soon as there is room.
+//! **One participant per sitting.** Trials run in plan order (participant
+//! by participant: training block, then the sessions in the
+//! counterbalanced order). A sitting restricted to one participant
+//! ([`SessionOptions::only_participant`]) must be the participant of the
+//! folder's next pending trial and ends paused after that participant's
+//! last trial, so the next participant resumes the same folder. The last
+//! participant's last row closes the study (summaries written).
 //!
-//! **One participant per sitting.** The study crate runs trials in plan
-//! order (participant by participant: training block, then the sessions in
-//! the counterbalanced order). A sitting is restricted to one participant
-//! ([`SessionOptions::only_participant`]): it must be the participant of
-//! the folder's next pending trial, and the sitting ends paused at that
-//! participant's last trial (journal: `pause`, reason "participant … finished")
-//! so the next participant resumes the same folder. The last participant's
-//! last row closes the study (summaries written).
+//! **Crash safety** is the study crate's: a killed sitting leaves the trial
+//! in progress open in the journal; reopening the folder reports it and
+//! the trial runs again from its seeds. A rig that fails during a trial
+//! ends the sitting with the device's error: the trial in progress is
+//! journaled as aborted (no row) and runs again on resume.
 //!
-//! **Crash safety** is the study crate's: a killed sitting (process killed,
-//! [`SessionHandle`] dropped, [`SessionCommand::Stop`]) leaves the trial in
-//! progress open in the journal; reopening the folder
-//! ([`StudyStore::open_existing`]) reports it in the [`Recovery`] and the
-//! runner runs it again from its seeds, so a resumed study holds exactly
-//! the rows of an uninterrupted one.
+//! **Emergency stop.** The engine's one stop ([`SessionHandle::send`] with
+//! [`SessionCommand::EmergencyStop`] presses it, as Esc and the red button
+//! do): the outputs go to zero at the next block, the running trial is
+//! aborted (its row committed with `reject_reason = aborted`), the stop is
+//! journaled and the sitting pauses; no trial begins while the stop is
+//! latched.
 //!
-//! **Emergency stop** ([`SessionCommand::EmergencyStop`]): the running
-//! trial is aborted at once (no further sample is computed, so the
-//! simulated station's outputs stop), its row is committed with
-//! `reject_reason = aborted`, the event is journaled as a note and the
-//! session stays paused until the experimenter resumes (also between
-//! trials: a held trial does not begin).
-//!
-//! **Participant screens** ([`SessionOptions::screens`], the Study page's
-//! participant view): the runner holds every next trial
-//! ([`RunnerState::Waiting`]); which routine runs is
-//! [`kilotouch_study::screens::gate`] of the last and the next trial.
-//! Within a block the protocol's inter-trial interval (`screens.iti_s`,
-//! wall clock) elapses here, then the trial begins by itself; a new block
-//! (first trial of the sitting, a new session or training condition)
-//! waits for [`SessionCommand::Proceed`], sent by the GUI when the
-//! participant leaves the ready screen. The sitting ends cleanly
-//! (`session_done` in the journal) when its participant is done or the
-//! experimenter stops it; only a crash or kill leaves it unclosed.
+//! **Participant screens** ([`SessionOptions::screens`]): the worker holds
+//! every next trial ([`RunnerState::Waiting`]); the protocol's inter-trial
+//! interval elapses there, a new block waits for
+//! [`SessionCommand::Proceed`] (the participant leaving the ready screen;
+//! the host's simulated participant "reads" for [`SIM_READ_S`]).
 
+mod driver;
 mod participant;
+mod worker;
 
 pub use participant::{LiveMetrics, ParticipantId, validate_participant_id};
 
-use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, mpsc};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
 
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::device::SystemClock;
+use kilotouch_rig::coupling::LoopChain;
+use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_study::export::{
-    PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow, plan, read_session,
-    read_trials,
+    DeviceRecord, PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow, plan,
+    read_session, read_trials,
 };
 use kilotouch_study::operator::SimCohort;
-use kilotouch_study::participant::VisualFrame;
-use kilotouch_study::participant::{MouseParticipant, Observation, Participant, TrialBrief};
+use kilotouch_study::participant::{MouseParticipant, VisualFrame};
 use kilotouch_study::protocol::Protocol;
-use kilotouch_study::runner::{RunError, RunnerConfig, RunnerEvents, RunnerState, SessionRunner};
+use kilotouch_study::runner::{
+    RunError, RunnerConfig, RunnerState, SittingCore, StationFrame, TrialCore,
+};
 use kilotouch_study::seeds::TrialKey;
 use kilotouch_study::simulate::sim_meta;
-use kilotouch_study::task::sim_station::SimStation;
-use kilotouch_study::task::station::{HandMapping, Station};
+use kilotouch_study::task::station::HandMapping;
+use kilotouch_study::task::trial_kit::KitBuilder;
 use kilotouch_study::task::{Scene, TaskParams, TrialEnd};
 use thiserror::Error;
 
-use crate::engine::pacing::Pacer;
-use participant::Tap;
+use crate::engine::{EngineHandle, EstopTrigger, Health};
+use participant::{Tap, Who};
 
 /// Errors of opening or driving a session.
 #[derive(Debug, Error)]
@@ -118,33 +112,44 @@ pub enum SessionError {
     /// Invalid options or a request that does not fit the folder.
     #[error("{0}")]
     Invalid(String),
-    /// The session thread could not be started.
-    #[error("cannot start the session thread: {0}")]
+    /// The worker thread could not be started.
+    #[error("cannot start the sitting's worker thread: {0}")]
     Thread(String),
+    /// The engine refused the sitting (a chain whose margins at the rig's
+    /// loop delay are below the minimum; a full command queue).
+    #[error("{0}")]
+    Engine(#[from] crate::engine::EngineError),
 }
 
 /// Who is at the handle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ParticipantKind {
-    /// A person: the hand follows the mouse in the participant view.
+    /// A person on the simulated rig: the hand follows the mouse in the
+    /// participant view.
     #[default]
     Mouse,
-    /// The seeded simulated operator of the study crate (dry runs, tests):
-    /// the same [`SimCohort`] as `kilotouch study simulate`.
+    /// The seeded simulated operator of the study crate on the simulated
+    /// rig (dry runs, tests): the same [`SimCohort`] as `kilotouch study
+    /// simulate`.
     Simulated,
+    /// A live rig: the hand at the handle is real — a person, or the
+    /// device's own simulated participant (`kilotouch emulate daq
+    /// --participant`); the sitting observes and records the handle.
+    Handle,
 }
 
-/// Pacing of the session thread.
+/// Pacing of a sitting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Speed {
-    /// One simulated second per wall-clock second (module docs).
+    /// One second of trial per wall-clock second (the engine's pacing).
     #[default]
     RealTime,
-    /// As fast as possible (simulated participant only).
+    /// As fast as possible (the simulated participant on the simulated rig
+    /// only: the engine stops sleeping for the sitting).
     Fast,
 }
 
-/// What the session thread is started with.
+/// What a sitting is started with.
 #[derive(Debug, Clone)]
 pub struct SessionOptions {
     /// Output folder.
@@ -152,7 +157,8 @@ pub struct SessionOptions {
     /// The protocol of a new folder; `None` resumes the folder's own
     /// (`session.json`) via [`StudyStore::open_existing`].
     pub protocol: Option<Protocol>,
-    /// Rig configuration of the simulated station.
+    /// The rig file the engine runs (its content hash is recorded and
+    /// checked on resume; a simulated trial's rig is built from it).
     pub rig: RigConfig,
     /// Who is at the handle.
     pub participant: ParticipantKind,
@@ -163,8 +169,6 @@ pub struct SessionOptions {
     pub only_participant: Option<u32>,
     /// Runner timing (camera, control period, raw files).
     pub runner: RunnerConfig,
-    /// Samples per block (≥ 1; 10 = 1 ms at 10 kHz).
-    pub block: usize,
     /// Samples of session time between two telemetry events (≥ 1).
     pub telemetry_every: usize,
     /// Calibration whose (force-normalised) chain D runs; recorded with its
@@ -188,8 +192,8 @@ pub struct SessionOptions {
 pub const SIM_READ_S: f64 = 1.5;
 
 impl SessionOptions {
-    /// Defaults: mouse participant, real time, blocks of 10 samples,
-    /// telemetry every 20 samples (2 ms at 10 kHz), the study crate's
+    /// Defaults: mouse participant, real time, telemetry every 20 samples
+    /// (2 ms at 10 kHz), the study crate's
     /// [`RunnerConfig::default`] (25 Hz camera, 40 ms latency, f32 raw files).
     pub fn new(out: &Path, protocol: Option<Protocol>, rig: RigConfig) -> Self {
         Self {
@@ -200,7 +204,6 @@ impl SessionOptions {
             speed: Speed::RealTime,
             only_participant: None,
             runner: RunnerConfig::default(),
-            block: 10,
             telemetry_every: 20,
             calibration: None,
             trap_calibration: None,
@@ -251,7 +254,7 @@ pub struct Telemetry {
     pub live: LiveMetrics,
 }
 
-/// Timing health of the session thread.
+/// Timing health of a sitting: the engine's, since the sitting began.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SessionHealth {
     /// Blocks late by more than the tolerated latency (real time only).
@@ -260,11 +263,11 @@ pub struct SessionHealth {
     pub overruns: u64,
     /// Worst lateness, s (real time only; −∞ before the first block).
     pub worst_lateness_s: f64,
-    /// Busy time / wall time over the last report window.
+    /// Busy time / wall time over the engine's last report window.
     pub load: f64,
-    /// Telemetry events dropped because the GUI did not drain the queue.
+    /// Participant-view telemetry events the GUI did not drain in time.
     pub telemetry_dropped: u64,
-    /// Simulated time run in this sitting, s.
+    /// Trial time the sitting's trials ran, s.
     pub simulated_s: f64,
 }
 
@@ -286,8 +289,6 @@ pub enum SessionEvent {
     Committed(Box<TrialRow>),
     /// Decimated telemetry.
     Telemetry(Telemetry),
-    /// Timing health (every 100 ms of wall time).
-    Health(SessionHealth),
     /// A note was journaled.
     Noted(String),
     /// A command was refused or a step failed (the session goes on when
@@ -329,21 +330,32 @@ pub struct SessionInfo {
     pub next: Option<PlannedTrial>,
     /// Hand → trap mapping of the station.
     pub mapping: HandMapping,
+    /// The rig the sitting runs on (`sim`, `serial:PATH`, …).
+    pub rig: String,
+    /// The live device's record (name, loop delay); `None`: simulated.
+    pub device: Option<DeviceRecord>,
     /// Sample rate, Hz.
     pub sample_rate_hz: f64,
     /// The runner configuration (camera rate and latency).
     pub runner: RunnerConfig,
 }
 
-/// The GUI side of a running session.
+/// The GUI side of a running sitting.
 #[derive(Debug)]
 pub struct SessionHandle {
     info: SessionInfo,
-    hand_tx: rtrb::Producer<[f64; 2]>,
-    cmd_tx: rtrb::Producer<SessionCommand>,
-    ev_rx: rtrb::Consumer<SessionEvent>,
+    cmd_tx: mpsc::Sender<SessionCommand>,
+    ev_rx: mpsc::Receiver<SessionEvent>,
+    telemetry: rtrb::Consumer<Telemetry>,
+    estop: EstopTrigger,
     thread: Option<JoinHandle<()>>,
     finished: Option<FinishReason>,
+    /// The engine's chain before the sitting (restored by [`Self::close`]).
+    restore_chain: Option<(LoopChain, Clearance)>,
+    fast: bool,
+    /// Engine health when the sitting began (misses are counted from it).
+    health0: Option<Health>,
+    counters: Arc<driver::SittingCounters>,
 }
 
 /// Read-only look at an output folder (no journal entry, no repair).
@@ -399,25 +411,26 @@ pub fn inspect_folder(dir: &Path) -> FolderStatus {
     }
 }
 
+/// Queue capacities of a sitting: commands to the driver, its messages,
+/// the participant's telemetry.
+const TO_DRIVER: usize = 16;
+const FROM_DRIVER: usize = 64;
+const TELEMETRY: usize = 4096;
+
 impl SessionHandle {
     /// Opens the output folder (new or resumed: the study crate repairs and
-    /// reconciles it) and starts the session thread, idle until
-    /// [`SessionCommand::Start`].
+    /// reconciles it), installs the sitting as the engine's driver and
+    /// starts the worker, idle until [`SessionCommand::Start`]. The engine
+    /// runs the sitting's chain (the one `opts.calibration` names) from now
+    /// on, cleared at the engine's loop delay.
     ///
     /// # Errors
-    /// Invalid options ([`Speed::Fast`] with a person, a participant who is
-    /// not next in the plan, a done study), storage and station errors.
-    pub fn spawn(opts: SessionOptions) -> Result<Self, SessionError> {
-        if opts.block == 0 || opts.telemetry_every == 0 {
-            return Err(SessionError::Invalid(
-                "block and telemetry_every must be ≥ 1".into(),
-            ));
-        }
-        if opts.speed == Speed::Fast && opts.participant == ParticipantKind::Mouse {
-            return Err(SessionError::Invalid(
-                "\"as fast as possible\" is for the simulated participant only".into(),
-            ));
-        }
+    /// Invalid options (a participant kind the rig cannot have,
+    /// [`Speed::Fast`] with a person or on a live rig, a participant who is
+    /// not next in the plan, a done study), a chain whose margins at the
+    /// rig's loop delay are below the minimum, storage errors.
+    pub fn spawn(opts: SessionOptions, engine: &mut EngineHandle) -> Result<Self, SessionError> {
+        check_options(&opts, engine.is_live())?;
         let (mut meta, chain) = sim_meta(
             &opts.rig,
             opts.calibration.as_deref(),
@@ -425,95 +438,110 @@ impl SessionHandle {
             None,
         )?;
         meta.trap_calibration.clone_from(&opts.trap_calibration);
-        if opts.protocol.is_some() && opts.out.join(SESSION_FILE).exists() {
-            // The folder's own protocol decides; a different one is refused by
-            // the store (ProtocolMismatch) — say so before touching anything.
-            if let (FolderStatus::Study { protocol, .. }, Some(p)) =
-                (inspect_folder(&opts.out), &opts.protocol)
-                && protocol != p.name
-            {
-                return Err(SessionError::Invalid(format!(
-                    "{} holds the study `{protocol}`, not `{}`: resume it or choose another folder",
-                    opts.out.display(),
-                    p.name
-                )));
-            }
+        let device = device_record(engine);
+        if let Some(d) = &device {
+            meta.rig = format!("{} ({})", d.name, d.spec);
         }
-        let store = match &opts.protocol {
-            Some(p) => StudyStore::open(&opts.out, p, &meta)?,
-            None => StudyStore::open_existing(&opts.out, &meta)?,
-        };
-        let next = store.next_pending().cloned();
-        if let (Some(p), Some(n)) = (opts.only_participant, &next)
-            && n.key.participant != p
-        {
-            return Err(SessionError::Invalid(format!(
-                "the next pending trial of this folder is {} ({}): trials run in plan order, \
-                 so the participant of this sitting must be {}",
-                n.key, n.participant, n.participant
-            )));
-        }
-        if next.is_none() {
-            return Err(SessionError::Invalid(format!(
-                "{} is complete: every planned trial has its row",
-                opts.out.display()
-            )));
-        }
-        let recovery = store.recovery().clone();
-        let rows = read_trials(&opts.out.join(TRIALS_FILE))?.rows;
-        let station = SimStation::with_chain(&opts.rig, chain)?;
+        meta.device.clone_from(&device);
+        let store = open_store(&opts, &meta)?;
+        let restore_chain = use_chain(engine, &chain)?;
+        let fs = engine.sample_rate_hz();
+        let mapping = HandMapping::from_config(&engine.config().coupling);
         let info = SessionInfo {
             protocol: store.protocol().clone(),
-            recovery_text: recovery.to_string(),
-            recovery,
-            rows,
+            recovery_text: store.recovery().to_string(),
+            recovery: store.recovery().clone(),
+            rows: read_trials(&opts.out.join(TRIALS_FILE))?.rows,
             completed: store.completed_count(),
             planned: store.plan().len(),
-            next,
-            mapping: station.mapping(),
-            sample_rate_hz: station.sample_rate_hz(),
+            next: store.next_pending().cloned(),
+            mapping,
+            sample_rate_hz: fs,
             runner: opts.runner,
+            rig: engine.spec().describe(),
+            device,
         };
-        let fs = station.sample_rate_hz();
-        let runner = SessionRunner::new(store, station, opts.runner)?;
-        let participant = match opts.participant {
-            ParticipantKind::Mouse => Who::Mouse(MouseParticipant::default()),
-            ParticipantKind::Simulated => Who::Sim(Box::new(SimCohort::new(
-                info.protocol.seeds.study,
-                fs / opts.runner.act_every as f64,
-                fs,
-            ))),
-        };
+        let (to_driver, inbox) = rtrb::RingBuffer::new(TO_DRIVER);
+        let (outbox, from_driver) = rtrb::RingBuffer::new(FROM_DRIVER);
+        let (raw_tx, raw_rx) = rtrb::RingBuffer::new(driver::RAW_QUEUE_ROWS);
+        let (tel_tx, telemetry) = rtrb::RingBuffer::new(TELEMETRY);
+        let who = participant_of(&opts, &info.protocol, fs);
+        let counters = Arc::new(driver::SittingCounters::default());
         let contact_gap_m = TaskParams::from_protocol(&info.protocol).contact_gap_m();
-        let (hand_tx, hand_rx) = rtrb::RingBuffer::new(256);
-        let (cmd_tx, cmd_rx) = rtrb::RingBuffer::new(64);
-        let (ev_tx, ev_rx) = rtrb::RingBuffer::new(8192);
-        let thread = SessionThread {
-            runner,
-            tap: Tap::new(participant, contact_gap_m),
-            hand_rx,
+        let d = driver::SittingDriver::new(driver::DriverParts {
+            core: TrialCore::new(fs, opts.runner)?,
+            who: Tap::new(who, contact_gap_m),
+            inbox,
+            outbox,
+            raw: raw_tx,
+            raw_on: opts.runner.raw.is_some(),
+            telemetry: tel_tx,
+            telemetry_every: opts.telemetry_every as u64,
+            counters: counters.clone(),
+            fs,
+            mapping,
+            free: engine.free_exploration_driver(),
+        });
+        let kits = if engine.is_live() {
+            KitBuilder::live(&opts.rig, engine.identity())
+        } else {
+            KitBuilder::new(&opts.rig)
+        };
+        let frame = StationFrame {
+            sample_rate_hz: fs,
+            rest_trap_m: mapping.rest_trap_m(),
+            mapping,
+        };
+        let (cmd_tx, cmd_rx) = mpsc::channel();
+        let (ev_tx, ev_rx) = mpsc::channel();
+        let fast = opts.speed == Speed::Fast;
+        let w = worker::Worker {
+            core: SittingCore::new(store, frame, opts.runner.raw),
+            kits,
+            detector: opts.rig.tweezer.detector.clone(),
+            runner: opts.runner,
+            fs,
+            to_driver,
+            from_driver,
+            raw_rx,
             cmd_rx,
             ev_tx,
-            overflow: VecDeque::new(),
-            opts,
-            fs,
-            health: SessionHealth {
-                worst_lateness_s: f64::NEG_INFINITY,
-                ..Default::default()
+            only_participant: opts.only_participant,
+            screens: opts.screens,
+            speed: opts.speed,
+            reader: match opts.participant {
+                ParticipantKind::Simulated => worker::Reader::Simulated,
+                _ => worker::Reader::Person,
             },
+            scene: None,
             last_ended: None,
+            waiting_since: None,
+            last_state: None,
         };
-        let handle = std::thread::Builder::new()
-            .name("kilotouch-session".into())
-            .spawn(move || thread.run())
+        if !engine.set_driver(Box::new(d)) {
+            return Err(SessionError::Invalid(
+                "the engine's command queue is full: try again".into(),
+            ));
+        }
+        if fast {
+            engine.set_paced(false);
+        }
+        let thread = std::thread::Builder::new()
+            .name("kilotouch-sitting".into())
+            .spawn(move || w.run())
             .map_err(|e| SessionError::Thread(e.to_string()))?;
         Ok(Self {
             info,
-            hand_tx,
             cmd_tx,
             ev_rx,
-            thread: Some(handle),
+            telemetry,
+            estop: engine.estop_trigger(),
+            thread: Some(thread),
             finished: None,
+            restore_chain,
+            fast,
+            health0: engine.health().copied(),
+            counters,
         })
     }
 
@@ -522,22 +550,23 @@ impl SessionHandle {
         &self.info
     }
 
-    /// Sends a command (`false`: queue full or thread ended; try again).
+    /// Sends a command (`false`: the sitting has ended). An emergency stop
+    /// presses the engine's own stop at once (it never waits on a queue).
     pub fn send(&mut self, cmd: SessionCommand) -> bool {
-        self.cmd_tx.push(cmd).is_ok()
+        if cmd == SessionCommand::EmergencyStop {
+            self.estop.fire();
+        }
+        self.cmd_tx.send(cmd).is_ok()
     }
 
-    /// Sets the hand position for a mouse participant, m (handle
-    /// coordinates); `false` when the queue is full (the thread keeps the
-    /// latest it has). Non-finite values are ignored by the runner.
-    pub fn set_hand(&mut self, hand_m: [f64; 2]) -> bool {
-        self.hand_tx.push(hand_m).is_ok()
-    }
-
-    /// Drains the events (call every frame).
+    /// Drains the events, the participant's telemetry among them (call
+    /// every frame).
     pub fn poll(&mut self) -> Vec<SessionEvent> {
-        let mut out = Vec::with_capacity(self.ev_rx.slots());
-        while let Ok(e) = self.ev_rx.pop() {
+        let mut out = Vec::new();
+        while let Ok(t) = self.telemetry.pop() {
+            out.push(SessionEvent::Telemetry(t));
+        }
+        while let Ok(e) = self.ev_rx.try_recv() {
             if let SessionEvent::Finished(r) = &e {
                 self.finished = Some(r.clone());
             }
@@ -546,21 +575,73 @@ impl SessionHandle {
         out
     }
 
-    /// Why the thread ended, once it has reported it.
+    /// The sitting's timing health: the engine's (deadline misses and
+    /// overruns counted from the start of the sitting when the engine had
+    /// reported before it), the trial time the sitting ran.
+    pub fn health(&self, engine: &EngineHandle) -> SessionHealth {
+        let samples = self.counters.samples.load(Ordering::Relaxed);
+        let dropped = self.counters.telemetry_dropped.load(Ordering::Relaxed);
+        let simulated_s = samples as f64 / engine.sample_rate_hz();
+        let Some(h) = engine.health() else {
+            return SessionHealth {
+                worst_lateness_s: f64::NEG_INFINITY,
+                telemetry_dropped: dropped,
+                simulated_s,
+                ..SessionHealth::default()
+            };
+        };
+        let base = |f: fn(&Health) -> u64| self.health0.as_ref().map_or(0, f);
+        SessionHealth {
+            deadline_misses: h
+                .deadline_misses
+                .saturating_sub(base(|h| h.deadline_misses)),
+            overruns: h.overruns.saturating_sub(base(|h| h.overruns)),
+            worst_lateness_s: h.worst_lateness_total_s,
+            load: h.load,
+            telemetry_dropped: dropped,
+            simulated_s,
+        }
+    }
+
+    /// Why the sitting ended, once it has reported it.
     pub fn finished(&self) -> Option<&FinishReason> {
         self.finished.as_ref()
     }
 
-    /// Is the session thread still running?
+    /// Is the worker still running?
     pub fn is_alive(&self) -> bool {
         self.thread.as_ref().is_some_and(|t| !t.is_finished())
     }
 
-    /// Waits for the thread to end (after a `Stop`, or when done); the
+    /// Waits for the worker to end (after a `Stop`, or when done); the
     /// remaining events are returned.
     pub fn join(mut self) -> Vec<SessionEvent> {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
+        }
+        self.poll()
+    }
+
+    /// Ends the sitting (a `Stop` if it still runs), waits for the worker
+    /// and gives the engine back to free exploration, stopped: its driver,
+    /// its pacing and the chain it ran before. The remaining events are
+    /// returned.
+    pub fn close(mut self, engine: &mut EngineHandle) -> Vec<SessionEvent> {
+        if self.is_alive() {
+            let _ = self.cmd_tx.send(SessionCommand::Stop);
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        engine.free_exploration();
+        // Free exploration takes the loop back stopped: nothing arms itself
+        // after a sitting (Resume on the Rig page starts it).
+        let _ = engine.send(crate::engine::Command::Stop);
+        if self.fast {
+            engine.set_paced(true);
+        }
+        if let Some((chain, clearance)) = self.restore_chain.take() {
+            let _ = engine.apply_chain(&chain, &clearance);
         }
         self.poll()
     }
@@ -569,361 +650,139 @@ impl SessionHandle {
 impl Drop for SessionHandle {
     fn drop(&mut self) {
         // Dropping the handle ends the sitting like `Stop` (the trial in
-        // progress stays open and runs again on resume).
-        let _ = self.cmd_tx.push(SessionCommand::Stop);
+        // progress stays open and runs again on resume); the engine's
+        // driver, detached, goes on as free exploration.
+        let _ = self.cmd_tx.send(SessionCommand::Stop);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
 }
 
-/// The participant of the sitting.
-#[derive(Debug)]
-enum Who {
-    Mouse(MouseParticipant),
-    Sim(Box<SimCohort>),
+/// Refuses option sets that do not fit the rig.
+fn check_options(opts: &SessionOptions, live: bool) -> Result<(), SessionError> {
+    if opts.telemetry_every == 0 {
+        return Err(SessionError::Invalid("telemetry_every must be ≥ 1".into()));
+    }
+    match (opts.participant, live) {
+        (ParticipantKind::Handle, false) => {
+            return Err(SessionError::Invalid(
+                "the participant at the handle needs a live rig: on the simulated rig choose a \
+                 person at the mouse or the simulated participant"
+                    .into(),
+            ));
+        }
+        (ParticipantKind::Mouse | ParticipantKind::Simulated, true) => {
+            return Err(SessionError::Invalid(
+                "on a live rig the hand at the handle is real (a person, or the emulator's \
+                 simulated participant): choose the participant at the handle"
+                    .into(),
+            ));
+        }
+        _ => {}
+    }
+    if opts.speed == Speed::Fast && opts.participant != ParticipantKind::Simulated {
+        return Err(SessionError::Invalid(
+            "\"as fast as possible\" is for the simulated participant on the simulated rig only"
+                .into(),
+        ));
+    }
+    Ok(())
 }
 
-impl Participant for Who {
-    fn begin_trial(&mut self, brief: &TrialBrief) {
-        match self {
-            Who::Mouse(m) => m.begin_trial(brief),
-            Who::Sim(s) => s.begin_trial(brief),
-        }
+/// The live device's record for `session.json` (`None`: the simulated rig).
+fn device_record(engine: &EngineHandle) -> Option<DeviceRecord> {
+    if !engine.is_live() {
+        return None;
     }
-
-    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
-        match self {
-            Who::Mouse(m) => m.act(obs),
-            Who::Sim(s) => s.act(obs),
-        }
-    }
+    let id = engine.identity();
+    let fs = id.sample_rate_hz;
+    let delay = engine.loop_delay_samples();
+    Some(DeviceRecord {
+        spec: engine.spec().describe(),
+        kind: format!("{:?}", id.kind),
+        name: id.name.clone(),
+        serial: id.serial.clone(),
+        firmware: id.firmware.clone(),
+        sample_rate_hz: fs,
+        block_samples: u32::try_from(engine.block_len()).unwrap_or(u32::MAX),
+        loop_delay_samples: delay,
+        loop_delay_ms: f64::from(delay) / fs * 1e3,
+        extra_latency_ms: engine.latency_s() * 1e3,
+        round_trip_ms: engine.round_trip_s().map(|s| s * 1e3),
+    })
 }
 
-struct SessionThread {
-    runner: SessionRunner<SimStation>,
-    tap: Tap<Who>,
-    hand_rx: rtrb::Consumer<[f64; 2]>,
-    cmd_rx: rtrb::Consumer<SessionCommand>,
-    ev_tx: rtrb::Producer<SessionEvent>,
-    overflow: VecDeque<SessionEvent>,
-    opts: SessionOptions,
-    fs: f64,
-    health: SessionHealth,
-    /// The last trial that ended (what the next one's screens follow).
-    last_ended: Option<TrialKey>,
-}
-
-/// Slots kept free in the event queue for events that must not be lost.
-const RESERVED_SLOTS: usize = 64;
-
-impl SessionThread {
-    /// Sends an event that must arrive (kept in order in the overflow list
-    /// while the queue is full).
-    fn emit(&mut self, e: SessionEvent) {
-        self.flush();
-        if !self.overflow.is_empty() {
-            self.overflow.push_back(e);
-            return;
-        }
-        if let Err(rtrb::PushError::Full(e)) = self.ev_tx.push(e) {
-            self.overflow.push_back(e);
-        }
-    }
-
-    fn flush(&mut self) {
-        while let Some(e) = self.overflow.pop_front() {
-            if let Err(rtrb::PushError::Full(e)) = self.ev_tx.push(e) {
-                self.overflow.push_front(e);
-                break;
-            }
-        }
-    }
-
-    /// Sends telemetry if there is room beyond the reserve, else counts it.
-    fn emit_telemetry(&mut self, t: Telemetry) {
-        if self.overflow.is_empty() && self.ev_tx.slots() > RESERVED_SLOTS {
-            let _ = self.ev_tx.push(SessionEvent::Telemetry(t));
-        } else {
-            self.health.telemetry_dropped += 1;
-        }
-    }
-
-    fn emit_state(&mut self, last: &mut Option<RunnerState>) {
-        let s = self.runner.state();
-        if *last != Some(s) {
-            *last = Some(s);
-            self.emit(SessionEvent::State(s));
-        }
-    }
-
-    fn report(&mut self, ev: &RunnerEvents) {
-        if let Some((k, e)) = ev.ended {
-            self.last_ended = Some(k);
-            self.emit(SessionEvent::TrialEnded(k, e));
-        }
-        if let Some(row) = &ev.committed {
-            self.emit(SessionEvent::Committed(Box::new(row.clone())));
-        }
-        if let Some(k) = ev.started {
-            if let Ok(o) = self.runner.engine().outcome() {
-                self.emit(SessionEvent::TrialStarted {
-                    key: k,
-                    scene: o.scene,
-                });
-            }
-            if let Who::Sim(s) = &self.tap.inner
-                && let Some(e) = s.error()
-            {
-                let msg = format!("simulated operator: {e}");
-                self.emit(SessionEvent::Error(msg));
-            }
-        }
-    }
-
-    /// Is `key` the last pending trial of the sitting's participant while
-    /// other participants' trials remain? (Then the sitting ends after it.)
-    fn participant_boundary(&self, key: TrialKey) -> bool {
-        let Some(p) = self.opts.only_participant else {
-            return false;
-        };
-        let Some(store) = self.runner.store() else {
-            return false;
-        };
-        match store.pending().find(|t| t.key != key) {
-            Some(next) => next.key.participant != p,
-            None => false,
-        }
-    }
-
-    fn run(mut self) {
-        let mut reason = match self.run_loop() {
-            Ok(r) => r,
-            Err(e) => FinishReason::Failed(e.to_string()),
-        };
-        // A participant finished or the experimenter stopped: the sitting
-        // ends cleanly (journal `session_done`), so the next opening does
-        // not report a crash.
-        let why = match &reason {
-            FinishReason::ParticipantDone(id) => Some(format!("participant {id} finished")),
-            FinishReason::Stopped => Some("sitting stopped by the experimenter".to_owned()),
-            _ => None,
-        };
-        if let Some(why) = why
-            && let Err(e) = self.runner.end_sitting(&why)
+/// Opens the folder (new or resumed) after the checks a sitting needs.
+fn open_store(
+    opts: &SessionOptions,
+    meta: &kilotouch_study::export::StudyMeta,
+) -> Result<StudyStore, SessionError> {
+    if opts.protocol.is_some() && opts.out.join(SESSION_FILE).exists() {
+        // The folder's own protocol decides; a different one is refused by
+        // the store (ProtocolMismatch) — say so before touching anything.
+        if let (FolderStatus::Study { protocol, .. }, Some(p)) =
+            (inspect_folder(&opts.out), &opts.protocol)
+            && protocol != p.name
         {
-            reason = FinishReason::Failed(format!("ending the sitting: {e}"));
-        }
-        self.emit(SessionEvent::Health(self.health));
-        self.emit(SessionEvent::Finished(reason));
-        // Deliver what is left while the GUI drains (bounded wait).
-        let t0 = Instant::now();
-        while !self.overflow.is_empty() && t0.elapsed() < Duration::from_secs(2) {
-            self.flush();
-            std::thread::sleep(Duration::from_millis(2));
+            return Err(SessionError::Invalid(format!(
+                "{} holds the study `{protocol}`, not `{}`: resume it or choose another folder",
+                opts.out.display(),
+                p.name
+            )));
         }
     }
+    let store = match &opts.protocol {
+        Some(p) => StudyStore::open(&opts.out, p, meta)?,
+        None => StudyStore::open_existing(&opts.out, meta)?,
+    };
+    let next = store.next_pending().cloned();
+    if let (Some(p), Some(n)) = (opts.only_participant, &next)
+        && n.key.participant != p
+    {
+        return Err(SessionError::Invalid(format!(
+            "the next pending trial of this folder is {} ({}): trials run in plan order, \
+             so the participant of this sitting must be {}",
+            n.key, n.participant, n.participant
+        )));
+    }
+    if next.is_none() {
+        return Err(SessionError::Invalid(format!(
+            "{} is complete: every planned trial has its row",
+            opts.out.display()
+        )));
+    }
+    Ok(store)
+}
 
-    fn run_loop(&mut self) -> Result<FinishReason, RunError> {
-        let paced = self.opts.speed == Speed::RealTime;
-        let period = self.opts.block as f64 / self.fs;
-        let mut pacer = Pacer::new(SystemClock::default(), period, 2e-3, 50e-3, paced);
-        let mut last_state = None;
-        self.emit_state(&mut last_state);
-        let mut since_telemetry = 0usize;
-        let mut last_telemetry = Instant::now();
-        let mut window_start = Instant::now();
-        let mut window_busy = 0.0f64;
-        let mut was_running = false;
-        let screens = self.opts.screens;
-        self.runner.set_hold(screens);
-        let iti_s = self.runner.protocol().screens.iti_s;
-        let mut waiting_since: Option<Instant> = None;
-        loop {
-            // Commands.
-            while let Ok(cmd) = self.cmd_rx.pop() {
-                let r = self.command(cmd);
-                match r {
-                    Ok(Some(reason)) => return Ok(reason),
-                    Ok(None) => {}
-                    Err(e) => self.emit(SessionEvent::Error(e.to_string())),
-                }
-                self.emit_state(&mut last_state);
+/// Makes the engine run `chain` (cleared at the engine's loop delay);
+/// returns the chain to restore afterwards when it differed.
+fn use_chain(
+    engine: &mut EngineHandle,
+    chain: &LoopChain,
+) -> Result<Option<(LoopChain, Clearance)>, SessionError> {
+    if engine.chain_source() == &chain.source {
+        return Ok(None);
+    }
+    let clearance = Clearance::check_with_latency(engine.config(), chain, engine.latency_s())
+        .map_err(|e| SessionError::Invalid(format!("the sitting's chain: {e}")))?;
+    let before = engine.chain_and_clearance();
+    engine.apply_chain(chain, &clearance)?;
+    Ok(before)
+}
+
+/// The participant at the handle.
+fn participant_of(opts: &SessionOptions, protocol: &Protocol, fs: f64) -> Who {
+    match opts.participant {
+        ParticipantKind::Mouse => Who::Mouse(MouseParticipant::default()),
+        ParticipantKind::Handle => Who::Handle,
+        ParticipantKind::Simulated => {
+            let mut c = SimCohort::new(protocol.seeds.study, fs / opts.runner.act_every as f64, fs);
+            // Built here, not at the first trial on the engine thread.
+            if let Some(p) = opts.only_participant {
+                c.prepare(p);
             }
-            while let Ok(h) = self.hand_rx.pop() {
-                if let Who::Mouse(m) = &mut self.tap.inner {
-                    m.hand_m = h;
-                }
-            }
-            self.flush();
-            let state = self.runner.state();
-            if state == RunnerState::Done {
-                return Ok(FinishReason::StudyDone);
-            }
-            if let RunnerState::Waiting(next) = state {
-                // The participant's screens: the inter-trial interval runs
-                // here; a new block waits for the participant (Proceed).
-                let since = *waiting_since.get_or_insert_with(Instant::now);
-                let fast = !paced;
-                let wait_s = match (
-                    kilotouch_study::screens::gate(self.last_ended, next),
-                    &self.tap.inner,
-                ) {
-                    _ if fast => Some(0.0),
-                    (kilotouch_study::screens::Gate::Iti, _) => Some(iti_s),
-                    (_, Who::Sim(_)) => Some(SIM_READ_S),
-                    (_, Who::Mouse(_)) => None,
-                };
-                if wait_s.is_some_and(|w| since.elapsed().as_secs_f64() >= w) {
-                    waiting_since = None;
-                    let ev = self.runner.proceed(&mut self.tap)?;
-                    self.report(&ev);
-                    self.emit_state(&mut last_state);
-                    continue;
-                }
-            } else {
-                waiting_since = None;
-            }
-            let running = matches!(state, RunnerState::Training(_) | RunnerState::Trial(_));
-            if !running {
-                was_running = false;
-                std::thread::sleep(Duration::from_millis(2));
-                continue;
-            }
-            if !was_running {
-                pacer.reanchor();
-                was_running = true;
-            }
-            pacer.begin_block();
-            let ev = self.runner.advance(&mut self.tap, self.opts.block)?;
-            self.health.simulated_s += ev.samples as f64 / self.fs;
-            since_telemetry += ev.samples;
-            let wall_ok = last_telemetry.elapsed() >= Duration::from_millis(10) || paced;
-            if since_telemetry >= self.opts.telemetry_every
-                && wall_ok
-                && let Some(key) = self.runner.engine().key()
-            {
-                since_telemetry = 0;
-                last_telemetry = Instant::now();
-                let t = self.tap.telemetry(key);
-                self.emit_telemetry(t);
-            }
-            self.report(&ev);
-            if ev.needs_service {
-                if let Some((key, _)) = ev.ended
-                    && self.participant_boundary(key)
-                {
-                    let id = self.participant_id(key);
-                    self.runner.pause(&format!("participant {id} finished"))?;
-                    let sev = self.runner.service(&mut self.tap)?;
-                    self.report(&sev);
-                    self.emit_state(&mut last_state);
-                    return Ok(FinishReason::ParticipantDone(id));
-                }
-                let sev = self.runner.service(&mut self.tap)?;
-                self.report(&sev);
-                was_running = false;
-            }
-            self.emit_state(&mut last_state);
-            let timing = pacer.end_block();
-            window_busy += timing.busy_s;
-            let w = window_start.elapsed().as_secs_f64();
-            if w >= 0.1 {
-                self.health.deadline_misses = pacer.misses;
-                self.health.overruns = pacer.overruns;
-                self.health.worst_lateness_s = pacer.worst_lateness_s;
-                self.health.load = window_busy / w;
-                window_busy = 0.0;
-                window_start = Instant::now();
-                self.emit(SessionEvent::Health(self.health));
-            }
+            Who::Sim(Box::new(c))
         }
-    }
-
-    fn participant_id(&self, key: TrialKey) -> String {
-        self.runner
-            .store()
-            .and_then(|s| s.planned(&key))
-            .map(|p| p.participant.clone())
-            .unwrap_or_else(|| format!("P{:02}", u64::from(key.participant) + 1))
-    }
-
-    /// Applies a command; `Some(reason)` ends the thread.
-    fn command(&mut self, cmd: SessionCommand) -> Result<Option<FinishReason>, RunError> {
-        match cmd {
-            SessionCommand::Start => {
-                let ev = self.runner.start(&mut self.tap)?;
-                self.report(&ev);
-            }
-            SessionCommand::Pause => self.runner.pause("experimenter")?,
-            SessionCommand::Resume => {
-                if self.runner.state() == RunnerState::Paused(None) {
-                    // After a pause between trials (or an emergency stop)
-                    // the next trial starts a new block: instructions and
-                    // the ready screen again, not a bare interval.
-                    self.last_ended = None;
-                }
-                let ev = self.runner.resume(&mut self.tap)?;
-                self.report(&ev);
-            }
-            SessionCommand::AbortTrial => {
-                let ev = self.runner.abort_trial()?;
-                self.report(&ev);
-            }
-            SessionCommand::Note(text) => {
-                let text = text.trim().to_owned();
-                if !text.is_empty() {
-                    self.runner.note(&text)?;
-                    self.emit(SessionEvent::Noted(text));
-                }
-            }
-            SessionCommand::EmergencyStop => {
-                let state = self.runner.state();
-                let in_trial = matches!(
-                    state,
-                    RunnerState::Training(_) | RunnerState::Trial(_) | RunnerState::Paused(Some(_))
-                );
-                self.runner.note("emergency stop")?;
-                self.emit(SessionEvent::Noted("emergency stop".into()));
-                if in_trial {
-                    let ev = self.runner.abort_trial()?;
-                    self.report(&ev);
-                    if !matches!(self.runner.state(), RunnerState::Paused(_)) {
-                        self.runner.pause("emergency stop")?;
-                    }
-                    let key = ev.ended.map(|(k, _)| k);
-                    let sev = self.runner.service(&mut self.tap)?;
-                    self.report(&sev);
-                    if let Some(k) = key
-                        && self.participant_boundary_after_commit(k)
-                    {
-                        return Ok(Some(FinishReason::ParticipantDone(self.participant_id(k))));
-                    }
-                }
-                if matches!(self.runner.state(), RunnerState::Waiting(_)) {
-                    // Between trials: nothing begins until the experimenter
-                    // resumes.
-                    self.runner.pause("emergency stop")?;
-                }
-            }
-            SessionCommand::Proceed => {
-                if matches!(self.runner.state(), RunnerState::Waiting(_)) {
-                    let ev = self.runner.proceed(&mut self.tap)?;
-                    self.report(&ev);
-                }
-            }
-            SessionCommand::Stop => return Ok(Some(FinishReason::Stopped)),
-        }
-        Ok(None)
-    }
-
-    /// After `key` was committed: does the sitting's participant have no
-    /// pending trial left (while others do)?
-    fn participant_boundary_after_commit(&self, key: TrialKey) -> bool {
-        let (Some(p), Some(store)) = (self.opts.only_participant, self.runner.store()) else {
-            return false;
-        };
-        let _ = key;
-        store.next_pending().is_some_and(|n| n.key.participant != p)
     }
 }

@@ -1,8 +1,11 @@
-//! The participant as the session thread sees it: a [`Tap`] around the real
-//! participant that records what it observes (for telemetry and live
-//! metrics, allocation-free), and the validation of pseudonymous IDs.
+//! The participant as a sitting sees it: who is at the handle ([`Who`]), a
+//! [`Tap`] around them that records what they observe (for telemetry and
+//! live metrics, allocation-free), and the validation of pseudonymous IDs.
 
-use kilotouch_study::participant::{Observation, Participant, TrialBrief, VisualFrame};
+use kilotouch_study::operator::SimCohort;
+use kilotouch_study::participant::{
+    MouseParticipant, Observation, Participant, TrialBrief, VisualFrame,
+};
 use kilotouch_study::protocol::AssignmentTable;
 use kilotouch_study::seeds::TrialKey;
 
@@ -30,6 +33,36 @@ pub struct LiveMetrics {
     pub force_mean_n: Option<f64>,
     /// Peak |F_hand| since the trial start, N.
     pub force_peak_n: f64,
+}
+
+/// Who is at the handle during a sitting.
+#[derive(Debug)]
+pub(crate) enum Who {
+    /// A person at the GUI: the hand follows the mouse (simulated rig).
+    Mouse(MouseParticipant),
+    /// The study crate's seeded simulated operator (simulated rig).
+    Sim(Box<SimCohort>),
+    /// A live rig: a real hand (a person, or the device's own simulated
+    /// participant) moves the handle; the sitting observes and records it.
+    Handle,
+}
+
+impl Participant for Who {
+    fn begin_trial(&mut self, brief: &TrialBrief) {
+        match self {
+            Who::Mouse(m) => m.begin_trial(brief),
+            Who::Sim(s) => s.begin_trial(brief),
+            Who::Handle => {}
+        }
+    }
+
+    fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+        match self {
+            Who::Mouse(m) => m.act(obs),
+            Who::Sim(s) => s.act(obs),
+            Who::Handle => obs.handle_m,
+        }
+    }
 }
 
 /// Wraps a participant and records its observations (module docs).

@@ -203,6 +203,15 @@ impl<S: ForceSplitter> Coupling<S> {
         &self.mapping
     }
 
+    /// Map the handle position `origin_m` (m) to the trap's rest position
+    /// from now on (a live trial starts wherever the handle is: the
+    /// mapping is re-centred on it, as a clutch re-indexes a master arm).
+    pub fn set_handle_origin(&mut self, origin_m: [f64; 2]) {
+        if origin_m.iter().all(|v| v.is_finite()) {
+            self.mapping.handle_origin_m = origin_m;
+        }
+    }
+
     /// Counters.
     pub fn counters(&self) -> CouplingCounters {
         let mut c = self.counters;

@@ -142,6 +142,7 @@ impl Default for StatusCounters {
                 nonfinite_commands: 0,
                 faults_pending: 0,
                 faults_dropped: 0,
+                late_commands: 0,
             },
             faults: FaultQueue::default(),
         }

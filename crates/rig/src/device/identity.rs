@@ -74,6 +74,10 @@ pub struct RigStatus {
     pub faults_pending: usize,
     /// Faults dropped because the queue was full.
     pub faults_dropped: u64,
+    /// Samples a live device executed with a held command because the
+    /// host's command arrived late (`CMD_LATE`).
+    #[serde(default)]
+    pub late_commands: u64,
 }
 
 /// The physical bounds of a value a device announces when it connects (the

@@ -34,6 +34,7 @@ mod clock;
 mod fault;
 mod frame;
 mod identity;
+mod info;
 mod spec;
 
 pub use clock::{Clock, ManualClock, SystemClock};
@@ -43,6 +44,7 @@ pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
 pub use identity::{
     ANNOUNCED_BOUNDS, AnnouncedBound, RigIdentity, RigKind, RigState, RigStatus, validate_announced,
 };
+pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
 pub use spec::RigSpec;
 
 use crate::error::RigError;
@@ -116,6 +118,32 @@ pub trait Rig: Send {
     fn status(&self) -> RigStatus;
     /// Oldest queued fault, if any.
     fn pop_fault(&mut self) -> Option<RigFault>;
+    /// Loop delay, in samples, of a closed loop that exchanges blocks of
+    /// `block_len` frames with this rig through
+    /// [`HapticLoop::step_block`](crate::HapticLoop::step_block): from the
+    /// sensor frame a command is computed from to the sample that command
+    /// is applied in. The default is a block-synchronous exchange (the
+    /// commands of block b come from the sensors of block b − 1: `block_len`
+    /// samples); a rig that sends commands ahead (a command lead) adds it;
+    /// the batch simulated rig, stepped one frame at a time, has 1.
+    fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        u32::try_from(block_len.max(1)).unwrap_or(u32::MAX)
+    }
+    /// The link round trip measured when the rig connected, s (`None`: not
+    /// a link, or not measured).
+    fn round_trip_s(&self) -> Option<f64> {
+        None
+    }
+    /// Tell the device about the experiment ([`HostInfo`]); a device
+    /// without a participant at its handle ignores it (the default). Must
+    /// not allocate or block: a backend queues it with its next frames.
+    ///
+    /// # Errors
+    /// Backend-specific (a link that is down).
+    fn send_info(&mut self, info: &HostInfo) -> Result<(), RigError> {
+        let _ = info;
+        Ok(())
+    }
 }
 
 /// One frame exchanged as a one-frame block: the default

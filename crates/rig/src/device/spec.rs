@@ -1,8 +1,8 @@
-//! `--rig` specifications: `sim`, `serial:PATH[,baud=N][,timeout-ms=N]`,
-//! `audio[:DEVICE]`.
+//! `--rig` specifications: `sim`,
+//! `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]`, `audio[:DEVICE]`.
 
 use crate::error::RigError;
-use crate::serial::SerialConfig;
+use crate::serial::{CommandLead, SerialConfig};
 use std::time::Duration;
 
 /// Which rig a command talks to.
@@ -37,8 +37,8 @@ impl RigSpec {
 
 fn bad(spec: &str, why: impl std::fmt::Display) -> RigError {
     RigError::InvalidInput(format!(
-        "--rig {spec}: {why} (expected `sim`, `serial:PATH[,baud=N][,timeout-ms=N]` or \
-         `audio[:DEVICE]`)"
+        "--rig {spec}: {why} (expected `sim`, \
+         `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]` or `audio[:DEVICE]`)"
     ))
 }
 
@@ -68,10 +68,30 @@ impl std::str::FromStr for RigSpec {
             return Err(bad(s, "missing port path"));
         }
         let mut cfg = SerialConfig::new(path);
+        // A closed loop over a link leads by default (`lead=0` for
+        // block-synchronous exchange).
+        cfg.lead = CommandLead::Auto;
         for opt in parts {
             let (k, v) = opt
                 .split_once('=')
                 .ok_or_else(|| bad(s, format!("option `{opt}` is not key=value")))?;
+            if k == "lead" {
+                cfg.lead = match v {
+                    "auto" => CommandLead::Auto,
+                    n => match n.parse::<u32>() {
+                        Ok(b) if b <= 64 => CommandLead::Blocks(b),
+                        _ => {
+                            return Err(bad(
+                                s,
+                                format!(
+                                    "`lead` is `auto` or a number of blocks 0 ..= 64, got `{v}`"
+                                ),
+                            ));
+                        }
+                    },
+                };
+                continue;
+            }
             let num: u64 = v
                 .parse()
                 .map_err(|_| bad(s, format!("`{k}` needs a whole number, got `{v}`")))?;
@@ -114,6 +134,19 @@ mod tests {
         };
         assert_eq!((c.path.as_str(), c.baud), ("/dev/pts/3", 921_600));
         assert_eq!(c.timeout, Duration::from_millis(40));
+        assert_eq!(c.lead, CommandLead::Auto);
+        let RigSpec::Serial(c) = "serial:/dev/pts/3,lead=0".parse().unwrap() else {
+            panic!()
+        };
+        assert_eq!(c.lead, CommandLead::Blocks(0));
+        for bad in [
+            "serial:/dev/x,lead=-1",
+            "serial:/dev/x,lead=65",
+            "serial:/dev/x,lead=fast",
+        ] {
+            let e = bad.parse::<RigSpec>().unwrap_err().to_string();
+            assert!(e.contains("lead"), "{bad}: {e}");
+        }
         for bad in [
             "",
             "serial:",

@@ -46,7 +46,7 @@ use super::frame::{
     PROTOCOL_VERSION, Status, WireItem, fault, flag,
 };
 use crate::config::RigConfig;
-use crate::device::{ActuatorFrame, Rig, SensorFrame};
+use crate::device::{ActuatorFrame, HandAgent, HostInfo, Rig, SensorFrame};
 use crate::error::RigError;
 use crate::sim::SimRig;
 use rand::{RngExt, SeedableRng};
@@ -74,6 +74,11 @@ pub trait Instrument: Send {
     fn safe_command(&self, last: &Self::Command) -> Self::Command;
     /// Reset the instrument's state to `cmd` (frame type RESET).
     fn reset(&mut self, cmd: &Self::Command);
+    /// The host's information about the experiment (frame type INFO);
+    /// an instrument without a participant ignores it (the default).
+    fn info(&mut self, info: &HostInfo) {
+        let _ = info;
+    }
 }
 
 /// A device that keeps the link busy with valid frames but never advances
@@ -117,10 +122,6 @@ pub struct FaultInjection {
     /// Flag bits ([`flag`]) set on every sample: a device that reports a
     /// fault (or a late command, or its watchdog) on everything it sends.
     pub sample_flags: u8,
-    /// Stream this many times faster than the HELLO's sample rate (`None`:
-    /// at the HELLO rate): a device whose clock disagrees with what it
-    /// announces.
-    pub speedup: Option<f64>,
 }
 
 /// Emulator settings.
@@ -131,6 +132,17 @@ pub struct EmulatorConfig {
     pub watchdog: Duration,
     /// Samples per device frame at most (1 ..= 64).
     pub batch: usize,
+    /// Run like a physical device: every sample at its time, a missing
+    /// command replaced by the previous one and flagged `CMD_LATE`
+    /// (`false`: wait for the command, simulated time standing still).
+    pub free_running: bool,
+    /// Clock speed: simulated seconds per wall-clock second (1 = real
+    /// time, the device's rate; 4 serves 40 000 samples per wall second
+    /// from a 10 kHz rig). The HELLO still announces the rig's rate, so a
+    /// host's loop, delays and time-outs in samples are those of the real
+    /// device; for benchmarks that need many sittings (`kilotouch bench
+    /// --hil`). Range 0.1 ..= 20.
+    pub speed: f64,
     /// Fault injection.
     pub faults: FaultInjection,
 }
@@ -140,6 +152,8 @@ impl Default for EmulatorConfig {
         Self {
             watchdog: Duration::from_millis(100),
             batch: 10,
+            free_running: false,
+            speed: 1.0,
             faults: FaultInjection::default(),
         }
     }
@@ -160,16 +174,14 @@ impl EmulatorConfig {
             }
         };
         p("corrupt_rate", self.faults.corrupt_rate)?;
-        if let Some(x) = self.faults.speedup
-            && !(x.is_finite() && (0.01..=100.0).contains(&x))
-        {
+        p("drop_rate", self.faults.drop_rate)?;
+        if !(0.1..=20.0).contains(&self.speed) {
             return Err(RigError::InvalidParameter {
-                name: "speedup",
-                value: x,
-                reason: "must be in 0.01 ..= 100".into(),
+                name: "speed",
+                value: self.speed,
+                reason: "the emulator's clock speed must be in 0.1 ..= 20 (1 = real time)".into(),
             });
         }
-        p("drop_rate", self.faults.drop_rate)?;
         let wd = self.watchdog.as_secs_f64();
         if !(0.001..=60.0).contains(&wd) {
             return Err(RigError::InvalidParameter {
@@ -261,7 +273,7 @@ impl<I: Instrument> Emulator<I> {
         let mut hello = inst.hello();
         hello.watchdog_ms = cfg.watchdog.as_millis().min(u128::from(u16::MAX)) as u16;
         hello.batch = cfg.batch as u8;
-        let fs = f64::from(hello.sample_rate_hz) * cfg.faults.speedup.unwrap_or(1.0);
+        let fs = f64::from(hello.sample_rate_hz);
         if fs.is_nan() || fs <= 0.0 {
             return Err(RigError::InvalidParameter {
                 name: "sample_rate_hz",
@@ -459,9 +471,13 @@ impl<I: Instrument> Emulator<I> {
                 self.send_status();
             }
             frame::ty::HEARTBEAT => {}
+            frame::ty::INFO => match frame::parse_info(payload) {
+                Some(i) => self.inst.info(&i),
+                None => self.send_fault(fault::BAD_FRAME),
+            },
             frame::ty::RESET => {
                 if payload.len() == I::Command::SIZE {
-                    let c = I::Command::get(payload);
+                    let c = I::Command::decode(payload);
                     self.inst.reset(&c);
                     self.applied = c;
                 } else {
@@ -513,7 +529,10 @@ impl<I: Instrument> Emulator<I> {
 
     /// Wall time at which sample `seq` is due (end of its period).
     fn due_time(&self, seq: u64) -> Duration {
-        self.anchor_time + Duration::from_secs_f64((seq + 1 - self.anchor_seq) as f64 / self.fs)
+        self.anchor_time
+            + Duration::from_secs_f64(
+                (seq + 1 - self.anchor_seq) as f64 / (self.fs * self.cfg.speed),
+            )
     }
 
     /// One frame of a misbehaving device ([`Misbehaviour`]).
@@ -563,14 +582,29 @@ impl<I: Instrument> Emulator<I> {
             return Next::WakeAt(now + Misbehaviour::PERIOD);
         }
         let elapsed = now.saturating_sub(self.anchor_time).as_secs_f64();
-        let pos = self.anchor_seq + (elapsed * self.fs).floor() as u64;
+        let pos = self.anchor_seq + (elapsed * self.fs * self.cfg.speed).floor() as u64;
         let mut waiting = false;
         while self.next_seq < pos {
             let slot = (self.next_seq % COMMAND_RING as u64) as usize;
-            let cmd = match self.ring[slot] {
+            let (cmd, late) = match self.ring[slot] {
                 Some((q, c)) if q == self.next_seq => {
                     self.ring[slot] = None;
-                    c
+                    (c, 0)
+                }
+                // A physical device holds the previous command.
+                _ if self.cfg.free_running => {
+                    if now.saturating_sub(self.last_host) >= self.cfg.watchdog {
+                        // Out of commands and the host silent for the
+                        // watchdog window: outputs safe.
+                        self.flush_batch();
+                        self.stats.watchdog_trips += 1;
+                        self.go_idle(DeviceState::Tripped);
+                        self.send_fault(fault::WATCHDOG);
+                        self.send_status();
+                        return Next::WakeAt(now + Duration::from_millis(50));
+                    }
+                    self.stats.late_commands += 1;
+                    (self.applied, flag::CMD_LATE)
                 }
                 _ => {
                     waiting = true;
@@ -580,7 +614,7 @@ impl<I: Instrument> Emulator<I> {
             if self.batch.is_empty() {
                 self.batch_seq = self.next_seq;
             }
-            let s = self.inst.step(&cmd, self.cfg.faults.sample_flags);
+            let s = self.inst.step(&cmd, late | self.cfg.faults.sample_flags);
             self.applied = cmd;
             self.batch.push(s);
             self.next_seq += 1;
@@ -635,6 +669,7 @@ pub struct DaqInstrument {
     name: String,
     fs: u32,
     frame: [SensorFrame; 1],
+    agent: Option<Box<dyn HandAgent>>,
 }
 
 impl DaqInstrument {
@@ -680,7 +715,20 @@ impl DaqInstrument {
             name: cfg.rig.name.clone(),
             fs: fs as u32,
             frame: [SensorFrame::default()],
+            agent: None,
         })
+    }
+
+    /// The same DAQ with `agent` at its handle (hardware in the loop): it
+    /// moves the simulated hand and hears the host's information frames.
+    pub fn with_agent(mut self, agent: Box<dyn HandAgent>) -> Self {
+        self.agent = Some(agent);
+        self
+    }
+
+    /// The participant at the handle, if any.
+    pub fn agent(&self) -> Option<&dyn HandAgent> {
+        self.agent.as_deref()
     }
 
     /// The simulated rig (ground truth for tests).
@@ -756,11 +804,17 @@ impl Instrument for DaqInstrument {
             ],
             haptuator_v: code_to_value(cmd.drive, c.drive_max_v),
         };
+        if let Some(h) = self.agent.as_mut().and_then(|ag| ag.hand()) {
+            self.rig.set_hand(h);
+        }
         let flags = match self.rig.process_block(&[a], &mut self.frame) {
             Ok(_) => self.frame[0].flags.0 & flag::HOST_MASK,
             Err(_) => flag::NONFINITE,
         };
         let f = self.frame[0];
+        if let Some(ag) = self.agent.as_mut() {
+            ag.observe(&a, &f);
+        }
         DaqSample {
             enc: [
                 sat_i32(crate::round_half_away(
@@ -782,6 +836,12 @@ impl Instrument for DaqInstrument {
     }
 
     fn reset(&mut self, _cmd: &DaqCommand) {}
+
+    fn info(&mut self, info: &HostInfo) {
+        if let Some(ag) = self.agent.as_mut() {
+            ag.info(info);
+        }
+    }
 }
 
 #[cfg(test)]

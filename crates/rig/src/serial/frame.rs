@@ -1,193 +1,23 @@
-//! Wire format of the live-rig protocol (`docs/PROTOCOL.md`): framing,
-//! CRC, message payloads and the resynchronising decoder.
-//!
-//! Every frame is
-//!
-//! ```text
-//! offset  size  field
-//! 0       2     sync marker A5 5A
-//! 2       2     LEN: payload length in bytes, u16 little-endian, ≤ MAX_PAYLOAD
-//! 4       1     TYPE
-//! 5       LEN   payload
-//! 5+LEN   2     CRC-16/CCITT-FALSE over bytes 2 .. 5+LEN (LEN, TYPE, payload), LE
-//! ```
-//!
-//! CRC-16/CCITT-FALSE (a.k.a. CRC-16/IBM-3740, AUTOSAR): polynomial 0x1021,
-//! initial value 0xFFFF, no reflection, no final XOR; check value 0x29B1
-//! for the ASCII string `123456789` (Williams, *A painless guide to CRC
-//! error detection algorithms*; the `crc` crate's catalogue). It detects
-//! every error burst of ≤ 16 bits, hence every corrupted single byte.
-//!
-//! The [`Decoder`] keeps the unconsumed bytes in a fixed buffer of
-//! 2·[`MAX_FRAME`] bytes (bounded memory, no allocation after creation).
-//! It scans for the sync marker, rejects a header whose LEN exceeds
-//! [`MAX_PAYLOAD`], and on a CRC mismatch discards only the first sync byte
-//! and scans again, so a valid frame that follows garbage or a corrupted
-//! frame is always found (resynchronisation on the next valid frame). A
-//! header whose (corrupted) LEN runs past the start of a complete valid
-//! frame is dropped without waiting for the bytes it claims: otherwise a
-//! device that has paused for the host's next commands would leave the
-//! host waiting for bytes that never come.
+//! The wire format of the live-rig protocol (`docs/PROTOCOL.md`) on the
+//! host: the definitions of the `kilotouch-proto` crate (framing, CRC,
+//! items, the resynchronising [`Decoder`], sequence extension), which the
+//! firmware shares, with the host's conveniences around them: frames
+//! appended to a `Vec<u8>` and an owned [`Hello`].
 
-use crc::{CRC_16_IBM_3740, Crc};
+use crate::condition::Condition;
+use crate::coupling::mapping::HandMapping;
+use crate::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+use kilotouch_proto::info::{Info, TrialBegin, View};
 
-/// CRC-16/CCITT-FALSE (= CRC-16/IBM-3740): poly 0x1021, init 0xFFFF.
-pub const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
+pub use kilotouch_proto::{
+    CRC16, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DecoderStats, DeviceKind, DeviceState,
+    FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION, SYNC, Status, TRAILER,
+    TrapCommand, TweezerCaps, TweezerWireSample, WireItem, block_header, block_item, fault, flag,
+    max_items, tweezer_status, ty, unwrap_seq,
+};
 
-/// Sync marker opening every frame.
-pub const SYNC: [u8; 2] = [0xA5, 0x5A];
-/// Bytes before the payload: sync (2), LEN (2), TYPE (1).
-pub const HEADER: usize = 5;
-/// Bytes after the payload: the CRC.
-pub const TRAILER: usize = 2;
-/// Largest payload accepted, bytes.
-pub const MAX_PAYLOAD: usize = 1024;
-/// Largest frame, bytes.
-pub const MAX_FRAME: usize = HEADER + MAX_PAYLOAD + TRAILER;
-/// Protocol version spoken by this implementation.
-pub const PROTOCOL_VERSION: u16 = 2;
-
-/// Frame types (`docs/PROTOCOL.md`, "Frame types"). Host → device types
-/// are 0x01–0x3F, device → host types 0x81–0xBF.
-pub mod ty {
-    /// Host → device: handshake request (payload: host protocol version u16).
-    pub const HELLO_REQ: u8 = 0x01;
-    /// Host → device: arm and start streaming (no payload).
-    pub const START: u8 = 0x02;
-    /// Host → device: outputs to zero, stop streaming (no payload).
-    pub const STOP: u8 = 0x03;
-    /// Host → device: DAQ commands (block of [`super::DaqCommand`]).
-    pub const COMMANDS: u8 = 0x04;
-    /// Host → device: heartbeat (payload: counter u32).
-    pub const HEARTBEAT: u8 = 0x05;
-    /// Host → device: tweezer trap positions (block of [`super::TrapCommand`]).
-    pub const TRAP: u8 = 0x06;
-    /// Host → device: reset the instrument state to one command item
-    /// (tweezer: trap and bead at the given position).
-    pub const RESET: u8 = 0x07;
-    /// Device → host: handshake answer ([`super::Hello`]).
-    pub const HELLO: u8 = 0x81;
-    /// Device → host: DAQ samples (block of [`super::DaqSample`]).
-    pub const SAMPLES: u8 = 0x82;
-    /// Device → host: status ([`super::Status`]).
-    pub const STATUS: u8 = 0x83;
-    /// Device → host: fault ([`super::FaultReport`]).
-    pub const FAULT: u8 = 0x84;
-    /// Device → host: tweezer samples (block of [`super::TweezerWireSample`]).
-    pub const TWEEZER_SAMPLES: u8 = 0x85;
-}
-
-/// Per-sample flag bits of device samples. Bits 1–4 equal the host's
-/// [`crate::device::FrameFlags`] bits; bit 0 is never sent (the host uses it
-/// for lost-frame placeholders).
-pub mod flag {
-    /// Accelerometer at its range on some axis.
-    pub const CLIPPED: u8 = 0x02;
-    /// A command was clamped by the device.
-    pub const LIMITED: u8 = 0x04;
-    /// Haptuator magnet on an end stop (when the device can tell).
-    pub const END_STOP: u8 = 0x08;
-    /// The device replaced an invalid command by zero.
-    pub const NONFINITE: u8 = 0x10;
-    /// The command for this sample arrived late (or not at all): the
-    /// previous command was held.
-    pub const CMD_LATE: u8 = 0x20;
-    /// The watchdog had zeroed the outputs during this sample.
-    pub const WATCHDOG: u8 = 0x40;
-    /// Bits the host copies into [`crate::device::FrameFlags`].
-    pub const HOST_MASK: u8 = CLIPPED | LIMITED | END_STOP | NONFINITE;
-}
-
-/// Fault codes of [`FaultReport`] (`docs/PROTOCOL.md`, "Faults").
-pub mod fault {
-    /// No valid host frame within the watchdog window: outputs zeroed,
-    /// device idle until the next START.
-    pub const WATCHDOG: u8 = 0x01;
-    /// A host frame with a valid CRC but an unknown type or a malformed payload.
-    pub const BAD_FRAME: u8 = 0x02;
-    /// HELLO_REQ with a protocol version the device does not speak.
-    pub const VERSION: u8 = 0x03;
-    /// A command for a sample too far ahead of the device (buffer full).
-    pub const OVERFLOW: u8 = 0x04;
-    /// A command for a sample the device had already executed.
-    pub const LATE: u8 = 0x05;
-    /// Commands received while idle (no START).
-    pub const NOT_RUNNING: u8 = 0x06;
-
-    /// Human-readable name of a fault code.
-    pub fn name(code: u8) -> &'static str {
-        match code {
-            WATCHDOG => "watchdog tripped",
-            BAD_FRAME => "bad host frame",
-            VERSION => "protocol version mismatch",
-            OVERFLOW => "command buffer overflow",
-            LATE => "late command",
-            NOT_RUNNING => "command while idle",
-            _ => "unknown fault",
-        }
-    }
-}
-
-/// Kind of device announced in [`Hello`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DeviceKind {
-    /// Haptic DAQ: encoders, accelerometer, Pantograph and Haptuator outputs.
-    Daq,
-    /// Optical tweezer: trap positioning, bead tracking.
-    Tweezer,
-}
-
-impl DeviceKind {
-    /// Wire code.
-    pub fn code(self) -> u8 {
-        match self {
-            DeviceKind::Daq => 1,
-            DeviceKind::Tweezer => 2,
-        }
-    }
-    /// From the wire code.
-    pub fn from_code(c: u8) -> Option<Self> {
-        match c {
-            1 => Some(DeviceKind::Daq),
-            2 => Some(DeviceKind::Tweezer),
-            _ => None,
-        }
-    }
-}
-
-/// Capabilities of a DAQ (handshake). Output codes are i16 with full scale
-/// ±32767 = ±the limit: value = code · limit / 32767.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DaqCaps {
-    /// Encoder counts per metre of handle travel.
-    pub encoder_counts_per_m: f64,
-    /// Accelerometer scale, (m/s²) per code.
-    pub accel_m_s2_per_code: f64,
-    /// Accelerometer full scale, ±m/s².
-    pub accel_range_m_s2: f64,
-    /// Pantograph force limit per axis, N (code ±32767).
-    pub force_max_n: f64,
-    /// Haptuator drive limit, V (code ±32767).
-    pub drive_max_v: f64,
-}
-
-/// Capabilities of a tweezer (handshake).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TweezerCaps {
-    /// Trap stiffness κ, N/m.
-    pub stiffness_n_per_m: f64,
-}
-
-/// Kind-specific capabilities.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Caps {
-    /// DAQ.
-    Daq(DaqCaps),
-    /// Tweezer.
-    Tweezer(TweezerCaps),
-}
-
-/// Handshake answer (device → host, [`ty::HELLO`]).
+/// Handshake answer (device → host, [`ty::HELLO`]): the owned form of
+/// [`kilotouch_proto::Hello`], whose identity strings borrow.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Hello {
     /// Protocol version of the device.
@@ -200,7 +30,7 @@ pub struct Hello {
     pub batch: u8,
     /// Capabilities (the kind follows from the variant).
     pub caps: Caps,
-    /// Device name (UTF-8, ≤ 255 bytes).
+    /// Device name (UTF-8, ≤ 255 bytes on the wire).
     pub name: String,
     /// Serial number.
     pub serial: String,
@@ -227,223 +57,37 @@ impl Hello {
 
     /// Device kind.
     pub fn kind(&self) -> DeviceKind {
-        match self.caps {
-            Caps::Daq(_) => DeviceKind::Daq,
-            Caps::Tweezer(_) => DeviceKind::Tweezer,
+        self.caps.kind()
+    }
+
+    /// The wire form, borrowing the strings.
+    pub fn wire(&self) -> kilotouch_proto::Hello<'_> {
+        kilotouch_proto::Hello {
+            version: self.version,
+            sample_rate_hz: self.sample_rate_hz,
+            watchdog_ms: self.watchdog_ms,
+            batch: self.batch,
+            caps: self.caps,
+            name: self.name.as_bytes(),
+            serial: self.serial.as_bytes(),
+            firmware: self.firmware.as_bytes(),
         }
     }
-}
 
-/// Device state in [`Status`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DeviceState {
-    /// Outputs zero, not streaming.
-    Idle,
-    /// Streaming samples.
-    Running,
-    /// Stopped by the watchdog (outputs zero) until the next START.
-    Tripped,
-}
-
-impl DeviceState {
-    /// Wire code.
-    pub fn code(self) -> u8 {
-        match self {
-            DeviceState::Idle => 0,
-            DeviceState::Running => 1,
-            DeviceState::Tripped => 2,
-        }
-    }
-    /// From the wire code.
-    pub fn from_code(c: u8) -> Option<Self> {
-        match c {
-            0 => Some(DeviceState::Idle),
-            1 => Some(DeviceState::Running),
-            2 => Some(DeviceState::Tripped),
-            _ => None,
-        }
-    }
-}
-
-/// Device status ([`ty::STATUS`]): sent on START/STOP, and every 10 ms
-/// while the device waits for commands.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Status {
-    /// Sequence number of the next sample the device will execute (every
-    /// earlier sample has been sent).
-    pub next_seq: u32,
-    /// State.
-    pub state: DeviceState,
-    /// Valid host frames received.
-    pub host_frames: u32,
-    /// Host frames rejected (CRC errors seen by the device's decoder).
-    pub host_crc_errors: u32,
-    /// Samples executed with a held command (late or missing).
-    pub late_commands: u32,
-}
-
-/// A fault ([`ty::FAULT`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct FaultReport {
-    /// Fault code ([`fault`]).
-    pub code: u8,
-    /// Sequence number at which it happened.
-    pub seq: u32,
-}
-
-/// One fixed-size item of a block payload (`seq u32, n u8, n × item`).
-pub trait WireItem: Copy + Default + Send + std::fmt::Debug {
-    /// Encoded size, bytes.
-    const SIZE: usize;
-    /// Append the little-endian encoding.
-    fn put(&self, out: &mut Vec<u8>);
-    /// Decode from exactly `SIZE` bytes.
-    fn get(b: &[u8]) -> Self;
-}
-
-/// DAQ command of one sample (host → device): output codes, full scale
-/// ±32767 = ± the limits of [`DaqCaps`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DaqCommand {
-    /// Pantograph force codes (x, y).
-    pub force: [i16; 2],
-    /// Haptuator drive code.
-    pub drive: i16,
-}
-
-/// DAQ sample (device → host).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DaqSample {
-    /// Encoder counts (x, y).
-    pub enc: [i32; 2],
-    /// Accelerometer codes (x, y, z).
-    pub acc: [i16; 3],
-    /// Flags ([`flag`]).
-    pub flags: u8,
-}
-
-/// Tweezer trap command of one sample (host → device), m.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct TrapCommand {
-    /// Trap centre (x, y), m.
-    pub trap_m: [f64; 2],
-}
-
-/// Tweezer status bits of [`TweezerWireSample::status`].
-pub mod tweezer_status {
-    /// Bead held by the trap.
-    pub const TRAPPED: u8 = 0x01;
-    /// Bead in an obstacle's contact zone.
-    pub const IN_CONTACT: u8 = 0x02;
-    /// Contact started this sample.
-    pub const CONTACT_START: u8 = 0x04;
-    /// Contact ended this sample.
-    pub const CONTACT_END: u8 = 0x08;
-    /// Bead escaped this sample.
-    pub const ESCAPED: u8 = 0x10;
-    /// Bead recaptured this sample.
-    pub const RECAPTURED: u8 = 0x20;
-    /// Watchdog: the trap was held (no valid host frame).
-    pub const WATCHDOG: u8 = 0x40;
-}
-
-/// Tweezer sample (device → host).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct TweezerWireSample {
-    /// Bead centre (x, y), m.
-    pub bead_m: [f64; 2],
-    /// Position-detector sum signal, V.
-    pub sum_v: f32,
-    /// Position-detector difference signals (x, y), V: the raw signal a
-    /// trap calibration fits (`crate::tweezer::calibration`).
-    pub detector_v: [f32; 2],
-    /// Status bits ([`tweezer_status`]).
-    pub status: u8,
-}
-
-fn rd<const N: usize>(b: &[u8], at: usize) -> [u8; N] {
-    let mut a = [0u8; N];
-    if let Some(s) = b.get(at..at + N) {
-        a.copy_from_slice(s);
-    }
-    a
-}
-
-impl WireItem for DaqCommand {
-    const SIZE: usize = 6;
-    fn put(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.force[0].to_le_bytes());
-        out.extend_from_slice(&self.force[1].to_le_bytes());
-        out.extend_from_slice(&self.drive.to_le_bytes());
-    }
-    fn get(b: &[u8]) -> Self {
+    /// The owned form of a parsed HELLO (invalid UTF-8 replaced by U+FFFD).
+    pub fn from_wire(h: &kilotouch_proto::Hello<'_>) -> Self {
+        let s = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
         Self {
-            force: [i16::from_le_bytes(rd(b, 0)), i16::from_le_bytes(rd(b, 2))],
-            drive: i16::from_le_bytes(rd(b, 4)),
+            version: h.version,
+            sample_rate_hz: h.sample_rate_hz,
+            watchdog_ms: h.watchdog_ms,
+            batch: h.batch,
+            caps: h.caps,
+            name: s(h.name),
+            serial: s(h.serial),
+            firmware: s(h.firmware),
         }
     }
-}
-
-impl WireItem for DaqSample {
-    const SIZE: usize = 15;
-    fn put(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.enc[0].to_le_bytes());
-        out.extend_from_slice(&self.enc[1].to_le_bytes());
-        for a in self.acc {
-            out.extend_from_slice(&a.to_le_bytes());
-        }
-        out.push(self.flags);
-    }
-    fn get(b: &[u8]) -> Self {
-        Self {
-            enc: [i32::from_le_bytes(rd(b, 0)), i32::from_le_bytes(rd(b, 4))],
-            acc: [
-                i16::from_le_bytes(rd(b, 8)),
-                i16::from_le_bytes(rd(b, 10)),
-                i16::from_le_bytes(rd(b, 12)),
-            ],
-            flags: b.get(14).copied().unwrap_or(0),
-        }
-    }
-}
-
-impl WireItem for TrapCommand {
-    const SIZE: usize = 16;
-    fn put(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.trap_m[0].to_le_bytes());
-        out.extend_from_slice(&self.trap_m[1].to_le_bytes());
-    }
-    fn get(b: &[u8]) -> Self {
-        Self {
-            trap_m: [f64::from_le_bytes(rd(b, 0)), f64::from_le_bytes(rd(b, 8))],
-        }
-    }
-}
-
-impl WireItem for TweezerWireSample {
-    const SIZE: usize = 29;
-    fn put(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.bead_m[0].to_le_bytes());
-        out.extend_from_slice(&self.bead_m[1].to_le_bytes());
-        out.extend_from_slice(&self.sum_v.to_le_bytes());
-        out.extend_from_slice(&self.detector_v[0].to_le_bytes());
-        out.extend_from_slice(&self.detector_v[1].to_le_bytes());
-        out.push(self.status);
-    }
-    fn get(b: &[u8]) -> Self {
-        Self {
-            bead_m: [f64::from_le_bytes(rd(b, 0)), f64::from_le_bytes(rd(b, 8))],
-            sum_v: f32::from_le_bytes(rd(b, 16)),
-            detector_v: [f32::from_le_bytes(rd(b, 20)), f32::from_le_bytes(rd(b, 24))],
-            status: b.get(28).copied().unwrap_or(0),
-        }
-    }
-}
-
-/// Most items of type `T` that fit one block frame.
-pub const fn max_items<T: WireItem>() -> usize {
-    let n = (MAX_PAYLOAD - 5) / T::SIZE;
-    if n > 255 { 255 } else { n }
 }
 
 /// Append one frame of type `ty` whose payload is written by `body`
@@ -451,366 +95,179 @@ pub const fn max_items<T: WireItem>() -> usize {
 /// keep the frame valid). Allocation-free when `out` has the capacity.
 pub fn write_frame(out: &mut Vec<u8>, ty: u8, body: impl FnOnce(&mut Vec<u8>)) {
     let start = out.len();
-    out.extend_from_slice(&SYNC);
-    out.extend_from_slice(&[0, 0, ty]);
+    out.extend_from_slice(&[0; HEADER]);
     body(out);
     let plen = (out.len() - start - HEADER).min(MAX_PAYLOAD);
     out.truncate(start + HEADER + plen);
-    out[start + 2..start + 4].copy_from_slice(&(plen as u16).to_le_bytes());
-    let crc = CRC16.checksum(&out[start + 2..]);
-    out.extend_from_slice(&crc.to_le_bytes());
+    out.extend_from_slice(&[0; TRAILER]);
+    // The length is within MAX_PAYLOAD, so sealing cannot fail.
+    let _ = kilotouch_proto::frame::seal(&mut out[start..], ty);
+}
+
+/// Append the encoding of one item.
+pub fn put_item<T: WireItem>(out: &mut Vec<u8>, item: &T) {
+    let at = out.len();
+    out.resize(at + T::SIZE, 0);
+    item.encode(&mut out[at..]);
 }
 
 /// Append a block frame `seq u32, n u8, n × item` (at most
 /// [`max_items`]`::<T>()` items are written).
 pub fn write_block<T: WireItem>(out: &mut Vec<u8>, ty: u8, seq: u32, items: &[T]) {
     let n = items.len().min(max_items::<T>());
-    write_frame(out, ty, |o| {
-        o.extend_from_slice(&seq.to_le_bytes());
-        o.push(n as u8);
-        for it in &items[..n] {
-            it.put(o);
-        }
-    });
-}
-
-/// Header of a block payload: (first sequence number, item count), or
-/// `None` when the payload length does not match.
-pub fn block_header<T: WireItem>(payload: &[u8]) -> Option<(u32, usize)> {
-    if payload.len() < 5 {
-        return None;
-    }
-    let seq = u32::from_le_bytes(rd(payload, 0));
-    let n = payload[4] as usize;
-    (payload.len() == 5 + n * T::SIZE).then_some((seq, n))
-}
-
-/// Item `i` of a block payload already checked by [`block_header`].
-pub fn block_item<T: WireItem>(payload: &[u8], i: usize) -> T {
-    let at = 5 + i * T::SIZE;
-    T::get(payload.get(at..at + T::SIZE).unwrap_or(&[]))
-}
-
-fn put_str(o: &mut Vec<u8>, s: &str) {
-    let mut n = s.len().min(255);
-    while !s.is_char_boundary(n) {
-        n -= 1;
-    }
-    o.push(n as u8);
-    o.extend_from_slice(&s.as_bytes()[..n]);
+    let start = out.len();
+    out.resize(start + kilotouch_proto::block_len::<T>(n), 0);
+    // Sized for `n` items above, so encoding cannot fail.
+    let _ = kilotouch_proto::encode_block(&mut out[start..], ty, seq, &items[..n]);
 }
 
 /// Append a HELLO frame.
 pub fn write_hello(out: &mut Vec<u8>, h: &Hello) {
+    let w = h.wire();
     write_frame(out, ty::HELLO, |o| {
-        o.extend_from_slice(&h.version.to_le_bytes());
-        o.push(h.kind().code());
-        o.extend_from_slice(&h.sample_rate_hz.to_le_bytes());
-        o.extend_from_slice(&h.watchdog_ms.to_le_bytes());
-        o.push(h.batch);
-        match h.caps {
-            Caps::Daq(c) => {
-                for v in [
-                    c.encoder_counts_per_m,
-                    c.accel_m_s2_per_code,
-                    c.accel_range_m_s2,
-                    c.force_max_n,
-                    c.drive_max_v,
-                ] {
-                    o.extend_from_slice(&v.to_le_bytes());
-                }
-            }
-            Caps::Tweezer(c) => o.extend_from_slice(&c.stiffness_n_per_m.to_le_bytes()),
-        }
-        put_str(o, &h.name);
-        put_str(o, &h.serial);
-        put_str(o, &h.firmware);
+        let at = o.len();
+        o.resize(at + w.size(), 0);
+        let _ = w.encode(&mut o[at..]);
     });
-}
-
-/// Sequential little-endian reader over a payload.
-struct Rd<'a> {
-    b: &'a [u8],
-    at: usize,
-}
-
-impl Rd<'_> {
-    fn take(&mut self, n: usize) -> Option<&[u8]> {
-        let s = self.b.get(self.at..self.at + n)?;
-        self.at += n;
-        Some(s)
-    }
-    fn u8(&mut self) -> Option<u8> {
-        self.take(1).map(|s| s[0])
-    }
-    fn u16(&mut self) -> Option<u16> {
-        self.take(2).map(|s| u16::from_le_bytes(rd(s, 0)))
-    }
-    fn u32(&mut self) -> Option<u32> {
-        self.take(4).map(|s| u32::from_le_bytes(rd(s, 0)))
-    }
-    fn f64(&mut self) -> Option<f64> {
-        self.take(8).map(|s| f64::from_le_bytes(rd(s, 0)))
-    }
-    fn string(&mut self) -> Option<String> {
-        let n = self.u8()? as usize;
-        self.take(n)
-            .map(|s| String::from_utf8_lossy(s).into_owned())
-    }
 }
 
 /// Parse a HELLO payload.
 pub fn parse_hello(payload: &[u8]) -> Option<Hello> {
-    let mut r = Rd { b: payload, at: 0 };
-    let version = r.u16()?;
-    let kind = DeviceKind::from_code(r.u8()?)?;
-    let sample_rate_hz = r.u32()?;
-    let watchdog_ms = r.u16()?;
-    let batch = r.u8()?;
-    let caps = match kind {
-        DeviceKind::Daq => Caps::Daq(DaqCaps {
-            encoder_counts_per_m: r.f64()?,
-            accel_m_s2_per_code: r.f64()?,
-            accel_range_m_s2: r.f64()?,
-            force_max_n: r.f64()?,
-            drive_max_v: r.f64()?,
-        }),
-        DeviceKind::Tweezer => Caps::Tweezer(TweezerCaps {
-            stiffness_n_per_m: r.f64()?,
-        }),
-    };
-    Some(Hello {
-        version,
-        sample_rate_hz,
-        watchdog_ms,
-        batch,
-        caps,
-        name: r.string()?,
-        serial: r.string()?,
-        firmware: r.string()?,
-    })
+    kilotouch_proto::Hello::parse(payload).map(|h| Hello::from_wire(&h))
 }
 
 /// Append a STATUS frame.
 pub fn write_status(out: &mut Vec<u8>, s: &Status) {
-    write_frame(out, ty::STATUS, |o| {
-        o.extend_from_slice(&s.next_seq.to_le_bytes());
-        o.push(s.state.code());
-        o.extend_from_slice(&s.host_frames.to_le_bytes());
-        o.extend_from_slice(&s.host_crc_errors.to_le_bytes());
-        o.extend_from_slice(&s.late_commands.to_le_bytes());
-    });
+    write_frame(out, ty::STATUS, |o| o.extend_from_slice(&s.encode()));
 }
 
 /// Parse a STATUS payload.
 pub fn parse_status(payload: &[u8]) -> Option<Status> {
-    if payload.len() != 17 {
-        return None;
-    }
-    let mut r = Rd { b: payload, at: 0 };
-    Some(Status {
-        next_seq: r.u32()?,
-        state: DeviceState::from_code(r.u8()?)?,
-        host_frames: r.u32()?,
-        host_crc_errors: r.u32()?,
-        late_commands: r.u32()?,
-    })
+    Status::parse(payload)
 }
 
 /// Append a FAULT frame.
 pub fn write_fault(out: &mut Vec<u8>, f: &FaultReport) {
-    write_frame(out, ty::FAULT, |o| {
-        o.push(f.code);
-        o.extend_from_slice(&f.seq.to_le_bytes());
-    });
+    write_frame(out, ty::FAULT, |o| o.extend_from_slice(&f.encode()));
 }
 
 /// Parse a FAULT payload.
 pub fn parse_fault(payload: &[u8]) -> Option<FaultReport> {
-    if payload.len() != 5 {
-        return None;
-    }
-    Some(FaultReport {
-        code: payload[0],
-        seq: u32::from_le_bytes(rd(payload, 1)),
-    })
+    FaultReport::parse(payload)
 }
 
-/// Map a 32-bit wire sequence number to the 64-bit one nearest to `near`
-/// (streams wrap after 2³² samples, 119 h at 10 kHz).
-pub fn unwrap_seq(wire: u32, near: u64) -> u64 {
-    let d = i64::from(wire.wrapping_sub(near as u32) as i32);
-    (near as i64).saturating_add(d).max(0) as u64
+/// Append an INFO frame: what the host tells the device about the
+/// experiment ([`HostInfo`], `docs/PROTOCOL.md` §5.5).
+pub fn write_info(out: &mut Vec<u8>, info: &HostInfo) {
+    let w = info_to_wire(info);
+    write_frame(out, ty::INFO, |o| {
+        let at = o.len();
+        o.resize(at + w.size(), 0);
+        let _ = w.encode(&mut o[at..]);
+    });
 }
 
-/// Counters of a [`Decoder`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DecoderStats {
-    /// Valid frames decoded.
-    pub frames: u64,
-    /// Candidate frames (sync + plausible header, complete) whose CRC failed.
-    pub crc_errors: u64,
-    /// Headers rejected because LEN exceeded [`MAX_PAYLOAD`], or because a
-    /// complete valid frame began inside the length they claimed.
-    pub bad_lengths: u64,
-    /// Bytes skipped while searching for a frame.
-    pub bytes_skipped: u64,
-}
-
-/// One decoded frame, borrowing the decoder's buffer.
-#[derive(Debug, Clone, Copy)]
-pub struct FrameRef<'a> {
-    /// Frame type.
-    pub ty: u8,
-    /// Payload.
-    pub payload: &'a [u8],
-}
-
-/// Resynchronising stream decoder with a fixed buffer (module docs).
-#[derive(Debug, Clone)]
-pub struct Decoder {
-    buf: Box<[u8]>,
-    start: usize,
-    end: usize,
-    stats: DecoderStats,
-}
-
-impl Default for Decoder {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Decoder {
-    /// Buffer capacity, bytes.
-    pub const CAPACITY: usize = 2 * MAX_FRAME;
-
-    /// Empty decoder (allocates its buffer once).
-    pub fn new() -> Self {
-        Self {
-            buf: vec![0u8; Self::CAPACITY].into_boxed_slice(),
-            start: 0,
-            end: 0,
-            stats: DecoderStats::default(),
-        }
-    }
-
-    /// Counters.
-    pub fn stats(&self) -> DecoderStats {
-        self.stats
-    }
-
-    /// Bytes buffered and not yet consumed.
-    pub fn buffered(&self) -> usize {
-        self.end - self.start
-    }
-
-    /// Forget buffered bytes (counters are kept).
-    pub fn clear(&mut self) {
-        self.start = 0;
-        self.end = 0;
-    }
-
-    /// Append as much of `data` as fits and return how many bytes were
-    /// taken. After [`next_frame`](Self::next_frame) has returned `None` at
-    /// least [`MAX_FRAME`] bytes always fit.
-    pub fn push(&mut self, data: &[u8]) -> usize {
-        if self.start > 0 {
-            self.buf.copy_within(self.start..self.end, 0);
-            self.end -= self.start;
-            self.start = 0;
-        }
-        let n = data.len().min(Self::CAPACITY - self.end);
-        self.buf[self.end..self.end + n].copy_from_slice(&data[..n]);
-        self.end += n;
-        n
-    }
-
-    fn skip(&mut self, n: usize) {
-        self.start += n;
-        self.stats.bytes_skipped += n as u64;
-    }
-
-    /// Next valid frame in the buffered bytes, or `None` when more bytes are
-    /// needed. Garbage and invalid frames are skipped and counted.
-    pub fn next_frame(&mut self) -> Option<FrameRef<'_>> {
-        loop {
-            let avail = &self.buf[self.start..self.end];
-            // Find the sync marker (a lone first sync byte at the end is kept).
-            let pos = avail.windows(2).position(|w| w == SYNC).unwrap_or_else(|| {
-                if avail.last() == Some(&SYNC[0]) {
-                    avail.len() - 1
-                } else {
-                    avail.len()
-                }
-            });
-            if pos > 0 {
-                self.skip(pos);
-            }
-            let avail = &self.buf[self.start..self.end];
-            if avail.len() < HEADER {
-                return None;
-            }
-            let plen = u16::from_le_bytes([avail[2], avail[3]]) as usize;
-            if plen > MAX_PAYLOAD {
-                self.stats.bad_lengths += 1;
-                self.skip(1);
-                continue;
-            }
-            let total = HEADER + plen + TRAILER;
-            if avail.len() < total {
-                // A corrupted LEN can claim more bytes than the device will
-                // send before it waits for the host (a deadlock until the
-                // link times out). A complete, CRC-valid frame starting
-                // inside the claimed length shows this header is bad.
-                if complete_frame_after(avail) {
-                    self.stats.bad_lengths += 1;
-                    self.skip(1);
-                    continue;
-                }
-                return None;
-            }
-            let crc = u16::from_le_bytes([avail[total - 2], avail[total - 1]]);
-            if CRC16.checksum(&avail[2..HEADER + plen]) != crc {
-                self.stats.crc_errors += 1;
-                self.skip(1);
-                continue;
-            }
-            let s = self.start;
-            self.start += total;
-            self.stats.frames += 1;
-            return Some(FrameRef {
-                ty: self.buf[s + 4],
-                payload: &self.buf[s + HEADER..s + HEADER + plen],
-            });
+/// Parse an INFO payload (`None`: unknown kind, wrong length, or a code out
+/// of range).
+pub fn parse_info(payload: &[u8]) -> Option<HostInfo> {
+    match Info::parse(payload)? {
+        Info::TrialEnd => Some(HostInfo::TrialEnd),
+        Info::View(v) => Some(HostInfo::View(ViewInfo {
+            seq: u64::from(v.seq),
+            captured_s: v.captured_s,
+            bead_m: v.bead_m,
+            trap_m: v.trap_m,
+            obstacle_m: v.obstacle_m,
+            obstacle_radius_m: v.obstacle_radius_m,
+            bead_radius_m: v.bead_radius_m,
+        })),
+        Info::TrialBegin(t) => {
+            let m = t.mapping;
+            Some(HostInfo::TrialBegin(TrialInfo {
+                participant: t.participant,
+                condition: match t.condition {
+                    0 => Condition::V,
+                    1 => Condition::P,
+                    2 => Condition::D,
+                    _ => return None,
+                },
+                phase: match t.phase {
+                    0 => PhaseCode::Practice,
+                    1 => PhaseCode::Test,
+                    _ => return None,
+                },
+                index: t.index,
+                task: match t.task {
+                    0 => TaskCode::Circling,
+                    1 => TaskCode::BlindNavigation,
+                    _ => return None,
+                },
+                mapping: HandMapping {
+                    scale: m[0],
+                    handle_origin_m: [m[1], m[2]],
+                    trap_offset_m: [m[3], m[4]],
+                    trap_min_m: [m[5], m[6]],
+                    trap_max_m: [m[7], m[8]],
+                    force_scale: m[9],
+                },
+                start_trap_m: t.start_trap_m,
+                heading: t.heading,
+                retreat_distance_m: t.retreat_m,
+                first_seq: u64::from(t.first_seq),
+            }))
         }
     }
 }
 
-/// Whether a complete frame with a valid CRC starts after the first byte of
-/// `avail` (which begins with a sync marker). A false positive inside a
-/// genuine frame's payload needs the sync marker, a plausible LEN and a
-/// matching CRC-16 at once (≈ 2⁻³² per byte position); a scan is bounded by
-/// the decoder's buffer, [`Decoder::CAPACITY`] bytes.
-fn complete_frame_after(avail: &[u8]) -> bool {
-    let mut from = 1;
-    while let Some(off) = avail[from..].windows(2).position(|w| w == SYNC) {
-        let c = &avail[from + off..];
-        from += off + 1;
-        if c.len() < HEADER {
-            return false;
-        }
-        let plen = u16::from_le_bytes([c[2], c[3]]) as usize;
-        let total = HEADER + plen + TRAILER;
-        if plen > MAX_PAYLOAD || c.len() < total {
-            continue;
-        }
-        if CRC16.checksum(&c[2..HEADER + plen]) == u16::from_le_bytes([c[total - 2], c[total - 1]])
-        {
-            return true;
+fn info_to_wire(info: &HostInfo) -> Info {
+    match info {
+        HostInfo::TrialEnd => Info::TrialEnd,
+        HostInfo::View(v) => Info::View(View {
+            seq: v.seq as u32,
+            captured_s: v.captured_s,
+            bead_m: v.bead_m,
+            trap_m: v.trap_m,
+            obstacle_m: v.obstacle_m,
+            obstacle_radius_m: v.obstacle_radius_m,
+            bead_radius_m: v.bead_radius_m,
+        }),
+        HostInfo::TrialBegin(t) => {
+            let m = &t.mapping;
+            Info::TrialBegin(TrialBegin {
+                participant: t.participant,
+                condition: match t.condition {
+                    Condition::V => 0,
+                    Condition::P => 1,
+                    Condition::D => 2,
+                },
+                phase: match t.phase {
+                    PhaseCode::Practice => 0,
+                    PhaseCode::Test => 1,
+                },
+                index: t.index,
+                task: match t.task {
+                    TaskCode::Circling => 0,
+                    TaskCode::BlindNavigation => 1,
+                },
+                mapping: [
+                    m.scale,
+                    m.handle_origin_m[0],
+                    m.handle_origin_m[1],
+                    m.trap_offset_m[0],
+                    m.trap_offset_m[1],
+                    m.trap_min_m[0],
+                    m.trap_min_m[1],
+                    m.trap_max_m[0],
+                    m.trap_max_m[1],
+                    m.force_scale,
+                ],
+                start_trap_m: t.start_trap_m,
+                heading: t.heading,
+                retreat_m: t.retreat_distance_m,
+                first_seq: t.first_seq as u32,
+            })
         }
     }
-    false
 }
 
 #[cfg(test)]

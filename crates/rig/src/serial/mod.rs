@@ -24,5 +24,5 @@ pub mod tweezer_link;
 pub mod watch;
 
 pub use emulator::{DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Misbehaviour};
-pub use rig::{LinkStats, SerialConfig, SerialRig};
+pub use rig::{CommandLead, LinkStats, MAX_LEAD_SAMPLES, SerialConfig, SerialRig};
 pub use tweezer_link::{LinkTweezer, TweezerInstrument};

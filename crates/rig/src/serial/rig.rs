@@ -27,8 +27,8 @@ use super::frame::{
 };
 use super::watch::{Activity, RateWindow, Stall};
 use crate::device::{
-    ActuatorFrame, BlockReport, FrameFlags, Rig, RigFault, RigIdentity, RigKind, RigState,
-    RigStatus, SensorFrame, StatusCounters, open_block,
+    ActuatorFrame, BlockReport, FrameFlags, HostInfo, Rig, RigFault, RigIdentity, RigKind,
+    RigState, RigStatus, SensorFrame, StatusCounters, open_block,
 };
 use crate::error::RigError;
 use serialport::{ClearBuffer, SerialPort};
@@ -55,7 +55,38 @@ pub struct SerialConfig {
     /// the computations between calibration runs. Off: the trip is reported
     /// as an error and the rig stays faulted until `start`.
     pub rearm_after_idle_trip: bool,
+    /// How far ahead of the samples it waits for the host sends commands
+    /// ([`CommandLead`]). [`SerialConfig::new`] is block-synchronous
+    /// (`Blocks(0)`: each block's sensor frames are those of its own
+    /// commands, the [`crate::Rig`] contract); a `--rig serial:…`
+    /// specification leads automatically unless it says `lead=N`.
+    pub lead: CommandLead,
 }
+
+/// The command lead of a DAQ link: how many blocks of commands the host
+/// sends ahead of the block whose samples it waits for, so that a
+/// free-running device always holds its next commands (`docs/PROTOCOL.md`
+/// §7). A lead of L samples adds L samples to the loop's delay (the
+/// stability analysis includes it, [`crate::Rig::loop_delay_samples`]), and
+/// the sensor frames a block returns are then those of the commands sent
+/// L samples earlier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommandLead {
+    /// Enough whole blocks to cover the round trip measured at connection
+    /// with a margin (1.5 × round trip + 0.5 ms), at least one block.
+    Auto,
+    /// This many blocks (0: block-synchronous, sensor frames and commands
+    /// of the same samples — what open-loop measurements such as the
+    /// calibration need).
+    Blocks(u32),
+}
+
+/// Largest command lead, samples (well inside the device's command buffer,
+/// the emulator's 8192).
+pub const MAX_LEAD_SAMPLES: u64 = 2048;
+
+/// Round trips timed at connection (HELLO request → HELLO).
+const RTT_PROBES: usize = 4;
 
 impl SerialConfig {
     /// Default baud rate.
@@ -71,6 +102,7 @@ impl SerialConfig {
             timeout: Self::DEFAULT_TIMEOUT,
             handshake_timeout: Duration::from_secs(2),
             rearm_after_idle_trip: false,
+            lead: CommandLead::Blocks(0),
         }
     }
 }
@@ -138,6 +170,7 @@ pub struct Link {
     decoder_base: frame::DecoderStats,
     rate: RateWindow,
     deadline: Option<Instant>,
+    round_trip: Option<Duration>,
 }
 
 impl std::fmt::Debug for Link {
@@ -186,8 +219,10 @@ impl Link {
             decoder_base: frame::DecoderStats::default(),
             rate: RateWindow::default(),
             deadline: None,
+            round_trip: None,
         };
         link.handshake(kind)?;
+        link.measure_round_trip();
         Ok(link)
     }
 
@@ -198,7 +233,43 @@ impl Link {
         self.port = Some(open_port(&self.cfg)?);
         self.decoder_base = self.decoder_stats_total();
         self.decoder = Decoder::new();
-        self.handshake(kind)
+        self.handshake(kind)?;
+        self.measure_round_trip();
+        Ok(())
+    }
+
+    /// Time [`RTT_PROBES`] HELLO request → HELLO round trips and keep the
+    /// longest (a device answers HELLO at once, and a HELLO is about as
+    /// long as a SAMPLES frame): the link's round trip, which sizes the
+    /// automatic command lead. A probe without an answer within 250 ms is
+    /// not counted.
+    fn measure_round_trip(&mut self) {
+        let mut worst: Option<Duration> = None;
+        let mut buf = [0u8; frame::MAX_PAYLOAD];
+        for _ in 0..RTT_PROBES {
+            frame::write_frame(&mut self.tx, frame::ty::HELLO_REQ, |o| {
+                o.extend_from_slice(&PROTOCOL_VERSION.to_le_bytes())
+            });
+            let t0 = Instant::now();
+            if self.flush_tx().is_err() {
+                break;
+            }
+            let deadline = t0 + Duration::from_millis(250);
+            if self
+                .wait_for(frame::ty::HELLO, |_| true, &mut buf, deadline)
+                .is_ok()
+            {
+                let rtt = t0.elapsed();
+                worst = Some(worst.map_or(rtt, |w| w.max(rtt)));
+            }
+        }
+        self.round_trip = worst;
+    }
+
+    /// The link's round trip measured at connection (the longest of
+    /// [`RTT_PROBES`]).
+    pub fn round_trip(&self) -> Option<Duration> {
+        self.round_trip
     }
 
     /// Settings.
@@ -688,7 +759,17 @@ pub struct SerialRig {
     counters: StatusCounters,
     last: SensorFrame,
     cmd_codes: [DaqCommand; Self::FRAME_COMMANDS],
+    /// The command lead of this run, samples (fixed at its first block).
+    lead: Option<u64>,
+    /// Sequence number of the next command to send.
+    sent_until: u64,
+    /// Host-side flags of the commands sent, by sequence number modulo its
+    /// length (the sensor frame of a sample carries its command's flags).
+    cmd_flags: Box<[u8]>,
 }
+
+/// Commands whose host-side flags are remembered (≥ lead + block).
+const CMD_FLAG_RING: usize = 4096;
 
 impl SerialRig {
     /// Commands per COMMANDS frame.
@@ -707,7 +788,47 @@ impl SerialRig {
             counters: StatusCounters::default(),
             last: SensorFrame::default(),
             cmd_codes: [DaqCommand::default(); Self::FRAME_COMMANDS],
+            lead: None,
+            sent_until: 0,
+            cmd_flags: vec![0u8; CMD_FLAG_RING].into_boxed_slice(),
         })
+    }
+
+    /// The command lead, samples, for blocks of `n` samples
+    /// ([`CommandLead`]).
+    pub fn lead_samples(&self, n: usize) -> u64 {
+        let n = n.max(1) as u64;
+        let blocks = match self.link.config().lead {
+            CommandLead::Blocks(b) => u64::from(b),
+            CommandLead::Auto => {
+                let fs = self.identity.sample_rate_hz;
+                let rtt = self.link.round_trip().map_or(0.0, |d| d.as_secs_f64());
+                let need = (1.5 * rtt + 5e-4) * fs / n as f64;
+                (need.ceil() as u64).max(1)
+            }
+        };
+        (blocks * n).min(MAX_LEAD_SAMPLES / n * n)
+    }
+
+    /// Encode and send zero commands for samples `s .. s + n` (the lead's
+    /// first blocks).
+    fn send_zeros(&mut self, s: u64, n: u64) -> Result<(), RigError> {
+        let zeros = [DaqCommand::default(); Self::FRAME_COMMANDS];
+        let mut q = s;
+        while q < s + n {
+            let k = ((s + n - q) as usize).min(Self::FRAME_COMMANDS);
+            frame::write_block(
+                &mut self.link.tx,
+                frame::ty::COMMANDS,
+                q as u32,
+                &zeros[..k],
+            );
+            for j in 0..k as u64 {
+                self.cmd_flags[((q + j) % CMD_FLAG_RING as u64) as usize] = 0;
+            }
+            q += k as u64;
+        }
+        self.link.flush_tx()
     }
 
     fn identity_of(link: &Link) -> Result<(RigIdentity, DaqCaps), RigError> {
@@ -766,6 +887,9 @@ impl SerialRig {
     /// Encode and send the commands of a block.
     fn send(&mut self, s: u64, commands: &[ActuatorFrame]) -> Result<(), RigError> {
         let c = self.caps;
+        for (i, a) in commands.iter().enumerate() {
+            self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] = command_flags(a, &c);
+        }
         let mut off = 0usize;
         for chunk in commands.chunks(Self::FRAME_COMMANDS) {
             for (dst, a) in self.cmd_codes.iter_mut().zip(chunk) {
@@ -836,6 +960,8 @@ impl Rig for SerialRig {
         match self.link.start() {
             Ok(seq) => {
                 self.next_seq = seq;
+                self.sent_until = seq;
+                self.lead = None;
                 self.state = RigState::Running;
                 Ok(())
             }
@@ -883,18 +1009,30 @@ impl Rig for SerialRig {
         }
         let mut retried = false;
         let ex = loop {
+            if self.lead.is_none() {
+                // The run's first block: the lead's zero commands go first.
+                let l = self.lead_samples(n);
+                self.sent_until = self.next_seq;
+                if l > 0 {
+                    self.send_zeros(self.next_seq, l)?;
+                }
+                self.sent_until = self.next_seq + l;
+                self.lead = Some(l);
+            }
+            self.send(self.sent_until, commands)?;
+            self.sent_until += n as u64;
             let s = self.next_seq;
             report.first_seq = s;
-            self.send(s, commands)?;
             let caps = self.caps;
             let last = &mut self.last;
+            let cmd_flags = &self.cmd_flags;
             let mut late = 0u64;
             let mut watchdog = 0u64;
             let r = self
                 .link
                 .exchange::<DaqSample>(frame::ty::SAMPLES, s, n, |i, smp| {
-                    let local = command_flags(&commands[i], &caps);
                     let seq = s + i as u64;
+                    let local = cmd_flags[(seq % CMD_FLAG_RING as u64) as usize];
                     sensors[i] = match smp {
                         Some(d) => {
                             if d.flags & flag::CMD_LATE != 0 {
@@ -921,6 +1059,7 @@ impl Rig for SerialRig {
                 });
             self.link.stats.late_commands += late;
             self.link.stats.watchdog_samples += watchdog;
+            self.counters.counts.late_commands += late;
             if late > 0 {
                 self.counters.push(RigFault::Overrun {
                     seq: s,
@@ -938,6 +1077,8 @@ impl Rig for SerialRig {
                         .link
                         .start()
                         .inspect_err(|_| self.state = RigState::Disconnected)?;
+                    // A new run: its lead goes first again.
+                    self.lead = None;
                 }
                 Err(e) => return Err(self.fail(e)),
             }
@@ -966,6 +1107,25 @@ impl Rig for SerialRig {
 
     fn pop_fault(&mut self) -> Option<RigFault> {
         self.counters.pop_fault()
+    }
+
+    /// The block plus the command lead ([`CommandLead`]).
+    fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        let n = block_len.max(1);
+        let lead = self.lead.unwrap_or_else(|| self.lead_samples(n));
+        u32::try_from(n as u64 + lead).unwrap_or(u32::MAX)
+    }
+
+    fn round_trip_s(&self) -> Option<f64> {
+        self.link.round_trip().map(|d| d.as_secs_f64())
+    }
+
+    /// Queued with the next block's commands.
+    fn send_info(&mut self, info: &HostInfo) -> Result<(), RigError> {
+        if self.state == RigState::Running {
+            frame::write_info(&mut self.link.tx, info);
+        }
+        Ok(())
     }
 }
 

@@ -28,7 +28,7 @@
 
 use super::emulator::Instrument;
 use super::frame::{
-    self, Caps, DeviceKind, Hello, TrapCommand, TweezerCaps, TweezerWireSample, WireItem,
+    self, Caps, DeviceKind, Hello, TrapCommand, TweezerCaps, TweezerWireSample,
     tweezer_status as ts,
 };
 use super::rig::{Link, LinkErrorKind, LinkStats, SerialConfig};
@@ -331,7 +331,9 @@ impl Tweezer for LinkTweezer {
             [0.0; 2]
         };
         let c = TrapCommand { trap_m: t };
-        frame::write_frame(&mut self.link.tx, frame::ty::RESET, |o| c.put(o));
+        frame::write_frame(&mut self.link.tx, frame::ty::RESET, |o| {
+            frame::put_item(o, &c)
+        });
         if self.link.flush_tx().is_err() {
             self.failed(LinkErrorKind::Disconnected, t);
             return;

@@ -429,6 +429,14 @@ impl<C: Clock> Rig for SimRig<C> {
     fn pop_fault(&mut self) -> Option<RigFault> {
         self.counters.pop_fault()
     }
+
+    /// 1: the simulated rig is stepped one frame at a time
+    /// ([`HapticLoop::step`](crate::HapticLoop::step)), the command computed
+    /// from sample n − 1 acting during sample n, whatever the block length
+    /// its driver schedules.
+    fn loop_delay_samples(&self, _block_len: usize) -> u32 {
+        1
+    }
 }
 
 #[cfg(test)]

@@ -48,6 +48,29 @@ impl Dss {
             .fold(Self::gain(1.0), |acc, c| acc.then(&Self::biquad(c)))
     }
 
+    /// A pure delay of `d` samples, y[n] = u[n − d] (z⁻ᵈ; SISO): a shift
+    /// register of `d` states (state k holds u[n − k − 1]). The identity
+    /// for `d` = 0.
+    pub fn delay(d: usize) -> Self {
+        if d == 0 {
+            return Self::gain(1.0);
+        }
+        let mut a = DMatrix::zeros(d, d);
+        for k in 1..d {
+            a[(k, k - 1)] = 1.0;
+        }
+        let mut b = DMatrix::zeros(d, 1);
+        b[(0, 0)] = 1.0;
+        let mut c = DMatrix::zeros(1, d);
+        c[(0, d - 1)] = 1.0;
+        Self {
+            a,
+            b,
+            c,
+            d: DMatrix::zeros(1, 1),
+        }
+    }
+
     /// Number of states.
     pub fn n_states(&self) -> usize {
         self.a.nrows()
@@ -145,6 +168,9 @@ mod tests {
 
     fn response(s: &Dss, z: C64) -> C64 {
         let n = s.n_states();
+        if n == 0 {
+            return C64::new(s.d[(0, 0)], 0.0);
+        }
         let mut m = DMatrix::<C64>::from_fn(n, n, |i, j| C64::new(-s.a[(i, j)], 0.0));
         for i in 0..n {
             m[(i, i)] += z;
@@ -178,6 +204,27 @@ mod tests {
         assert!((response(&g, z) - want).norm() < 1e-12);
         let st = Dss::gain(2.0).stack(&Dss::gain(5.0));
         assert_eq!(st.d.as_slice(), &[2.0, 5.0]);
+    }
+
+    #[test]
+    fn delay_is_z_to_the_minus_d() {
+        for d in [0usize, 1, 3, 17] {
+            let s = Dss::delay(d);
+            assert_eq!(s.n_states(), d);
+            for w in [0.0, 0.3, 1.7, std::f64::consts::PI] {
+                let z = C64::from_polar(1.0, w);
+                let want = z.powi(-(d as i32));
+                assert!((response(&s, z) - want).norm() < 1e-12, "{d} {w}");
+            }
+            // Its impulse response is one sample at n = d.
+            let mut x = DMatrix::<f64>::zeros(d, 1);
+            for n in 0..d + 3 {
+                let u = if n == 0 { 1.0 } else { 0.0 };
+                let y = (&s.c * &x)[(0, 0)] + s.d[(0, 0)] * u;
+                assert_eq!(y, if n == d { 1.0 } else { 0.0 }, "d {d} n {n}");
+                x = &s.a * &x + &s.b * u;
+            }
+        }
     }
 
     #[test]

@@ -58,6 +58,7 @@ use margins::Margins;
 use nalgebra::DMatrix;
 use num_complex::Complex64 as C64;
 use serde::{Deserialize, Serialize};
+use std::cell::Cell;
 use std::f64::consts::PI;
 
 /// Where the bead is.
@@ -171,6 +172,13 @@ pub struct StabilityReport {
     pub high_band_force_full_scale_n: f64,
     /// What P receives.
     pub p_mode: PMode,
+    /// Extra loop delay the report is for, s (0: the simulated loop's one
+    /// sample only; [`analyse_with_latency`]).
+    #[serde(default)]
+    pub latency_s: f64,
+    /// That delay in whole samples, d = ⌈latency·f_s⌉ ([`delay_samples`]).
+    #[serde(default)]
+    pub latency_samples: usize,
 }
 
 impl StabilityReport {
@@ -191,7 +199,10 @@ impl StabilityReport {
             .filter(|c| !c.meets_minimum)
             .map(|c| {
                 if !c.stable {
-                    format!("{} is unstable", c.condition)
+                    format!(
+                        "{} is unstable (phase margin {:.1}°, gain margin {:.1} dB)",
+                        c.condition, c.phase_margin_deg, c.gain_margin_db
+                    )
                 } else if c.gain_margin_db < self.min_gain_margin_db {
                     format!(
                         "{} has a gain margin of {:.1} dB (minimum {} dB)",
@@ -205,17 +216,41 @@ impl StabilityReport {
                 }
             })
             .collect();
+        let (with_delay, at_delay) = match self.delay_text() {
+            Some(d) => (
+                format!(" with an extra loop delay of {d}"),
+                " at that delay",
+            ),
+            None => (String::new(), ""),
+        };
         Some(format!(
-            "closed loop not safe: {}; the largest safe force scale is {:.3e} N/N (now {:.3e})",
+            "closed loop not safe{with_delay}: {}; the largest safe force scale{at_delay} is {:.3e} N/N (now {:.3e})",
             bad.join(", "),
             self.max_force_scale,
             self.force_scale
         ))
     }
 
+    /// The extra loop delay as "3.00 ms (30 samples)"; `None` without one.
+    pub fn delay_text(&self) -> Option<String> {
+        (self.latency_samples > 0).then(|| {
+            format!(
+                "{:.2} ms ({} sample{})",
+                1e3 * self.latency_s,
+                self.latency_samples,
+                if self.latency_samples == 1 { "" } else { "s" }
+            )
+        })
+    }
+
     /// Plain-text summary (CLI, GUI).
     pub fn summary(&self) -> String {
         let mut s = String::new();
+        if let Some(d) = self.delay_text() {
+            s.push_str(&format!(
+                "with an extra loop delay of {d} on top of the simulated loop's one sample\n"
+            ));
+        }
         for c in &self.conditions {
             s.push_str(&format!(
                 "{}: gain margin {} dB, phase margin {}°, {}{}\n",
@@ -325,6 +360,10 @@ pub struct LoopAnalysis {
     /// Controller path responses (low, high) on the grid per (condition, axis).
     paths: Vec<PathResponse>,
     tweezer: TweezerParams,
+    /// Extra loop delay, whole samples (z⁻ᵈ; [`Self::with_latency`]).
+    delay: usize,
+    /// The extra loop delay asked for, s (`delay` is it rounded up).
+    latency_s: f64,
 }
 
 impl LoopAnalysis {
@@ -381,14 +420,12 @@ impl LoopAnalysis {
                     c: ss.c.rows(OUT_MOTOR, 1).into_owned(),
                     d: DMatrix::zeros(1, inputs.len()),
                 };
-                let mut pc = PlantCase {
+                plants.push(PlantCase {
                     axis,
                     hand,
                     ss: dss,
                     resp: Vec::new(),
-                };
-                pc.resp = grid.iter().map(|&f| pc.eval(f, fs)).collect();
-                plants.push(pc);
+                });
             }
         }
         let c = &cfg.coupling;
@@ -406,10 +443,6 @@ impl LoopAnalysis {
             FilterKind::Lowpass,
             Prewarp::AtCutoff,
         )?);
-        let damper_resp = grid
-            .iter()
-            .map(|&f| c.contact_damping_n_s_per_m * sections_response(&damper, f, fs))
-            .collect();
         let mut out = Self {
             cfg: cfg.clone(),
             fs,
@@ -417,18 +450,81 @@ impl LoopAnalysis {
             grid,
             plants,
             damper,
-            damper_resp,
+            damper_resp: Vec::new(),
             paths: Vec::new(),
             tweezer: TweezerParams::from_config(&cfg.tweezer),
+            delay: 0,
+            latency_s: 0.0,
         };
+        out.tabulate()?;
+        Ok(out)
+    }
+
+    /// The plant, damper and controller path responses on the grid.
+    fn tabulate(&mut self) -> Result<(), RigError> {
+        let fs = self.fs;
+        for pc in &mut self.plants {
+            pc.resp = self.grid.iter().map(|&f| pc.eval(f, fs)).collect();
+        }
+        let b = self.cfg.coupling.contact_damping_n_s_per_m;
+        self.damper_resp = self
+            .grid
+            .iter()
+            .map(|&f| b * sections_response(&self.damper, f, fs))
+            .collect();
+        self.paths.clear();
         for cond in Condition::HAPTIC {
             for axis in [Axis::X, Axis::Y] {
-                let p = out.ctrl(cond, axis)?;
-                let r = out.grid.iter().map(|&f| p.response(f, fs)).collect();
-                out.paths.push(((cond, axis), r));
+                let p = self.ctrl(cond, axis)?;
+                let r = self.grid.iter().map(|&f| p.response(f, fs)).collect();
+                self.paths.push(((cond, axis), r));
             }
         }
-        Ok(out)
+        Ok(())
+    }
+
+    /// The same loop with an extra delay of `latency_s` seconds between
+    /// the sensors and the command (on top of the one sample of the
+    /// simulated loop): z⁻ᵈ with d = [`delay_samples`]`(latency_s, f_s)`
+    /// whole samples, rounded up (conservative). The delay enters the
+    /// eigenvalue verdict as d shift-register states appended to the open
+    /// loop ([`Dss::delay`]) and the margins as the factor e^{−j2πfd/f_s}
+    /// on L (THEORY.md, loop delay). 0 s: the loop of [`Self::new`].
+    ///
+    /// # Errors
+    /// A latency that is not finite, negative or above [`MAX_LATENCY_S`]
+    /// (or [`MAX_DELAY_SAMPLES`]).
+    pub fn with_latency(mut self, latency_s: f64) -> Result<Self, RigError> {
+        let d = delay_samples(latency_s, self.fs)?;
+        self.delay = d;
+        self.latency_s = latency_s;
+        let grid = margins::grid_for_delay(self.fs, d);
+        if grid != self.grid {
+            self.grid = grid;
+            self.tabulate()?;
+        }
+        Ok(self)
+    }
+
+    /// The extra loop delay, s (as asked for).
+    pub fn latency_s(&self) -> f64 {
+        self.latency_s
+    }
+
+    /// The extra loop delay, whole samples.
+    pub fn latency_samples(&self) -> usize {
+        self.delay
+    }
+
+    /// `l` times the extra delay's z⁻ᵈ at `f` Hz (`l` itself without one).
+    /// The phase is reduced to one turn before the sine and cosine, so L
+    /// stays real at Nyquist for any d.
+    fn delayed(&self, l: C64, f: f64) -> C64 {
+        if self.delay == 0 {
+            return l;
+        }
+        let turns = f * self.delay as f64 / self.fs;
+        l * C64::from_polar(1.0, -2.0 * PI * (turns - turns.floor()))
     }
 
     /// The controller path of `condition` on `axis` (module docs).
@@ -540,7 +636,12 @@ impl LoopAnalysis {
                 Dss::sections(&self.damper).scaled(-self.cfg.coupling.contact_damping_n_s_per_m);
             env = env.plus(&d);
         }
-        Ok(to_plant.then(&plant.ss).then(&env))
+        let ol = to_plant.then(&plant.ss).then(&env);
+        Ok(if self.delay > 0 {
+            ol.then(&Dss::delay(self.delay))
+        } else {
+            ol
+        })
     }
 
     /// L from the responses at one frequency: plant `p`, controller path
@@ -566,13 +667,14 @@ impl LoopAnalysis {
         let fs = self.fs;
         let damp =
             self.cfg.coupling.contact_damping_n_s_per_m * sections_response(&self.damper, f, fs);
-        Self::loop_value(
+        let l = Self::loop_value(
             case.state,
             plant.eval(f, fs),
             ctrl.response(f, fs),
             env.response(f, fs),
             damp,
-        )
+        );
+        self.delayed(l, f)
     }
 
     /// Verdict (and margins when `with_margins`) of one case at trap
@@ -618,13 +720,14 @@ impl LoopAnalysis {
             let env = self.environment(case.state, kappa, g);
             let values: Vec<C64> = (0..self.grid.len())
                 .map(|i| {
-                    Self::loop_value(
+                    let l = Self::loop_value(
                         case.state,
                         plant.resp[i],
                         paths[i],
                         env.response(self.grid[i], self.fs),
                         self.damper_resp[i],
-                    )
+                    );
+                    self.delayed(l, self.grid[i])
                 })
                 .collect();
             let eval = |f: f64| self.loop_at(case, &ctrl, plant, f, &env);
@@ -667,9 +770,22 @@ impl LoopAnalysis {
             .collect()
     }
 
-    fn all_stable(&self, kappa: f64, g: f64) -> Result<bool, RigError> {
-        for c in self.cases() {
-            if !self.case(&c, kappa, g, false)?.stable {
+    /// Every case satisfies `ok`. The case that failed last (`hint`, an
+    /// index into [`Self::cases`]) is tried first: across a scan's points
+    /// an unsafe one then usually costs one case instead of many (each is
+    /// an eigenvalue problem of 30 + d states). The answer does not depend
+    /// on the order.
+    fn all_cases(
+        &self,
+        hint: &Cell<usize>,
+        ok: &dyn Fn(&Case) -> Result<bool, RigError>,
+    ) -> Result<bool, RigError> {
+        let cases = self.cases();
+        let n = cases.len();
+        for k in 0..n {
+            let i = (hint.get() + k) % n;
+            if !ok(&cases[i])? {
+                hint.set(i);
                 return Ok(false);
             }
         }
@@ -750,15 +866,18 @@ impl LoopAnalysis {
                 worst_phase_case: worst_p.case,
             });
         }
-        let critical_kappa = self.critical(kappa, &|k| self.all_stable(k, g))?;
-        let critical_g = self.critical(g, &|x| self.all_stable(kappa, x))?;
+        let hint = Cell::new(0);
+        let critical_kappa = self.critical(kappa, &|k| {
+            self.all_cases(&hint, &|c| Ok(self.case(c, k, g, false)?.stable))
+        })?;
+        let critical_g = self.critical(g, &|x| {
+            self.all_cases(&hint, &|c| Ok(self.case(c, kappa, x, false)?.stable))
+        })?;
         let max_g = self.critical(g, &|x| {
-            let rs: Result<Vec<_>, _> = self
-                .cases()
-                .iter()
-                .map(|c| self.case_with(c, kappa, x, true, false))
-                .collect();
-            Ok(self.meets_minimum(&rs?))
+            self.all_cases(&hint, &|c| {
+                let r = self.case_with(c, kappa, x, true, false)?;
+                Ok(self.meets_minimum(std::slice::from_ref(&r)))
+            })
         })?;
         let t = &self.tweezer;
         let kc = t.contact_stiffness_n_per_m;
@@ -786,6 +905,8 @@ impl LoopAnalysis {
                 f64::INFINITY
             },
             p_mode: self.cfg.coupling.p_mode,
+            latency_s: self.latency_s,
+            latency_samples: self.delay,
         })
     }
 
@@ -844,7 +965,54 @@ impl LoopAnalysis {
     }
 }
 
-/// Reports kept by [`analyse`] (most recent last).
+/// Largest extra loop delay [`LoopAnalysis::with_latency`] takes, s. A
+/// haptic loop with a tenth of a second of delay is no longer one (the
+/// default rig turns unstable near 14 ms), and the eigenvalue verdict's
+/// state dimension grows with the delay.
+pub const MAX_LATENCY_S: f64 = 0.1;
+
+/// Largest extra loop delay, samples (the same bound at any sample rate:
+/// the delay adds this many states to the closed loop, whose eigenvalues
+/// cost O(n³)).
+pub const MAX_DELAY_SAMPLES: usize = 1000;
+
+/// The whole samples d of an extra loop delay of `latency_s` seconds at
+/// `fs` Hz: d = ⌈latency·f_s⌉, rounded up (a delay between two whole
+/// samples is charged the longer one: conservative). A product within
+/// 10⁻⁶ sample of a whole number counts as that number (3 ms at 10 kHz is
+/// 30 samples, not 31 by floating-point rounding).
+///
+/// # Errors
+/// [`RigError::InvalidParameter`] when `latency_s` is not finite, negative,
+/// above [`MAX_LATENCY_S`], or gives more than [`MAX_DELAY_SAMPLES`].
+pub fn delay_samples(latency_s: f64, fs: f64) -> Result<usize, RigError> {
+    let bad = |reason: String| RigError::InvalidParameter {
+        name: "latency",
+        value: latency_s,
+        reason,
+    };
+    if !(latency_s.is_finite() && latency_s >= 0.0) {
+        return Err(bad(
+            "the extra loop delay must be a finite number of seconds ≥ 0".into(),
+        ));
+    }
+    if latency_s > MAX_LATENCY_S {
+        return Err(bad(format!(
+            "the extra loop delay must be at most {} ms",
+            1e3 * MAX_LATENCY_S
+        )));
+    }
+    RigError::require_positive("sample rate", fs)?;
+    let d = (latency_s * fs - 1e-6).ceil().max(0.0);
+    if d > MAX_DELAY_SAMPLES as f64 {
+        return Err(bad(format!(
+            "{d} samples at {fs} Hz: the analysis takes at most {MAX_DELAY_SAMPLES} samples of extra delay"
+        )));
+    }
+    Ok(d as usize)
+}
+
+/// Reports kept by [`analyse_with_latency`] (most recent last).
 const MEMO_CAPACITY: usize = 16;
 
 type Memo = std::sync::Mutex<Vec<(String, StabilityReport)>>;
@@ -854,24 +1022,42 @@ fn memo() -> &'static Memo {
     MEMO.get_or_init(|| std::sync::Mutex::new(Vec::new()))
 }
 
-/// The stability report of a rig file with the chain its D loop runs.
-/// The analysis takes a few hundred milliseconds; the last
-/// [`MEMO_CAPACITY`] reports are kept per process (keyed by everything the
-/// analysis reads: the rig file without its noise seeds, and the chain).
+/// The stability report of a rig file with the chain its D loop runs (the
+/// simulated loop: no extra delay). [`analyse_with_latency`] at 0 s.
 ///
 /// # Errors
 /// As [`LoopAnalysis::new`] and [`LoopAnalysis::report`].
 pub fn analyse(cfg: &RigConfig, chain: &ChainCoefficients) -> Result<StabilityReport, RigError> {
+    analyse_with_latency(cfg, chain, 0.0)
+}
+
+/// The stability report of a rig file with the chain its D loop runs and
+/// an extra loop delay of `latency_s` seconds ([`LoopAnalysis::with_latency`]).
+/// The analysis takes from a few hundred milliseconds (no delay) to
+/// seconds (long delays); the last [`MEMO_CAPACITY`] reports are kept per
+/// process (keyed by everything the analysis reads: the rig file without
+/// its noise seeds, the chain and the latency).
+///
+/// # Errors
+/// As [`LoopAnalysis::new`], [`LoopAnalysis::with_latency`] and
+/// [`LoopAnalysis::report`].
+pub fn analyse_with_latency(
+    cfg: &RigConfig,
+    chain: &ChainCoefficients,
+    latency_s: f64,
+) -> Result<StabilityReport, RigError> {
     let mut c = cfg.clone();
     c.accelerometer.seed = 0;
     c.tweezer.seed = 0;
-    let key = format!("{c:?}{chain:?}");
+    let key = format!("{c:?}{chain:?}{latency_s:?}");
     if let Ok(m) = memo().lock()
         && let Some((_, r)) = m.iter().find(|(k, _)| *k == key)
     {
         return Ok(r.clone());
     }
-    let r = LoopAnalysis::new(cfg, chain)?.report()?;
+    let r = LoopAnalysis::new(cfg, chain)?
+        .with_latency(latency_s)?
+        .report()?;
     if let Ok(mut m) = memo().lock() {
         if m.len() >= MEMO_CAPACITY {
             m.remove(0);

@@ -157,10 +157,18 @@ pub struct DetectedTweezer {
 impl DetectedTweezer {
     /// The tweezer of `params` at `fs_hz` behind the detector `cfg`.
     pub fn new(params: TweezerParams, cfg: &DetectorConfig, fs_hz: f64) -> Result<Self, RigError> {
-        let det = Detector::new(cfg, params.corner_hz(), fs_hz)?;
-        let sd_m = params.variance_theory().sqrt();
+        Self::wrap(SimTweezer::new(params, fs_hz)?, cfg)
+    }
+
+    /// The simulated tweezer `tw` behind the detector `cfg` (at the
+    /// tweezer's rate), no trap calibration applied: it steps exactly as
+    /// `tw` would.
+    pub fn wrap(tw: SimTweezer, cfg: &DetectorConfig) -> Result<Self, RigError> {
+        let p = tw.params();
+        let det = Detector::new(cfg, p.corner_hz(), tw.sample_rate_hz())?;
+        let sd_m = p.variance_theory().sqrt();
         Ok(Self {
-            tw: SimTweezer::new(params, fs_hz)?,
+            tw,
             det,
             sd_m,
             last_v: [0.0; 2],

@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::checksum::{crc32, crc32_hex, parse_crc32_hex};
-use super::session::{CalibrationRef, OrderRow, Sitting};
+use super::session::{CalibrationRef, DeviceRecord, OrderRow, Sitting};
 use crate::seeds::TrialKey;
 use crate::storage::error::{ExportError, Position, Result, io_err};
 use crate::storage::fsutil::{
@@ -79,6 +79,9 @@ pub struct SessionStart {
     pub orders: Vec<OrderRow>,
     /// Whether the folder already held data (a resume).
     pub resumed: bool,
+    /// The live device the sitting runs on (absent: the simulated rig).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<DeviceRecord>,
 }
 
 /// What [`crate::export::StudyStore::open`] repaired or adopted.
@@ -446,6 +449,7 @@ pub(crate) fn sittings(entries: &[Entry]) -> Vec<Sitting> {
                 rig: s.rig.clone(),
                 calibration: s.calibration.clone(),
                 resumed: s.resumed,
+                device: s.device.clone(),
             }),
             Record::SessionDone { .. } => {
                 if let Some(last) = out.last_mut() {

@@ -96,7 +96,7 @@ pub use plan::{PlannedTrial, RAW_DIR, plan, raw_file_name, raw_layout_for};
 pub use raw_check::QUARANTINE_DIR;
 pub use reconcile::{DamagedRaw, Recovery};
 pub use session::{
-    CalibrationRef, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo,
+    CalibrationRef, DeviceRecord, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo,
     SimulationInfo, Sitting, StudyMeta, read_session,
 };
 pub use store::{StudyStore, TrialTicket, refuse_links};

@@ -45,6 +45,39 @@ pub struct StudyMeta {
     /// the differences. `None`: a resume with different settings is
     /// refused ([`crate::export::ExportError::SettingsChanged`]).
     pub recorded_change: Option<String>,
+    /// The device the sitting runs on (a live rig), recorded with the
+    /// sitting in the journal and `session.json`; `None`: the simulated rig.
+    pub device: Option<DeviceRecord>,
+}
+
+/// The device a sitting ran on and its measured loop delay
+/// (`session.json` `sittings[].device`, the journal's `session_started`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DeviceRecord {
+    /// How it was opened, e.g. `serial:/dev/ttyACM0`.
+    pub spec: String,
+    /// Kind (`serial-daq`, `audio`).
+    pub kind: String,
+    /// Model name as the device reports it.
+    pub name: String,
+    /// Serial number.
+    pub serial: String,
+    /// Firmware version.
+    pub firmware: String,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
+    /// Samples per block exchanged with the device.
+    pub block_samples: u32,
+    /// Loop delay: from a sensor sample to the sample its command acts in,
+    /// samples (block + command lead).
+    pub loop_delay_samples: u32,
+    /// The loop delay, ms.
+    pub loop_delay_ms: f64,
+    /// The delay beyond the simulated loop's one sample that the stability
+    /// clearance includes, ms.
+    pub extra_latency_ms: f64,
+    /// Link round trip measured at connection, ms (`None`: not measured).
+    pub round_trip_ms: Option<f64>,
 }
 
 impl StudyMeta {
@@ -59,6 +92,7 @@ impl StudyMeta {
             raw_signals: None,
             trap_calibration: None,
             recorded_change: None,
+            device: None,
         }
     }
 }
@@ -157,6 +191,9 @@ pub struct Sitting {
     pub calibration: Option<CalibrationRef>,
     /// Whether it resumed existing data.
     pub resumed: bool,
+    /// The live device it ran on (absent: the simulated rig).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<DeviceRecord>,
 }
 
 /// Progress counts.

@@ -202,6 +202,7 @@ impl StudyStore {
             calibration: meta.calibration.clone(),
             orders: orders.clone(),
             resumed,
+            device: meta.device.clone(),
         };
         open::journal_opening(&mut journal, start, &recovery, &verdict.completed)?;
         let mut completed = verdict.completed;

@@ -1,168 +1,35 @@
-//! [`TrialEngine`]: runs one trial sample by sample (see the [`super`]
-//! module documentation); [`TrialOutcome`]: what a finished trial gives.
-
-use kilotouch_rig::tweezer::{TweezerEvents, TweezerSample};
+//! [`TrialEngine`]: a [`TrialCore`] paired with a station it prepares
+//! itself (the simulated station): what `study simulate`, the session
+//! runner's headless runs, the paper's figures and the benchmarks drive.
 
 use crate::error::RunError;
-use crate::participant::{Observation, Participant, VisualFrame};
+use crate::participant::Participant;
 use crate::protocol::Protocol;
 use crate::seeds::TrialKey;
-use crate::task::station::{Station, StationSample};
-use crate::task::{Geometry, Scene, TaskAccumulator, TaskMetrics, TaskSample, TrialEnd};
+use crate::task::TrialEnd;
+use crate::task::station::PrepareStation;
 
 use super::config::RunnerConfig;
-use super::event;
-use super::raw::{RAW_CHANNELS, RawSink};
+use super::raw::RawSink;
 use super::setup::TrialSetup;
+use super::trial::{TrialCore, TrialOutcome};
 
-/// The result of a finished trial.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TrialOutcome {
-    /// The trial.
-    pub key: TrialKey,
-    /// Its metrics.
-    pub metrics: TaskMetrics,
-    /// Samples run (at `sample_rate_hz`).
-    pub samples: u64,
-    /// The trial's sample rate, Hz (the station's rate divided by the
-    /// trial's decimation, [`Station::trial_decimation`]).
-    pub sample_rate_hz: f64,
-    /// Bead trajectory decimated by `trajectory_every`, m (Fig. 10).
-    pub trajectory: Vec<[f64; 2]>,
-    /// The scene.
-    pub scene: Scene,
-}
-
-const FRAME_RING: usize = 64;
-
-/// Runs one trial sample by sample (see the [`super`] module
-/// documentation).
+/// A station and the trial core that runs trials on it (module docs).
 #[derive(Debug)]
-pub struct TrialEngine<S: Station> {
+pub struct TrialEngine<S: PrepareStation> {
     station: S,
-    cfg: RunnerConfig,
-    // The station's rate, Hz.
-    station_fs: f64,
-    // The current trial's rate (the station's / its decimation), Hz, and
-    // its timing in samples of that rate.
-    fs: f64,
-    act_every: u64,
-    trajectory_every: u64,
-    frame_every: u64,
-    latency_samples: u64,
-    // Trial state.
-    key: Option<TrialKey>,
-    acc: Option<TaskAccumulator>,
-    scene: Option<Scene>,
-    geometry: Geometry,
-    contact_gap_m: f64,
-    vision: bool,
-    k: u64,
-    hand_prev: [f64; 2],
-    hand_next: [f64; 2],
-    force_buf: Vec<[f64; 2]>,
-    accel_buf: Vec<[f64; 3]>,
-    frames: [Option<(u64, VisualFrame)>; FRAME_RING],
-    // A lower bound of the earliest display time (sample) among `frames`
-    // (u64::MAX: none pending): the ring is scanned once it is reached,
-    // not every sample.
-    next_due: u64,
-    frame_seq: u64,
-    shown: Option<VisualFrame>,
-    trajectory: Vec<[f64; 2]>,
-    trajectory_cap: usize,
-    handle: [f64; 2],
-    row: [f64; RAW_CHANNELS],
-    end: Option<TrialEnd>,
-    // A trial that ended on a sample with its own event: the end code is
-    // written on the next sample, then the trial reports its end.
-    pending_end: Option<TrialEnd>,
+    core: TrialCore,
 }
 
-impl<S: Station> TrialEngine<S> {
+impl<S: PrepareStation> TrialEngine<S> {
     /// An engine on `station`.
     ///
     /// # Errors
     /// [`RunError::Config`] for a zero control period or a non-positive
     /// frame rate / negative latency.
     pub fn new(station: S, cfg: RunnerConfig) -> Result<Self, RunError> {
-        if cfg.act_every == 0 || cfg.trajectory_every == 0 {
-            return Err(RunError::Config(
-                "act_every and trajectory_every must be ≥ 1".into(),
-            ));
-        }
-        let fps_ok = cfg.camera_fps.is_finite() && cfg.camera_fps > 0.0;
-        let latency_ok = cfg.camera_latency_s.is_finite() && cfg.camera_latency_s >= 0.0;
-        if !(fps_ok && latency_ok) {
-            return Err(RunError::Config(format!(
-                "camera_fps must be > 0 and camera_latency_s ≥ 0, got {} and {}",
-                cfg.camera_fps, cfg.camera_latency_s
-            )));
-        }
-        let fs = station.sample_rate_hz();
-        let mut engine = Self {
-            station,
-            cfg,
-            station_fs: fs,
-            fs,
-            act_every: 1,
-            trajectory_every: 1,
-            frame_every: 1,
-            latency_samples: 0,
-            key: None,
-            acc: None,
-            scene: None,
-            geometry: Geometry {
-                obstacle_m: [0.0; 2],
-                obstacle_radius_m: 0.0,
-                bead_radius_m: 0.0,
-            },
-            contact_gap_m: 0.0,
-            vision: true,
-            k: 0,
-            hand_prev: [0.0; 2],
-            hand_next: [0.0; 2],
-            force_buf: Vec::with_capacity(cfg.act_every),
-            accel_buf: Vec::with_capacity(cfg.act_every),
-            frames: [None; FRAME_RING],
-            next_due: u64::MAX,
-            frame_seq: 0,
-            shown: None,
-            trajectory: Vec::new(),
-            trajectory_cap: 0,
-            handle: [0.0; 2],
-            row: [0.0; RAW_CHANNELS],
-            end: None,
-            pending_end: None,
-        };
-        engine.set_decimation(1);
-        Ok(engine)
-    }
-
-    /// The largest rate divisor a trial may run at: none (1) with raw
-    /// files, else one that keeps the control period and the trajectory's
-    /// decimation whole numbers of samples.
-    fn max_decimation(&self) -> u32 {
-        if self.cfg.raw.is_some() {
-            return 1;
-        }
-        let (mut a, mut b) = (self.cfg.act_every, self.cfg.trajectory_every);
-        while b != 0 {
-            (a, b) = (b, a % b);
-        }
-        u32::try_from(a).unwrap_or(1).max(1)
-    }
-
-    /// The trial's timing at the station's rate divided by `d` (a divisor
-    /// of [`Self::max_decimation`]): the control period, trajectory
-    /// decimation, camera period and latency keep their durations.
-    fn set_decimation(&mut self, d: u32) {
-        let d = u64::from(d.max(1));
-        self.fs = self.station_fs / d as f64;
-        self.act_every = (self.cfg.act_every as u64 / d).max(1);
-        self.trajectory_every = (self.cfg.trajectory_every as u64 / d).max(1);
-        self.frame_every = ((self.fs / self.cfg.camera_fps).round() as u64).max(1);
-        self.latency_samples = (self.cfg.camera_latency_s * self.fs).round() as u64;
+        let core = TrialCore::new(station.sample_rate_hz(), cfg)?;
+        Ok(Self { station, core })
     }
 
     /// The station.
@@ -170,20 +37,25 @@ impl<S: Station> TrialEngine<S> {
         &self.station
     }
 
+    /// The trial core.
+    pub fn core(&self) -> &TrialCore {
+        &self.core
+    }
+
     /// Configuration.
     pub fn config(&self) -> &RunnerConfig {
-        &self.cfg
+        self.core.config()
     }
 
     /// The station's sample rate, Hz (a trial may run at a divisor of it:
     /// [`TrialOutcome::sample_rate_hz`]).
     pub fn sample_rate_hz(&self) -> f64 {
-        self.station_fs
+        self.core.sample_rate_hz()
     }
 
     /// The sample rate of the current trial, Hz.
     pub fn trial_sample_rate_hz(&self) -> f64 {
-        self.fs
+        self.core.trial_sample_rate_hz()
     }
 
     /// The setup of trial `key` of `protocol` on this engine's station.
@@ -196,7 +68,8 @@ impl<S: Station> TrialEngine<S> {
         )
     }
 
-    /// Starts a trial (allocates the trajectory buffer; not real-time).
+    /// Prepares the station for trial `setup` (a fresh rig and tweezer from
+    /// the trial's rig generator: not real-time) and starts it.
     ///
     /// # Errors
     /// Station preparation errors.
@@ -206,82 +79,39 @@ impl<S: Station> TrialEngine<S> {
         participant: &mut P,
     ) -> Result<(), RunError> {
         let mut rng = setup.rig_rng.clone();
-        let max_decimation = self.max_decimation();
         self.station.prepare(
             &setup.scene,
             setup.feedback.condition,
             setup.params.escape_distance_m(),
-            max_decimation,
+            self.core.max_decimation(),
             &mut rng,
         )?;
         let d = self.station.trial_decimation();
-        if d == 0 || !max_decimation.is_multiple_of(d) {
-            return Err(RunError::State(format!(
-                "the station chose a rate divisor of {d}, not a divisor of {max_decimation}"
-            )));
-        }
-        self.set_decimation(d);
-        self.key = Some(setup.key);
-        self.acc = Some(TaskAccumulator::new(&setup.params, setup.scene.geometry));
-        self.scene = Some(setup.scene);
-        self.geometry = setup.scene.geometry;
-        self.contact_gap_m = setup.params.contact_gap_m();
-        self.vision = setup.feedback.vision;
-        self.k = 0;
-        let rest = setup.brief.mapping.to_hand(setup.scene.start_m);
-        self.hand_prev = rest;
-        self.hand_next = rest;
-        self.force_buf.clear();
-        self.accel_buf.clear();
-        self.frames = [None; FRAME_RING];
-        self.next_due = u64::MAX;
-        self.frame_seq = 0;
-        self.shown = None;
-        let cap = (setup.params.timeout_s() * self.fs / self.trajectory_every as f64).floor();
-        self.trajectory_cap = kilotouch_rig::checked_count(cap)
-            .and_then(|c| usize::try_from(c).ok())
-            .and_then(|c| c.checked_add(2))
-            .ok_or_else(|| timeout_error(setup.params.timeout_s(), self.fs))?;
-        self.trajectory = Vec::with_capacity(self.trajectory_cap);
-        self.trajectory.push(setup.scene.start_m);
-        self.handle = [0.0; 2];
-        self.end = None;
-        self.pending_end = None;
-        participant.begin_trial(&setup.brief);
-        Ok(())
+        let trajectory = Vec::with_capacity(self.core.trajectory_capacity(setup, d)?);
+        self.core.start(setup, d, participant, trajectory)
     }
 
     /// The trial in progress (or just ended).
     pub fn key(&self) -> Option<TrialKey> {
-        self.key
+        self.core.key()
     }
 
     /// How the trial ended, once it has.
     pub fn end(&self) -> Option<TrialEnd> {
-        self.end
+        self.core.end()
     }
 
     /// Samples run in the current trial.
     pub fn samples(&self) -> u64 {
-        self.k
+        self.core.samples()
     }
 
     /// Ends the current trial as aborted (its metrics so far are kept).
     pub fn abort(&mut self) {
-        if let Some(e) = self.pending_end.take() {
-            self.end = Some(e);
-            return;
-        }
-        if let Some(acc) = &mut self.acc
-            && self.end.is_none()
-        {
-            acc.abort();
-            self.end = Some(TrialEnd::Aborted);
-        }
+        self.core.abort();
     }
 
-    /// Runs up to `n` samples of the current trial; returns the end when the
-    /// trial ended within them. Allocation-free.
+    /// Runs up to `n` samples of the current trial ([`TrialCore::run`]).
     ///
     /// # Errors
     /// Station and raw-sink errors; [`RunError::State`] without a trial.
@@ -291,183 +121,7 @@ impl<S: Station> TrialEngine<S> {
         raw: &mut W,
         n: usize,
     ) -> Result<Option<TrialEnd>, RunError> {
-        if self.end.is_some() {
-            return Ok(self.end);
-        }
-        if self.acc.is_none() {
-            return Err(RunError::State("no trial started".into()));
-        }
-        let every = self.act_every;
-        let dt = 1.0 / self.fs;
-        for _ in 0..n {
-            let phase = self.k % every;
-            if phase == 0 {
-                self.ask_participant(participant, dt);
-            }
-            let hand = self.hand_at(phase, every);
-            self.station.set_hand(hand);
-            let ss = self.station.step()?;
-            self.k += 1;
-            let t = self.k as f64 * dt;
-            let tw = &ss.tweezer;
-            self.handle = ss.sensors.handle_m;
-            if self.force_buf.len() < self.force_buf.capacity() {
-                self.force_buf.push(ss.command.force_n);
-                self.accel_buf.push(ss.sensors.accel_m_s2);
-            }
-            let captured = self.capture_frame(t, tw);
-            self.display_due_frames();
-            let sample = TaskSample {
-                t_s: t,
-                bead_m: tw.bead_m,
-                trap_m: tw.trap_m,
-                force_bead_n: tw.force_n,
-                force_hand_n: ss.force_hand_n,
-                trapped: tw.trapped,
-            };
-            if let Some(e) = self.pending_end.take() {
-                // The sample after an event that ended the trial carries
-                // the end code (the event keeps its own sample).
-                self.fill_row(&ss, hand, event::END);
-                raw.push(&self.row)?;
-                self.end = Some(e);
-                return Ok(Some(e));
-            }
-            let end = self.acc.as_mut().and_then(|acc| acc.push(&sample));
-            if self.k.is_multiple_of(self.trajectory_every) {
-                self.keep_trajectory_point(tw.bead_m);
-            }
-            let code = event_code(&tw.events, captured);
-            let end_here = end.is_some() && (code == 0.0 || code == event::FRAME);
-            self.fill_row(&ss, hand, if end_here { event::END } else { code });
-            raw.push(&self.row)?;
-            if let Some(e) = end {
-                self.keep_trajectory_point(tw.bead_m);
-                if end_here {
-                    self.end = Some(e);
-                    return Ok(Some(e));
-                }
-                self.pending_end = Some(e);
-            }
-        }
-        Ok(None)
-    }
-
-    /// Asks the participant for the hand target of the next `act_every`
-    /// samples, with what happened since the last call; a non-finite target
-    /// keeps the previous one.
-    #[inline]
-    fn ask_participant<P: Participant + ?Sized>(&mut self, participant: &mut P, dt: f64) {
-        let obs = Observation {
-            t_s: self.k as f64 * dt,
-            dt_s: dt,
-            frame: if self.vision { self.shown } else { None },
-            force_n: &self.force_buf,
-            accel_m_s2: &self.accel_buf,
-            handle_m: self.handle,
-        };
-        let target = participant.act(&obs);
-        self.force_buf.clear();
-        self.accel_buf.clear();
-        self.hand_prev = self.hand_next;
-        if target.iter().all(|v| v.is_finite()) {
-            self.hand_next = target;
-        }
-    }
-
-    /// The hand position at sample `phase` (0-based) of a control period of
-    /// `every` samples: linear from the previous target to the next, m.
-    #[inline]
-    fn hand_at(&self, phase: u64, every: u64) -> [f64; 2] {
-        let a = (phase + 1) as f64 / every as f64;
-        [
-            self.hand_prev[0] + a * (self.hand_next[0] - self.hand_prev[0]),
-            self.hand_prev[1] + a * (self.hand_next[1] - self.hand_prev[1]),
-        ]
-    }
-
-    /// Camera capture: every frame period, a frame of the scene at time `t`
-    /// (s) is queued for display `latency_samples` later. Returns whether a
-    /// frame was captured at this sample.
-    #[inline]
-    fn capture_frame(&mut self, t: f64, tw: &TweezerSample) -> bool {
-        if !self.k.is_multiple_of(self.frame_every) {
-            return false;
-        }
-        let geometry = self.geometry;
-        let f = VisualFrame {
-            seq: self.frame_seq,
-            captured_s: t,
-            bead_m: tw.bead_m,
-            trap_m: tw.trap_m,
-            obstacle_m: geometry.obstacle_m,
-            obstacle_radius_m: geometry.obstacle_radius_m,
-            bead_radius_m: geometry.bead_radius_m,
-        };
-        let due = self.k + self.latency_samples;
-        self.frames[(self.frame_seq as usize) % FRAME_RING] = Some((due, f));
-        self.next_due = self.next_due.min(due);
-        self.frame_seq += 1;
-        true
-    }
-
-    /// Camera display: once the earliest queued frame is due, shows the
-    /// newest due frame and drops every due one from the ring.
-    #[inline]
-    fn display_due_frames(&mut self) {
-        if self.k < self.next_due {
-            return;
-        }
-        let mut next = u64::MAX;
-        for slot in &mut self.frames {
-            match *slot {
-                Some((due, f)) if due <= self.k => {
-                    if self.shown.is_none_or(|s| s.seq < f.seq) {
-                        self.shown = Some(f);
-                    }
-                    *slot = None;
-                }
-                Some((due, _)) => next = next.min(due),
-                None => {}
-            }
-        }
-        self.next_due = next;
-    }
-
-    /// Appends a bead position to the kept trajectory, up to its capacity.
-    #[inline]
-    fn keep_trajectory_point(&mut self, bead_m: [f64; 2]) {
-        if self.trajectory.len() < self.trajectory_cap {
-            self.trajectory.push(bead_m);
-        }
-    }
-
-    /// Fills the raw row of the sample ([`super::raw_channels`] order).
-    #[inline]
-    fn fill_row(&mut self, ss: &StationSample, hand: [f64; 2], event: f64) {
-        let tw = &ss.tweezer;
-        let r = &mut self.row;
-        r[0] = ss.sensors.handle_m[0];
-        r[1] = ss.sensors.handle_m[1];
-        r[2] = tw.trap_m[0];
-        r[3] = tw.trap_m[1];
-        r[4] = tw.bead_m[0];
-        r[5] = tw.bead_m[1];
-        r[6] = tw.force_n[0];
-        r[7] = tw.force_n[1];
-        r[8] = ss.force_hand_n[0];
-        r[9] = ss.force_hand_n[1];
-        r[10] = ss.command.force_n[0];
-        r[11] = ss.command.haptuator_v;
-        r[12] = ss.sensors.accel_m_s2[0];
-        r[13] = ss.sensors.accel_m_s2[1];
-        r[14] = ss.sensors.accel_m_s2[2];
-        r[15] = f64::from(u8::from(
-            self.geometry.gap_m(tw.bead_m) < self.contact_gap_m,
-        ));
-        r[16] = event;
-        r[17] = hand[0];
-        r[18] = hand[1];
+        self.core.run(&mut self.station, participant, raw, n)
     }
 
     /// The outcome of the current trial (metrics so far if not ended).
@@ -475,17 +129,7 @@ impl<S: Station> TrialEngine<S> {
     /// # Errors
     /// [`RunError::State`] without a trial.
     pub fn outcome(&self) -> Result<TrialOutcome, RunError> {
-        match (&self.acc, self.key, self.scene) {
-            (Some(acc), Some(key), Some(scene)) => Ok(TrialOutcome {
-                key,
-                metrics: acc.metrics(),
-                samples: self.k,
-                sample_rate_hz: self.fs,
-                trajectory: self.trajectory.clone(),
-                scene,
-            }),
-            _ => Err(RunError::State("no trial started".into())),
-        }
+        self.core.outcome()
     }
 
     /// Runs a whole trial (start, run to its end) and returns its outcome.
@@ -499,50 +143,16 @@ impl<S: Station> TrialEngine<S> {
         raw: &mut W,
     ) -> Result<TrialOutcome, RunError> {
         self.start(setup, participant)?;
-        let limit = kilotouch_rig::checked_count((setup.params.timeout_s() * self.fs).ceil())
-            .ok_or_else(|| timeout_error(setup.params.timeout_s(), self.fs))?
-            + 1;
-        while self.end.is_none() {
+        let limit = self.core.sample_limit(setup.params.timeout_s())?;
+        while self.core.end().is_none() {
             self.run(participant, raw, 10_000)?;
-            if self.k > limit {
+            if self.core.samples() > limit {
                 return Err(RunError::State(format!(
                     "trial {} did not end by its time-out",
                     setup.key
                 )));
             }
         }
-        self.outcome()
+        self.core.take_outcome()
     }
-}
-
-/// The `event` channel's code at a sample: its most significant event —
-/// escape, recapture, contact end, contact start, camera frame — or 0 for
-/// none ([`event`]). The trial-end code goes on the sample where the trial
-/// ends when nothing but a camera frame happened there, else on the next
-/// sample (so an escape that ends a trial keeps its code 3).
-#[inline]
-fn event_code(events: &TweezerEvents, frame_captured: bool) -> f64 {
-    if events.escaped {
-        event::ESCAPED
-    } else if events.recaptured {
-        event::RECAPTURED
-    } else if events.contact_end {
-        event::CONTACT_END
-    } else if events.contact_start {
-        event::CONTACT_START
-    } else if frame_captured {
-        event::FRAME
-    } else {
-        0.0
-    }
-}
-
-/// The error of a trial time-out whose sample count cannot be represented
-/// (the protocol's bounds keep `timeout_s` far below this).
-fn timeout_error(timeout_s: f64, fs: f64) -> RunError {
-    RunError::Config(format!(
-        "task timeout_s = {timeout_s} s at {fs} Hz is not a representable number of samples \
-         (at most {} s)",
-        crate::protocol::MAX_TIMEOUT_S
-    ))
 }

@@ -1,20 +1,20 @@
-//! [`SessionRunner`]: the session state machine over a [`StudyStore`] (see
-//! the [`super`] module documentation).
+//! [`SessionRunner`]: a session run inline — the store side
+//! ([`SittingCore`]) and the trials on a station the runner owns (see the
+//! [`super`] module documentation).
 
 use std::fmt;
 
 use crate::error::RunError;
-use crate::export::{StudyStore, SummaryFiles, TrialRow, TrialTicket, UtcTime};
+use crate::export::{StudyStore, SummaryFiles, TrialRow};
 use crate::participant::Participant;
 use crate::protocol::Protocol;
-use crate::rawsig::NpyWriter;
-use crate::seeds::{Phase, TrialKey};
+use crate::seeds::TrialKey;
 use crate::task::TrialEnd;
-use crate::task::station::Station;
+use crate::task::station::PrepareStation;
 
 use super::config::RunnerConfig;
 use super::engine::TrialEngine;
-use super::raw::{raw_layout, with_scene};
+use super::sitting::{Next, Resumed, SittingCore, StationFrame};
 
 /// States of a session (see the [`super`] module documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,52 +67,57 @@ pub struct RunnerEvents {
     pub done: bool,
 }
 
+/// A session run inline (module docs).
 #[derive(Debug)]
-struct Active {
-    ticket: TrialTicket,
-    raw: Option<NpyWriter>,
-}
-
-/// The session state machine (see the [`super`] module documentation).
-#[derive(Debug)]
-pub struct SessionRunner<S: Station> {
-    store: Option<StudyStore>,
-    protocol: Protocol,
+pub struct SessionRunner<S: PrepareStation> {
+    core: SittingCore,
     engine: TrialEngine<S>,
-    state: RunnerState,
-    before_pause: Option<RunnerState>,
-    active: Option<Active>,
-    summaries: Option<SummaryFiles>,
-    hold: bool,
 }
 
-impl<S: Station> SessionRunner<S> {
+impl<S: PrepareStation> SessionRunner<S> {
     /// A runner over an open store (new or resumed) and a station.
     ///
     /// # Errors
     /// Those of [`TrialEngine::new`].
     pub fn new(store: StudyStore, station: S, cfg: RunnerConfig) -> Result<Self, RunError> {
-        let protocol = store.protocol().clone();
+        let frame = StationFrame {
+            sample_rate_hz: station.sample_rate_hz(),
+            rest_trap_m: station.rest_trap_m(),
+            mapping: station.mapping(),
+        };
         Ok(Self {
-            store: Some(store),
-            protocol,
+            core: SittingCore::new(store, frame, cfg.raw),
             engine: TrialEngine::new(station, cfg)?,
-            state: RunnerState::Idle,
-            before_pause: None,
-            active: None,
-            summaries: None,
-            hold: false,
         })
     }
 
-    /// Hold before every trial (`true`): [`SessionRunner::start`], a
-    /// committed trial and the end of a pause between trials go to
-    /// [`RunnerState::Waiting`] instead of beginning the next trial, so
-    /// that the participant's screens (instructions, ready, inter-trial
-    /// interval, break) run first; [`SessionRunner::proceed`] begins it.
-    /// Default `false` (headless runs go straight on).
+    /// Hold before every trial ([`SittingCore::set_hold`]): the runner goes
+    /// to [`RunnerState::Waiting`] instead of beginning the next trial;
+    /// [`SessionRunner::proceed`] begins it. Default `false` (headless runs
+    /// go straight on).
     pub fn set_hold(&mut self, hold: bool) {
-        self.hold = hold;
+        self.core.set_hold(hold);
+    }
+
+    /// Carries out what the store side says comes next.
+    fn apply<P: Participant + ?Sized>(
+        &mut self,
+        next: Next,
+        participant: &mut P,
+        ev: &mut RunnerEvents,
+    ) -> Result<(), RunError> {
+        match next {
+            Next::Begin(setup) => {
+                if let Err(e) = self.engine.start(&setup, participant) {
+                    self.core.begin_failed("station error at trial start")?;
+                    return Err(e);
+                }
+                ev.started = Some(setup.key);
+            }
+            Next::Wait(_) => {}
+            Next::Done => ev.done = true,
+        }
+        Ok(())
     }
 
     /// Begins the trial a [`RunnerState::Waiting`] state holds.
@@ -123,65 +128,34 @@ impl<S: Station> SessionRunner<S> {
         &mut self,
         participant: &mut P,
     ) -> Result<RunnerEvents, RunError> {
-        if !matches!(self.state, RunnerState::Waiting(_)) {
-            return Err(RunError::State(format!(
-                "nothing waits to begin while {}",
-                self.state
-            )));
-        }
+        let next = self.core.proceed()?;
         let mut ev = RunnerEvents::default();
-        self.begin_next(participant, &mut ev)?;
+        self.apply(next, participant, &mut ev)?;
         Ok(ev)
     }
 
-    /// Goes to [`RunnerState::Waiting`] for the next pending trial when
-    /// holding and one is left; otherwise begins it (or closes the study).
-    fn next_or_wait<P: Participant + ?Sized>(
-        &mut self,
-        participant: &mut P,
-        ev: &mut RunnerEvents,
-    ) -> Result<(), RunError> {
-        if self.hold
-            && let Some(key) = self.store_mut()?.next_pending().map(|p| p.key)
-        {
-            self.state = RunnerState::Waiting(key);
-            return Ok(());
-        }
-        self.begin_next(participant, ev)
-    }
-
-    /// Ends this sitting cleanly without closing the study (the next
-    /// participant, or a later sitting, resumes the folder): a trial in
-    /// progress is journaled as aborted with `reason` (no row; it runs
-    /// again on resume) and the sitting's `session_done` is written, so the
-    /// next opening does not report an unclosed sitting. The runner is
-    /// closed afterwards (no store).
+    /// Ends this sitting cleanly without closing the study
+    /// ([`SittingCore::end_sitting`]).
     ///
     /// # Errors
     /// I/O errors.
     pub fn end_sitting(&mut self, reason: &str) -> Result<(), RunError> {
-        if let Some(active) = self.active.take() {
-            self.store_mut()?.abort_trial(active.ticket, reason)?;
-        }
-        if let Some(store) = self.store.take() {
-            store.end_sitting()?;
-        }
-        Ok(())
+        self.core.end_sitting(reason)
     }
 
     /// Current state.
     pub fn state(&self) -> RunnerState {
-        self.state
+        self.core.state()
     }
 
     /// The store (`None` once closed).
     pub fn store(&self) -> Option<&StudyStore> {
-        self.store.as_ref()
+        self.core.store()
     }
 
     /// The protocol the runner runs.
     pub fn protocol(&self) -> &Protocol {
-        &self.protocol
+        self.core.protocol()
     }
 
     /// The trial engine (station, current trial).
@@ -191,13 +165,7 @@ impl<S: Station> SessionRunner<S> {
 
     /// Summaries written when the session closed.
     pub fn summaries(&self) -> Option<&SummaryFiles> {
-        self.summaries.as_ref()
-    }
-
-    fn store_mut(&mut self) -> Result<&mut StudyStore, RunError> {
-        self.store
-            .as_mut()
-            .ok_or_else(|| RunError::State("the session is closed".into()))
+        self.core.summaries()
     }
 
     /// Begins the first pending trial (or closes the session when none is
@@ -209,60 +177,10 @@ impl<S: Station> SessionRunner<S> {
         &mut self,
         participant: &mut P,
     ) -> Result<RunnerEvents, RunError> {
-        if self.state != RunnerState::Idle {
-            return Err(RunError::State(format!(
-                "cannot start while {}",
-                self.state
-            )));
-        }
+        let next = self.core.start()?;
         let mut ev = RunnerEvents::default();
-        self.next_or_wait(participant, &mut ev)?;
+        self.apply(next, participant, &mut ev)?;
         Ok(ev)
-    }
-
-    fn begin_next<P: Participant + ?Sized>(
-        &mut self,
-        participant: &mut P,
-        ev: &mut RunnerEvents,
-    ) -> Result<(), RunError> {
-        let next = self.store_mut()?.next_pending().map(|p| p.key);
-        let Some(key) = next else {
-            if let Some(store) = self.store.take() {
-                self.summaries = Some(store.close()?);
-            }
-            self.state = RunnerState::Done;
-            ev.done = true;
-            return Ok(());
-        };
-        let setup = self.engine.setup(&self.protocol, key);
-        let fs = self.engine.sample_rate_hz();
-        let dtype = self.engine.config().raw;
-        let store = self.store_mut()?;
-        let mut ticket = store.begin_trial(key, UtcTime::now())?;
-        let raw = match dtype {
-            Some(d) => {
-                match store.raw_writer(&mut ticket, with_scene(raw_layout(fs, d), &setup.scene)) {
-                    Ok(w) => Some(w),
-                    Err(e) => {
-                        store.abort_trial(ticket, "raw file could not be created")?;
-                        return Err(e.into());
-                    }
-                }
-            }
-            None => None,
-        };
-        if let Err(e) = self.engine.start(&setup, participant) {
-            self.store_mut()?
-                .abort_trial(ticket, "station error at trial start")?;
-            return Err(e);
-        }
-        self.active = Some(Active { ticket, raw });
-        self.state = match key.phase {
-            Phase::Practice => RunnerState::Training(key),
-            Phase::Test => RunnerState::Trial(key),
-        };
-        ev.started = Some(key);
-        Ok(())
     }
 
     /// Runs up to `n` samples of the current trial. No file I/O other than
@@ -277,18 +195,21 @@ impl<S: Station> SessionRunner<S> {
         n: usize,
     ) -> Result<RunnerEvents, RunError> {
         let mut ev = RunnerEvents::default();
-        if !matches!(self.state, RunnerState::Training(_) | RunnerState::Trial(_)) {
+        if !matches!(
+            self.core.state(),
+            RunnerState::Training(_) | RunnerState::Trial(_)
+        ) {
             return Ok(ev);
         }
         if self.engine.end().is_some() {
             ev.needs_service = true;
             return Ok(ev);
         }
-        let Some(active) = self.active.as_mut() else {
+        if !self.core.has_active_trial() {
             return Err(RunError::State("no active trial".into()));
-        };
+        }
         let before = self.engine.samples();
-        let mut sink = active.raw.as_mut();
+        let mut sink = self.core.raw_mut();
         let end = self.engine.run(participant, &mut sink, n)?;
         ev.samples = (self.engine.samples() - before) as usize;
         if let (Some(e), Some(k)) = (end, self.engine.key()) {
@@ -309,20 +230,14 @@ impl<S: Station> SessionRunner<S> {
         participant: &mut P,
     ) -> Result<RunnerEvents, RunError> {
         let mut ev = RunnerEvents::default();
-        if self.engine.end().is_some()
-            && let Some(active) = self.active.take()
-        {
-            let outcome = self.engine.outcome()?;
-            let mut row = active.ticket.row();
-            outcome.metrics.fill_row(&mut row);
-            if let Some(w) = active.raw {
-                w.finish()?;
-            }
-            self.store_mut()?.commit_trial(active.ticket, &row)?;
+        if self.engine.end().is_none() {
+            return Ok(ev);
+        }
+        let outcome = self.engine.outcome()?;
+        if let Some((row, next)) = self.core.commit(&outcome)? {
             ev.committed = Some(row);
-            match self.state {
-                RunnerState::Paused(_) => self.state = RunnerState::Paused(None),
-                _ => self.next_or_wait(participant, &mut ev)?,
+            if let Some(next) = next {
+                self.apply(next, participant, &mut ev)?;
             }
         }
         Ok(ev)
@@ -333,15 +248,7 @@ impl<S: Station> SessionRunner<S> {
     /// # Errors
     /// [`RunError::State`] when idle, done or already paused; I/O errors.
     pub fn pause(&mut self, reason: &str) -> Result<(), RunError> {
-        let trial = match self.state {
-            RunnerState::Training(k) | RunnerState::Trial(k) => Some(k),
-            RunnerState::Waiting(_) => None,
-            s => return Err(RunError::State(format!("cannot pause while {s}"))),
-        };
-        self.store_mut()?.pause(reason)?;
-        self.before_pause = Some(self.state);
-        self.state = RunnerState::Paused(trial);
-        Ok(())
+        self.core.pause(reason)
     }
 
     /// Ends a pause (journaled): continues the waiting trial, or begins the
@@ -353,23 +260,10 @@ impl<S: Station> SessionRunner<S> {
         &mut self,
         participant: &mut P,
     ) -> Result<RunnerEvents, RunError> {
-        let RunnerState::Paused(trial) = self.state else {
-            return Err(RunError::State(format!(
-                "cannot resume while {}",
-                self.state
-            )));
-        };
-        self.store_mut()?.resume()?;
         let mut ev = RunnerEvents::default();
-        match trial {
-            Some(_) => {
-                self.state = self.before_pause.take().unwrap_or(RunnerState::Idle);
-                ev.needs_service = self.engine.end().is_some();
-            }
-            None => {
-                self.before_pause = None;
-                self.next_or_wait(participant, &mut ev)?;
-            }
+        match self.core.resume()? {
+            Resumed::Continue => ev.needs_service = self.engine.end().is_some(),
+            Resumed::Next(next) => self.apply(next, participant, &mut ev)?,
         }
         Ok(ev)
     }
@@ -381,18 +275,14 @@ impl<S: Station> SessionRunner<S> {
     /// # Errors
     /// [`RunError::State`] without a running trial.
     pub fn abort_trial(&mut self) -> Result<RunnerEvents, RunError> {
-        match self.state {
-            RunnerState::Training(_) | RunnerState::Trial(_) | RunnerState::Paused(Some(_)) => {
-                self.engine.abort();
-                let mut ev = RunnerEvents::default();
-                if let (Some(k), Some(e)) = (self.engine.key(), self.engine.end()) {
-                    ev.ended = Some((k, e));
-                }
-                ev.needs_service = true;
-                Ok(ev)
-            }
-            s => Err(RunError::State(format!("no trial to abort while {s}"))),
+        self.core.check_abort()?;
+        self.engine.abort();
+        let mut ev = RunnerEvents::default();
+        if let (Some(k), Some(e)) = (self.engine.key(), self.engine.end()) {
+            ev.ended = Some((k, e));
         }
+        ev.needs_service = true;
+        Ok(ev)
     }
 
     /// Journals an experimenter note.
@@ -400,8 +290,7 @@ impl<S: Station> SessionRunner<S> {
     /// # Errors
     /// After the session closed; I/O errors.
     pub fn note(&mut self, text: &str) -> Result<(), RunError> {
-        self.store_mut()?.note(text)?;
-        Ok(())
+        self.core.note(text)
     }
 
     /// Runs the whole remaining session headless: start (if idle), then
@@ -417,16 +306,16 @@ impl<S: Station> SessionRunner<S> {
         block: usize,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<(), RunError> {
-        let (mut completed, planned) = match &self.store {
+        let (mut completed, planned) = match self.core.store() {
             Some(s) => (s.completed_count(), s.plan().len()),
             None => return Ok(()),
         };
-        if self.state == RunnerState::Idle {
+        if self.core.state() == RunnerState::Idle {
             self.start(participant)?;
         }
         let block = block.max(1);
         loop {
-            match self.state {
+            match self.core.state() {
                 RunnerState::Done => return Ok(()),
                 RunnerState::Paused(_) => {
                     return Err(RunError::State("paused: resume before run_to_end".into()));

@@ -18,6 +18,8 @@
 //!   its row ([`pairwise_t`], [`pairwise_wilcoxon`] are the strict single
 //!   families);
 //! * [`describe()`] — per-condition n, mean, SD, median, quartiles;
+//! * [`agreement::agreement`] — do two runs of one study (simulation and
+//!   hardware in the loop, scene and full model) agree within sampling error;
 //! * effect-size intervals ([`effect`]): noncentral-F intervals of η² and
 //!   partial η², a bootstrap interval of Kendall's W, d_z's interval.
 //!
@@ -30,6 +32,7 @@
 //! cells, non-finite values) give a [`StatsError`], never a silent NaN.
 //! Equations and references: `docs/THEORY.md`.
 
+pub mod agreement;
 mod anova;
 mod describe;
 mod design;

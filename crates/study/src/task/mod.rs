@@ -31,6 +31,7 @@ mod end;
 mod scene;
 pub mod sim_station;
 pub mod station;
+pub mod trial_kit;
 mod vec2;
 
 use crate::protocol::{Condition, Protocol, Task};

@@ -1,14 +1,15 @@
 //! Study page: load a protocol, enter a pseudonymous participant ID, see the
 //! counterbalanced order, run the training block and the sessions on the
-//! session thread ([`crate::session`]), with an experimenter view (state,
+//! real-time engine ([`crate::session`]: the engine the Rig page connected,
+//! simulated or live), with an experimenter view (state,
 //! trial controls, live metrics, finished rows) and a participant view (the
 //! microscope scene through the simulated camera, or a dark screen for the
 //! blind task) in a separate viewport or inline.
 //!
-//! The page never blocks: commands and the hand position go to the session
-//! thread through lock-free queues; events come back the same way and are
-//! drained every frame by [`StudyPage::background`] (called by the shell
-//! whatever page is shown, so the participant window keeps running).
+//! The page never blocks: commands go to the sitting's worker, the hand
+//! position to the engine, through queues; events come back the same way
+//! and are drained every frame by [`StudyPage::background`] (called by the
+//! shell whatever page is shown, so the participant window keeps running).
 
 use std::path::PathBuf;
 
@@ -21,6 +22,7 @@ use kilotouch_study::seeds::TrialKey;
 use kilotouch_study::task::Scene;
 use kilotouch_study::task::station::HandMapping;
 
+use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::participant_screen::{ParticipantScreen, Routine};
 use crate::gui::scene::{self, SceneFrame, View};
@@ -40,17 +42,6 @@ pub enum ProtocolSource {
     Blind,
     /// A TOML file.
     File,
-}
-
-/// What the shell should do with the Explore engine (one rig at a time).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EngineTransition {
-    /// Nothing to do.
-    Keep,
-    /// A session needs the rig: stop the engine.
-    Stop,
-    /// The session ended: start the engine again.
-    Restart,
 }
 
 /// Which chain D runs in a sitting (recorded in `session.json` and the
@@ -135,7 +126,10 @@ pub struct StudyPage {
     finished: Option<FinishReason>,
     recovery_text: Option<String>,
     trap_target_m: [f64; 2],
-    engine_parked: bool,
+    /// The participant's hand to send to the engine (mouse drags).
+    pending_hand: Option<[f64; 2]>,
+    /// The rig of the sitting (`sim`, `serial:PATH`), its loop delay.
+    rig_used: Option<String>,
 }
 
 impl Default for StudyPage {
@@ -187,7 +181,8 @@ impl StudyPage {
             finished: None,
             recovery_text: None,
             trap_target_m: [0.0; 2],
-            engine_parked: false,
+            pending_hand: None,
+            rig_used: None,
         }
     }
 
@@ -223,34 +218,13 @@ impl StudyPage {
         self.error.as_deref()
     }
 
-    /// Tells the shell what to do with the Explore engine; call every frame
-    /// with whether the engine is running.
-    pub fn engine_transition(&mut self, engine_running: bool) -> EngineTransition {
-        if self.session.is_some() {
-            if engine_running {
-                self.engine_parked = true;
-                return EngineTransition::Stop;
-            }
-        } else if self.engine_parked {
-            self.engine_parked = false;
-            return EngineTransition::Restart;
-        }
-        EngineTransition::Keep
-    }
-
-    /// The shell's emergency stop: abort the running trial and pause; the
-    /// sitting cannot resume until the stop is reset through the shell's
+    /// The shell pressed the engine's emergency stop: a running sitting
+    /// aborts its trial and pauses (the engine's driver reports it); it
+    /// cannot resume until the stop is reset through the shell's
     /// confirmation ([`StudyPage::release_emergency_stop`]).
     pub fn emergency_stop(&mut self) {
         if self.session.is_some() {
             self.estop_latched = true;
-        }
-        if let Some(s) = &mut self.session
-            && !s.send(SessionCommand::EmergencyStop)
-        {
-            // The queue is full only if the thread is gone or stuck: end it.
-            self.session = None;
-            self.error = Some("emergency stop: session ended".into());
         }
     }
 
@@ -269,12 +243,6 @@ impl StudyPage {
         self.estop_latched
     }
 
-    /// Hands an unresolved emergency stop of a finished sitting to the
-    /// shell (the engine that takes the rig back starts latched).
-    pub fn take_estop_latch(&mut self) -> bool {
-        self.session.is_none() && std::mem::take(&mut self.estop_latched)
-    }
-
     /// The experimenter confirmed that the rig is safe (the shell's reset
     /// dialog): Resume is possible again (it is not pressed for them).
     pub fn release_emergency_stop(&mut self) {
@@ -291,7 +259,7 @@ impl StudyPage {
             .map(|p| p.id.clone())
             .unwrap_or_default();
         let state = self.state.unwrap_or(RunnerState::Idle);
-        Some(format!("rig in use by the study sitting: {id} · {state}"))
+        Some(format!("study sitting: {id} · {state}"))
     }
 
     /// The participant's screen (while a sitting runs, and its end screen
@@ -329,8 +297,8 @@ impl StudyPage {
 
     /// Drains the session's events and shows the participant window (when
     /// separate). Call every frame, whatever page is shown.
-    pub fn background(&mut self, ctx: &egui::Context) {
-        self.poll();
+    pub fn background(&mut self, ctx: &egui::Context, mut engine: Option<&mut EngineHandle>) {
+        self.poll(engine.as_deref_mut());
         if self.session.is_some() {
             ctx.request_repaint();
         }
@@ -352,13 +320,26 @@ impl StudyPage {
                     .show(ui, |ui| self.participant_view(ui, true));
             });
         }
+        self.flush_hand(engine);
     }
 
-    fn poll(&mut self) {
+    /// The participant's hand (mouse) to the engine.
+    fn flush_hand(&mut self, engine: Option<&mut EngineHandle>) {
+        if let (Some(h), Some(e)) = (self.pending_hand, engine)
+            && e.set_hand(h)
+        {
+            self.pending_hand = None;
+        }
+    }
+
+    fn poll(&mut self, engine: Option<&mut EngineHandle>) {
         let Some(s) = &mut self.session else {
             return;
         };
         let events = s.poll();
+        if let Some(e) = engine.as_deref() {
+            self.health = s.health(e);
+        }
         let mut end = None;
         for e in events {
             match e {
@@ -372,10 +353,7 @@ impl StudyPage {
                     self.current = Some((key, scene));
                     self.telemetry = None;
                     self.trap_target_m = scene.start_m;
-                    let hand = self.mapping.to_hand(scene.start_m);
-                    if let Some(s) = &mut self.session {
-                        s.set_hand(hand);
-                    }
+                    self.pending_hand = Some(self.mapping.to_hand(scene.start_m));
                     self.log.push(format!("started {key}"));
                 }
                 SessionEvent::TrialEnded(k, e) => {
@@ -389,7 +367,6 @@ impl StudyPage {
                     self.rows.push(*row);
                 }
                 SessionEvent::Telemetry(t) => self.telemetry = Some(t),
-                SessionEvent::Health(h) => self.health = h,
                 SessionEvent::Noted(n) => self.log.push(format!("note: {n}")),
                 SessionEvent::Error(m) => {
                     self.log.push(format!("error: {m}"));
@@ -415,7 +392,14 @@ impl StudyPage {
                 _ => self.screen = None,
             }
             self.finished = Some(r);
-            self.session = None;
+            // The engine goes back to free exploration (its driver, pacing
+            // and chain as before the sitting).
+            if let Some(s) = self.session.take() {
+                match engine {
+                    Some(e) => drop(s.close(e)),
+                    None => drop(s),
+                }
+            }
             self.current = None;
             self.folder = None;
             self.run_all = false;
@@ -535,8 +519,20 @@ impl StudyPage {
         ui.label(RichText::new(trap).weak());
     }
 
-    fn open_session(&mut self, env: &mut PageEnv<'_>, resume: bool) {
+    fn open_session(
+        &mut self,
+        env: &mut PageEnv<'_>,
+        engine: Option<&mut EngineHandle>,
+        resume: bool,
+    ) {
         self.error = None;
+        let Some(engine) = engine else {
+            self.error = Some(
+                "no rig is connected: connect the simulated rig or a live rig on the Rig page"
+                    .into(),
+            );
+            return;
+        };
         self.finished = None;
         self.screen = None;
         let out = PathBuf::from(self.out_text.trim());
@@ -582,8 +578,15 @@ impl StudyPage {
         let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
         opts.calibration = calibration;
         opts.trap_calibration = env.trap_applied.cloned();
-        opts.participant = self.kind;
-        opts.speed = if self.kind == ParticipantKind::Simulated {
+        let kind = if engine.is_live() {
+            ParticipantKind::Handle
+        } else if self.kind == ParticipantKind::Handle {
+            ParticipantKind::Mouse
+        } else {
+            self.kind
+        };
+        opts.participant = kind;
+        opts.speed = if kind == ParticipantKind::Simulated {
             self.speed
         } else {
             Speed::RealTime
@@ -593,10 +596,17 @@ impl StudyPage {
         // simulated participant paced like one); a fast dry run skips them.
         opts.screens = opts.speed == Speed::RealTime;
         let opts_screens = opts.screens;
-        match SessionHandle::spawn(opts) {
+        match SessionHandle::spawn(opts, engine) {
             Ok(mut h) => {
                 let info = h.info().clone();
                 self.mapping = info.mapping;
+                self.rig_used = Some(match &info.device {
+                    Some(d) => format!(
+                        "{} — {} (loop delay {:.1} ms)",
+                        info.rig, d.name, d.loop_delay_ms
+                    ),
+                    None => "the simulated rig".to_owned(),
+                });
                 self.rows = info
                     .rows
                     .iter()
@@ -618,7 +628,7 @@ impl StudyPage {
                     self.screen = Some(ParticipantScreen::new(
                         info.protocol.clone(),
                         orders,
-                        self.kind == ParticipantKind::Mouse,
+                        kind != ParticipantKind::Simulated,
                     ));
                 }
                 self.protocol = Some(info.protocol);
@@ -647,7 +657,12 @@ impl StudyPage {
     }
 
     /// Draw the page.
-    pub fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+    pub fn ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        env: &mut PageEnv<'_>,
+        mut engine: Option<&mut EngineHandle>,
+    ) {
         if !self.out_seeded {
             self.out_seeded = true;
             if self.out_text.is_empty()
@@ -656,7 +671,7 @@ impl StudyPage {
                 self.out_text = d.display().to_string();
             }
         }
-        self.poll();
+        self.poll(engine.as_deref_mut());
         if self.autostart && self.session.is_none() {
             self.load_protocol();
             self.autostart = false;
@@ -674,7 +689,7 @@ impl StudyPage {
                     .map(|p| p.id.clone())
                     .unwrap_or_default(),
             };
-            self.open_session(env, resume);
+            self.open_session(env, engine.as_deref_mut(), resume);
             self.send(SessionCommand::Start);
         }
         ui.heading("Study");
@@ -682,7 +697,7 @@ impl StudyPage {
             .id_salt("study-scroll")
             .show(ui, |ui| {
                 if self.session.is_none() {
-                    self.setup_ui(ui, env);
+                    self.setup_ui(ui, env, engine.as_deref_mut());
                 } else {
                     self.running_ui(ui);
                 }
@@ -695,9 +710,16 @@ impl StudyPage {
                 ui.separator();
                 self.rows_ui(ui);
             });
+        self.flush_hand(engine);
     }
 
-    fn setup_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+    fn setup_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        env: &mut PageEnv<'_>,
+        mut engine: Option<&mut EngineHandle>,
+    ) {
+        self.rig_ui(ui, env, engine.as_deref());
         ui.horizontal(|ui| {
             ui.label("Protocol:");
             ui.radio_value(&mut self.source, ProtocolSource::Paper, "paper (built-in)");
@@ -831,14 +853,27 @@ impl StudyPage {
                 ui.weak("choose an output folder");
             }
         }
+        let live = engine.as_deref().is_some_and(EngineHandle::is_live);
         ui.horizontal(|ui| {
             ui.label("At the handle:");
-            ui.radio_value(&mut self.kind, ParticipantKind::Mouse, "person (mouse)");
-            ui.radio_value(
-                &mut self.kind,
-                ParticipantKind::Simulated,
-                "simulated participant",
-            );
+            if live {
+                self.kind = ParticipantKind::Handle;
+                ui.radio_value(
+                    &mut self.kind,
+                    ParticipantKind::Handle,
+                    "the participant at the live rig's handle",
+                );
+            } else {
+                if self.kind == ParticipantKind::Handle {
+                    self.kind = ParticipantKind::Mouse;
+                }
+                ui.radio_value(&mut self.kind, ParticipantKind::Mouse, "person (mouse)");
+                ui.radio_value(
+                    &mut self.kind,
+                    ParticipantKind::Simulated,
+                    "simulated participant",
+                );
+            }
             ui.separator();
             let fast_ok = self.kind == ParticipantKind::Simulated;
             if !fast_ok {
@@ -890,11 +925,12 @@ impl StudyPage {
             if ui
                 .add_enabled(can, egui::Button::new("Open session"))
                 .on_hover_text(
-                    "open the output folder and wait for Start (stops the Explore engine)",
+                    "open the output folder and wait for Start (the engine runs the sitting's \
+                     trials; Explore shows them)",
                 )
                 .clicked()
             {
-                self.open_session(env, false);
+                self.open_session(env, engine.as_deref_mut(), false);
             }
             let resume_text = match &next {
                 Some(n) => format!("Resume at trial {} ({})", n.key, n.participant),
@@ -927,7 +963,7 @@ impl StudyPage {
             }
         });
         if resume {
-            self.open_session(env, true);
+            self.open_session(env, engine.as_deref_mut(), true);
         }
         if run_all {
             self.run_all = true;
@@ -936,7 +972,7 @@ impl StudyPage {
             {
                 self.participant_text = first.id.clone();
             }
-            self.open_session(env, resume);
+            self.open_session(env, engine.as_deref_mut(), resume);
             if self.session.is_some() {
                 self.send(SessionCommand::Start);
             } else {
@@ -952,6 +988,45 @@ impl StudyPage {
             });
         }
         self.messages_ui(ui);
+    }
+
+    /// Which rig the sitting runs on: the simulated rig, or the live rig
+    /// the Rig page connects (the engine switches rigs).
+    fn rig_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>, engine: Option<&EngineHandle>) {
+        ui.horizontal(|ui| {
+            let l = ui.label("Rig:");
+            let (live, label) = match engine {
+                Some(e) if e.is_live() => (
+                    true,
+                    format!(
+                        "{} on {} (loop delay {:.1} ms)",
+                        e.identity().name,
+                        e.spec().describe(),
+                        f64::from(e.loop_delay_samples()) / e.sample_rate_hz() * 1e3
+                    ),
+                ),
+                Some(_) => (false, "the simulated rig".to_owned()),
+                None => (false, "none connected".to_owned()),
+            };
+            ui.label(RichText::new(label).strong()).labelled_by(l.id);
+            if live {
+                if ui
+                    .button("Use the simulated rig")
+                    .on_hover_text("disconnect the live rig and run the sitting in simulation")
+                    .clicked()
+                {
+                    env.requests.push(ShellRequest::ConnectRig(
+                        kilotouch_rig::device::RigSpec::Sim,
+                    ));
+                }
+            } else if ui
+                .button("Use the connected rig…")
+                .on_hover_text("choose and connect a live rig on the Rig page")
+                .clicked()
+            {
+                env.requests.push(ShellRequest::ShowRigPage);
+            }
+        });
     }
 
     fn messages_ui(&mut self, ui: &mut egui::Ui) {
@@ -990,6 +1065,9 @@ impl StudyPage {
                 self.committed, self.planned
             ));
         });
+        if let Some(r) = &self.rig_used {
+            ui.label(format!("rig: {r}"));
+        }
         if let Some(r) = &self.recovery_text {
             ui.weak(format!("folder: {r}"));
         }
@@ -1210,10 +1288,7 @@ impl StudyPage {
             let k = view.um_per_pt * 1e-6;
             self.trap_target_m[0] += f64::from(d.x) * k;
             self.trap_target_m[1] -= f64::from(d.y) * k;
-            let hand = self.mapping.to_hand(self.trap_target_m);
-            if let Some(s) = &mut self.session {
-                s.set_hand(hand);
-            }
+            self.pending_hand = Some(self.mapping.to_hand(self.trap_target_m));
         }
         let frame = self.telemetry.and_then(|t| t.frame);
         if let Some(f) = frame {

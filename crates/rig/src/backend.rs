@@ -1,66 +1,97 @@
-//! The rig behind the engine: the simulated rig, a serial DAQ (or its
-//! emulator on a pty), or an audio interface (cargo feature `audio`),
-//! chosen with the `--rig` syntax of [`RigSpec`] (`sim`,
-//! `serial:PATH[,baud=N][,timeout-ms=N]`, `audio[:DEVICE]`).
+//! Opening a rig from its `--rig` specification: the one place that turns a
+//! [`RigSpec`] (`sim`, `serial:PATH[,…]`, `audio[:DEVICE]`) into a running
+//! device, for the engine, the study's live station, `rig check`,
+//! `calibrate` and the trap-calibration recorder alike.
 //!
-//! [`EngineRig`] is one concrete type for all of them (an enum, so the
-//! engine's closed loop stays monomorphic and nothing is boxed per call).
-//! On the simulated rig the hand is the GUI's mouse ([`EngineRig::set_hand`]);
-//! on a live rig it is the real handle, read by the encoders, and hand
-//! requests are ignored.
-//!
-//! The engine exchanges frames with a *live* rig in blocks of
-//! `block_len` samples (module docs of [`crate::engine`]): one round trip
-//! per block, not per sample.
+//! [`AnyRig`] is one concrete type for every backend (an enum, so a closed
+//! loop over it stays monomorphic and nothing is boxed per call). On the
+//! simulated rig the hand is set by software ([`AnyRig::set_hand`]); on a
+//! live rig it is the real handle, read by the encoders, and hand requests
+//! are ignored.
 
-use kilotouch_rig::device::RigSpec;
-use kilotouch_rig::device::{BlockReport, RigFault, RigIdentity, RigKind, RigStatus};
-use kilotouch_rig::error::RigError;
-use kilotouch_rig::serial::SerialRig;
-use kilotouch_rig::{ActuatorFrame, Rig, RigConfig, SensorFrame, SimRig};
+use crate::config::RigConfig;
+use crate::device::{
+    ActuatorFrame, BlockReport, HostInfo, Rig, RigFault, RigIdentity, RigKind, RigSpec, RigStatus,
+    SensorFrame,
+};
+use crate::error::RigError;
+use crate::serial::SerialRig;
+use crate::sim::SimRig;
 
-/// The device (see [`EngineRig`]).
+/// The device behind an [`AnyRig`].
 #[derive(Debug)]
 pub enum Device {
-    /// The simulated rig (batch; the engine paces it).
+    /// The simulated rig (batch: the caller paces it, or wall-clock paced
+    /// when opened with [`AnyRig::sim_paced`]).
     Sim(Box<SimRig>),
-    /// A DAQ on a serial port (paced by the device).
+    /// A DAQ on a serial port, or its emulator on a pty (paced by the device).
     Serial(Box<SerialRig>),
-    /// An audio interface (paced by the device's clock).
+    /// An audio interface (paced by the device's clock; cargo feature `audio`).
     #[cfg(feature = "audio")]
-    Audio(Box<kilotouch_rig::audio::AudioRig>),
+    Audio(Box<crate::audio::AudioRig>),
 }
 
-/// The engine's rig: a [`Device`] and the next sequence number (module docs).
+/// Any rig (module docs): a [`Device`], the specification it was opened
+/// from, and the next sequence number.
 #[derive(Debug)]
-pub struct EngineRig {
+pub struct AnyRig {
     dev: Device,
     spec: RigSpec,
     next_seq: u64,
 }
 
-impl EngineRig {
-    /// The simulated rig of `cfg` (batch: the engine paces it).
+/// Open the rig `spec` names. A serial rig handshakes here (blocks up to the
+/// handshake time-out, 2 s, when a device does not answer); an audio rig
+/// opens its devices; the simulated rig is built from `cfg` in batch mode
+/// (the caller paces it). `cfg` also gives the audio rig's limits.
+///
+/// # Errors
+/// The device cannot be opened or refuses the handshake; an invalid rig
+/// file; an audio rig in a build without the `audio` feature.
+pub fn open_rig(spec: &RigSpec, cfg: &RigConfig) -> Result<AnyRig, RigError> {
+    AnyRig::open(spec, cfg)
+}
+
+impl AnyRig {
+    /// The simulated rig of `cfg` in batch mode (the caller paces it).
+    ///
+    /// # Errors
+    /// An invalid rig file.
     pub fn sim(cfg: &RigConfig) -> Result<Self, RigError> {
-        Ok(Self {
-            dev: Device::Sim(Box::new(SimRig::new(cfg)?)),
-            spec: RigSpec::Sim,
-            next_seq: 0,
-        })
+        Ok(Self::from_sim(SimRig::new(cfg)?))
     }
 
-    /// Open the rig `spec` names. A serial rig handshakes here (blocks up to
-    /// the handshake timeout, 2 s, when a device does not answer); an audio
-    /// rig opens its devices. `cfg` gives the simulated rig and the audio
-    /// rig's limits.
+    /// The simulated rig of `cfg`, paced by the wall clock (it sleeps to
+    /// each frame's time and tolerates `max_lag_s` of lag), as a device
+    /// would be: for checks that time the stream (`rig check --rig sim`).
+    ///
+    /// # Errors
+    /// An invalid rig file.
+    pub fn sim_paced(cfg: &RigConfig, max_lag_s: f64) -> Result<Self, RigError> {
+        Ok(Self::from_sim(SimRig::paced(cfg, max_lag_s)?))
+    }
+
+    /// Wrap a simulated rig.
+    pub fn from_sim(rig: SimRig) -> Self {
+        Self {
+            dev: Device::Sim(Box::new(rig)),
+            spec: RigSpec::Sim,
+            next_seq: 0,
+        }
+    }
+
+    /// See [`open_rig`].
+    ///
+    /// # Errors
+    /// As [`open_rig`].
     pub fn open(spec: &RigSpec, cfg: &RigConfig) -> Result<Self, RigError> {
         let dev = match spec {
             RigSpec::Sim => return Self::sim(cfg),
             RigSpec::Serial(c) => Device::Serial(Box::new(SerialRig::open(c)?)),
             #[cfg(feature = "audio")]
             RigSpec::Audio(d) => {
-                let ac = kilotouch_rig::audio::AudioRigConfig::new(d.as_deref(), cfg);
-                Device::Audio(Box::new(kilotouch_rig::audio::AudioRig::open(&ac)?))
+                let ac = crate::audio::AudioRigConfig::new(d.as_deref(), cfg);
+                Device::Audio(Box::new(crate::audio::AudioRig::open(&ac)?))
             }
             #[cfg(not(feature = "audio"))]
             RigSpec::Audio(_) => return Err(RigSpec::audio_not_built()),
@@ -82,9 +113,23 @@ impl EngineRig {
         &self.dev
     }
 
+    /// The device, mutably (backend-specific calls: link statistics,
+    /// deadlines).
+    pub fn device_mut(&mut self) -> &mut Device {
+        &mut self.dev
+    }
+
     /// A live rig (the hand is the real handle; the device paces the loop)?
     pub fn is_live(&self) -> bool {
         !matches!(self.dev, Device::Sim(_))
+    }
+
+    /// The simulated rig, if this is one.
+    pub fn as_sim(&self) -> Option<&SimRig> {
+        match &self.dev {
+            Device::Sim(r) => Some(r),
+            _ => None,
+        }
     }
 
     /// Sequence number of the next frame.
@@ -104,11 +149,27 @@ impl EngineRig {
         }
     }
 
+    /// Swap the simulated rig for `other` (a fresh one for a new trial,
+    /// built off the real-time path); the old one is left in `other` to be
+    /// dropped there. Returns `false` (nothing swapped) on a live rig.
+    pub fn swap_sim(&mut self, other: &mut Box<SimRig>) -> bool {
+        match &mut self.dev {
+            Device::Sim(r) => {
+                std::mem::swap(r, other);
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Reconnect after a disconnect: `None` reopens the same device
     /// ([`SerialRig::reconnect`] for a serial rig; the simulated rig has
     /// nothing to reopen), `Some(spec)` opens that rig instead (e.g. the
     /// emulator restarted on another pty). The rig is idle afterwards
     /// (`start` to resume). Allocates: call only while the loop is stopped.
+    ///
+    /// # Errors
+    /// As [`open_rig`].
     pub fn reconnect(&mut self, spec: Option<&RigSpec>, cfg: &RigConfig) -> Result<(), RigError> {
         match spec {
             Some(s) if *s != self.spec => {
@@ -152,7 +213,7 @@ macro_rules! each {
     };
 }
 
-impl Rig for EngineRig {
+impl Rig for AnyRig {
     fn identity(&self) -> &RigIdentity {
         each!(&self.dev, r => r.identity())
     }
@@ -195,6 +256,18 @@ impl Rig for EngineRig {
 
     fn pop_fault(&mut self) -> Option<RigFault> {
         each!(&mut self.dev, r => r.pop_fault())
+    }
+
+    fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        each!(&self.dev, r => r.loop_delay_samples(block_len))
+    }
+
+    fn round_trip_s(&self) -> Option<f64> {
+        each!(&self.dev, r => r.round_trip_s())
+    }
+
+    fn send_info(&mut self, info: &HostInfo) -> Result<(), RigError> {
+        each!(&mut self.dev, r => r.send_info(info))
     }
 }
 

@@ -1,0 +1,272 @@
+//! Hardware in the loop on one machine: a participant's sitting on the DAQ
+//! emulator (`kilotouch emulate daq --pty --participant operator:SEED`,
+//! the study's simulated participant at the emulated handle) through the
+//! real-time engine, as a lab runs it on its rig — `kilotouch study run
+//! --rig serial:PTY`. The folder, journal, raw files and `session.json` are
+//! those of every study; a device killed mid-trial ends the sitting with
+//! the device's name and `--resume` on a new device continues at the
+//! aborted trial; a link too slow for the loop's margins is refused with
+//! the numbers.
+
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use std::collections::HashSet;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::{Emulator, kilotouch};
+use kilotouch::engine::{EngineHandle, EngineOptions};
+use kilotouch::session::{
+    FinishReason, ParticipantKind, SessionCommand, SessionEvent, SessionHandle, SessionOptions,
+};
+use kilotouch_rig::RigConfig;
+use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
+use kilotouch_study::protocol::Protocol;
+use serde_json::Value;
+
+/// 2 participants × 3 conditions × 1 test trial, 1 practice trial per
+/// condition, 2 s time-outs: P01's sitting is 6 trials.
+const TINY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny.toml");
+
+fn tiny() -> Protocol {
+    Protocol::load(Path::new(TINY)).unwrap()
+}
+
+/// The emulated DAQ with the simulated participants of the protocol's
+/// study seed at its handle.
+fn device(extra: &[&str]) -> Emulator {
+    let p = format!("operator:{}", tiny().seeds.study);
+    let mut args = vec!["--participant", p.as_str()];
+    args.extend_from_slice(extra);
+    Emulator::spawn("daq", &args)
+}
+
+/// The `--rig` of `dev` with a command lead of one block: 20 samples of
+/// loop delay (2 ms), inside D's margins. The automatic lead sizes itself
+/// from round trips measured at connection, which a loaded test machine
+/// can stretch past what a USB link has; a fixed lead keeps the loop delay
+/// (and so the clearance) the same on every run.
+fn rig_of(dev: &Emulator) -> String {
+    format!("{},lead=1", dev.rig())
+}
+
+fn rows(dir: &Path) -> Vec<TrialRow> {
+    read_trials(&dir.join(TRIALS_FILE))
+        .map(|r| r.rows)
+        .unwrap_or_default()
+}
+
+fn study_run(rig: &str, out: &Path, resume: bool) -> std::process::Output {
+    let out_s = out.to_str().unwrap();
+    let mut args = vec![
+        "study",
+        "run",
+        "--protocol",
+        TINY,
+        "--rig",
+        rig,
+        "--participant",
+        "P01",
+        "--out",
+        out_s,
+        "--json",
+    ];
+    if resume {
+        args.push("--resume");
+    }
+    kilotouch(&args)
+}
+
+#[test]
+fn a_whole_participant_on_emulated_hardware() {
+    let dev = device(&[]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let run = study_run(&rig_of(&dev), &out, false);
+    assert!(
+        run.status.success(),
+        "study run failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["finish"], "participant_done", "{report}");
+    assert_eq!(report["committed"], 6, "{report}");
+    assert!(
+        report["device"]["spec"]
+            .as_str()
+            .is_some_and(|s| s.contains(&dev.path)),
+        "{report}"
+    );
+    // Training (3 practice trials) then the 3 sessions, every row of P01.
+    let got = rows(&out);
+    assert_eq!(got.len(), 6);
+    assert!(got.iter().all(|r| r.participant == "P01"));
+    assert_eq!(
+        got.iter()
+            .filter(|r| r.phase == kilotouch_study::seeds::Phase::Practice)
+            .count(),
+        3
+    );
+    for r in &got {
+        assert!(r.time_s.is_some_and(|t| t > 0.0 && t <= 2.1), "{r:?}");
+        assert!(
+            !r.raw_file.is_empty() && out.join(&r.raw_file).is_file(),
+            "{}",
+            r.raw_file
+        );
+    }
+    // session.json names the device and its measured loop delay.
+    let session: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let d = &session["sittings"][0]["device"];
+    assert!(
+        d["spec"].as_str().is_some_and(|s| s.contains(&dev.path)),
+        "{session}"
+    );
+    assert_eq!(d["kind"], "SerialDaq");
+    let delay = d["loop_delay_ms"].as_f64().unwrap();
+    let samples = d["loop_delay_samples"].as_u64().unwrap();
+    assert!((delay - samples as f64 * 0.1).abs() < 1e-9, "{d}");
+    // Block (10) + one block of command lead.
+    assert_eq!(samples, 20, "{d}");
+    assert!(d["round_trip_ms"].as_f64().unwrap() > 0.0, "{d}");
+    // The journal: the sitting's opening with the device, six completed
+    // trials, a clean end.
+    let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();
+    assert!(journal.contains(&dev.path), "{journal}");
+    assert_eq!(journal.matches("\"trial_completed\"").count(), 6);
+    assert!(journal.contains("session_done"));
+}
+
+#[test]
+fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() {
+    let mut dev = device(&[]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let rig = RigConfig::default();
+    let mut engine =
+        EngineHandle::spawn_spec(&rig, &dev.spec(",lead=1"), EngineOptions::default()).unwrap();
+    let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
+    opts.participant = ParticipantKind::Handle;
+    opts.only_participant = Some(0);
+    let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
+    assert!(s.send(SessionCommand::Start));
+    // Wait for the second trial to be under way (one row committed).
+    let t0 = Instant::now();
+    let (mut committed, mut started) = (Vec::new(), 0);
+    while started < 2 && t0.elapsed() < Duration::from_secs(30) {
+        let _ = engine.poll_events();
+        for e in s.poll() {
+            match e {
+                SessionEvent::TrialStarted { .. } => started += 1,
+                SessionEvent::Committed(r) => committed.push(*r),
+                SessionEvent::Finished(r) => panic!("finished early: {r:?}"),
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(started, 2, "the second trial never began");
+    std::thread::sleep(Duration::from_millis(300));
+    // The cable is pulled: the device vanishes mid-trial.
+    dev.kill();
+    let killed = Instant::now();
+    let reason = loop {
+        assert!(
+            killed.elapsed() < Duration::from_secs(10),
+            "the sitting did not end"
+        );
+        let _ = engine.poll_events();
+        if let Some(r) = s.poll().into_iter().find_map(|e| match e {
+            SessionEvent::Committed(r) => {
+                committed.push(*r);
+                None
+            }
+            SessionEvent::Finished(r) => Some(r),
+            _ => None,
+        }) {
+            break r;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    let ended_s = killed.elapsed().as_secs_f64();
+    let FinishReason::Failed(why) = reason else {
+        panic!("{reason:?}")
+    };
+    assert!(
+        why.contains(&dev.path),
+        "the reason names the device: {why}"
+    );
+    assert!(
+        ended_s < 5.0,
+        "the sitting ended {ended_s:.2} s after the kill"
+    );
+    // Outputs held at zero: the engine's loop stopped with the safety
+    // layer tripped.
+    let _ = s.close(&mut engine);
+    let t1 = Instant::now();
+    while t1.elapsed() < Duration::from_secs(2) {
+        let _ = engine.poll_events();
+        if engine.health().is_some_and(|h| !h.running) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(
+        engine
+            .health()
+            .is_some_and(|h| !h.running && h.safety.latched())
+    );
+    engine.shutdown();
+    // Nothing committed is lost; the trial in progress has no row.
+    let on_disk = rows(&out);
+    assert_eq!(on_disk, committed);
+    assert!(!committed.is_empty() && committed.len() < 6);
+    // A new device (a new pty): --resume continues at the aborted trial.
+    let dev2 = device(&[]);
+    let run = study_run(&rig_of(&dev2), &out, true);
+    assert!(
+        run.status.success(),
+        "resume failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let all = rows(&out);
+    assert_eq!(all.len(), 6, "{all:?}");
+    let keys: HashSet<_> = all
+        .iter()
+        .map(|r| (r.phase, r.condition, r.trial))
+        .collect();
+    assert_eq!(keys.len(), 6, "a duplicate row: {all:?}");
+    assert_eq!(&all[..committed.len()], &committed[..]);
+    eprintln!("the sitting ended {ended_s:.3} s after the device was killed");
+}
+
+#[test]
+fn a_link_too_slow_for_the_margins_is_refused_with_the_numbers() {
+    // 1 ms each way: a round trip of at least 2 ms, an automatic lead of at
+    // least 4 blocks, a loop delay of at least 5 ms: D's phase margin is
+    // below the rig file's 30° (THEORY.md, loop delay: 24° at 5 ms). A
+    // round trip stretched by a loaded machine only lengthens the delay.
+    let dev = device(&["--link-delay-ms", "1"]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let run = study_run(&dev.rig(), &out, false);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("D has a phase margin of") || err.contains("D is unstable (phase margin"),
+        "{err}"
+    );
+    assert!(
+        err.contains("extra loop delay of") && err.contains(" ms ("),
+        "names the delay: {err}"
+    );
+    assert!(
+        err.contains("largest safe force scale at that delay"),
+        "names the largest safe force scale: {err}"
+    );
+    // Nothing was written.
+    assert!(rows(&out).is_empty());
+}
