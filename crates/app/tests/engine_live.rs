@@ -388,8 +388,7 @@ fn the_loop_delay_of_a_live_rig_is_in_the_stability_clearance() {
     // the rig file's 30°: refused before the loop runs.
     let emu = Emulator::start();
     let err = EngineHandle::spawn_spec(&cfg, &emu.spec(",lead=8"), opts())
-        .err()
-        .expect("a 9 ms loop delay is refused")
+        .expect_err("a 9 ms loop delay is refused")
         .to_string();
     assert!(err.contains("ms") && err.contains("89"), "{err}");
 }

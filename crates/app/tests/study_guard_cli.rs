@@ -448,11 +448,14 @@ fn a_symbolic_link_in_a_study_folder_is_refused_and_never_written_through() {
 /// naming the field: the study seed, the protocol (re-derived from its
 /// text, which its SHA-256 covers), the protocol text itself, and any
 /// other field (covered by the per-field checksums).
+/// An edit of `session.json`.
+type Edit = fn(&mut Value);
+
 #[test]
 fn an_edited_session_json_is_refused_naming_the_field() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = write_protocol(tmp.path(), 2);
-    let cases: [(&str, fn(&mut Value)); 5] = [
+    let cases: [(&str, Edit); 5] = [
         ("seeds.study", |j| j["seeds"]["study"] = 8.into()),
         ("protocol.trials_per_session", |j| {
             j["protocol"]["trials_per_session"] = 3.into();

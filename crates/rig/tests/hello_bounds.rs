@@ -75,9 +75,12 @@ fn the_emulators_hello_is_accepted() {
     open_lying(|_| {}).unwrap();
 }
 
+/// An edit of the emulator's HELLO.
+type Edit = fn(&mut Hello);
+
 #[test]
 fn each_absurd_hello_value_is_refused_naming_the_field() {
-    let cases: [(&str, fn(&mut Hello)); 6] = [
+    let cases: [(&str, Edit); 6] = [
         ("accel_range_m_s2 = NaN", |h| {
             daq_caps(h).accel_range_m_s2 = f64::NAN;
         }),

@@ -74,7 +74,7 @@ fn frames() -> Vec<u8> {
     let cmds: Vec<DaqCommand> = (0..200)
         .map(|i| DaqCommand {
             force: [i * 160 - 16000, -32768 + i],
-            drive: (i * 37) as i16,
+            drive: i * 37,
         })
         .collect();
     for n in [0, 1, 32, 200] {

@@ -421,10 +421,10 @@ impl SittingDriver {
     }
 
     fn run_trial(&mut self, ctx: &mut BlockCtx<'_>) -> Result<usize, RigError> {
-        if let Who::Mouse(m) = &mut self.who.inner {
-            if ctx.gui_hand.iter().all(|v| v.is_finite()) {
-                m.hand_m = ctx.gui_hand;
-            }
+        if let Who::Mouse(m) = &mut self.who.inner
+            && ctx.gui_hand.iter().all(|v| v.is_finite())
+        {
+            m.hand_m = ctx.gui_hand;
         }
         let before = self.core.samples();
         let fs = self.fs;

@@ -103,6 +103,9 @@ pub struct RecoveryRecord {
 /// A journal record (`type` member of the line).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
+// One record is built, written and dropped at a time (a few per trial), so
+// the size of the sitting's opening record costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 pub enum Record {
     /// A sitting opened the folder: protocol hash, software version, seeds,
     /// order table.

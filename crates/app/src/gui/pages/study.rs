@@ -972,7 +972,7 @@ impl StudyPage {
             {
                 self.participant_text = first.id.clone();
             }
-            self.open_session(env, engine.as_deref_mut(), resume);
+            self.open_session(env, engine, resume);
             if self.session.is_some() {
                 self.send(SessionCommand::Start);
             } else {
