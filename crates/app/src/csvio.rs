@@ -3,8 +3,8 @@
 //!
 //! Files must have a header row. Cells are parsed as `f64`; surrounding
 //! whitespace is ignored. A missing column, a non-numeric or non-finite cell,
-//! a ragged row, an empty file or more than [`MAX_ROWS`] data rows is an
-//! error, never a panic.
+//! a ragged row, an empty file, a column name used twice in the header or
+//! more than [`MAX_ROWS`] data rows is an error, never a panic.
 
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -84,6 +84,22 @@ pub enum CsvError {
         /// The limit.
         limit: usize,
     },
+    /// Two columns of the header have the same name (which one a command
+    /// would read is ambiguous).
+    #[error(
+        "{path}: the header names column `{name}` twice (columns {first} and {second}); \
+         rename one of them"
+    )]
+    DuplicateColumn {
+        /// File path.
+        path: PathBuf,
+        /// The repeated name.
+        name: String,
+        /// 1-based position of its first occurrence.
+        first: usize,
+        /// 1-based position of the repeat.
+        second: usize,
+    },
     /// The file has a header but no data rows.
     #[error("{path}: no data rows after the header")]
     NoRows {
@@ -159,7 +175,24 @@ pub fn read_header(path: &Path) -> Result<Vec<String>, CsvError> {
         line: e.position().map(|p| p.line()).unwrap_or(0),
         msg: e.to_string(),
     })?;
+    check_unique(headers, path)?;
     Ok(headers.iter().map(str::to_owned).collect())
+}
+
+/// Refuses a header that names one column twice ([`CsvError::DuplicateColumn`]).
+fn check_unique(headers: &csv::StringRecord, path: &Path) -> Result<(), CsvError> {
+    let mut seen = std::collections::HashMap::with_capacity(headers.len());
+    for (i, h) in headers.iter().enumerate() {
+        if let Some(first) = seen.insert(h, i) {
+            return Err(CsvError::DuplicateColumn {
+                path: path.to_owned(),
+                name: h.to_owned(),
+                first: first + 1,
+                second: i + 1,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// As [`read_columns`], from any reader; `path` is used in messages only.
@@ -209,6 +242,7 @@ fn read_bounded<R: std::io::Read>(
             path: path.to_owned(),
         });
     }
+    check_unique(&headers, path)?;
     let available = headers.iter().collect::<Vec<_>>().join(", ");
     let find = |name: &str| {
         headers
@@ -344,5 +378,18 @@ mod tests {
         assert!(e.contains("no data rows"), "{e}");
         let e = read("a\nNaN\n", &["a"], &[]).unwrap_err().to_string();
         assert!(e.contains("not a finite number"), "{e}");
+    }
+
+    /// A header naming a column twice is refused, naming the column and
+    /// both positions, whichever column is asked for.
+    #[test]
+    fn a_repeated_column_name_is_refused_naming_it() {
+        for req in ["x", "y"] {
+            let e = read("x,y,x\n1,2,3\n", &[req], &[]).unwrap_err().to_string();
+            assert_eq!(
+                e,
+                "t.csv: the header names column `x` twice (columns 1 and 3); rename one of them"
+            );
+        }
     }
 }

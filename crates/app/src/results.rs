@@ -611,7 +611,7 @@ impl StudyResults {
                 r.phase == Phase::Test
                     && r.participant == participant
                     && r.condition.code() == condition
-                    && !r.raw_file.is_empty()
+                    && r.has_trusted_raw()
             })
             .map(|r| (r.trial, r.success, self.dir.join(&r.raw_file)))
             .collect()

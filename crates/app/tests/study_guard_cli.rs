@@ -115,8 +115,11 @@ fn a_second_writer_is_refused_at_once_and_the_folder_resumes() {
     assert!(o.status.success(), "{}", stderr(&o));
     let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
     assert_eq!(rows.len(), 3 * 3 * 12);
-    // Released: the folder resumes (nothing left) and the lock file is empty.
-    assert_eq!(std::fs::read_to_string(out.join(LOCK_FILE)).unwrap(), "");
+    // Released: the lock file is gone and the folder resumes (nothing left).
+    assert!(
+        !out.join(LOCK_FILE).exists(),
+        "a clean end removes writer.lock"
+    );
     let o = run(&simulate(
         &proto,
         &out,
@@ -157,6 +160,35 @@ fn the_lock_of_a_killed_writer_is_recognised_as_stale() {
             && text.contains("ended without releasing the folder"),
         "{text}"
     );
+}
+
+/// A writer that died after taking the folder but before creating the
+/// study leaves only its lock record: the next run, which creates the
+/// study, still names it (the state the killed-writer test can hit on a
+/// busy machine, made deterministic).
+#[test]
+fn a_stale_lock_in_a_folder_without_a_study_is_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 1);
+    let out = tmp.path().join("study");
+    std::fs::create_dir(&out).unwrap();
+    let dead = kilotouch_study::export::lock::Holder {
+        pid: 999_999,
+        host: "elsewhere".into(),
+        program: "kilotouch 0.0.1".into(),
+        since_utc: kilotouch_study::export::UtcTime::from_unix_millis(0),
+    };
+    std::fs::write(out.join(LOCK_FILE), serde_json::to_vec(&dead).unwrap()).unwrap();
+    let o = run(&simulate(&proto, &out, &["--no-raw", "--resume"]));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("new study folder")
+            && text.contains("the previous writer, PID 999999")
+            && text.contains("ended without releasing the folder"),
+        "{text}"
+    );
+    assert!(!out.join(LOCK_FILE).exists(), "released cleanly");
 }
 
 /// A resume with another rig file or without raw recording is refused,
@@ -287,15 +319,189 @@ fn a_damaged_raw_file_is_reported_by_name_and_quarantined() {
         "{moved:?}"
     );
     assert!(!cut_path.exists());
-    // The intact files pass: a second resume finds nothing damaged left
-    // other than the files already quarantined (still missing, reported).
-    let j = read_journal(&out.join(JOURNAL_FILE)).unwrap();
-    let flagged = j
-        .entries
-        .iter()
-        .filter(|e| matches!(&e.record, Record::Note { text } if text.starts_with("raw_damaged")))
-        .count();
-    assert_eq!(flagged, 3);
+    // Each quarantine is journaled, and the rows now name where the files
+    // went (empty for the one that was missing): trials.csv no longer
+    // points to files that are not there.
+    let quarantined = |out: &Path| {
+        read_journal(&out.join(JOURNAL_FILE))
+            .unwrap()
+            .entries
+            .iter()
+            .filter(|e| matches!(&e.record, Record::RawQuarantined { .. }))
+            .count()
+    };
+    assert_eq!(quarantined(&out), 3);
+    let after = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(after.len(), rows.len());
+    for (i, r) in after.iter().enumerate() {
+        match i {
+            1 | 4 => {
+                assert!(
+                    r.raw_file.starts_with("recovery/quarantine/") && !r.has_trusted_raw(),
+                    "{}",
+                    r.raw_file
+                );
+                assert!(out.join(&r.raw_file).is_file(), "{}", r.raw_file);
+            }
+            3 => assert_eq!(r.raw_file, "", "a missing file is no longer named"),
+            _ => {
+                assert_eq!(r.raw_file, rows[i].raw_file);
+                assert!(r.has_trusted_raw());
+            }
+        }
+    }
+    // A second resume finds the folder consistent and nothing left to
+    // quarantine.
+    let o = run(&simulate(&proto, &out, &["--resume"]));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("DAMAGED"));
+    assert_eq!(quarantined(&out), 3);
+    assert_eq!(read_trials(&out.join(TRIALS_FILE)).unwrap().rows, after);
+}
+
+/// A symbolic link in place of `writer.lock`, `trials.csv`,
+/// `journal.jsonl`, `session.json` or `raw/` is refused naming it, on a
+/// new folder and on resume, and the link's target outside the folder is
+/// left exactly as it was.
+#[cfg(unix)]
+#[test]
+fn a_symbolic_link_in_a_study_folder_is_refused_and_never_written_through() {
+    use std::os::unix::fs::symlink;
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 1);
+    let names = [
+        LOCK_FILE,
+        TRIALS_FILE,
+        JOURNAL_FILE,
+        kilotouch_study::export::SESSION_FILE,
+        kilotouch_study::export::RAW_DIR,
+    ];
+    let snapshot = |p: &Path| -> Vec<(String, Vec<u8>)> {
+        if p.is_dir() {
+            let mut v: Vec<_> = std::fs::read_dir(p)
+                .unwrap()
+                .map(|e| {
+                    let e = e.unwrap();
+                    (
+                        e.file_name().to_string_lossy().into_owned(),
+                        std::fs::read(e.path()).unwrap(),
+                    )
+                })
+                .collect();
+            v.sort();
+            v
+        } else {
+            vec![(String::new(), std::fs::read(p).unwrap())]
+        }
+    };
+    for (i, name) in names.into_iter().enumerate() {
+        // On a new folder: the link is the only entry.
+        let outside = tmp.path().join(format!("outside-{i}"));
+        if name == kilotouch_study::export::RAW_DIR {
+            std::fs::create_dir(&outside).unwrap();
+            std::fs::write(outside.join("keep.npy"), b"outside data").unwrap();
+        } else {
+            std::fs::write(&outside, b"outside data\n").unwrap();
+        }
+        let before = snapshot(&outside);
+        let out = tmp.path().join(format!("new-{i}"));
+        std::fs::create_dir(&out).unwrap();
+        symlink(&outside, out.join(name)).unwrap();
+        let o = run(&simulate(&proto, &out, &[]));
+        assert_eq!(o.status.code(), Some(1), "{name}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains(&format!("{name}: is a symbolic link")),
+            "{name}: {e}"
+        );
+        assert_eq!(
+            snapshot(&outside),
+            before,
+            "{name}: the target is untouched"
+        );
+
+        // On resume: a finished study whose file is swapped for a link to a
+        // copy outside.
+        let out = tmp.path().join(format!("resume-{i}"));
+        assert!(run(&simulate(&proto, &out, &[])).status.success());
+        let copy = tmp.path().join(format!("copy-{i}"));
+        let inside = out.join(name);
+        if name == LOCK_FILE {
+            std::fs::write(&copy, b"outside data\n").unwrap();
+        } else {
+            std::fs::rename(&inside, &copy).unwrap();
+        }
+        symlink(&copy, &inside).unwrap();
+        let before = snapshot(&copy);
+        let o = run(&simulate(&proto, &out, &["--resume"]));
+        assert_eq!(o.status.code(), Some(1), "{name}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains("is a symbolic link"),
+            "{name}: {}",
+            stderr(&o)
+        );
+        assert_eq!(snapshot(&copy), before, "{name}: the target is untouched");
+    }
+}
+
+/// Fields of `session.json` edited in a folder are refused on resume,
+/// naming the field: the study seed, the protocol (re-derived from its
+/// text, which its SHA-256 covers), the protocol text itself, and any
+/// other field (covered by the per-field checksums).
+/// An edit of `session.json`.
+type Edit = fn(&mut Value);
+
+#[test]
+fn an_edited_session_json_is_refused_naming_the_field() {
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 2);
+    let cases: [(&str, Edit); 5] = [
+        ("seeds.study", |j| j["seeds"]["study"] = 8.into()),
+        ("protocol.trials_per_session", |j| {
+            j["protocol"]["trials_per_session"] = 3.into();
+        }),
+        ("protocol_toml", |j| {
+            let t = j["protocol_toml"]
+                .as_str()
+                .unwrap()
+                .replace("trials_per_session = 2", "trials_per_session = 3");
+            j["protocol_toml"] = t.into();
+        }),
+        ("`rig`", |j| j["rig"] = "another rig".into()),
+        ("`integrity`", |j| {
+            j.as_object_mut().unwrap().remove("integrity");
+            j["integrity"] = serde_json::json!({});
+        }),
+    ];
+    for (i, (field, edit)) in cases.into_iter().enumerate() {
+        let out = tmp.path().join(format!("s{i}"));
+        assert!(run(&simulate(&proto, &out, &["--no-raw"])).status.success());
+        let path = out.join(kilotouch_study::export::SESSION_FILE);
+        let mut j: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        edit(&mut j);
+        std::fs::write(&path, serde_json::to_vec_pretty(&j).unwrap()).unwrap();
+        let journal = std::fs::read(out.join(JOURNAL_FILE)).unwrap();
+        let o = run(&simulate(&proto, &out, &["--no-raw", "--resume"]));
+        assert_eq!(o.status.code(), Some(1), "{field}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains(field) && e.contains("was changed after it was written"),
+            "{field}: {e}"
+        );
+        assert_eq!(
+            std::fs::read(out.join(JOURNAL_FILE)).unwrap(),
+            journal,
+            "{field}: nothing was written"
+        );
+    }
+    // Unedited (only re-formatted), the folder resumes.
+    let out = tmp.path().join("s0-clean");
+    assert!(run(&simulate(&proto, &out, &["--no-raw"])).status.success());
+    let path = out.join(kilotouch_study::export::SESSION_FILE);
+    let j: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    std::fs::write(&path, serde_json::to_vec(&j).unwrap()).unwrap();
+    let o = run(&simulate(&proto, &out, &["--no-raw", "--resume"]));
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 /// Absurd counts and endless inputs end in a clear error naming the limit,

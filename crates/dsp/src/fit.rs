@@ -464,12 +464,21 @@ fn select_points(
             "all {in_band} points in [{fmin}, {fmax}] Hz have zero weight"
         )));
     }
-    if 2 * points.len() < n_unknowns {
+    // Repeated frequencies add no equation: each distinct frequency gives
+    // two real equations (one at DC, where a real-coefficient model is
+    // real), so fewer than the unknowns cannot determine the model.
+    let mut distinct: Vec<f64> = points.iter().map(|p| p.sigma.im).collect();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup();
+    let equations: usize = distinct.iter().map(|&w| if w == 0.0 { 1 } else { 2 }).sum();
+    if equations < n_unknowns {
         return Err(DspError::InvalidInput(format!(
-            "too few points: {} weighted points in band give {} real equations for {} unknowns (nb + 1 + na with nb = {nb}, na = {na})",
+            "too few distinct frequencies: {} weighted points in band at {} distinct \
+             frequencies give {equations} independent real equations for {n_unknowns} unknowns \
+             (nb + 1 + na with nb = {nb}, na = {na}); measure at more frequencies or lower the \
+             orders",
             points.len(),
-            2 * points.len(),
-            n_unknowns
+            distinct.len(),
         )));
     }
     if points.iter().all(|p| p.h.norm() == 0.0) {
@@ -1253,7 +1262,32 @@ mod tests {
         assert!(fit_tf(&f, &h, None, 1, 2, &bad_band).is_err());
         // Too few points: 1 point = 2 equations for 4 unknowns.
         let e = fit_tf(&f[..1], &h[..1], None, 1, 2, &o).unwrap_err();
-        assert!(e.to_string().contains("too few points"), "{e}");
+        assert!(
+            e.to_string().contains("too few distinct frequencies"),
+            "{e}"
+        );
+        // Many points at one frequency are still 2 equations: refused, not
+        // a "converged" fit through one point.
+        let one_f = vec![f[3]; 50];
+        let one_h = vec![h[3]; 50];
+        let e = fit_tf(&one_f, &one_h, None, 1, 2, &o).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("50 weighted points in band at 1 distinct frequencies"),
+            "{e}"
+        );
+        // Two distinct frequencies (4 equations) determine nb = 1, na = 2.
+        let two_f: Vec<f64> = (0..40).map(|i| f[3 + 5 * (i % 2)]).collect();
+        let two_h: Vec<C64> = (0..40).map(|i| h[3 + 5 * (i % 2)]).collect();
+        assert!(fit_tf(&two_f, &two_h, None, 1, 2, &o).is_ok());
+        // DC gives one equation only: DC plus one frequency is 3 < 4.
+        let dc_f = [0.0, f[3]];
+        let dc_h = [C64::new(1.0, 0.0), h[3]];
+        let e = fit_tf(&dc_f, &dc_h, None, 1, 2, &o).unwrap_err();
+        assert!(
+            e.to_string().contains("3 independent real equations"),
+            "{e}"
+        );
         // Bad options.
         let bad_tol = FitOptions {
             tol: f64::NAN,

@@ -475,6 +475,37 @@ impl SafetyConfig {
                 v.push((k, x, format!("must be finite and > 0 (got {x})")));
             }
         }
+        for (k, x, max, unit) in [
+            (
+                "force_norm_max_n",
+                self.force_norm_max_n,
+                MAX_ACTUATOR_LIMIT,
+                "N",
+            ),
+            (
+                "enable_force_max_n",
+                self.enable_force_max_n,
+                MAX_ACTUATOR_LIMIT,
+                "N",
+            ),
+            (
+                "force_slew_max_n_per_s",
+                self.force_slew_max_n_per_s,
+                1e9,
+                "N/s",
+            ),
+            (
+                "handle_velocity_max_m_s",
+                self.handle_velocity_max_m_s,
+                1e3,
+                "m/s",
+            ),
+            ("watchdog_window_s", self.watchdog_window_s, 3600.0, "s"),
+        ] {
+            if x.is_finite() && x > max {
+                v.push((k, x, format!("must be at most {max:e} {unit} (got {x:e})")));
+            }
+        }
         let r = self.ramp_time_s;
         if !(r.is_finite() && (0.0..=3600.0).contains(&r)) {
             v.push((
@@ -649,6 +680,14 @@ fn at_most(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, max: 
 
 /// Highest sample rate of a rig, Hz.
 pub const MAX_SAMPLE_RATE_HZ: f64 = 1e6;
+/// Lowest sample rate of a rig, Hz (the loop and its filters are designed
+/// for audio-band rates; the paper's rig runs at 10 kHz).
+pub const MIN_SAMPLE_RATE_HZ: f64 = 100.0;
+/// Smallest mass of the plant model, kg (1 µg: below it the plant's
+/// state matrices overflow).
+pub const MIN_MASS_KG: f64 = 1e-9;
+/// Smallest stiffness of the plant model, N/m.
+pub const MIN_STIFFNESS_N_PER_M: f64 = 1e-3;
 /// Largest mass of the plant model, kg.
 pub const MAX_MASS_KG: f64 = 1e3;
 /// Largest stiffness of the plant model, N/m.
@@ -657,6 +696,19 @@ pub const MAX_STIFFNESS_N_PER_M: f64 = 1e10;
 pub const MAX_DAMPING_N_S_PER_M: f64 = 1e6;
 /// Most obstacles in a tweezer scene.
 pub const MAX_OBSTACLES: usize = 1_000;
+/// Largest actuator limit of a rig file (Pantograph force per axis and
+/// norm, N; Haptuator drive, V): squares of limited values cannot
+/// overflow, and every command builds its safety limits from the same
+/// bound ([`crate::safety::HardLimits::new`]).
+pub const MAX_ACTUATOR_LIMIT: f64 = 1e6;
+
+/// A problem when `x` is below `min` (a physical bound, stated so that a
+/// tiny value is refused here instead of overflowing a model later).
+fn at_least(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64, min: f64, unit: &str) {
+    if x.is_finite() && x > 0.0 && x < min {
+        v.push((key, format!("must be at least {min:e} {unit} (got {x:e})")));
+    }
+}
 
 /// A problem unless `x` is finite and ≥ 0.
 fn non_negative(v: &mut Vec<(&'static str, String)>, key: &'static str, x: f64) {
@@ -686,7 +738,21 @@ impl RigSection {
             MAX_SAMPLE_RATE_HZ,
             "Hz",
         );
+        at_least(
+            &mut v,
+            "sample_rate_hz",
+            self.sample_rate_hz,
+            MIN_SAMPLE_RATE_HZ,
+            "Hz",
+        );
         non_negative(&mut v, "encoder_resolution_m", self.encoder_resolution_m);
+        at_most(
+            &mut v,
+            "encoder_resolution_m",
+            self.encoder_resolution_m,
+            1e-2,
+            "m",
+        );
         v
     }
 }
@@ -703,6 +769,7 @@ impl PlantConfig {
         ] {
             positive(&mut v, k, x, "mass");
             at_most(&mut v, k, x, MAX_MASS_KG, "kg");
+            at_least(&mut v, k, x, MIN_MASS_KG, "kg");
         }
         for (k, x) in [
             ("k_v", self.k_v),
@@ -712,6 +779,7 @@ impl PlantConfig {
         ] {
             positive(&mut v, k, x, "stiffness");
             at_most(&mut v, k, x, MAX_STIFFNESS_N_PER_M, "N/m");
+            at_least(&mut v, k, x, MIN_STIFFNESS_N_PER_M, "N/m");
         }
         for (k, x) in [
             ("b_v", self.b_v),
@@ -732,12 +800,20 @@ impl BranchConfig {
         let mut v = Vec::new();
         positive(&mut v, "mass", self.mass, "mass");
         at_most(&mut v, "mass", self.mass, MAX_MASS_KG, "kg");
+        at_least(&mut v, "mass", self.mass, MIN_MASS_KG, "kg");
         positive(&mut v, "stiffness", self.stiffness, "stiffness");
         at_most(
             &mut v,
             "stiffness",
             self.stiffness,
             MAX_STIFFNESS_N_PER_M,
+            "N/m",
+        );
+        at_least(
+            &mut v,
+            "stiffness",
+            self.stiffness,
+            MIN_STIFFNESS_N_PER_M,
             "N/m",
         );
         non_negative(&mut v, "damping", self.damping);
@@ -780,6 +856,37 @@ impl HaptuatorConfig {
             "stop_damping_n_s_per_m",
             self.stop_damping_n_s_per_m,
         );
+        at_most(
+            &mut v,
+            "drive_gain_n_per_v",
+            self.drive_gain_n_per_v,
+            1e3,
+            "N/V",
+        );
+        at_least(
+            &mut v,
+            "drive_gain_n_per_v",
+            self.drive_gain_n_per_v,
+            1e-6,
+            "N/V",
+        );
+        at_least(&mut v, "drive_corner_hz", self.drive_corner_hz, 1e-3, "Hz");
+        at_most(&mut v, "stroke_m", self.stroke_m, 1.0, "m");
+        at_least(&mut v, "stroke_m", self.stroke_m, 1e-9, "m");
+        at_most(
+            &mut v,
+            "stop_stiffness_n_per_m",
+            self.stop_stiffness_n_per_m,
+            MAX_STIFFNESS_N_PER_M,
+            "N/m",
+        );
+        at_most(
+            &mut v,
+            "stop_damping_n_s_per_m",
+            self.stop_damping_n_s_per_m,
+            MAX_DAMPING_N_S_PER_M,
+            "N·s/m",
+        );
         v
     }
 }
@@ -789,25 +896,42 @@ impl AccelerometerConfig {
     pub fn issues(&self, fs: f64) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
         positive(&mut v, "range_g", self.range_g, "range");
+        at_most(&mut v, "range_g", self.range_g, 1e4, "g");
+        at_least(&mut v, "range_g", self.range_g, 1e-3, "g");
         non_negative(
             &mut v,
             "noise_density_ug_per_rthz",
             self.noise_density_ug_per_rthz,
         );
+        at_most(
+            &mut v,
+            "noise_density_ug_per_rthz",
+            self.noise_density_ug_per_rthz,
+            1e7,
+            "µg/√Hz",
+        );
         non_negative(&mut v, "lsb_m_s2", self.lsb_m_s2);
+        at_most(&mut v, "lsb_m_s2", self.lsb_m_s2, 1e4, "m/s²");
         if fs.is_finite() && fs > 0.0 {
             let nyq = 0.5 * fs;
             for (i, fc) in self.corner_hz.iter().enumerate() {
-                if !(fc.is_finite() && *fc > 0.0 && *fc < nyq) {
+                if !(fc.is_finite() && *fc >= 1e-3 && *fc < nyq) {
                     v.push((
                         "corner_hz",
-                        format!("axis {i}: corner must be in (0, {nyq}) Hz, got {fc}"),
+                        format!("axis {i}: corner must be in [0.001, {nyq}) Hz, got {fc}"),
                     ));
                 }
             }
         }
-        if self.static_m_s2.iter().any(|x| !x.is_finite()) {
-            v.push(("static_m_s2", "must be finite".into()));
+        if self
+            .static_m_s2
+            .iter()
+            .any(|x| !(x.is_finite() && x.abs() <= 1e5))
+        {
+            v.push((
+                "static_m_s2",
+                "must be finite, each at most 1e5 m/s²".into(),
+            ));
         }
         v
     }
@@ -905,11 +1029,23 @@ impl CouplingConfig {
                 ));
             }
         }
-        if !(self.position_scale.is_finite() && self.position_scale != 0.0) {
-            v.push(("position_scale", "must be finite and non-zero".into()));
+        if !(self.position_scale.is_finite() && (1e-9..=1e3).contains(&self.position_scale.abs())) {
+            v.push((
+                "position_scale",
+                format!(
+                    "must be finite with 1e-9 ≤ |scale| ≤ 1e3 (got {})",
+                    self.position_scale
+                ),
+            ));
         }
-        if !self.force_scale.is_finite() {
-            v.push(("force_scale", "must be finite".into()));
+        if !(self.force_scale.is_finite() && self.force_scale.abs() <= 1e15) {
+            v.push((
+                "force_scale",
+                format!(
+                    "must be finite with |scale| ≤ 1e15 (got {})",
+                    self.force_scale
+                ),
+            ));
         }
         if let Some(hz) = self.pantograph_band_hz {
             v.push((
@@ -960,6 +1096,20 @@ impl LimitsConfig {
             "haptuator_drive_max_v",
             self.haptuator_drive_max_v,
             "drive limit",
+        );
+        at_most(
+            &mut v,
+            "pantograph_force_max_n",
+            self.pantograph_force_max_n,
+            MAX_ACTUATOR_LIMIT,
+            "N",
+        );
+        at_most(
+            &mut v,
+            "haptuator_drive_max_v",
+            self.haptuator_drive_max_v,
+            MAX_ACTUATOR_LIMIT,
+            "V",
         );
         v
     }

@@ -119,11 +119,14 @@ impl HardLimits {
             ("force_norm_max_n", force_norm_max_n),
             ("drive_max_v", drive_max_v),
         ] {
-            if !(v.is_finite() && v > 0.0 && v <= 1e6) {
+            if !(v.is_finite() && v > 0.0 && v <= crate::config::MAX_ACTUATOR_LIMIT) {
                 return Err(RigError::InvalidParameter {
                     name,
                     value: v,
-                    reason: "must be finite, > 0 and ≤ 1e6".into(),
+                    reason: format!(
+                        "must be finite, > 0 and ≤ {:e}",
+                        crate::config::MAX_ACTUATOR_LIMIT
+                    ),
                 });
             }
         }

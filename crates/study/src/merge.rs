@@ -88,7 +88,11 @@ fn read_input(dir: &Path) -> Result<Input, RunError> {
     let journal = read_journal(&dir.join(JOURNAL_FILE))?;
     let mut journaled: HashMap<TrialKey, String> = HashMap::new();
     for e in &journal.entries {
+        // A quarantined raw file rewrote its row: the later CRC is the row's.
         if let Record::TrialCompleted {
+            trial, row_crc32, ..
+        }
+        | Record::RawQuarantined {
             trial, row_crc32, ..
         } = &e.record
         {
@@ -360,10 +364,17 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
 fn copy_raw(from: &Path, to: &Path, rel: &str) -> Result<(), RunError> {
     let src = from.join(rel);
     let dst = to.join(rel);
+    // A quarantined file (`recovery/quarantine/…`) keeps its place; no
+    // link is followed on either side.
+    if let Some(parent) = dst.parent() {
+        crate::storage::fsutil::create_dir_durable(parent)?;
+    }
     for (a, b) in [
         (src.clone(), dst.clone()),
         (sidecar_path(&src), sidecar_path(&dst)),
     ] {
+        crate::storage::fsutil::refuse_link(&a)?;
+        crate::storage::fsutil::refuse_link(&b)?;
         std::fs::copy(&a, &b).map_err(|e| {
             RunError::State(format!("copy {} to {}: {e}", a.display(), b.display()))
         })?;

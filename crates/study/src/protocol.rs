@@ -354,6 +354,13 @@ pub const MAX_TIMEOUT_S: f64 = 600.0;
 pub const MAX_TRAINING_MIN: f64 = 24.0 * 60.0;
 /// Most revolutions of a circling trial.
 pub const MAX_REVOLUTIONS: f64 = 1_000.0;
+/// How far from its start a trial may take the bead, µm: the trap's reach
+/// in the built-in rig file (`[coupling] trap_min_m`, `trap_max_m` =
+/// ±20 µm around the start). A task's geometry must fit within it.
+pub const SCENE_REACH_UM: f64 = 20.0;
+/// Surface gap between the bead and the obstacle at the start of a
+/// circling trial, m (the participant first approaches the obstacle).
+pub const CIRCLING_START_GAP_M: f64 = 2.0e-6;
 
 /// A count in `1 ..= max`.
 fn count_in(field: &str, v: u32, min: u32, max: u32) -> Result<(), Invalid> {
@@ -390,10 +397,30 @@ fn positive(field: &str, v: f64, unit: &str) -> Result<(), Invalid> {
 }
 
 fn check_bead_obstacle(prefix: &str, obstacle: f64, bead: f64, escape: f64) -> Result<(), Invalid> {
-    positive(&format!("{prefix}.obstacle_radius_um"), obstacle, "µm")?;
-    positive(&format!("{prefix}.bead_radius_um"), bead, "µm")?;
-    positive(&format!("{prefix}.escape_distance_um"), escape, "µm")?;
+    for (field, v) in [
+        ("obstacle_radius_um", obstacle),
+        ("bead_radius_um", bead),
+        ("escape_distance_um", escape),
+    ] {
+        positive_at_most(&format!("{prefix}.{field}"), v, SCENE_REACH_UM, "µm")?;
+    }
     Ok(())
+}
+
+/// A task whose bead must go `extent` µm from its start (computed by
+/// `how`) fits the scene ([`SCENE_REACH_UM`]); `field` is the value to
+/// change.
+fn fits_scene(field: String, extent: f64, how: &str) -> Result<(), Invalid> {
+    if extent <= SCENE_REACH_UM {
+        return Ok(());
+    }
+    Err(invalid(
+        field,
+        format!(
+            "the bead would have to go {extent} µm from its start ({how}), beyond the scene's \
+             reach of {SCENE_REACH_UM} µm (the trap's range)"
+        ),
+    ))
 }
 
 impl Protocol {
@@ -403,7 +430,8 @@ impl Protocol {
     /// [`Invalid`] naming the field: empty name, zero participants or
     /// trials, no / duplicate conditions, V in a blind task, non-positive
     /// radii, distances or time-outs, contact fraction outside (0, 1],
-    /// success angle outside (0, 90], negative tolerance.
+    /// success angle outside (0, 90], negative tolerance, a geometry that
+    /// does not fit the scene ([`SCENE_REACH_UM`]).
     pub fn validate(&self) -> Result<(), Invalid> {
         if self.name.trim().is_empty() {
             return Err(invalid("name", "must not be empty"));
@@ -457,6 +485,24 @@ impl Protocol {
             MAX_TRAINING_MIN,
             "minutes",
         )?;
+        self.validate_task()?;
+        let gap = self.tolerances.contact_gap_um;
+        if !(gap.is_finite() && (0.0..=SCENE_REACH_UM).contains(&gap)) {
+            return Err(invalid(
+                "tolerances.contact_gap_um",
+                format!(
+                    "must be a non-negative distance of at most {SCENE_REACH_UM} µm (the \
+                     scene's reach), got {gap}"
+                ),
+            ));
+        }
+        self.screens.validate(&self.conditions)?;
+        Ok(())
+    }
+
+    /// The task's values: positive, bounded and fitting the scene
+    /// ([`SCENE_REACH_UM`]).
+    fn validate_task(&self) -> Result<(), Invalid> {
         match &self.task {
             Task::Circling(t) => {
                 let p = "task.circling";
@@ -477,6 +523,17 @@ impl Protocol {
                     t.revolutions,
                     MAX_REVOLUTIONS,
                     "revolutions",
+                )?;
+                let rc = t.obstacle_radius_um + t.bead_radius_um;
+                let radius = if t.bead_radius_um > t.obstacle_radius_um {
+                    "bead_radius_um"
+                } else {
+                    "obstacle_radius_um"
+                };
+                fits_scene(
+                    format!("{p}.{radius}"),
+                    2.0 * rc + CIRCLING_START_GAP_M * 1e6,
+                    "twice the contact radius R_o + R_b plus the 2 µm start gap",
                 )?;
                 if !(t.min_contact_fraction > 0.0 && t.min_contact_fraction <= 1.0) {
                     return Err(invalid(
@@ -499,6 +556,11 @@ impl Protocol {
                     t.retreat_distance_um,
                     "µm",
                 )?;
+                fits_scene(
+                    format!("{p}.start_distance_um"),
+                    t.start_distance_um + t.retreat_distance_um,
+                    "start_distance_um to the contact, then retreat_distance_um",
+                )?;
                 positive_at_most(
                     &format!("{p}.timeout_s"),
                     t.timeout_s,
@@ -515,19 +577,11 @@ impl Protocol {
                     return Err(invalid(
                         format!("conditions[{i}]"),
                         "condition `V` (vision only) gives no feedback at all in a blind \
-                         navigation task; use P and/or D",
+                     navigation task; use P and/or D",
                     ));
                 }
             }
         }
-        let gap = self.tolerances.contact_gap_um;
-        if !(gap.is_finite() && gap >= 0.0) {
-            return Err(invalid(
-                "tolerances.contact_gap_um",
-                format!("must be a finite, non-negative distance in µm, got {gap}"),
-            ));
-        }
-        self.screens.validate(&self.conditions)?;
         Ok(())
     }
 

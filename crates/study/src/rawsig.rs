@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::storage::error::{ExportError, Result, io_err};
-use crate::storage::fsutil::{read_json, write_atomic};
+use crate::storage::fsutil::{no_follow, read_json, write_atomic};
 
 /// NPY magic string.
 pub const NPY_MAGIC: &[u8; 6] = b"\x93NUMPY";
@@ -307,7 +307,12 @@ impl NpyWriter {
                 layout.channels.len()
             )));
         }
-        let file = File::create(path).map_err(io_err(path, "create"))?;
+        let file = no_follow()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(path)
+            .map_err(io_err(path, "create"))?;
         let mut out = BufWriter::with_capacity(1 << 16, file);
         out.write_all(&header).map_err(io_err(path, "write"))?;
         Ok(Self {
@@ -409,7 +414,9 @@ impl NpyWriter {
         file.sync_all().map_err(io_err(&path, "fsync"))?;
         // Read back from the page cache: the checksum covers what is in
         // the file, not what was meant to be written.
-        let data_crc32 = File::open(&path)
+        let data_crc32 = no_follow()
+            .read(true)
+            .open(&path)
             .and_then(|mut f| data_crc32(&mut f, header.len() as u64))
             .map_err(io_err(&path, "read back"))?;
         let npy_file = path
@@ -490,7 +497,7 @@ impl NpyArray {
 /// [`ExportError::Raw`] for anything else (bad magic, Fortran order,
 /// another dtype or rank, data shorter than the shape).
 pub fn read_npy(path: &Path) -> Result<NpyArray> {
-    let bytes = std::fs::read(path).map_err(io_err(path, "read"))?;
+    let bytes = crate::storage::fsutil::read_no_follow(path)?;
     let raw = |message: &str| ExportError::Raw {
         path: path.to_path_buf(),
         message: message.to_owned(),

@@ -258,6 +258,7 @@ pub fn simulate(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<SimulateReport, RunError> {
     let t0 = Instant::now();
+    crate::export::refuse_links(&opts.out)?;
     if opts.out.join(SESSION_FILE).exists() && !opts.resume {
         return Err(RunError::State(format!(
             "{} already holds a study; pass --resume to continue it or choose another folder",

@@ -98,6 +98,10 @@ pub struct Args {
     /// `seeds.study` gives `study simulate`'s participants). DAQ only.
     #[arg(long, value_name = "operator:SEED")]
     pub participant: Option<String>,
+    /// Test device: set every flag bit (clipped, limited, end stop,
+    /// non-finite, late command, watchdog) on every sample.
+    #[arg(long)]
+    pub flag_every_sample: bool,
 }
 
 /// `--misbehave` modes (see [`Misbehaviour`]).
@@ -147,6 +151,17 @@ impl Args {
                 disconnect_after: secs("disconnect-after-s", self.disconnect_after_s)?,
                 seed: self.seed.unwrap_or(0),
                 misbehave: self.misbehave.map(Misbehaviour::from),
+                sample_flags: if self.flag_every_sample {
+                    use kilotouch_rig::serial::frame::flag;
+                    flag::CLIPPED
+                        | flag::LIMITED
+                        | flag::END_STOP
+                        | flag::NONFINITE
+                        | flag::CMD_LATE
+                        | flag::WATCHDOG
+                } else {
+                    0
+                },
             },
         };
         cfg.validate()?;

@@ -8,7 +8,7 @@ use kilotouch_rig::backend::Device;
 use kilotouch_rig::config::default_config_text;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
 use kilotouch_rig::device::RigSpec;
-use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};
+use kilotouch_rig::device::{ActuatorFrame, FrameFlags, Rig, SensorFrame};
 use kilotouch_rig::serial::LinkStats;
 use kilotouch_rig::stability::{MAX_LATENCY_S, StabilityReport, analyse_with_latency};
 use serde::Serialize;
@@ -135,6 +135,19 @@ pub struct CheckArgs {
     /// Verdict: fail when the CRC errors exceed this fraction of the frames.
     #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_CRC)]
     pub max_crc_errors: f64,
+    /// Verdict: fail when more than this fraction of the samples ran with a
+    /// late (held) command after the start-up window (the first 100 ms).
+    #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_LATE)]
+    pub max_late: f64,
+    /// Verdict: fail when more than this fraction of the frames carries a
+    /// fault flag (accelerometer clipped, command limited, end stop,
+    /// non-finite command).
+    #[arg(long, default_value_t = CheckArgs::DEFAULT_MAX_FLAGGED)]
+    pub max_flagged: f64,
+    /// Verdict: fail when the measured rate is off the nominal (HELLO)
+    /// rate by more than this fraction.
+    #[arg(long, default_value_t = CheckArgs::DEFAULT_RATE_TOLERANCE)]
+    pub rate_tolerance: f64,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -145,6 +158,16 @@ impl CheckArgs {
     pub const DEFAULT_MAX_LOSS: f64 = 1e-3;
     /// Default CRC-error limit: 0.1 % of the frames.
     pub const DEFAULT_MAX_CRC: f64 = 1e-3;
+    /// Default late-command limit: 0.1 % of the samples.
+    pub const DEFAULT_MAX_LATE: f64 = 1e-3;
+    /// Default limit of frames with a fault flag: 0.1 % (the check streams
+    /// zero commands to a handle at rest: nothing should be flagged).
+    pub const DEFAULT_MAX_FLAGGED: f64 = 1e-3;
+    /// Default rate tolerance: ±5 % of the nominal rate.
+    pub const DEFAULT_RATE_TOLERANCE: f64 = 0.05;
+    /// Samples the device may run on its watchdog's safe outputs: none (a
+    /// watchdog sample means the host did not feed the device in time).
+    pub const MAX_WATCHDOG_SAMPLES: u64 = 0;
     /// Time past `--duration` after which a rig that has not delivered
     /// its block is declared stalled: `--duration` is a hard bound.
     pub const GRACE: Duration = Duration::from_secs(1);
@@ -182,6 +205,17 @@ pub struct CheckReport {
     pub command_lead_samples: u64,
     /// The link's round trip measured at connection, ms (serial rigs).
     pub round_trip_ms: Option<f64>,
+    /// late_commands_after_startup / frames (the verdict's late fraction).
+    pub late_fraction: f64,
+    /// Frames with a fault flag (clipped, limited, end stop, non-finite).
+    pub flagged: u64,
+    /// flagged / frames.
+    pub flagged_fraction: f64,
+    /// Samples the device ran on its watchdog's safe outputs.
+    pub watchdog_samples: u64,
+    /// Samples received outside the block waited for (stray sequence
+    /// numbers).
+    pub stray_samples: u64,
     /// Measured rate: frames / wall time of the streaming, Hz.
     pub rate_hz: f64,
     /// Wall time of the streaming, s.
@@ -196,6 +230,12 @@ pub struct CheckReport {
     pub max_loss: f64,
     /// The CRC-error limit of the verdict.
     pub max_crc_errors: f64,
+    /// The late-command limit of the verdict.
+    pub max_late: f64,
+    /// The fault-flag limit of the verdict.
+    pub max_flagged: f64,
+    /// The rate tolerance of the verdict (fraction of the nominal rate).
+    pub rate_tolerance: f64,
     /// Verdict: streaming ended normally within both limits.
     pub passed: bool,
     /// Why the check failed (`None` when it passed).
@@ -206,19 +246,27 @@ impl CheckReport {
     fn table(&self) -> String {
         let verdict = match &self.failure {
             None => format!(
-                "  verdict   PASS (loss {:.3} % ≤ {:.3} %, CRC errors {:.3} % ≤ {:.3} %)\n",
+                "  verdict   PASS (loss {:.3} % ≤ {:.3} %, CRC errors {:.3} % ≤ {:.3} %, late \
+                 {:.3} % ≤ {:.3} %, flagged {:.3} % ≤ {:.3} %, no watchdog sample, rate within \
+                 ±{:.1} %)\n",
                 100.0 * self.loss_fraction,
                 100.0 * self.max_loss,
                 100.0 * self.crc_error_fraction,
-                100.0 * self.max_crc_errors
+                100.0 * self.max_crc_errors,
+                100.0 * self.late_fraction,
+                100.0 * self.max_late,
+                100.0 * self.flagged_fraction,
+                100.0 * self.max_flagged,
+                100.0 * self.rate_tolerance
             ),
             Some(why) => format!("  verdict   FAIL: {why}\n"),
         };
         verdict
             + &format!(
                 "rig check {} (`{}`, {})\n  frames    {} ({} received, {} lost)\n  \
-             crc errors {} ({} bytes skipped)\n  late commands {}\n  rate      {:.1} Hz \
-             (nominal {:.0} Hz) over {:.2} s, longest block {:.2} ms\n",
+             crc errors {} ({} bytes skipped)\n  late commands {}\n  flagged   {} \
+             (watchdog samples {}, stray samples {})\n  rate      {:.1} Hz (nominal {:.0} Hz) \
+             over {:.2} s, longest block {:.2} ms\n",
                 self.rig,
                 self.device,
                 self.firmware,
@@ -228,6 +276,9 @@ impl CheckReport {
                 self.crc_errors,
                 self.bytes_skipped,
                 self.late_commands,
+                self.flagged,
+                self.watchdog_samples,
+                self.stray_samples,
                 self.rate_hz,
                 self.nominal_rate_hz,
                 self.duration_s,
@@ -242,11 +293,18 @@ struct Streamed {
     blocks: u64,
     frames: u64,
     lost: u64,
+    flagged: u64,
     elapsed_s: f64,
     max_block_s: f64,
     /// Late commands after the start-up window ([`STARTUP_S`]).
     late_after_startup: u64,
 }
+
+/// Flags of a frame that report a fault of the device or its commands.
+const FAULT_FLAGS: u8 = FrameFlags::CLIPPED
+    | FrameFlags::LIMITED
+    | FrameFlags::END_STOP
+    | FrameFlags::NONFINITE_COMMAND;
 
 /// The start-up window of a check, s: the device runs from START while the
 /// host's first commands travel (and, with a command lead, while the lead
@@ -286,6 +344,10 @@ fn stream(
                 s.blocks += 1;
                 s.frames += r.frames as u64;
                 s.lost += u64::from(r.lost_frames);
+                s.flagged += sens[..r.frames.min(sens.len())]
+                    .iter()
+                    .filter(|f| !f.flags.has(FrameFlags::LOST) && f.flags.0 & FAULT_FLAGS != 0)
+                    .count() as u64;
             }
             Err(e) => error = Some(e.into()),
         }
@@ -329,6 +391,52 @@ fn verdict(r: &CheckReport) -> Option<String> {
             100.0 * r.max_crc_errors
         ));
     }
+    if r.late_fraction > r.max_late {
+        why.push(format!(
+            "{} late commands after start-up, {:.3} % of the samples, limit {:.3} % \
+             (--max-late)",
+            r.late_commands_after_startup,
+            100.0 * r.late_fraction,
+            100.0 * r.max_late
+        ));
+    }
+    if r.flagged_fraction > r.max_flagged {
+        why.push(format!(
+            "{} frames with a fault flag (clipped, limited, end stop or non-finite), {:.3} % of \
+             the frames, limit {:.3} % (--max-flagged)",
+            r.flagged,
+            100.0 * r.flagged_fraction,
+            100.0 * r.max_flagged
+        ));
+    }
+    if r.watchdog_samples > CheckArgs::MAX_WATCHDOG_SAMPLES {
+        why.push(format!(
+            "{} samples ran on the device watchdog's safe outputs (limit {})",
+            r.watchdog_samples,
+            CheckArgs::MAX_WATCHDOG_SAMPLES
+        ));
+    }
+    if r.stray_samples as f64 > r.max_loss * r.frames as f64 {
+        why.push(format!(
+            "{} samples with sequence numbers outside the blocks waited for, limit {:.3} % of \
+             the frames (--max-loss)",
+            r.stray_samples,
+            100.0 * r.max_loss
+        ));
+    }
+    if r.frames > 0 && r.nominal_rate_hz > 0.0 {
+        let off = r.rate_hz / r.nominal_rate_hz - 1.0;
+        if off.is_nan() || off.abs() > r.rate_tolerance {
+            why.push(format!(
+                "measured rate {:.1} Hz is {:+.1} % off the nominal {:.0} Hz the device \
+                 announced, limit ±{:.1} % (--rate-tolerance)",
+                r.rate_hz,
+                100.0 * off,
+                r.nominal_rate_hz,
+                100.0 * r.rate_tolerance
+            ));
+        }
+    }
     (!why.is_empty()).then(|| why.join("; "))
 }
 
@@ -347,6 +455,9 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
     for (name, v) in [
         ("--max-loss", a.max_loss),
         ("--max-crc-errors", a.max_crc_errors),
+        ("--max-late", a.max_late),
+        ("--max-flagged", a.max_flagged),
+        ("--rate-tolerance", a.rate_tolerance),
     ] {
         if !(0.0..=1.0).contains(&v) {
             anyhow::bail!("{name} must be a fraction in [0, 1], got {v}");
@@ -385,6 +496,7 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         blocks,
         frames,
         lost,
+        flagged,
         elapsed_s,
         max_block_s,
         late_after_startup,
@@ -411,6 +523,11 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         late_commands_after_startup: late_after_startup,
         command_lead_samples: lead,
         round_trip_ms,
+        late_fraction: ratio(late_after_startup),
+        flagged,
+        flagged_fraction: ratio(flagged),
+        watchdog_samples: link.watchdog_samples,
+        stray_samples: link.stray_samples,
         rate_hz: if elapsed_s > 0.0 {
             frames as f64 / elapsed_s
         } else {
@@ -422,6 +539,9 @@ fn check(a: &CheckArgs) -> anyhow::Result<(CheckReport, Option<anyhow::Error>)> 
         crc_error_fraction: ratio(link.crc_errors),
         max_loss: a.max_loss,
         max_crc_errors: a.max_crc_errors,
+        max_late: a.max_late,
+        max_flagged: a.max_flagged,
+        rate_tolerance: a.rate_tolerance,
         passed: false,
         failure: None,
     };

@@ -42,7 +42,9 @@ pub use clock::{Clock, ManualClock, SystemClock};
 pub(crate) use fault::StatusCounters;
 pub use fault::{FaultQueue, LinkErrorKind, RigFault};
 pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
-pub use identity::{RigIdentity, RigKind, RigState, RigStatus};
+pub use identity::{
+    ANNOUNCED_BOUNDS, AnnouncedBound, RigIdentity, RigKind, RigState, RigStatus, validate_announced,
+};
 pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
 pub use spec::RigSpec;
 

@@ -119,6 +119,9 @@ pub struct FaultInjection {
     pub seed: u64,
     /// Stream valid frames that never advance the sample stream.
     pub misbehave: Option<Misbehaviour>,
+    /// Flag bits ([`flag`]) set on every sample: a device that reports a
+    /// fault (or a late command, or its watchdog) on everything it sends.
+    pub sample_flags: u8,
 }
 
 /// Emulator settings.
@@ -611,7 +614,7 @@ impl<I: Instrument> Emulator<I> {
             if self.batch.is_empty() {
                 self.batch_seq = self.next_seq;
             }
-            let s = self.inst.step(&cmd, late);
+            let s = self.inst.step(&cmd, late | self.cfg.faults.sample_flags);
             self.applied = cmd;
             self.batch.push(s);
             self.next_seq += 1;

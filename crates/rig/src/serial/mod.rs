@@ -17,6 +17,7 @@
 //! * [`watch`]: the host's watchdog on stream progress (new samples, not
 //!   frames).
 
+pub mod announce;
 pub mod emulator;
 pub mod frame;
 pub mod pty;

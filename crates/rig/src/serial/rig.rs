@@ -135,6 +135,8 @@ pub struct LinkStats {
     pub bytes_skipped: u64,
     /// Samples the device executed with a held (late) command.
     pub late_commands: u64,
+    /// Samples the device flagged as run with its watchdog's safe outputs.
+    pub watchdog_samples: u64,
     /// FAULT frames received.
     pub device_faults: u64,
     /// Samples whose numbers fit no block: further ahead than any command
@@ -551,12 +553,7 @@ impl Link {
                 hello.name
             )));
         }
-        if hello.sample_rate_hz == 0 {
-            return Err(RigError::Device(format!(
-                "{}: device reports a sample rate of 0 Hz",
-                self.cfg.path
-            )));
-        }
+        super::announce::check_hello(&self.cfg.path, &hello)?;
         self.hello = Hello {
             name: crate::text::printable(&hello.name, 64),
             serial: crate::text::printable(&hello.serial, 64),
@@ -1002,22 +999,10 @@ impl SerialRig {
 
     fn identity_of(link: &Link) -> Result<(RigIdentity, DaqCaps), RigError> {
         let h = link.hello();
+        // Every value was checked when the HELLO was accepted (`handshake`).
         let Caps::Daq(caps) = h.caps else {
             return Err(RigError::Device("not a DAQ".into()));
         };
-        for (name, v) in [
-            ("encoder_counts_per_m", caps.encoder_counts_per_m),
-            ("accel_m_s2_per_code", caps.accel_m_s2_per_code),
-            ("force_max_n", caps.force_max_n),
-            ("drive_max_v", caps.drive_max_v),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(RigError::Device(format!(
-                    "{}: device capability {name} = {v} is not finite and > 0",
-                    link.config().path
-                )));
-            }
-        }
         Ok((
             RigIdentity {
                 kind: RigKind::SerialDaq,
@@ -1211,6 +1196,7 @@ impl Rig for SerialRig {
             let last = &mut self.last;
             let cmd_flags = &self.cmd_flags;
             let mut late = 0u64;
+            let mut watchdog = 0u64;
             let r = self
                 .link
                 .exchange::<DaqSample>(frame::ty::SAMPLES, s, n, |i, smp| {
@@ -1220,6 +1206,9 @@ impl Rig for SerialRig {
                         Some(d) => {
                             if d.flags & flag::CMD_LATE != 0 {
                                 late += 1;
+                            }
+                            if d.flags & flag::WATCHDOG != 0 {
+                                watchdog += 1;
                             }
                             let f = SensorFrame {
                                 seq,
@@ -1238,6 +1227,7 @@ impl Rig for SerialRig {
                     };
                 });
             self.link.stats.late_commands += late;
+            self.link.stats.watchdog_samples += watchdog;
             self.counters.counts.late_commands += late;
             if late > 0 {
                 self.counters.push(RigFault::Overrun {

@@ -174,8 +174,11 @@ fn trials_field(name: &str) -> Value {
             name,
             "string",
             "raw-signal file (NPY + JSON sidecar naming channels and units), relative to the \
-             folder; empty if none",
-            json!({}),
+             folder: `raw/…npy`; `recovery/quarantine/<time>-…npy` when the file failed its \
+             check (size, header, CRC-32) on a resume and was moved there — its signals are not \
+             to be trusted; empty if none was recorded, or if it was missing on a resume (the \
+             journal's `raw_quarantined` record names it)",
+            json!({"pattern": "(raw|recovery/quarantine)/[^/]+\\.npy"}),
         ),
         "row_crc32" => field(
             name,

@@ -37,7 +37,7 @@
 //! `session_index` column of `trials.csv`). See [`Record`] for the list and
 //! `docs/STUDY.md` for the commit order.
 
-use std::fs::{self, File};
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -107,6 +107,9 @@ pub struct RecoveryRecord {
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
+// One record is built, written and dropped at a time (a few per trial), so
+// the size of the sitting's opening record costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 pub enum Record {
     /// A sitting opened the folder: protocol hash, software version, seeds,
     /// order table.
@@ -140,6 +143,25 @@ pub enum Record {
         trial: TrialKey,
         /// Why.
         reason: String,
+    },
+    /// A finished trial's raw file failed its check on resume: it was
+    /// moved to `recovery/quarantine/` (or was missing) and the trial's row
+    /// in `trials.csv` was rewritten to name where it went (`moved_to`,
+    /// empty when nothing was left to move). Written before the move and
+    /// the rewrite, so a crash in between is finished by the next opening.
+    RawQuarantined {
+        /// The trial.
+        trial: TrialKey,
+        /// The raw file the row named, relative to the folder.
+        file: String,
+        /// What is wrong with it.
+        reason: String,
+        /// Its new path relative to the folder (`None`: nothing to move).
+        moved_to: Option<String>,
+        /// The row's `row_crc32` before the rewrite.
+        previous_row_crc32: String,
+        /// The rewritten row's `row_crc32` (the row's CRC from now on).
+        row_crc32: String,
     },
     /// Free-text note of the experimenter.
     Note {
@@ -336,7 +358,7 @@ pub fn read_journal(path: &Path) -> Result<JournalRead> {
 /// # Errors
 /// I/O failures other than a missing file.
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
-    match fs::read(path) {
+    match crate::storage::fsutil::read_no_follow_io(path) {
         Ok(b) => Ok(b),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
         Err(e) => Err(io_err(path, "read")(e)),

@@ -14,8 +14,15 @@
 //!   raw/<P>_<C>_<phase>_<trial>.npy + .json   full-rate signals per trial
 //!   recovery/         copies of torn tails cut on resume
 //!   recovery/quarantine/  raw files of finished trials that failed their check
-//!   writer.lock       the one-writer lock (PID, host, program of the holder)
+//!   writer.lock       the one-writer lock (PID, host, program of the holder),
+//!                     removed by a clean close
 //! ```
+//!
+//! No file or folder inside is ever a symbolic link: the store refuses one
+//! by path before opening anything ([`refuse_links`]) and opens every file
+//! with `O_NOFOLLOW`. `session.json` carries a checksum of every field and
+//! is checked against its protocol text when read
+//! ([`session::read_session`]).
 //!
 //! # One writer, checked resumes
 //!
@@ -25,8 +32,9 @@
 //! rig file, calibration or raw recording other than `session.json`'s
 //! ([`settings`]) unless the change is recorded, and checks every finished
 //! trial's raw file (size, header, CRC-32 in the sidecar): a damaged one
-//! is moved to `recovery/quarantine/`, named in the [`Recovery`] report
-//! and flagged in the journal.
+//! is moved to `recovery/quarantine/`, named in the [`Recovery`] report,
+//! journaled (`raw_quarantined`) and its row's `raw_file` rewritten to
+//! where it went (empty when it was missing).
 //!
 //! # Commit order (per trial)
 //!
@@ -91,7 +99,7 @@ pub use session::{
     CalibrationRef, DeviceRecord, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo,
     SimulationInfo, Sitting, StudyMeta, read_session,
 };
-pub use store::{StudyStore, TrialTicket};
+pub use store::{StudyStore, TrialTicket, refuse_links};
 pub use summary::{
     CELLS_LONG_FILE, CELLS_WIDE_FILE, Summary, SummaryFiles, Table, regenerate_summaries, summarize,
 };

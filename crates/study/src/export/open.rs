@@ -5,7 +5,7 @@
 //! again is decided in between by the pure [`super::reconcile`] step.
 
 use std::collections::HashMap;
-use std::fs::{self, File};
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 use super::checksum;
@@ -16,8 +16,11 @@ use super::session::{self, OrderRow, Progress, SESSION_FILE, SessionInfo, StudyM
 use super::trials::{self, ReadOptions, TRIALS_FILE, TrialsRead};
 use crate::protocol::{AssignmentTable, Location, Protocol, ProtocolError};
 use crate::seeds::TrialKey;
-use crate::storage::error::{ExportError, Result, io_err};
-use crate::storage::fsutil::{TornTail, create_dir_durable, cut_torn_tail, open_append};
+use crate::storage::error::{ExportError, Result};
+use crate::storage::fsutil::{
+    TornTail, create_dir_durable, create_root_durable, cut_torn_tail, entry_exists, open_append,
+    read_no_follow,
+};
 use crate::storage::utc::UtcTime;
 
 /// Folder of the copies of cut torn tails.
@@ -136,7 +139,7 @@ impl NewStudy<'_> {
 /// without `session.json`; I/O errors.
 pub(crate) fn create_folder(dir: &Path, info: &SessionInfo) -> Result<()> {
     for p in [dir.join(TRIALS_FILE), dir.join(JOURNAL_FILE)] {
-        if p.exists() {
+        if entry_exists(&p) {
             return Err(ExportError::NotAStudyFolder {
                 path: dir.to_path_buf(),
                 reason: format!(
@@ -149,7 +152,7 @@ pub(crate) fn create_folder(dir: &Path, info: &SessionInfo) -> Result<()> {
             });
         }
     }
-    create_dir_durable(dir)?;
+    create_root_durable(dir)?;
     session::write_session(&dir.join(SESSION_FILE), info)
 }
 
@@ -185,8 +188,8 @@ impl FolderRead {
         let journal_bytes = journal::read_bytes(&journal_path)?;
         let journal = journal::parse_journal(&journal_path, &journal_bytes)?;
         check_sittings(&journal_path, &journal, protocol_sha256)?;
-        let trials_bytes = if trials_path.exists() {
-            Some(fs::read(&trials_path).map_err(io_err(&trials_path, "read"))?)
+        let trials_bytes = if entry_exists(&trials_path) {
+            Some(read_no_follow(&trials_path)?)
         } else {
             None
         };

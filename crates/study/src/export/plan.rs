@@ -127,3 +127,14 @@ pub fn raw_layout_for(
     }
     layout
 }
+
+impl TrialRow {
+    /// Whether the row names raw signals that passed their checks: a file
+    /// under [`RAW_DIR`] (not empty, not one moved to
+    /// `recovery/quarantine/` because it was damaged).
+    pub fn has_trusted_raw(&self) -> bool {
+        self.raw_file
+            .strip_prefix(RAW_DIR)
+            .is_some_and(|rest| rest.starts_with('/'))
+    }
+}

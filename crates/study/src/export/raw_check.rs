@@ -8,7 +8,7 @@
 //!
 //! [`NpyWriter`]: crate::rawsig::NpyWriter
 
-use std::fs::{self, File};
+use std::fs;
 use std::io::Read;
 use std::path::Path;
 
@@ -16,7 +16,7 @@ use super::checksum::{crc32_hex, parse_crc32_hex};
 use super::open::RECOVERY_DIR;
 use crate::rawsig::{data_crc32, npy_header, read_sidecar, sidecar_path};
 use crate::storage::error::{Result, io_err};
-use crate::storage::fsutil::{create_dir_durable, sync_dir};
+use crate::storage::fsutil::{create_dir_durable, entry_exists, no_follow, sync_dir};
 
 /// Folder (inside [`RECOVERY_DIR`]) of raw files that failed their check.
 pub const QUARANTINE_DIR: &str = "quarantine";
@@ -25,10 +25,16 @@ pub const QUARANTINE_DIR: &str = "quarantine";
 /// it passes every check (module docs).
 pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
     let npy = dir.join(rel);
-    let meta = match fs::metadata(&npy) {
+    let meta = match fs::symlink_metadata(&npy) {
+        Ok(m) if m.file_type().is_symlink() => {
+            return Some("is a symbolic link (a study folder never follows links)".into());
+        }
         Ok(m) => m,
         Err(e) => return Some(format!("cannot be read ({e})")),
     };
+    if fs::symlink_metadata(sidecar_path(&npy)).is_ok_and(|m| m.file_type().is_symlink()) {
+        return Some("its sidecar is a symbolic link (a study folder never follows links)".into());
+    }
     let side = sidecar_path(&npy);
     let sidecar = match read_sidecar(&side) {
         Ok(s) => s,
@@ -59,7 +65,7 @@ pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
             sidecar.dtype.descr()
         ));
     }
-    let mut file = match File::open(&npy) {
+    let mut file = match no_follow().read(true).open(&npy) {
         Ok(f) => f,
         Err(e) => return Some(format!("cannot be opened ({e})")),
     };
@@ -88,39 +94,59 @@ pub(crate) fn damage(dir: &Path, rel: &str) -> Option<String> {
     }
 }
 
-/// Moves the raw file `rel` of `dir` and its sidecar (those that exist)
-/// to `recovery/quarantine/`, named with the time `stamp` so nothing is
-/// overwritten. Returns the new path of the `.npy`, relative to `dir`
-/// (`None`: neither file existed).
+/// Where [`quarantine`] moves the raw file `rel` of `dir`:
+/// `recovery/quarantine/<stamp>-<name>.npy`, relative to `dir`, named with
+/// the time `stamp` so nothing is overwritten (`None`: the file does not
+/// exist, nothing will name it).
+pub(crate) fn quarantine_target(dir: &Path, rel: &str, stamp: i64) -> Option<String> {
+    let npy = dir.join(rel);
+    if !entry_exists(&npy) {
+        return None;
+    }
+    let name = npy.file_name()?.to_string_lossy().into_owned();
+    Some(format!("{RECOVERY_DIR}/{QUARANTINE_DIR}/{stamp}-{name}"))
+}
+
+/// Moves the raw file `rel` of `dir` to `target` (relative to `dir`, from
+/// [`quarantine_target`]) and its sidecar beside it; with no target (the
+/// `.npy` is missing) a sidecar left behind is moved to
+/// `recovery/quarantine/<stamp>-<name>.json`. Entries are moved, never
+/// followed (a link is moved as a link).
 ///
 /// # Errors
 /// I/O errors.
-pub(crate) fn quarantine(dir: &Path, rel: &str, stamp: i64) -> Result<Option<String>> {
+pub(crate) fn quarantine(dir: &Path, rel: &str, target: Option<&str>, stamp: i64) -> Result<()> {
     let npy = dir.join(rel);
     let side = sidecar_path(&npy);
-    if !npy.exists() && !side.exists() {
-        return Ok(None);
-    }
     let qdir = dir.join(RECOVERY_DIR).join(QUARANTINE_DIR);
-    create_dir_durable(&qdir)?;
-    let mut moved = None;
-    for from in [&npy, &side] {
-        let Some(name) = from.file_name() else {
-            continue;
-        };
-        if !from.exists() {
-            continue;
+    let side_to = match target {
+        Some(t) => sidecar_path(&dir.join(t)),
+        None => {
+            let name = side.file_name().map(|n| n.to_string_lossy().into_owned());
+            qdir.join(format!("{stamp}-{}", name.unwrap_or_default()))
         }
-        let new_name = format!("{stamp}-{}", name.to_string_lossy());
-        let to = qdir.join(&new_name);
-        fs::rename(from, &to).map_err(io_err(from, "move to quarantine"))?;
-        if from == &npy {
-            moved = Some(format!("{RECOVERY_DIR}/{QUARANTINE_DIR}/{new_name}"));
+    };
+    let moves = [
+        (npy.clone(), target.map(|t| dir.join(t))),
+        (side, Some(side_to)),
+    ];
+    if !moves
+        .iter()
+        .any(|(from, to)| to.is_some() && entry_exists(from))
+    {
+        return Ok(());
+    }
+    create_dir_durable(&qdir)?;
+    for (from, to) in moves {
+        if let Some(to) = to
+            && entry_exists(&from)
+        {
+            fs::rename(&from, &to).map_err(io_err(&from, "move to quarantine"))?;
         }
     }
     sync_dir(&qdir)?;
     if let Some(parent) = npy.parent() {
         sync_dir(parent)?;
     }
-    Ok(moved.or_else(|| Some(format!("{RECOVERY_DIR}/{QUARANTINE_DIR}/"))))
+    Ok(())
 }

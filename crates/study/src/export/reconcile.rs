@@ -76,17 +76,20 @@ impl Recovery {
 
 impl fmt::Display for Recovery {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if !self.resumed {
-            return write!(f, "new study folder, {} trial(s) planned", self.pending);
+        if self.resumed {
+            write!(
+                f,
+                "resumed: {} trial(s) complete, {} pending",
+                self.completed, self.pending
+            )?;
+        } else {
+            write!(f, "new study folder, {} trial(s) planned", self.pending)?;
         }
-        write!(
-            f,
-            "resumed: {} trial(s) complete, {} pending",
-            self.completed, self.pending
-        )?;
         if self.previous_sitting_unclosed {
             f.write_str("; the previous sitting ended without closing (crash or kill)")?;
         }
+        // Also in a folder that holds no study yet: the previous writer can
+        // die after taking the folder and before creating the study.
         if let Some(h) = &self.stale_lock {
             write!(
                 f,
@@ -182,6 +185,25 @@ pub(crate) struct Verdict {
     pub interrupted: Vec<TrialKey>,
     /// The last sitting of the journal has no `session_done`.
     pub previous_sitting_unclosed: bool,
+    /// Rows whose raw file was journaled as quarantined
+    /// ([`Record::RawQuarantined`]) but not yet rewritten (a crash came
+    /// between the record and the rewrite): finished by the opening.
+    pub pending_quarantine: Vec<PendingQuarantine>,
+}
+
+/// A quarantine journaled but not yet carried out in `trials.csv`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct PendingQuarantine {
+    /// The trial.
+    pub trial: TrialKey,
+    /// 1-based line of its row in `trials.csv`.
+    pub line: u64,
+    /// The raw file the row names.
+    pub file: String,
+    /// Where the record says it goes (`None`: nowhere, it was missing).
+    pub moved_to: Option<String>,
+    /// The rewritten row's CRC the record gives.
+    pub row_crc32: u32,
 }
 
 /// Checks that every sitting of the journal ran the protocol `session.json`
@@ -224,7 +246,9 @@ pub(crate) fn reconcile(found: &Found<'_>, expected: &Expected<'_>) -> Result<Ve
     let JournalTrials {
         mut done,
         mut started,
+        mut quarantined,
     } = journal_trials(found.journal_path, found.journal)?;
+    let mut pending_quarantine = Vec::new();
     let by_id: HashMap<&str, &OrderRow> = expected
         .orders
         .iter()
@@ -239,7 +263,20 @@ pub(crate) fn reconcile(found: &Found<'_>, expected: &Expected<'_>) -> Result<Ve
                 message: format!("line {line}: {message}"),
             };
             let key = planned_key(row, &by_id, expected).map_err(incon)?;
+            let q = quarantined.remove(&key);
             match done.remove(&key) {
+                // Quarantine journaled, row not yet rewritten.
+                Some((jcrc, _)) if jcrc != crc && q.as_ref().is_some_and(|q| q.0 == crc) => {
+                    if let Some((_, file, moved_to)) = q {
+                        pending_quarantine.push(PendingQuarantine {
+                            trial: key,
+                            line,
+                            file,
+                            moved_to,
+                            row_crc32: jcrc,
+                        });
+                    }
+                }
                 Some((jcrc, jline)) if jcrc != crc => {
                     return Err(incon(format!(
                         "trial {key}: row_crc32 {crc:08x} differs from the journal's {jcrc:08x} \
@@ -273,6 +310,7 @@ pub(crate) fn reconcile(found: &Found<'_>, expected: &Expected<'_>) -> Result<Ve
         adopted,
         interrupted: interrupted.into_iter().map(|(_, k)| k).collect(),
         previous_sitting_unclosed,
+        pending_quarantine,
     })
 }
 
@@ -281,6 +319,9 @@ pub(crate) fn reconcile(found: &Found<'_>, expected: &Expected<'_>) -> Result<Ve
 struct JournalTrials {
     done: HashMap<TrialKey, (u32, u64)>,
     started: HashMap<TrialKey, u64>,
+    /// Last quarantine of each trial: (the row's CRC before it, file,
+    /// where it went).
+    quarantined: HashMap<TrialKey, (u32, String, Option<String>)>,
 }
 
 /// Replays the journal's trial records ([`JournalTrials`]).
@@ -291,8 +332,38 @@ struct JournalTrials {
 fn journal_trials(journal_path: &Path, journal: &JournalRead) -> Result<JournalTrials> {
     let mut done: HashMap<TrialKey, (u32, u64)> = HashMap::new();
     let mut started: HashMap<TrialKey, u64> = HashMap::new();
+    let mut quarantined = HashMap::new();
     for (e, &line) in journal.entries.iter().zip(&journal.lines) {
+        let incon = |message: String| ExportError::Inconsistent {
+            path: journal_path.to_path_buf(),
+            message: format!("line {line}: {message}"),
+        };
+        let parse = |hex: &str| {
+            checksum::parse_crc32_hex(hex)
+                .ok_or_else(|| incon(format!("malformed row_crc32 `{hex}`")))
+        };
         match &e.record {
+            Record::RawQuarantined {
+                trial,
+                file,
+                moved_to,
+                previous_row_crc32,
+                row_crc32,
+                ..
+            } => {
+                let (previous, new) = (parse(previous_row_crc32)?, parse(row_crc32)?);
+                match done.get(trial) {
+                    Some(&(c, _)) if c == previous => {}
+                    _ => {
+                        return Err(incon(format!(
+                            "trial {trial}: raw file quarantined from a row with row_crc32 \
+                             {previous_row_crc32}, not the trial's recorded row"
+                        )));
+                    }
+                }
+                done.insert(*trial, (new, line));
+                quarantined.insert(*trial, (previous, file.clone(), moved_to.clone()));
+            }
             Record::TrialStarted { trial, .. } => {
                 started.insert(*trial, line);
             }
@@ -303,12 +374,7 @@ fn journal_trials(journal_path: &Path, journal: &JournalRead) -> Result<JournalT
                 trial, row_crc32, ..
             } => {
                 started.remove(trial);
-                let incon = |message: String| ExportError::Inconsistent {
-                    path: journal_path.to_path_buf(),
-                    message: format!("line {line}: {message}"),
-                };
-                let crc = checksum::parse_crc32_hex(row_crc32)
-                    .ok_or_else(|| incon(format!("malformed row_crc32 `{row_crc32}`")))?;
+                let crc = parse(row_crc32)?;
                 if done.insert(*trial, (crc, line)).is_some() {
                     return Err(incon(format!("trial {trial} completed twice")));
                 }
@@ -316,7 +382,11 @@ fn journal_trials(journal_path: &Path, journal: &JournalRead) -> Result<JournalT
             _ => {}
         }
     }
-    Ok(JournalTrials { done, started })
+    Ok(JournalTrials {
+        done,
+        started,
+        quarantined,
+    })
 }
 
 /// The trial of a `trials.csv` row, checked against the plan: its

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::checksum::sha256_hex;
 use crate::protocol::{AssignmentTable, Condition, Protocol};
 use crate::storage::error::{ExportError, Result, io_err};
-use crate::storage::fsutil::{read_json, write_atomic};
+use crate::storage::fsutil::write_atomic;
 use crate::storage::utc::UtcTime;
 use kilotouch_rig::tweezer::TrapCalibrationRecord;
 
@@ -291,24 +291,200 @@ pub fn protocol_identity(protocol: &Protocol) -> Result<(String, String)> {
     Ok((toml, sha))
 }
 
-/// Reads `session.json`.
+/// Key of the per-field checksums in `session.json`.
+pub const INTEGRITY_KEY: &str = "integrity";
+
+/// What the checksums of [`INTEGRITY_KEY`] are.
+pub const INTEGRITY_ALGORITHM: &str =
+    "sha256 of each top-level field's value, as compact JSON of the value parsed from this file";
+
+/// Reads `session.json` and checks it: every field against the checksum
+/// written with it ([`INTEGRITY_KEY`]; folders written before checksums
+/// were recorded have none), then what is derived from the protocol text
+/// ([`check_derived`]).
 ///
 /// # Errors
-/// I/O or JSON errors.
+/// I/O or JSON errors; [`ExportError::SessionTampered`] naming the field.
 pub fn read_session(path: &Path) -> Result<SessionInfo> {
-    read_json(path)
+    parse_session(path, &crate::storage::fsutil::read_no_follow(path)?)
 }
 
-/// Replaces `session.json` atomically with `info` (pretty JSON and a final
+/// [`read_session`] of the bytes of a `session.json` (`path` names it in
+/// messages).
+///
+/// # Errors
+/// As [`read_session`].
+pub fn parse_session(path: &Path, bytes: &[u8]) -> Result<SessionInfo> {
+    let json_err = |source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut doc: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(bytes).map_err(json_err)?;
+    let stored = doc.remove(INTEGRITY_KEY);
+    let sums = stored.as_ref().map(|_| field_checksums(&doc));
+    let info: SessionInfo =
+        serde_json::from_value(serde_json::Value::Object(doc)).map_err(json_err)?;
+    // The derived fields first: they name the edited value exactly
+    // (`seeds.study`, `protocol.trials_per_session`); the checksums then
+    // cover every other field.
+    check_derived(path, &info)?;
+    if let (Some(stored), Some(now)) = (stored, sums) {
+        check_integrity(path, &now, &stored)?;
+    }
+    Ok(info)
+}
+
+/// SHA-256 of each top-level field of `doc` (compact JSON of its value).
+fn field_checksums(
+    doc: &serde_json::Map<String, serde_json::Value>,
+) -> serde_json::Map<String, serde_json::Value> {
+    doc.iter()
+        .map(|(k, v)| {
+            let text = serde_json::to_string(v).unwrap_or_default();
+            (
+                k.clone(),
+                serde_json::Value::String(sha256_hex(text.as_bytes())),
+            )
+        })
+        .collect()
+}
+
+/// Checks the checksums of the fields read (`now`, [`field_checksums`])
+/// against the stored ones.
+fn check_integrity(
+    path: &Path,
+    now: &serde_json::Map<String, serde_json::Value>,
+    stored: &serde_json::Value,
+) -> Result<()> {
+    let tampered = |field: &str, detail: &str| ExportError::SessionTampered {
+        path: path.to_path_buf(),
+        field: field.to_owned(),
+        detail: detail.to_owned(),
+    };
+    let Some(sums) = stored.get("fields").and_then(serde_json::Value::as_object) else {
+        return Err(tampered(
+            INTEGRITY_KEY,
+            "its `fields` checksums are missing",
+        ));
+    };
+    for (field, sum) in now {
+        match sums.get(field) {
+            None => return Err(tampered(field, "the field was added (it has no checksum)")),
+            Some(s) if s != sum => {
+                return Err(tampered(
+                    field,
+                    "its value does not match the checksum written with it",
+                ));
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(field) = sums.keys().find(|k| !now.contains_key(*k)) {
+        return Err(tampered(field, "the field was removed"));
+    }
+    Ok(())
+}
+
+/// The fields of `session.json` that follow from its protocol text must
+/// follow from it: `protocol_toml` hashes to `protocol_sha256`, parses to
+/// `protocol`, and gives `seeds.study` and `order_table`.
+///
+/// # Errors
+/// [`ExportError::SessionTampered`] naming the first field that does not.
+pub fn check_derived(path: &Path, info: &SessionInfo) -> Result<()> {
+    let tampered = |field: String, detail: String| ExportError::SessionTampered {
+        path: path.to_path_buf(),
+        field,
+        detail,
+    };
+    let sha = sha256_hex(info.protocol_toml.as_bytes());
+    if sha != info.protocol_sha256 {
+        return Err(tampered(
+            "protocol_toml".into(),
+            format!(
+                "its SHA-256 is {sha}, but protocol_sha256 records {}",
+                info.protocol_sha256
+            ),
+        ));
+    }
+    // Deserialised only: a folder keeps the protocol it was created with
+    // even where a later version validates protocols more strictly.
+    let parsed: Protocol = toml::from_str(&info.protocol_toml)
+        .map_err(|e| tampered("protocol_toml".into(), e.message().to_owned()))?;
+    if parsed != info.protocol {
+        let a = serde_json::to_value(&parsed).unwrap_or_default();
+        let b = serde_json::to_value(&info.protocol).unwrap_or_default();
+        let at = first_difference(&a, &b, "protocol".into());
+        return Err(tampered(
+            at,
+            "differs from what protocol_toml (covered by protocol_sha256) gives".into(),
+        ));
+    }
+    if info.seeds.study != info.protocol.seeds.study {
+        return Err(tampered(
+            "seeds.study".into(),
+            format!(
+                "is {}, but the protocol's seed is {}",
+                info.seeds.study, info.protocol.seeds.study
+            ),
+        ));
+    }
+    if let Ok(table) = info.protocol.assignment()
+        && order_rows(&table) != info.order_table
+    {
+        return Err(tampered(
+            "order_table".into(),
+            "differs from the counterbalancing the protocol gives".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Path of the first difference between two JSON values (`prefix.key`).
+fn first_difference(a: &serde_json::Value, b: &serde_json::Value, prefix: String) -> String {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            for (k, va) in x {
+                match y.get(k) {
+                    Some(vb) if vb == va => {}
+                    Some(vb) => return first_difference(va, vb, format!("{prefix}.{k}")),
+                    None => return format!("{prefix}.{k}"),
+                }
+            }
+            y.keys()
+                .find(|k| !x.contains_key(*k))
+                .map_or(prefix.clone(), |k| format!("{prefix}.{k}"))
+        }
+        _ => prefix,
+    }
+}
+
+/// Replaces `session.json` atomically with `info` (pretty JSON, the
+/// per-field checksums as its last field [`INTEGRITY_KEY`], and a final
 /// newline).
 ///
 /// # Errors
 /// JSON and I/O errors.
 pub(crate) fn write_session(path: &Path, info: &SessionInfo) -> Result<()> {
-    let mut json = serde_json::to_vec_pretty(info).map_err(|source| ExportError::Json {
+    let json_err = |source| ExportError::Json {
         path: path.to_path_buf(),
         source,
-    })?;
-    json.push(b'\n');
-    write_atomic(path, &json)
+    };
+    let text = serde_json::to_string_pretty(info).map_err(json_err)?;
+    // The checksums are of the values as a reader parses them from this
+    // very text (so they never depend on how floats round-trip).
+    let doc: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_str(&text).map_err(json_err)?;
+    let integrity = serde_json::json!({
+        "algorithm": INTEGRITY_ALGORITHM,
+        "fields": field_checksums(&doc),
+    });
+    let integrity = serde_json::to_string_pretty(&integrity)
+        .map_err(json_err)?
+        .replace('\n', "\n  ");
+    let body = text.strip_suffix("\n}").unwrap_or(&text);
+    let json = format!("{body},\n  \"{INTEGRITY_KEY}\": {integrity}\n}}\n");
+    write_atomic(path, json.as_bytes())
 }

@@ -11,7 +11,7 @@ use super::checksum;
 use super::journal::{Journal, Record, SessionStart, read_journal, sittings};
 use super::open::{self, FolderRead, NewStudy};
 use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
-use super::reconcile::{DamagedRaw, Expected, Recovery, reconcile};
+use super::reconcile::{DamagedRaw, Expected, PendingQuarantine, Recovery, Verdict, reconcile};
 use super::session::{
     self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, StudyMeta, read_session,
     write_session,
@@ -23,6 +23,7 @@ use crate::protocol::Protocol;
 use crate::rawsig::{NpyWriter, RawLayout, sidecar_path};
 use crate::seeds::{TrialKey, format_seed};
 use crate::storage::error::{ExportError, Result};
+use crate::storage::fsutil::{entry_exists, refuse_link};
 use crate::storage::lock::FolderLock;
 use crate::storage::utc::UtcTime;
 
@@ -117,13 +118,14 @@ impl StudyStore {
         let plan = plan(protocol, &orders);
         let plan_index: HashMap<TrialKey, usize> =
             plan.iter().enumerate().map(|(i, p)| (p.key, i)).collect();
+        refuse_links(dir)?;
         let lock = FolderLock::acquire(
             dir,
             &format!("{} {}", meta.software_name, meta.software_version),
         )?;
         let session_path = dir.join(SESSION_FILE);
         let now = UtcTime::now();
-        let resumed = session_path.exists();
+        let resumed = entry_exists(&session_path);
         let mut changes = Vec::new();
         let mut info = if resumed {
             let info = open::load_session(&session_path, protocol, &protocol_sha256)?;
@@ -163,13 +165,15 @@ impl StudyStore {
                 plan_index: &plan_index,
             },
         )?;
-        let damaged = damaged_raw_files(dir, &read, &orders, &verdict.completed);
-        // Checks passed: repair (cut torn tails, keeping copies), quarantine
-        // damaged raw files and open for appending.
+        let damaged = damaged_raw_files(dir, &read, &orders, &verdict);
+        // Checks passed: repair (cut torn tails, keeping copies) and open
+        // for appending; damaged raw files are quarantined below.
         let (trials_file, mut journal) = read.repair(dir)?;
         let mut damaged_raw = Vec::with_capacity(damaged.len());
-        for (trial, file, reason) in damaged {
-            let quarantined_to = raw_check::quarantine(dir, &file, now.unix_millis())?;
+        let mut damaged_lines = Vec::with_capacity(damaged.len());
+        for (trial, line, file, reason) in damaged {
+            let quarantined_to = raw_check::quarantine_target(dir, &file, now.unix_millis());
+            damaged_lines.push(line);
             damaged_raw.push(DamagedRaw {
                 trial,
                 file,
@@ -201,7 +205,21 @@ impl StudyStore {
             device: meta.device.clone(),
         };
         open::journal_opening(&mut journal, start, &recovery, &verdict.completed)?;
-        journal_checks(&mut journal, &recovery, &changes, meta)?;
+        let mut completed = verdict.completed;
+        let quarantine = Quarantine {
+            dir,
+            stamp: now.unix_millis(),
+            trials: read.trials.as_ref(),
+            damaged: recovery.damaged_raw.iter().zip(damaged_lines).collect(),
+            pending: &verdict.pending_quarantine,
+        };
+        let trials_file = quarantine.run(
+            &mut journal,
+            &mut completed,
+            read.trials_path(),
+            trials_file,
+        )?;
+        journal_checks(&mut journal, &changes, meta)?;
         settings::adopt(&mut info, meta);
         info.updated_utc = now;
         let mut store = Self {
@@ -211,7 +229,7 @@ impl StudyStore {
             orders,
             plan,
             plan_index,
-            completed: verdict.completed,
+            completed,
             open_trial: None,
             journal,
             trials: TrialsWriter::from_file(read.trials_path().to_path_buf(), trials_file),
@@ -234,6 +252,7 @@ impl StudyStore {
     /// [`read_session`] and [`StudyStore::open`].
     pub fn open_existing(dir: &Path, meta: &StudyMeta) -> Result<Self> {
         let path = dir.join(SESSION_FILE);
+        refuse_link(&path)?;
         if !path.is_file() {
             return Err(ExportError::NotAStudyFolder {
                 path: dir.to_path_buf(),
@@ -616,14 +635,46 @@ impl StudyStore {
     }
 }
 
-/// The finished trials (`completed`) whose raw file fails its check, as
-/// (trial, file, reason), in file order.
+/// Refuses a study folder in which any file or folder the store opens or
+/// creates is a symbolic link (checked before anything is opened; every
+/// open also uses `O_NOFOLLOW`, so a link planted later is refused too).
+///
+/// # Errors
+/// [`ExportError::SymbolicLink`] naming the first link.
+pub fn refuse_links(dir: &Path) -> Result<()> {
+    use super::datapackage::DATAPACKAGE_FILE;
+    use super::journal::JOURNAL_FILE;
+    use super::open::RECOVERY_DIR;
+    use super::plan::RAW_DIR;
+    use super::summary::{CELLS_LONG_FILE, CELLS_WIDE_FILE};
+    use super::trials::TRIALS_FILE;
+    use crate::storage::lock::LOCK_FILE;
+    for name in [
+        LOCK_FILE,
+        SESSION_FILE,
+        TRIALS_FILE,
+        JOURNAL_FILE,
+        RAW_DIR,
+        RECOVERY_DIR,
+        CELLS_LONG_FILE,
+        CELLS_WIDE_FILE,
+        DATAPACKAGE_FILE,
+    ] {
+        refuse_link(&dir.join(name))?;
+    }
+    refuse_link(&dir.join(RECOVERY_DIR).join(raw_check::QUARANTINE_DIR))
+}
+
+/// The finished trials whose raw file fails its check, as (trial, line of
+/// its row, file, reason), in file order. Rows whose quarantine is already
+/// journaled (a crash before their rewrite) are finished by [`Quarantine`]
+/// instead.
 fn damaged_raw_files(
     dir: &Path,
     read: &FolderRead,
     orders: &[OrderRow],
-    completed: &HashMap<TrialKey, u32>,
-) -> Vec<(TrialKey, String, String)> {
+    verdict: &Verdict,
+) -> Vec<(TrialKey, u64, String, String)> {
     let index: HashMap<&str, u32> = orders
         .iter()
         .map(|o| (o.participant.as_str(), o.index))
@@ -634,40 +685,109 @@ fn damaged_raw_files(
     trials
         .rows
         .iter()
-        .filter(|r| !r.raw_file.is_empty())
-        .filter_map(|r| {
+        .zip(&trials.lines)
+        // Rows without raw signals, or whose file is already in quarantine.
+        .filter(|(r, _)| r.has_trusted_raw())
+        .filter_map(|(r, &line)| {
             let key = r.key(*index.get(r.participant.as_str())?);
-            if !completed.contains_key(&key) {
+            if !verdict.completed.contains_key(&key)
+                || verdict.pending_quarantine.iter().any(|p| p.trial == key)
+            {
                 return None;
             }
-            raw_check::damage(dir, &r.raw_file).map(|why| (key, r.raw_file.clone(), why))
+            raw_check::damage(dir, &r.raw_file).map(|why| (key, line, r.raw_file.clone(), why))
         })
         .collect()
 }
 
-/// Journals what the opening checks found: each damaged raw file (the
-/// trial's flag) and a recorded change of settings with its reason.
+/// Quarantining the damaged raw files of an opening: for each, journal
+/// [`Record::RawQuarantined`] (with the rewritten row's CRC), move the file
+/// and its sidecar to `recovery/quarantine/`, and rewrite its row's
+/// `raw_file` to the new path (empty when the file was missing) — in that
+/// order, so a crash between the steps is finished by the next opening
+/// (`pending`, from [`reconcile`]).
+struct Quarantine<'a> {
+    dir: &'a Path,
+    stamp: i64,
+    trials: Option<&'a super::trials::TrialsRead>,
+    /// Damaged files found now, with the line of their row.
+    damaged: Vec<(&'a DamagedRaw, u64)>,
+    /// Quarantines journaled by an earlier opening that crashed.
+    pending: &'a [PendingQuarantine],
+}
+
+impl Quarantine<'_> {
+    /// Carries out the quarantines; returns the append handle of
+    /// `trials.csv` (a new one when the file was rewritten).
+    fn run(
+        &self,
+        journal: &mut Journal,
+        completed: &mut HashMap<TrialKey, u32>,
+        trials_path: &Path,
+        trials_file: std::fs::File,
+    ) -> Result<std::fs::File> {
+        let Some(trials) = self.trials else {
+            return Ok(trials_file);
+        };
+        if self.damaged.is_empty() && self.pending.is_empty() {
+            return Ok(trials_file);
+        }
+        let row_at = |line: u64| {
+            trials
+                .lines
+                .iter()
+                .position(|&l| l == line)
+                .map(|i| &trials.rows[i])
+        };
+        let mut replace: HashMap<u64, String> = HashMap::new();
+        for &(d, line) in &self.damaged {
+            let Some(row) = row_at(line) else { continue };
+            let mut new_row = row.clone();
+            new_row.raw_file = d.quarantined_to.clone().unwrap_or_default();
+            let (text, crc) = new_row.encode()?;
+            let previous = completed.get(&d.trial).copied().unwrap_or_default();
+            journal.append(Record::RawQuarantined {
+                trial: d.trial,
+                file: d.file.clone(),
+                reason: d.reason.clone(),
+                moved_to: d.quarantined_to.clone(),
+                previous_row_crc32: checksum::crc32_hex(previous),
+                row_crc32: checksum::crc32_hex(crc),
+            })?;
+            raw_check::quarantine(self.dir, &d.file, d.quarantined_to.as_deref(), self.stamp)?;
+            replace.insert(line, text);
+            completed.insert(d.trial, crc);
+        }
+        for p in self.pending {
+            let Some(row) = row_at(p.line) else { continue };
+            let mut new_row = row.clone();
+            new_row.raw_file = p.moved_to.clone().unwrap_or_default();
+            let (text, crc) = new_row.encode()?;
+            if crc != p.row_crc32 {
+                return Err(ExportError::Inconsistent {
+                    path: trials_path.to_path_buf(),
+                    message: format!(
+                        "line {}: trial {}: the journaled quarantine of `{}` gives row_crc32 \
+                         {:08x}, the rewritten row has {crc:08x}",
+                        p.line, p.trial, p.file, p.row_crc32
+                    ),
+                });
+            }
+            raw_check::quarantine(self.dir, &p.file, p.moved_to.as_deref(), self.stamp)?;
+            replace.insert(p.line, text);
+            completed.insert(p.trial, crc);
+        }
+        drop(trials_file);
+        super::trials::rewrite_lines(trials_path, &replace)
+    }
+}
+
+/// Journals a recorded change of settings with its reason.
 fn journal_checks(
     journal: &mut Journal,
-    recovery: &Recovery,
     changes: &[settings::SettingChange],
     meta: &StudyMeta,
 ) -> Result<()> {
-    for d in &recovery.damaged_raw {
-        journal.append(Record::Note {
-            text: format!(
-                "raw_damaged: trial {}: raw file {} {}; {}; its row is kept, its signals are \
-                 not to be trusted",
-                d.trial,
-                d.file,
-                d.reason,
-                d.quarantined_to.as_ref().map_or_else(
-                    || "nothing to quarantine".to_owned(),
-                    |q| format!("moved to {q}")
-                )
-            ),
-        })?;
-    }
     if let (false, Some(reason)) = (changes.is_empty(), &meta.recorded_change) {
         let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
         journal.append(Record::Note {

@@ -31,7 +31,7 @@ use super::trials::{Metric, TRIALS_FILE, TrialRow, read_trials};
 use crate::protocol::Condition;
 use crate::seeds::Phase;
 use crate::stats::rows::{LongRow, RowCounts, RowRule, select_rows};
-use crate::storage::error::{ExportError, Position, Result, io_err};
+use crate::storage::error::{ExportError, Position, Result};
 use crate::storage::fsutil::{TornTail, write_atomic};
 
 /// File name of the long summary.
@@ -342,7 +342,7 @@ impl Table {
     /// # Errors
     /// I/O, malformed CSV or ragged rows, naming the line.
     pub fn read(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(io_err(path, "read"))?;
+        let bytes = crate::storage::fsutil::read_no_follow(path)?;
         let mut reader = csv::ReaderBuilder::new().from_reader(bytes.as_slice());
         let fmt = |line: u64, message: String| ExportError::Format {
             path: path.to_path_buf(),

@@ -11,7 +11,7 @@
 //! including, its last comma.
 
 use std::collections::HashMap;
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -23,8 +23,8 @@ use crate::protocol::{Condition, Task};
 use crate::seeds::{Phase, TrialKey, format_seed, parse_seed};
 use crate::storage::error::{ExportError, Position, Result, io_err};
 use crate::storage::fsutil::{
-    Checked, Line, TornTail, append_durable, open_append, parent_of, split_lines, sync_dir,
-    valid_prefix,
+    Checked, Line, TornTail, append_durable, no_follow, open_append, parent_of, split_lines,
+    sync_dir, valid_prefix,
 };
 use crate::storage::utc::UtcTime;
 
@@ -741,7 +741,7 @@ pub fn read_trials(path: &Path) -> Result<TrialsRead> {
 /// # Errors
 /// I/O and [`parse_trials`] errors.
 pub fn read_trials_with(path: &Path, opts: ReadOptions) -> Result<TrialsRead> {
-    let bytes = std::fs::read(path).map_err(io_err(path, "read"))?;
+    let bytes = crate::storage::fsutil::read_no_follow(path)?;
     parse_trials(path, &bytes, opts)
 }
 
@@ -777,7 +777,7 @@ impl TrialsWriter {
 /// # Errors
 /// I/O errors (also when the file exists).
 pub(crate) fn create_trials_file(path: &Path) -> Result<File> {
-    let mut f = OpenOptions::new()
+    let mut f = no_follow()
         .create_new(true)
         .append(true)
         .open(path)
@@ -786,6 +786,30 @@ pub(crate) fn create_trials_file(path: &Path) -> Result<File> {
     f.sync_all().map_err(io_err(path, "fsync"))?;
     sync_dir(&parent_of(path))?;
     Ok(f)
+}
+
+/// Replaces the lines of `trials.csv` numbered in `replace` (1-based, each
+/// new text with its `\n`) atomically (temporary file, rename) and opens
+/// the file for appending. Every other byte is kept as it is.
+///
+/// # Errors
+/// I/O errors.
+pub(crate) fn rewrite_lines(path: &Path, replace: &HashMap<u64, String>) -> Result<File> {
+    let bytes = crate::storage::fsutil::read_no_follow(path)?;
+    let mut out = Vec::with_capacity(bytes.len() + 64 * replace.len());
+    for line in split_lines(&bytes) {
+        match replace.get(&line.number) {
+            Some(text) => out.extend_from_slice(text.as_bytes()),
+            None => {
+                out.extend_from_slice(line.text);
+                if line.complete {
+                    out.push(b'\n');
+                }
+            }
+        }
+    }
+    crate::storage::fsutil::write_atomic(path, &out)?;
+    open_append(path)
 }
 
 /// Whether `bytes` are a strict prefix of the header: what a crash while
@@ -801,7 +825,7 @@ pub(crate) fn is_partial_header(bytes: &[u8]) -> bool {
 /// # Errors
 /// I/O errors.
 pub(crate) fn rewrite_header(path: &Path) -> Result<File> {
-    let mut f = OpenOptions::new()
+    let mut f = no_follow()
         .write(true)
         .open(path)
         .map_err(io_err(path, "open"))?;

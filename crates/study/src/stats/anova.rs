@@ -150,8 +150,10 @@ pub fn one_way_anova<G: AsRef<[f64]>>(groups: &[G]) -> Result<OneWayAnova> {
 /// (a condition simply has fewer means), so between-subject data work too.
 ///
 /// # Errors
-/// As [`one_way_anova`]; an empty group is named by its condition label.
+/// As [`one_way_anova`]; an empty group is named by its condition label;
+/// [`StatsError::NonFiniteCell`] for a cell mean that overflows.
 pub fn oneway(design: &Design) -> Result<OneWayAnova> {
+    design.check_cell_means()?;
     let groups = design.condition_groups();
     if let Some((label, _)) = groups.iter().find(|(_, v)| v.is_empty()) {
         return Err(StatsError::EmptyGroup {

@@ -4,7 +4,7 @@ use serde::Serialize;
 
 use super::design::{CellMatrix, compensated_mean};
 use super::effect::quantile_sorted;
-use super::error::Result;
+use super::error::{Result, StatsError};
 
 /// One condition's descriptives (in the unit of the dependent variable).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -70,15 +70,29 @@ pub fn summarize_sample(condition: &str, values: &[f64]) -> ConditionSummary {
 /// Per-condition descriptives of the cell means of `m`.
 ///
 /// # Errors
-/// None at present (a [`CellMatrix`] is non-empty and finite); the
-/// `Result` keeps the test interface uniform.
+/// [`StatsError::Numerical`] when a summary of finite values overflows
+/// `f64` (values near ±1.8·10³⁰⁸), naming the condition.
 pub fn describe(m: &CellMatrix) -> Result<Describe> {
-    Ok(Describe {
-        conditions: m
-            .conditions()
+    let conditions: Vec<ConditionSummary> = m
+        .conditions()
+        .iter()
+        .enumerate()
+        .map(|(j, c)| summarize_sample(c, &m.column(j)))
+        .collect();
+    if let Some(c) = conditions.iter().find(|c| {
+        ![c.mean, c.median, c.q1, c.q3, c.iqr]
             .iter()
-            .enumerate()
-            .map(|(j, c)| summarize_sample(c, &m.column(j)))
-            .collect(),
-    })
+            .chain(c.sd.iter())
+            .all(|x| x.is_finite())
+    }) {
+        return Err(StatsError::Numerical {
+            what: "describe",
+            detail: format!(
+                "the mean, SD or quartiles of condition `{}` overflow a 64-bit float; rescale \
+                 the variable",
+                c.condition
+            ),
+        });
+    }
+    Ok(Describe { conditions })
 }

@@ -146,16 +146,41 @@ impl Design {
         self.cells.iter().all(|c| !c.is_empty())
     }
 
+    /// Refuses a cell whose mean is not finite (finite values whose sum
+    /// overflows `f64`): no test ranks or averages such a cell.
+    ///
+    /// # Errors
+    /// [`StatsError::NonFiniteCell`] naming the first such cell.
+    pub fn check_cell_means(&self) -> Result<()> {
+        let k = self.conditions.len();
+        for (i, cell) in self.cells.iter().enumerate() {
+            if cell.is_empty() {
+                continue;
+            }
+            let value = compensated_mean(cell);
+            if !value.is_finite() {
+                return Err(StatsError::NonFiniteCell {
+                    subject: self.subjects[i / k].clone(),
+                    condition: self.conditions[i % k].clone(),
+                    rows: cell.len(),
+                    value,
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// The cell-mean matrix of a complete within-subject design.
     ///
     /// # Errors
     /// [`StatsError::IncompleteDesign`] naming each subject and the
-    /// conditions it lacks.
+    /// conditions it lacks; [`StatsError::NonFiniteCell`].
     pub fn cell_matrix(&self) -> Result<CellMatrix> {
         let missing = self.missing_cells();
         if !missing.is_empty() {
             return Err(StatsError::IncompleteDesign { missing });
         }
+        self.check_cell_means()?;
         let values = self.cells.iter().map(|c| compensated_mean(c)).collect();
         Ok(CellMatrix {
             subjects: self.subjects.clone(),
@@ -309,13 +334,12 @@ impl CellMatrix {
             });
         }
         for (what, labels) in [("subject", &subjects), ("condition", &conditions)] {
-            for (i, l) in labels.iter().enumerate() {
-                if labels[..i].contains(l) {
-                    return Err(StatsError::DuplicateLabel {
-                        what,
-                        label: l.clone(),
-                    });
-                }
+            let mut seen = std::collections::HashSet::with_capacity(labels.len());
+            if let Some(l) = labels.iter().find(|l| !seen.insert(l.as_str())) {
+                return Err(StatsError::DuplicateLabel {
+                    what,
+                    label: l.clone(),
+                });
             }
         }
         let k = conditions.len();
@@ -502,6 +526,30 @@ mod tests {
     fn bad_input_is_a_typed_error() {
         let empty: Vec<(&str, &str, f64)> = vec![];
         assert_eq!(Design::from_long(empty), Err(StatsError::Empty));
+        // Finite values whose cell mean overflows: refused, naming the cell,
+        // by the matrix of the within tests and by the one-way ANOVA.
+        let huge = Design::from_long(vec![
+            ("a", "V", 1.0),
+            ("a", "P", 1e308),
+            ("a", "P", 1e308),
+            ("b", "V", 2.0),
+            ("b", "P", 3.0),
+        ])
+        .unwrap();
+        let err = huge.cell_matrix().unwrap_err();
+        assert!(
+            matches!(err, StatsError::NonFiniteCell { rows: 2, .. }),
+            "{err:?}"
+        );
+        assert!(
+            err.to_string()
+                .contains("cell (subject `a`, condition `P`) over 2 row(s)"),
+            "{err}"
+        );
+        assert_eq!(
+            crate::stats::oneway(&huge).unwrap_err().to_string(),
+            err.to_string()
+        );
         let err = Design::from_long(vec![("a", "V", 1.0), ("a", "P", f64::NAN)]).unwrap_err();
         assert!(
             matches!(err, StatsError::NonFinite { row: 1, .. }),

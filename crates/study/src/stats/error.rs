@@ -36,6 +36,22 @@ pub enum StatsError {
         /// The offending value.
         value: f64,
     },
+    /// The mean of a (subject, condition) cell is not finite: its values,
+    /// each finite, add up beyond the range of `f64` (|sum| > 1.8e308).
+    #[error(
+        "the mean of cell (subject `{subject}`, condition `{condition}`) over {rows} row(s) is \
+         {value}: its values overflow a 64-bit float; rescale the variable"
+    )]
+    NonFiniteCell {
+        /// Subject label of the cell.
+        subject: String,
+        /// Condition label of the cell.
+        condition: String,
+        /// Rows averaged into the cell.
+        rows: usize,
+        /// The mean computed.
+        value: f64,
+    },
     /// A slice argument carries a NaN or infinite value.
     #[error("non-finite value {value} at index {index} of {what}")]
     NonFiniteInput {

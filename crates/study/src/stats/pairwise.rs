@@ -34,7 +34,17 @@ fn differences(x: &[f64], y: &[f64]) -> Result<Vec<f64>> {
     }
     check_finite("x", x)?;
     check_finite("y", y)?;
-    Ok(x.iter().zip(y).map(|(a, b)| a - b).collect())
+    let d: Vec<f64> = x.iter().zip(y).map(|(a, b)| a - b).collect();
+    if let Some(i) = d.iter().position(|v| !v.is_finite()) {
+        return Err(StatsError::Numerical {
+            what: "paired differences",
+            detail: format!(
+                "x − y overflows a 64-bit float at pair {i} ({} − {}); rescale the variable",
+                x[i], y[i]
+            ),
+        });
+    }
+    Ok(d)
 }
 
 /// Result of a one-sample or paired t-test (two-sided).
@@ -531,6 +541,16 @@ pub fn pairwise_tests(m: &CellMatrix, opts: WilcoxonOptions) -> Result<PairwiseT
             mean_diff_ci: None,
             undefined: Vec::new(),
         };
+        if !row.mean_diff.is_finite() {
+            return Err(StatsError::Numerical {
+                what: "pairwise tests",
+                detail: format!(
+                    "the mean difference of `{}` − `{}` overflows a 64-bit float; rescale the \
+                     variable",
+                    row.a, row.b
+                ),
+            });
+        }
         match one_sample_t(&d, 0.0) {
             Ok(t) => {
                 let half = q * t.sd / (n as f64).sqrt();

@@ -45,6 +45,28 @@ pub enum ExportError {
         /// Underlying error.
         source: io::Error,
     },
+    /// A file or folder of a study folder is a symbolic link: the store
+    /// never follows one (it could write outside the folder).
+    #[error(
+        "{}: is a symbolic link; a study folder never follows links (replace it by the file or \
+         folder itself, or open the folder the link points to)",
+        path.display()
+    )]
+    SymbolicLink {
+        /// The link.
+        path: PathBuf,
+    },
+    /// `session.json` no longer holds what was written: a field was edited
+    /// (its checksum, or what it is re-derived from, does not match).
+    #[error("{}: field `{field}` was changed after it was written: {detail}", path.display())]
+    SessionTampered {
+        /// `session.json`.
+        path: PathBuf,
+        /// The field, e.g. `protocol_toml` or `seeds.study`.
+        field: String,
+        /// What does not match.
+        detail: String,
+    },
     /// A line of a file cannot be parsed (bad cell, wrong field count,
     /// malformed JSON, bad NPY header, …).
     #[error("{}: {at}: {message}", path.display())]
@@ -207,5 +229,25 @@ pub(crate) fn io_err(
     op: &'static str,
 ) -> impl FnOnce(io::Error) -> ExportError {
     let path = path.into();
-    move |source| ExportError::Io { path, op, source }
+    move |source| {
+        if is_link_error(&source) {
+            ExportError::SymbolicLink { path }
+        } else {
+            ExportError::Io { path, op, source }
+        }
+    }
+}
+
+/// Whether an open with `O_NOFOLLOW` failed because the last component is
+/// a symbolic link (`ELOOP`).
+fn is_link_error(e: &io::Error) -> bool {
+    #[cfg(unix)]
+    {
+        e.raw_os_error() == Some(libc::ELOOP)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = e;
+        false
+    }
 }

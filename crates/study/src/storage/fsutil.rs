@@ -1,5 +1,9 @@
 //! Durable file operations: fsync of files and directories, atomic
-//! replacement, torn-tail bookkeeping.
+//! replacement, torn-tail bookkeeping; and links refused: every file of a
+//! study folder is opened with `O_NOFOLLOW` ([`no_follow`]) and every
+//! folder checked with `symlink_metadata` ([`refuse_link`]), so a symbolic
+//! link planted in a study folder is reported by path
+//! ([`ExportError::SymbolicLink`]) instead of being written through.
 //!
 //! POSIX guarantees nothing about a newly created directory entry until the
 //! *directory* is fsynced, and nothing about appended data until the file is
@@ -17,6 +21,56 @@ use serde::de::DeserializeOwned;
 
 use super::error::{ExportError, Result, io_err};
 use super::utc::UtcTime;
+
+/// Open options that refuse a symbolic link as the last component of the
+/// path (`O_NOFOLLOW`: the open fails with `ELOOP`, which
+/// [`super::error::io_err`] reports as [`ExportError::SymbolicLink`]).
+pub fn no_follow() -> OpenOptions {
+    #[allow(unused_mut)]
+    let mut o = OpenOptions::new();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.custom_flags(libc::O_NOFOLLOW);
+    }
+    o
+}
+
+/// Refuses `path` when it is a symbolic link (a missing path is fine).
+///
+/// # Errors
+/// [`ExportError::SymbolicLink`].
+pub fn refuse_link(path: &Path) -> Result<()> {
+    match fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_symlink() => Err(ExportError::SymbolicLink {
+            path: path.to_path_buf(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Whether `path` exists as a directory entry (a dangling link counts:
+/// unlike [`Path::exists`], nothing is followed).
+pub fn entry_exists(path: &Path) -> bool {
+    fs::symlink_metadata(path).is_ok()
+}
+
+/// The bytes of a file, opened without following a link.
+///
+/// # Errors
+/// I/O errors ([`ExportError::SymbolicLink`] for a link).
+pub fn read_no_follow(path: &Path) -> Result<Vec<u8>> {
+    read_no_follow_io(path).map_err(io_err(path, "read"))
+}
+
+/// [`read_no_follow`] with the I/O error (`NotFound` can be told apart).
+pub(crate) fn read_no_follow_io(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut f = no_follow().read(true).open(path)?;
+    let mut bytes = Vec::new();
+    f.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
 
 /// Flushes a directory's entries (new, renamed files) to stable storage.
 ///
@@ -44,11 +98,23 @@ pub fn parent_of(path: &Path) -> PathBuf {
 }
 
 /// Creates `dir` (and parents) and fsyncs it and its parent, so the new
-/// entry survives a crash.
+/// entry survives a crash. A `dir` that is a symbolic link is refused (a
+/// folder inside a study folder; the study folder itself, named by the
+/// user, may be reached through links: see [`create_root_durable`]).
+///
+/// # Errors
+/// [`ExportError::SymbolicLink`]; creation or fsync failure.
+pub fn create_dir_durable(dir: &Path) -> Result<()> {
+    refuse_link(dir)?;
+    create_root_durable(dir)
+}
+
+/// [`create_dir_durable`] for the study folder itself: the path the user
+/// gave may be a link to a folder (e.g. `/tmp` on macOS).
 ///
 /// # Errors
 /// Creation or fsync failure.
-pub fn create_dir_durable(dir: &Path) -> Result<()> {
+pub fn create_root_durable(dir: &Path) -> Result<()> {
     if !dir.is_dir() {
         fs::create_dir_all(dir).map_err(io_err(dir, "create directory"))?;
         sync_dir(&parent_of(dir))?;
@@ -64,11 +130,17 @@ pub fn create_dir_durable(dir: &Path) -> Result<()> {
 /// Any I/O failure (the temporary file may remain; it is overwritten by the
 /// next attempt).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    refuse_link(path)?;
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
     let tmp = PathBuf::from(tmp);
     {
-        let mut f = File::create(&tmp).map_err(io_err(&tmp, "create"))?;
+        let mut f = no_follow()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)
+            .map_err(io_err(&tmp, "create"))?;
         f.write_all(bytes).map_err(io_err(&tmp, "write"))?;
         f.sync_all().map_err(io_err(&tmp, "fsync"))?;
     }
@@ -81,8 +153,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// # Errors
 /// I/O errors; [`ExportError::Json`] naming the file.
 pub(crate) fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = fs::read_to_string(path).map_err(io_err(path, "read"))?;
-    serde_json::from_str(&text).map_err(|source| ExportError::Json {
+    let bytes = read_no_follow(path)?;
+    serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,
     })
@@ -104,8 +176,8 @@ pub fn append_durable(file: &mut File, path: &Path, bytes: &[u8]) -> Result<()> 
 /// # Errors
 /// Open / fsync failure.
 pub fn open_append(path: &Path) -> Result<File> {
-    let existed = path.exists();
-    let f = OpenOptions::new()
+    let existed = entry_exists(path);
+    let f = no_follow()
         .create(true)
         .append(true)
         .open(path)
@@ -165,7 +237,7 @@ pub fn cut_torn_tail(
     let stamp = UtcTime::now().unix_millis();
     let copy = recovery_dir.join(format!("{name}.{stamp}.torn"));
     write_atomic(&copy, bytes)?;
-    let f = OpenOptions::new()
+    let f = no_follow()
         .write(true)
         .open(path)
         .map_err(io_err(path, "open for truncation"))?;

@@ -70,9 +70,7 @@ pub struct Scene {
     pub heading: [f64; 2],
 }
 
-/// Surface gap between the bead and the obstacle at the start of a
-/// circling trial, m (the participant first approaches the obstacle).
-pub const CIRCLING_START_GAP_M: f64 = 2.0e-6;
+pub use crate::protocol::CIRCLING_START_GAP_M;
 
 /// Fraction of the widest heading cone that still hits the obstacle from
 /// which blind-navigation headings are drawn (so that a straight movement
