@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of the file loaders (protocol and rig TOML,
-# trials.csv, the journal, session.json) with libFuzzer, for SECONDS each
+# trials.csv, the journal, session.json) and of the serial stream decoder
+# (kilotouch-proto, any byte sequence) with libFuzzer, for SECONDS each
 # (default 60). Usage: fuzz/run.sh [SECONDS]
 #
 # Runs on the stable toolchain: the targets are built with LLVM's
@@ -23,13 +24,13 @@ export RUSTFLAGS="--cfg fuzzing -Cpasses=sancov-module \
 -Cllvm-args=-sanitizer-coverage-trace-compares"
 cargo build --release --bins --locked --target "$host"
 work="$(mktemp -d)"
-for t in protocol_toml rig_toml trials_csv journal_jsonl session_json; do
+for t in protocol_toml rig_toml trials_csv journal_jsonl session_json decoder; do
     mkdir -p "$work/$t"
     echo "== fuzz $t: ${seconds} s (seeds: fuzz/corpus/$t)"
     # The first folder collects the inputs found; the second holds seeds.
     "target/$host/release/$t" -max_total_time="$seconds" -rss_limit_mb=2048 \
         -max_len=65536 -print_final_stats=1 -artifact_prefix="$work/$t-" \
-        "$work/$t" "corpus/$t" 2>&1 | grep -E "^(#[0-9]+ +DONE|Done|stat::number_of_executed_units|==|SUMMARY|panicked|thread)" || true
+        "$work/$t" $( [ -d "corpus/$t" ] && echo "corpus/$t" ) 2>&1 | grep -E "^(#[0-9]+ +DONE|Done|stat::number_of_executed_units|==|SUMMARY|panicked|thread)" || true
     # A crash leaves its input as an artifact: fail with it.
     if compgen -G "$work/$t-*" >/dev/null; then
         echo "fuzz $t: failing input(s):" "$work/$t"-*

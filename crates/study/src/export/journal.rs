@@ -107,9 +107,6 @@ pub struct RecoveryRecord {
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
-// One record is built, written and dropped at a time (a few per trial), so
-// the size of the sitting's opening record costs nothing worth a box.
-#[allow(clippy::large_enum_variant)]
 pub enum Record {
     /// A sitting opened the folder: protocol hash, software version, seeds,
     /// order table.
