@@ -80,19 +80,47 @@ pub fn record(
     if !trap_m.iter().all(|v| v.is_finite()) {
         anyhow::bail!("the trap position must be finite");
     }
-    let mut tw: Box<dyn Tweezer> = match spec {
-        RigSpec::Sim => Box::new(DetectedTweezer::new(
-            TweezerParams::from_config(&rc.tweezer),
-            &rc.tweezer.detector,
-            rc.rig.sample_rate_hz,
-        )?),
-        RigSpec::Serial(cfg) => Box::new(LinkTweezer::open(cfg)?),
+    let surface = matches!(spec, RigSpec::Sim)
+        .then(|| surface_drag(&TweezerParams::from_config(&rc.tweezer), trap_m));
+    let (fs, volts) = match spec {
+        RigSpec::Sim => {
+            let mut tw = DetectedTweezer::new(
+                TweezerParams::from_config(&rc.tweezer),
+                &rc.tweezer.detector,
+                rc.rig.sample_rate_hz,
+            )?;
+            record_from(&mut tw, duration_s, trap_m, progress)?
+        }
+        // The block link with its command lead (`lead=auto` unless the
+        // spec says otherwise); a link failure is reported with what the
+        // link saw (stall, end of file, watchdog), naming the port.
+        RigSpec::Serial(cfg) => {
+            let mut tw = LinkTweezer::open(cfg)?;
+            record_from(&mut tw, duration_s, trap_m, progress).map_err(|e| match tw.failure() {
+                Some(f) => anyhow::anyhow!("{e}: {f}"),
+                None => e,
+            })?
+        }
         RigSpec::Audio(_) => {
             anyhow::bail!("an audio interface has no tweezer; use sim or serial:PATH")
         }
     };
-    let surface = matches!(spec, RigSpec::Sim)
-        .then(|| surface_drag(&TweezerParams::from_config(&rc.tweezer), trap_m));
+    Ok(DetectorRecord {
+        fs_hz: fs,
+        volts,
+        source: spec.describe(),
+        surface,
+    })
+}
+
+/// The record of [`record`] from tweezer `tw`: its sample rate and the
+/// signals (x, y), V.
+fn record_from(
+    tw: &mut dyn Tweezer,
+    duration_s: f64,
+    trap_m: [f64; 2],
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<(f64, [Vec<f64>; 2])> {
     let fs = tw.sample_rate_hz();
     let n = (duration_s * fs).round();
     if n > MAX_RECORD_SAMPLES as f64 {
@@ -102,18 +130,11 @@ pub fn record(
     // Move the trap there and let the bead settle (50 relaxation times of
     // any trap above 10 Hz): the record starts stationary.
     tw.reset(trap_m);
-    for _ in 0..(0.05 * fs).ceil() as usize {
-        tw.step(trap_m);
-    }
-    let volts = record_detector(tw.as_mut(), trap_m, n, &mut |i| {
+    let settle = (0.05 * fs).ceil() as usize;
+    let volts = record_detector(tw, trap_m, settle, n, &mut |i| {
         progress(i as f64 / n as f64)
     })?;
-    Ok(DetectorRecord {
-        fs_hz: fs,
-        volts,
-        source: spec.describe(),
-        surface,
-    })
+    Ok((fs, volts))
 }
 
 /// Calibrate both axes of a record with the same settings (the record's

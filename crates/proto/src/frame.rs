@@ -76,6 +76,9 @@ pub mod ty {
     /// Host → device: reset the instrument state to one command item
     /// (tweezer: trap and bead at the given position).
     pub const RESET: u8 = 0x07;
+    /// Host → device: ask a tweezer for its scene (no payload); answered
+    /// by [`SCENE`], or FAULT `BAD_FRAME` by a device without one.
+    pub const SCENE_REQ: u8 = 0x08;
     /// Host → device: information about the experiment
     /// ([`crate::info::Info`]); optional, a device may ignore it.
     pub const INFO: u8 = 0x20;
@@ -89,6 +92,9 @@ pub mod ty {
     pub const FAULT: u8 = 0x84;
     /// Device → host: tweezer samples (block of [`crate::TweezerWireSample`]).
     pub const TWEEZER_SAMPLES: u8 = 0x85;
+    /// Device → host: the tweezer's scene ([`crate::Scene`]): bead radius
+    /// and obstacles in the trap's frame.
+    pub const SCENE: u8 = 0x86;
     /// Host → device: a test frame ([`crate::testing`]); only test builds
     /// (the firmware's QEMU build) act on it, others answer FAULT BAD_FRAME.
     pub const TEST: u8 = 0x3F;

@@ -63,6 +63,9 @@ pub mod tweezer_status {
     pub const RECAPTURED: u8 = 0x20;
     /// Watchdog: the trap was held (no valid host frame).
     pub const WATCHDOG: u8 = 0x40;
+    /// The trap set-point for this sample had not arrived: the previous
+    /// one was held (a free-running device, `docs/PROTOCOL.md` §7).
+    pub const CMD_LATE: u8 = 0x80;
 }
 
 /// Tweezer sample (device → host, §6.2).

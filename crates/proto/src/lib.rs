@@ -11,7 +11,8 @@
 //!   codes, encoding a frame into a slice.
 //! * [`items`]: the fixed-size block items (DAQ commands and samples, trap
 //!   commands, tweezer samples) and block payloads.
-//! * [`message`]: HELLO (identity with bounded strings), STATUS, FAULT.
+//! * [`message`]: HELLO (identity with bounded strings), STATUS, FAULT,
+//!   SCENE (a tweezer's obstacles).
 //! * [`info`]: the host's optional information frames (trial, screen).
 //! * [`decoder`]: the resynchronising stream decoder with a fixed buffer.
 //! * [`seq`]: extension of the wire's 32-bit sequence numbers.
@@ -39,6 +40,7 @@ pub use items::{
     block_len, encode_block, max_items, tweezer_status,
 };
 pub use message::{
-    Caps, DaqCaps, DeviceKind, DeviceState, FaultReport, Hello, Status, TweezerCaps,
+    Caps, DaqCaps, DeviceKind, DeviceState, FaultReport, Hello, MAX_SCENE_OBSTACLES, Scene,
+    SceneObstacle, Status, TweezerCaps,
 };
 pub use seq::unwrap_seq;

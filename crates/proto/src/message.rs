@@ -1,4 +1,5 @@
-//! HELLO, STATUS and FAULT payloads (`docs/PROTOCOL.md` §5.1, §6.3, §6.4).
+//! HELLO, STATUS, FAULT and SCENE payloads (`docs/PROTOCOL.md` §5.1, §6.3,
+//! §6.4, §6.5).
 
 use crate::frame::{PROTOCOL_VERSION, WireError, rd};
 
@@ -360,6 +361,101 @@ impl FaultReport {
     }
 }
 
+/// Most obstacles a [`Scene`] carries (9 + 32 · 24 = 777 payload bytes).
+pub const MAX_SCENE_OBSTACLES: usize = 32;
+
+/// One obstacle of a [`Scene`]: a sphere whose centre lies in the focal
+/// plane, in the trap's frame (the frame of the trap set-points), m.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SceneObstacle {
+    /// Centre (x, y), m.
+    pub centre_m: [f64; 2],
+    /// Radius, m.
+    pub radius_m: f64,
+}
+
+/// A tweezer's scene ([`crate::ty::SCENE`], `docs/PROTOCOL.md` §6.5): the
+/// bead's radius and the fixed obstacles around it, so that the host
+/// computes the bead's surface gap and contact normal from the same
+/// geometry as the instrument. Payload: `f64` bead radius (m), `u8` count
+/// n ≤ [`MAX_SCENE_OBSTACLES`], n × (`f64` x, `f64` y, `f64` radius, m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scene {
+    /// Bead radius R, m.
+    pub bead_radius_m: f64,
+    /// Obstacles in use (≤ [`MAX_SCENE_OBSTACLES`]).
+    pub count: u8,
+    /// The obstacles; the first `count` are the scene's.
+    pub obstacles: [SceneObstacle; MAX_SCENE_OBSTACLES],
+}
+
+impl Scene {
+    /// Largest payload, bytes.
+    pub const MAX_SIZE: usize = 9 + 24 * MAX_SCENE_OBSTACLES;
+
+    /// A scene of `obstacles` (`None` when there are more than
+    /// [`MAX_SCENE_OBSTACLES`]).
+    pub fn new(bead_radius_m: f64, obstacles: &[SceneObstacle]) -> Option<Self> {
+        if obstacles.len() > MAX_SCENE_OBSTACLES {
+            return None;
+        }
+        let mut o = [SceneObstacle::default(); MAX_SCENE_OBSTACLES];
+        o[..obstacles.len()].copy_from_slice(obstacles);
+        Some(Self {
+            bead_radius_m,
+            count: obstacles.len() as u8,
+            obstacles: o,
+        })
+    }
+
+    /// The scene's obstacles.
+    pub fn obstacles(&self) -> &[SceneObstacle] {
+        &self.obstacles[..usize::from(self.count).min(MAX_SCENE_OBSTACLES)]
+    }
+
+    /// Encoded payload size, bytes.
+    pub fn size(&self) -> usize {
+        9 + 24 * self.obstacles().len()
+    }
+
+    /// Encode the payload into the start of `out`; returns its length.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, WireError> {
+        let n = self.size();
+        let Some(out) = out.get_mut(..n) else {
+            return Err(WireError::BufferTooSmall(n));
+        };
+        out[..8].copy_from_slice(&self.bead_radius_m.to_le_bytes());
+        out[8] = self.obstacles().len() as u8;
+        for (o, dst) in self.obstacles().iter().zip(out[9..].chunks_exact_mut(24)) {
+            dst[..8].copy_from_slice(&o.centre_m[0].to_le_bytes());
+            dst[8..16].copy_from_slice(&o.centre_m[1].to_le_bytes());
+            dst[16..].copy_from_slice(&o.radius_m.to_le_bytes());
+        }
+        Ok(n)
+    }
+
+    /// Parse a payload (exactly `9 + 24 n` bytes, n ≤
+    /// [`MAX_SCENE_OBSTACLES`]; the values are the device's, checked by
+    /// the host).
+    pub fn parse(payload: &[u8]) -> Option<Self> {
+        let mut r = Rd { b: payload, at: 0 };
+        let bead_radius_m = r.f64()?;
+        let n = usize::from(r.u8()?);
+        if n > MAX_SCENE_OBSTACLES || payload.len() != 9 + 24 * n {
+            return None;
+        }
+        let mut s = Self::new(bead_radius_m, &[])?;
+        for o in s.obstacles.iter_mut().take(n) {
+            *o = SceneObstacle {
+                centre_m: [r.f64()?, r.f64()?],
+                radius_m: r.f64()?,
+            };
+        }
+        s.count = n as u8;
+        Some(s)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -415,6 +511,33 @@ mod tests {
         };
         assert_eq!(FaultReport::parse(&fr.encode()), Some(fr));
         assert_eq!(FaultReport::parse(&[1, 2]), None);
+    }
+
+    #[test]
+    fn scenes_round_trip_and_are_bounded() {
+        let obs: [SceneObstacle; 3] = core::array::from_fn(|i| SceneObstacle {
+            centre_m: [1e-5 * i as f64, -2e-6],
+            radius_m: 5e-6 + i as f64 * 1e-7,
+        });
+        let s = Scene::new(1.5e-6, &obs).unwrap();
+        let mut b = [0u8; Scene::MAX_SIZE];
+        let n = s.encode(&mut b).unwrap();
+        assert_eq!(n, 9 + 3 * 24);
+        let p = Scene::parse(&b[..n]).unwrap();
+        assert_eq!(p.obstacles(), &obs);
+        assert_eq!(p.bead_radius_m, 1.5e-6);
+        assert_eq!(Scene::parse(&b[..n - 1]), None);
+        assert!(s.encode(&mut b[..n - 1]).is_err());
+        // An empty scene, and one over the bound.
+        let e = Scene::new(1e-6, &[]).unwrap();
+        let n = e.encode(&mut b).unwrap();
+        assert_eq!(Scene::parse(&b[..n]).unwrap().obstacles(), &[]);
+        let many = [SceneObstacle::default(); MAX_SCENE_OBSTACLES + 1];
+        assert!(Scene::new(1e-6, &many).is_none());
+        let full = Scene::new(1e-6, &many[..MAX_SCENE_OBSTACLES]).unwrap();
+        assert_eq!(full.encode(&mut b), Ok(Scene::MAX_SIZE));
+        b[8] = MAX_SCENE_OBSTACLES as u8 + 1;
+        assert_eq!(Scene::parse(&b[..Scene::MAX_SIZE]), None);
     }
 
     /// Strings are bounded: 255 bytes at most, cut before a continuation

@@ -52,7 +52,7 @@ pub struct Args {
     /// Device watchdog window, ms: outputs safe when no valid host frame arrives within it.
     #[arg(long, default_value_t = 100)]
     pub watchdog_ms: u64,
-    /// Samples per device frame (default: 10 for the DAQ, 1 for the tweezer).
+    /// Samples per device frame (default 10: a 10-sample block in one frame).
     #[arg(long)]
     pub batch: Option<usize>,
     /// Probability that an outgoing byte is corrupted.
@@ -277,7 +277,7 @@ pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
                 );
             }
             let inst = TweezerInstrument::new(&a.rig_config()?)?;
-            run_on_pty(inst, a.config(1)?, link_delay(a.link_delay_ms)?, "tweezer")
+            run_on_pty(inst, a.config(10)?, link_delay(a.link_delay_ms)?, "tweezer")
         }
     }
 }

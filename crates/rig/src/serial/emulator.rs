@@ -79,6 +79,11 @@ pub trait Instrument: Send {
     fn info(&mut self, info: &HostInfo) {
         let _ = info;
     }
+    /// The scene a tweezer serves on SCENE_REQ (`docs/PROTOCOL.md` §6.5);
+    /// `None` (the default): the request is answered FAULT `BAD_FRAME`.
+    fn scene(&self) -> Option<frame::Scene> {
+        None
+    }
 }
 
 /// A device that keeps the link busy with valid frames but never advances
@@ -471,6 +476,13 @@ impl<I: Instrument> Emulator<I> {
                 self.send_status();
             }
             frame::ty::HEARTBEAT => {}
+            frame::ty::SCENE_REQ => match self.inst.scene() {
+                Some(sc) => {
+                    frame::write_scene(&mut self.scratch, &sc);
+                    self.emit();
+                }
+                None => self.send_fault(fault::BAD_FRAME),
+            },
             frame::ty::INFO => match frame::parse_info(payload) {
                 Some(i) => self.inst.info(&i),
                 None => self.send_fault(fault::BAD_FRAME),

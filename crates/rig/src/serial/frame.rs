@@ -11,7 +11,8 @@ use kilotouch_proto::info::{Info, TrialBegin, View};
 
 pub use kilotouch_proto::{
     CRC16, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DecoderStats, DeviceKind, DeviceState,
-    FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION, SYNC, Status, TRAILER,
+    FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, MAX_SCENE_OBSTACLES, PROTOCOL_VERSION,
+    SYNC, Scene, SceneObstacle, Status, TRAILER,
     TrapCommand, TweezerCaps, TweezerWireSample, WireItem, block_header, block_item, fault, flag,
     max_items, testing, tweezer_status, ty, unwrap_seq,
 };
@@ -154,6 +155,20 @@ pub fn write_fault(out: &mut Vec<u8>, f: &FaultReport) {
 /// Parse a FAULT payload.
 pub fn parse_fault(payload: &[u8]) -> Option<FaultReport> {
     FaultReport::parse(payload)
+}
+
+/// Append a SCENE frame (a tweezer's bead radius and obstacles).
+pub fn write_scene(out: &mut Vec<u8>, s: &Scene) {
+    write_frame(out, ty::SCENE, |o| {
+        let at = o.len();
+        o.resize(at + s.size(), 0);
+        let _ = s.encode(&mut o[at..]);
+    });
+}
+
+/// Parse a SCENE payload.
+pub fn parse_scene(payload: &[u8]) -> Option<Scene> {
+    Scene::parse(payload)
 }
 
 /// Append an INFO frame: what the host tells the device about the

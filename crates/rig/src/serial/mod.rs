@@ -10,6 +10,8 @@
 //!   instrument ([`emulator::DaqInstrument`]).
 //! * [`pty`]: pseudo-terminal creation and the serving loop.
 //! * [`rig`]: [`SerialRig`] ([`crate::Rig`]) and the shared [`rig::Link`].
+//! * [`lead`]: the command lead of a pipelined block exchange, shared by
+//!   both links.
 //! * [`test_link`]: the host side of test frames (the firmware's QEMU build:
 //!   plant model, late-command policy, e-stop, fault injection, cost).
 //! * [`tweezer_link`]: [`LinkTweezer`] ([`crate::Tweezer`]) and the tweezer
@@ -20,6 +22,7 @@
 pub mod announce;
 pub mod emulator;
 pub mod frame;
+pub mod lead;
 pub mod pty;
 pub mod rig;
 pub mod test_link;

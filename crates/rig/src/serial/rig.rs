@@ -68,27 +68,8 @@ pub struct SerialConfig {
     pub min_rate_fraction: f64,
 }
 
-/// The command lead of a DAQ link: how many blocks of commands the host
-/// sends ahead of the block whose samples it waits for, so that a
-/// free-running device always holds its next commands (`docs/PROTOCOL.md`
-/// §7). A lead of L samples adds L samples to the loop's delay (the
-/// stability analysis includes it, [`crate::Rig::loop_delay_samples`]), and
-/// the sensor frames a block returns are then those of the commands sent
-/// L samples earlier.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CommandLead {
-    /// Enough whole blocks to cover the round trip measured at connection
-    /// with a margin (1.5 × round trip + 0.5 ms), at least one block.
-    Auto,
-    /// This many blocks (0: block-synchronous, sensor frames and commands
-    /// of the same samples — what open-loop measurements such as the
-    /// calibration need).
-    Blocks(u32),
-}
-
-/// Largest command lead, samples (well inside the device's command buffer,
-/// the emulator's 8192).
-pub const MAX_LEAD_SAMPLES: u64 = 2048;
+pub use super::lead::{CommandLead, MAX_LEAD_SAMPLES};
+use super::lead::Pipeline;
 
 /// How far past the block being waited for a device's sample may lie and
 /// still be one of the stream's (kept for the next block): the largest
@@ -147,7 +128,7 @@ pub struct LinkStats {
 
 /// How an exchange ended badly.
 #[derive(Debug)]
-enum LinkErr {
+pub(crate) enum LinkErr {
     /// The sample stream stalled (no progress, too slow, or past the
     /// caller's deadline).
     Stalled(Stall),
@@ -166,7 +147,7 @@ enum LinkErr {
 
 /// What tripped a device, from the FAULT frame that reported it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Trip {
+pub(crate) enum Trip {
     /// FAULT `WATCHDOG` (or `NOT_RUNNING`: it stopped without the host).
     Watchdog,
     /// FAULT `ESTOP`: the emergency-stop input was engaged.
@@ -175,11 +156,32 @@ enum Trip {
     Unknown,
 }
 
+impl LinkErr {
+    /// The kind of failure, as a tweezer or an engine reports it.
+    pub(crate) fn kind(&self) -> LinkErrorKind {
+        match self {
+            LinkErr::Tripped {
+                cause: Trip::EmergencyStop,
+                ..
+            } => LinkErrorKind::EmergencyStop,
+            LinkErr::Tripped { .. } => LinkErrorKind::Watchdog,
+            LinkErr::Stalled(_) | LinkErr::Io(_) => LinkErrorKind::Disconnected,
+        }
+    }
+}
+
+/// A `wait_for` filter taking the frames of type `t`.
+fn is(t: u8) -> impl Fn(u8, &[u8]) -> bool {
+    move |ty, _| ty == t
+}
+
 /// Outcome of one exchange.
 #[derive(Debug, Clone, Copy, Default)]
-struct Exchange {
-    lost: u32,
-    first_lost: Option<u64>,
+pub(crate) struct Exchange {
+    /// Samples of the block lost.
+    pub lost: u32,
+    /// The first of them.
+    pub first_lost: Option<u64>,
 }
 
 /// The host end of a serial link: port, decoder, handshake, sequence
@@ -323,7 +325,7 @@ impl Link {
             }
             let deadline = t0 + Duration::from_millis(250);
             if self
-                .wait_for(frame::ty::HELLO, |_| true, &mut buf, deadline)
+                .wait_for(frame::ty::HELLO, is(frame::ty::HELLO), &mut buf, deadline)
                 .is_ok()
             {
                 let rtt = t0.elapsed();
@@ -376,7 +378,8 @@ impl Link {
         RigError::Disconnected(format!("{}: {why}", self.cfg.path))
     }
 
-    fn map_err(&self, e: LinkErr) -> RigError {
+    /// The error of a failed exchange, naming the port and what happened.
+    pub(crate) fn map_err(&self, e: &LinkErr) -> RigError {
         match e {
             LinkErr::Stalled(why) => {
                 self.disconnected(&format!("{why}; outputs commanded to zero"))
@@ -452,22 +455,24 @@ impl Link {
         }
     }
 
-    /// Wait for the first frame of type `want` (others skipped) and return
-    /// its payload copied into `out` (length).
+    /// Wait for the first frame that `accept(type, payload)` takes (others
+    /// skipped) and return its type and its payload copied into `out`
+    /// (length); `want` is the frame type asked for (START's STATUS makes a
+    /// FAULT `ESTOP` a refusal).
     fn wait_for(
         &mut self,
         want: u8,
-        accept: impl Fn(&[u8]) -> bool,
+        accept: impl Fn(u8, &[u8]) -> bool,
         out: &mut [u8; frame::MAX_PAYLOAD],
         deadline: Instant,
-    ) -> Result<usize, RigError> {
+    ) -> Result<(u8, usize), RigError> {
         let corrupted_before = self.decoder.stats().crc_errors + self.decoder.stats().bad_lengths;
         loop {
             while let Some(f) = self.decoder.next_frame() {
-                if f.ty == want && accept(f.payload) {
+                if accept(f.ty, f.payload) {
                     let n = f.payload.len();
                     out[..n].copy_from_slice(f.payload);
-                    return Ok(n);
+                    return Ok((f.ty, n));
                 }
                 if f.ty == frame::ty::FAULT
                     && let Some(fr) = frame::parse_fault(f.payload)
@@ -508,7 +513,7 @@ impl Link {
                 }));
             }
             self.read_some((deadline - now).min(Duration::from_millis(50)))
-                .map_err(|e| self.map_err(e))?;
+                .map_err(|e| self.map_err(&e))?;
         }
     }
 
@@ -525,8 +530,8 @@ impl Link {
             });
             self.flush_tx()?;
             let step = (Instant::now() + Duration::from_millis(250)).min(deadline);
-            match self.wait_for(frame::ty::HELLO, |_| true, &mut buf, step) {
-                Ok(n) => match frame::parse_hello(&buf[..n]) {
+            match self.wait_for(frame::ty::HELLO, is(frame::ty::HELLO), &mut buf, step) {
+                Ok((_, n)) => match frame::parse_hello(&buf[..n]) {
                     Some(h) => break h,
                     None => {
                         return Err(RigError::Device(format!(
@@ -575,15 +580,65 @@ impl Link {
         frame::write_frame(&mut self.tx, frame::ty::START, |_| {});
         self.flush_tx()?;
         let deadline = Instant::now() + self.cfg.handshake_timeout;
+        self.await_running(deadline)
+    }
+
+    /// Wait for the device's STATUS `running` (the answer to START);
+    /// returns its next sequence number.
+    fn await_running(&mut self, deadline: Instant) -> Result<u64, RigError> {
         let mut buf = [0u8; frame::MAX_PAYLOAD];
-        let running =
-            |p: &[u8]| frame::parse_status(p).is_some_and(|s| s.state == DeviceState::Running);
-        let n = self.wait_for(frame::ty::STATUS, running, &mut buf, deadline)?;
+        let running = |t: u8, p: &[u8]| {
+            t == frame::ty::STATUS
+                && frame::parse_status(p).is_some_and(|s| s.state == DeviceState::Running)
+        };
+        let (_, n) = self.wait_for(frame::ty::STATUS, running, &mut buf, deadline)?;
         let st = frame::parse_status(&buf[..n])
             .ok_or_else(|| RigError::Device("malformed STATUS".into()))?;
         self.rate.reset();
         self.carry.clear();
         Ok(u64::from(st.next_seq))
+    }
+
+    /// Begin a new run of a running device: STOP, the frames `between`
+    /// queues (e.g. a RESET), START; returns the new run's first sample.
+    /// Frames of the old run still in flight are told apart by the STATUS
+    /// `idle` that answers the STOP: only the STATUS `running` after it
+    /// starts the new run.
+    pub fn restart(&mut self, between: impl FnOnce(&mut Vec<u8>)) -> Result<u64, RigError> {
+        self.tx.clear();
+        frame::write_frame(&mut self.tx, frame::ty::STOP, |_| {});
+        between(&mut self.tx);
+        frame::write_frame(&mut self.tx, frame::ty::START, |_| {});
+        self.flush_tx()?;
+        let deadline = Instant::now() + self.cfg.handshake_timeout;
+        let mut buf = [0u8; frame::MAX_PAYLOAD];
+        let idle = |t: u8, p: &[u8]| {
+            t == frame::ty::STATUS
+                && frame::parse_status(p).is_some_and(|s| s.state != DeviceState::Running)
+        };
+        self.wait_for(frame::ty::STATUS, idle, &mut buf, deadline)?;
+        self.await_running(deadline)
+    }
+
+    /// Ask the device with a frame of type `req` (no payload) for a frame
+    /// of type `want`: its payload copied into `out` (length), or `None`
+    /// when the device answers FAULT `BAD_FRAME` (it does not know the
+    /// request). Waits up to the handshake time-out.
+    pub fn query(
+        &mut self,
+        req: u8,
+        want: u8,
+        out: &mut [u8; frame::MAX_PAYLOAD],
+    ) -> Result<Option<usize>, RigError> {
+        frame::write_frame(&mut self.tx, req, |_| {});
+        self.flush_tx()?;
+        let deadline = Instant::now() + self.cfg.handshake_timeout;
+        let refused = |t: u8, p: &[u8]| {
+            t == frame::ty::FAULT
+                && frame::parse_fault(p).is_some_and(|f| f.code == fault::BAD_FRAME)
+        };
+        let (t, n) = self.wait_for(want, |t, p| t == want || refused(t, p), out, deadline)?;
+        Ok((t == want).then_some(n))
     }
 
     /// Send STOP (best effort: errors ignored, short timeout).
@@ -600,7 +655,7 @@ impl Link {
     /// Wait until samples `first .. first + n` (frame type `sample_ty`) are
     /// accounted for; `sink(i, Some(sample))` for each received sample,
     /// `sink(i, None)` for each lost one, in order of i.
-    fn exchange<S: WireItem>(
+    pub(crate) fn exchange<S: WireItem>(
         &mut self,
         sample_ty: u8,
         first: u64,
@@ -869,49 +924,6 @@ fn read_into(
     }
 }
 
-impl Link {
-    /// Send `cmds` (frame type `cmd_ty`, sequence numbers from `*first`)
-    /// and wait for their samples (as `exchange`). After a watchdog trip
-    /// between exchanges the device is restarted when
-    /// [`SerialConfig::rearm_after_idle_trip`] is set (`*first` moves to the
-    /// device's next sequence number).
-    pub(crate) fn exchange_items<C: WireItem, S: WireItem>(
-        &mut self,
-        cmd_ty: u8,
-        sample_ty: u8,
-        first: &mut u64,
-        cmds: &[C],
-        mut sink: impl FnMut(usize, Option<&S>),
-    ) -> Result<(), LinkErrorKind> {
-        let mut retried = false;
-        loop {
-            let mut off = 0usize;
-            for chunk in cmds.chunks(frame::max_items::<C>()) {
-                frame::write_block(&mut self.tx, cmd_ty, (*first + off as u64) as u32, chunk);
-                off += chunk.len();
-            }
-            self.flush_tx().map_err(|_| LinkErrorKind::Disconnected)?;
-            match self.exchange::<S>(sample_ty, *first, cmds.len(), &mut sink) {
-                Ok(_) => return Ok(()),
-                Err(LinkErr::Tripped {
-                    received: false,
-                    cause: Trip::Watchdog | Trip::Unknown,
-                    ..
-                }) if self.cfg.rearm_after_idle_trip && !retried => {
-                    retried = true;
-                    *first = self.start().map_err(|_| LinkErrorKind::Disconnected)?;
-                }
-                Err(LinkErr::Tripped {
-                    cause: Trip::EmergencyStop,
-                    ..
-                }) => return Err(LinkErrorKind::EmergencyStop),
-                Err(LinkErr::Tripped { .. }) => return Err(LinkErrorKind::Watchdog),
-                Err(_) => return Err(LinkErrorKind::Disconnected),
-            }
-        }
-    }
-}
-
 pub use crate::device::LinkErrorKind;
 
 /// A DAQ on a serial link as a [`Rig`] (module docs).
@@ -921,14 +933,10 @@ pub struct SerialRig {
     identity: RigIdentity,
     caps: DaqCaps,
     state: RigState,
-    next_seq: u64,
     counters: StatusCounters,
     last: SensorFrame,
-    cmd_codes: [DaqCommand; Self::FRAME_COMMANDS],
-    /// The command lead of this run, samples (fixed at its first block).
-    lead: Option<u64>,
-    /// Sequence number of the next command to send.
-    sent_until: u64,
+    /// Samples waited for, commands sent, the run's lead.
+    pipe: Pipeline,
     /// Host-side flags of the commands sent, by sequence number modulo its
     /// length (the sensor frame of a sample carries its command's flags).
     cmd_flags: Box<[u8]>,
@@ -950,51 +958,32 @@ impl SerialRig {
             identity,
             caps,
             state: RigState::Idle,
-            next_seq: 0,
             counters: StatusCounters::default(),
             last: SensorFrame::default(),
-            cmd_codes: [DaqCommand::default(); Self::FRAME_COMMANDS],
-            lead: None,
-            sent_until: 0,
+            pipe: Pipeline::default(),
             cmd_flags: vec![0u8; CMD_FLAG_RING].into_boxed_slice(),
         })
     }
 
     /// The command lead, samples, for blocks of `n` samples
-    /// ([`CommandLead`]).
+    /// ([`CommandLead`], [`Link::lead_samples`]).
     pub fn lead_samples(&self, n: usize) -> u64 {
-        let n = n.max(1) as u64;
-        let blocks = match self.link.config().lead {
-            CommandLead::Blocks(b) => u64::from(b),
-            CommandLead::Auto => {
-                let fs = self.identity.sample_rate_hz;
-                let rtt = self.link.round_trip().map_or(0.0, |d| d.as_secs_f64());
-                let need = (1.5 * rtt + 5e-4) * fs / n as f64;
-                (need.ceil() as u64).max(1)
-            }
-        };
-        (blocks * n).min(MAX_LEAD_SAMPLES / n * n)
+        self.link.lead_samples(n)
     }
 
-    /// Encode and send zero commands for samples `s .. s + n` (the lead's
-    /// first blocks).
-    fn send_zeros(&mut self, s: u64, n: u64) -> Result<(), RigError> {
-        let zeros = [DaqCommand::default(); Self::FRAME_COMMANDS];
-        let mut q = s;
-        while q < s + n {
-            let k = ((s + n - q) as usize).min(Self::FRAME_COMMANDS);
-            frame::write_block(
-                &mut self.link.tx,
-                frame::ty::COMMANDS,
-                q as u32,
-                &zeros[..k],
-            );
-            for j in 0..k as u64 {
-                self.cmd_flags[((q + j) % CMD_FLAG_RING as u64) as usize] = 0;
-            }
-            q += k as u64;
+    /// Queue zero commands for samples `s .. s + n` (the lead's first
+    /// blocks).
+    fn queue_zeros(&mut self, s: u64, n: u64) {
+        for q in s..s + n {
+            self.cmd_flags[(q % CMD_FLAG_RING as u64) as usize] = 0;
         }
-        self.link.flush_tx()
+        self.link.queue_items(
+            frame::ty::COMMANDS,
+            s,
+            n as usize,
+            Self::FRAME_COMMANDS,
+            |_| DaqCommand::default(),
+        );
     }
 
     fn identity_of(link: &Link) -> Result<(RigIdentity, DaqCaps), RigError> {
@@ -1050,32 +1039,28 @@ impl SerialRig {
         self.caps
     }
 
-    /// Encode and send the commands of a block.
-    fn send(&mut self, s: u64, commands: &[ActuatorFrame]) -> Result<(), RigError> {
+    /// Queue the commands of a block for samples from `s` on.
+    fn queue_commands(&mut self, s: u64, commands: &[ActuatorFrame]) {
         let c = self.caps;
         for (i, a) in commands.iter().enumerate() {
             self.cmd_flags[((s + i as u64) % CMD_FLAG_RING as u64) as usize] = command_flags(a, &c);
         }
-        let mut off = 0usize;
-        for chunk in commands.chunks(Self::FRAME_COMMANDS) {
-            for (dst, a) in self.cmd_codes.iter_mut().zip(chunk) {
-                *dst = DaqCommand {
+        self.link.queue_items(
+            frame::ty::COMMANDS,
+            s,
+            commands.len(),
+            Self::FRAME_COMMANDS,
+            |i| {
+                let a = &commands[i];
+                DaqCommand {
                     force: [
                         value_to_code(a.force_n[0], c.force_max_n).0,
                         value_to_code(a.force_n[1], c.force_max_n).0,
                     ],
                     drive: value_to_code(a.haptuator_v, c.drive_max_v).0,
-                };
-            }
-            frame::write_block(
-                &mut self.link.tx,
-                frame::ty::COMMANDS,
-                (s + off as u64) as u32,
-                &self.cmd_codes[..chunk.len()],
-            );
-            off += chunk.len();
-        }
-        self.link.flush_tx()
+                }
+            },
+        );
     }
 
     fn fail(&mut self, e: LinkErr) -> RigError {
@@ -1093,7 +1078,7 @@ impl SerialRig {
                 self.counters.push(RigFault::Disconnected);
             }
         }
-        self.link.map_err(e)
+        self.link.map_err(&e)
     }
 }
 
@@ -1128,9 +1113,7 @@ impl Rig for SerialRig {
         }
         match self.link.start() {
             Ok(seq) => {
-                self.next_seq = seq;
-                self.sent_until = seq;
-                self.lead = None;
+                self.pipe = Pipeline::start(seq);
                 self.state = RigState::Running;
                 Ok(())
             }
@@ -1171,26 +1154,21 @@ impl Rig for SerialRig {
             // Idle refuses in `open_block`.
             RigState::Idle | RigState::Running => {}
         }
-        let mut report = open_block(self.state, commands, sensors, self.next_seq)?;
+        let mut report = open_block(self.state, commands, sensors, self.pipe.next_seq)?;
         let n = report.frames;
         if n == 0 {
             return Ok(report);
         }
         let mut retried = false;
         let ex = loop {
-            if self.lead.is_none() {
-                // The run's first block: the lead's zero commands go first.
-                let l = self.lead_samples(n);
-                self.sent_until = self.next_seq;
-                if l > 0 {
-                    self.send_zeros(self.next_seq, l)?;
-                }
-                self.sent_until = self.next_seq + l;
-                self.lead = Some(l);
+            // The run's first block: the lead's zero commands go first.
+            if let Some((first, l)) = self.pipe.open_lead(self.link.lead_samples(n)) {
+                self.queue_zeros(first, l);
             }
-            self.send(self.sent_until, commands)?;
-            self.sent_until += n as u64;
-            let s = self.next_seq;
+            let at = self.pipe.queue(n);
+            self.queue_commands(at, commands);
+            self.link.flush_tx()?;
+            let s = self.pipe.next_seq;
             report.first_seq = s;
             let caps = self.caps;
             let last = &mut self.last;
@@ -1244,17 +1222,17 @@ impl Rig for SerialRig {
                 }) if self.link.config().rearm_after_idle_trip && !retried => {
                     retried = true;
                     self.counters.push(RigFault::WatchdogTripped { seq: s });
-                    self.next_seq = self
+                    let seq = self
                         .link
                         .start()
                         .inspect_err(|_| self.state = RigState::Disconnected)?;
                     // A new run: its lead goes first again.
-                    self.lead = None;
+                    self.pipe = Pipeline::start(seq);
                 }
                 Err(e) => return Err(self.fail(e)),
             }
         };
-        self.next_seq = report.first_seq + n as u64;
+        self.pipe.received(n);
         report.lost_frames = ex.lost;
         if let Some(first_seq) = ex.first_lost {
             self.counters.push(RigFault::LostFrames {
@@ -1282,9 +1260,7 @@ impl Rig for SerialRig {
 
     /// The block plus the command lead ([`CommandLead`]).
     fn loop_delay_samples(&self, block_len: usize) -> u32 {
-        let n = block_len.max(1);
-        let lead = self.lead.unwrap_or_else(|| self.lead_samples(n));
-        u32::try_from(n as u64 + lead).unwrap_or(u32::MAX)
+        self.pipe.loop_delay_samples(&self.link, block_len)
     }
 
     fn round_trip_s(&self) -> Option<f64> {

@@ -247,13 +247,22 @@ pub fn from_fit(fit: &PsdFit, s: &TrapCalibrationSettings) -> TrapCalibration {
 /// at 1 MHz, 1.6 GB for both axes).
 pub const MAX_RECORD_SAMPLES: usize = 100_000_000;
 
+/// Samples per block of a detector record: one exchange of a live
+/// tweezer link ([`super::Tweezer::step_block`]).
+pub const RECORD_BLOCK: usize = 10;
+
 /// Record `n` samples of a tweezer's detector signals (V, x and y) with the
-/// trap held at `trap_m` (m); `progress` is called with the samples done
-/// every 10⁴ samples. Fails if the tweezer reports no detector signals, the
-/// bead escapes, or the size is out of bounds.
+/// trap held at `trap_m` (m), after `settle` samples of settling that are
+/// not kept, in blocks of [`RECORD_BLOCK`] samples; `progress` is called
+/// with the samples done every 10⁴ samples. Fails if the tweezer reports no
+/// detector signals, the bead escapes (the tweezer reports it untrapped:
+/// "the bead was not trapped at sample i"), its link fails (naming the
+/// tweezer link; nothing of the incomplete record is returned), or the
+/// size is out of bounds.
 pub fn record_detector(
     tw: &mut dyn super::Tweezer,
     trap_m: [f64; 2],
+    settle: usize,
     n: usize,
     progress: &mut dyn FnMut(usize),
 ) -> Result<[Vec<f64>; 2], RigError> {
@@ -262,24 +271,55 @@ pub fn record_detector(
             "a detector record of {n} samples; need between 16 and {MAX_RECORD_SAMPLES}"
         )));
     }
+    let traps = [trap_m; RECORD_BLOCK];
+    let mut out = [super::TweezerSample::default(); RECORD_BLOCK];
+    let mut v = [[0.0; 2]; RECORD_BLOCK];
     let (mut x, mut y) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    for i in 0..n {
-        let s = tw.step(trap_m);
-        if !s.trapped {
-            return Err(RigError::Device(format!(
-                "the bead was not trapped at sample {i}: a calibration needs a trapped bead"
+    let total = settle + n;
+    let mut i = 0;
+    while i < total {
+        let k = (total - i).min(RECORD_BLOCK);
+        if !tw.step_block_detected(&traps[..k], &mut out[..k], &mut v[..k]) {
+            return Err(RigError::Device(
+                "this tweezer reports no position-detector signals".into(),
+            ));
+        }
+        if let Some(e) = tw.link_error() {
+            return Err(RigError::Disconnected(format!(
+                "the tweezer link failed at sample {} of {n} ({}); the record is incomplete \
+                 and was not kept",
+                i.saturating_sub(settle),
+                link_failure_words(e)
             )));
         }
-        let v = tw.detector_v().ok_or_else(|| {
-            RigError::Device("this tweezer reports no position-detector signals".into())
-        })?;
-        x.push(v[0]);
-        y.push(v[1]);
-        if (i + 1) % 10_000 == 0 {
-            progress(i + 1);
+        for j in 0..k {
+            let Some(r) = (i + j).checked_sub(settle) else {
+                continue;
+            };
+            if !out[j].trapped {
+                return Err(RigError::Device(format!(
+                    "the bead was not trapped at sample {r}: a calibration needs a trapped bead"
+                )));
+            }
+            x.push(v[j][0]);
+            y.push(v[j][1]);
+            if (r + 1) % 10_000 == 0 {
+                progress(r + 1);
+            }
         }
+        i += k;
     }
     Ok([x, y])
+}
+
+/// What a tweezer link failure of kind `k` means, in a researcher's words.
+pub fn link_failure_words(k: crate::device::LinkErrorKind) -> &'static str {
+    use crate::device::LinkErrorKind as K;
+    match k {
+        K::Disconnected => "no answer from the tweezer, or its port closed",
+        K::Watchdog => "the tweezer's watchdog tripped: it waited too long for trap set-points",
+        K::EmergencyStop => "the tweezer's emergency stop was engaged",
+    }
 }
 
 #[cfg(test)]
@@ -319,7 +359,7 @@ mod tests {
         let det = DetectorConfig::default();
         let mut tw = DetectedTweezer::new(p.clone(), &det, fs).unwrap();
         tw.start_stationary();
-        let [x, _] = record_detector(&mut tw, [0.0; 2], 200_000, &mut |_| {}).unwrap();
+        let [x, _] = record_detector(&mut tw, [0.0; 2], 0, 200_000, &mut |_| {}).unwrap();
         let (c, _) = calibrate_trap(&x, &settings(fs)).unwrap();
         let kappa = p.stiffness_n_per_m * 1e6;
         assert!(
@@ -347,7 +387,7 @@ mod tests {
         s.distance_to_surface_m = Some(1e-6);
         assert!(s.validate().is_err());
         let mut tw = crate::tweezer::SimTweezer::new(TweezerParams::paper_default(), 1e4).unwrap();
-        assert!(record_detector(&mut tw, [0.0; 2], 100, &mut |_| {}).is_err());
+        assert!(record_detector(&mut tw, [0.0; 2], 0, 100, &mut |_| {}).is_err());
         assert!(tw.detector_v().is_none());
     }
 }

@@ -59,7 +59,7 @@ pub use drag::{
     DRAG_CLAMP_GAP_OVER_R, brenner_perpendicular, faxen_parallel, perpendicular_mobility,
     perpendicular_mobility_ds, stokes_drag,
 };
-pub use sim::{CONTACT_EXACT_MARGIN_SD, SimTweezer};
+pub use sim::{CONTACT_EXACT_MARGIN_SD, SimTweezer, nearest_obstacle};
 pub use spot::{KAPPA_BIAS_WARN, SurfaceDrag, surface_drag};
 pub use table::DRAG_TABLE_PIECES;
 
@@ -340,5 +340,25 @@ pub trait Tweezer {
     /// Round trip of the link measured at connection, s (live tweezers).
     fn round_trip_s(&self) -> Option<f64> {
         None
+    }
+    /// [`Self::step_block`], and the position-detector signals (x, y, V) of
+    /// each sample in `volts[i]` (at least as long as `traps`); `false`
+    /// when the tweezer reports no detector signals. The default steps
+    /// sample by sample and reads [`Self::detector_v`] after each. Must not
+    /// allocate, lock or panic.
+    fn step_block_detected(
+        &mut self,
+        traps: &[[f64; 2]],
+        out: &mut [TweezerSample],
+        volts: &mut [[f64; 2]],
+    ) -> bool {
+        for ((t, o), v) in traps.iter().zip(out.iter_mut()).zip(volts.iter_mut()) {
+            *o = self.step(*t);
+            match self.detector_v() {
+                Some(d) => *v = d,
+                None => return false,
+            }
+        }
+        true
     }
 }

@@ -150,6 +150,42 @@ impl ContactStep {
 }
 /// Nearest obstacle: (index, unit normal from its centre to the bead, gap).
 type Near = Option<(usize, [f64; 2], f64)>;
+
+/// The obstacle nearest to a bead of radius `bead_radius_m` centred at `r`
+/// (m): its index, the unit normal of its surface at the bead (from its
+/// centre toward the bead; (1, 0) with the bead at its centre) and the
+/// surface gap g = |r − c| − R − R_o (m, negative on overlap); `None`
+/// without obstacles. The one geometry of a scene: the simulated tweezer
+/// steps with it, a live tweezer's samples get their gap and normal from
+/// it ([`crate::serial::LinkTweezer`]).
+#[inline(always)]
+pub fn nearest_obstacle(
+    obstacles: &[Obstacle],
+    bead_radius_m: f64,
+    r: [f64; 2],
+) -> Option<(usize, [f64; 2], f64)> {
+    // Pick the nearest by gap first; normalise only the winner's offset
+    // (one division, two products).
+    let (mut bi, mut bd, mut bgap, mut bdist) = (usize::MAX, [0.0; 2], f64::INFINITY, 0.0);
+    for (i, o) in obstacles.iter().enumerate() {
+        let d = [r[0] - o.centre_m[0], r[1] - o.centre_m[1]];
+        let dist = norm2(d);
+        let gap = dist - bead_radius_m - o.radius_m;
+        if bi == usize::MAX || gap < bgap {
+            (bi, bd, bgap, bdist) = (i, d, gap, dist);
+        }
+    }
+    if bi == usize::MAX {
+        return None;
+    }
+    let n = if bdist > 0.0 {
+        let inv = 1.0 / bdist;
+        [bd[0] * inv, bd[1] * inv]
+    } else {
+        [1.0, 0.0]
+    };
+    Some((bi, n, bgap))
+}
 impl SimTweezer {
     /// Create at sample rate `fs_hz` with the bead in the trap at the origin.
     pub fn new(params: TweezerParams, fs_hz: f64) -> Result<Self, RigError> {
@@ -295,31 +331,10 @@ impl SimTweezer {
         self.nonfinite
     }
 
-    /// Nearest obstacle: (index, unit normal from its centre to the bead,
-    /// surface gap g = |r − c| − R − R_o).
+    /// Nearest obstacle ([`nearest_obstacle`]).
     #[inline(always)]
     fn nearest(&self, r: [f64; 2]) -> Option<(usize, [f64; 2], f64)> {
-        // Pick the nearest by gap first; normalise only the winner's offset
-        // (one division, two products).
-        let (mut bi, mut bd, mut bgap, mut bdist) = (usize::MAX, [0.0; 2], f64::INFINITY, 0.0);
-        for (i, o) in self.p.obstacles.iter().enumerate() {
-            let d = [r[0] - o.centre_m[0], r[1] - o.centre_m[1]];
-            let dist = norm2(d);
-            let gap = dist - self.p.radius_m - o.radius_m;
-            if bi == usize::MAX || gap < bgap {
-                (bi, bd, bgap, bdist) = (i, d, gap, dist);
-            }
-        }
-        if bi == usize::MAX {
-            return None;
-        }
-        let n = if bdist > 0.0 {
-            let inv = 1.0 / bdist;
-            [bd[0] * inv, bd[1] * inv]
-        } else {
-            [1.0, 0.0]
-        };
-        Some((bi, n, bgap))
+        nearest_obstacle(&self.p.obstacles, self.p.radius_m, r)
     }
 
     #[inline]
