@@ -1,69 +1,25 @@
-//! The serial rig and the tweezer link over a real pseudo-terminal, with the
-//! device emulator served in a thread of the test: frame-for-frame equality
+//! The serial rig over a real pseudo-terminal, with the device emulator
+//! served in a thread of the test (the tweezer link: `live_tweezer.rs`): frame-for-frame equality
 //! with the simulated rig, lost and corrupted frames, stalls, vanished
 //! devices, the device watchdog, reconnects.
 
 #![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::device::{
-    ActuatorFrame, Clock, FrameFlags, Rig, RigFault, RigState, SensorFrame, SystemClock,
-};
+use kilotouch_rig::device::{ActuatorFrame, FrameFlags, Rig, RigFault, RigState, SensorFrame};
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::serial::emulator::{
-    DaqInstrument, Emulator, EmulatorConfig, FaultInjection, Instrument, Misbehaviour,
-    code_to_value,
+    DaqInstrument, EmulatorConfig, FaultInjection, Misbehaviour, code_to_value,
 };
 use kilotouch_rig::serial::frame::DaqCommand;
-use kilotouch_rig::serial::pty::{Pty, serve};
-use kilotouch_rig::serial::{LinkTweezer, SerialConfig, SerialRig, TweezerInstrument};
+use kilotouch_rig::serial::{SerialConfig, SerialRig};
 use kilotouch_rig::sim::SimRig;
-use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
 use std::f64::consts::PI;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-struct Device<I: Instrument + 'static> {
-    path: String,
-    stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<Emulator<I>>>,
-}
-
-impl<I: Instrument + 'static> Device<I> {
-    fn spawn(inst: I, cfg: EmulatorConfig) -> Self {
-        let pty = Pty::open().unwrap();
-        let path = pty.path().to_string();
-        let stop = Arc::new(AtomicBool::new(false));
-        let s = stop.clone();
-        let handle = std::thread::spawn(move || {
-            // As `kilotouch emulate` does: a device keeps its own time.
-            let _ = kilotouch_rig::realtime::promote_current_thread();
-            let clock = SystemClock::default();
-            let mut emu = Emulator::new(inst, cfg, clock.now()).unwrap();
-            serve(&mut emu, &pty, &clock, &s).unwrap();
-            drop(pty); // an injected disconnect closes the pty here
-            emu
-        });
-        Self {
-            path,
-            stop,
-            handle: Some(handle),
-        }
-    }
-
-    fn finish(mut self) -> Emulator<I> {
-        self.stop.store(true, Ordering::Relaxed);
-        self.handle.take().unwrap().join().unwrap()
-    }
-}
-
-impl<I: Instrument + 'static> Drop for Device<I> {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-    }
-}
+mod common;
+use common::Device;
 
 fn daq(cfg: EmulatorConfig) -> Device<DaqInstrument> {
     Device::spawn(DaqInstrument::new(&RigConfig::default()).unwrap(), cfg)
@@ -443,50 +399,6 @@ fn with_rearm_an_idle_trip_is_recovered_inside_process_block() {
             .any(|f| matches!(f, RigFault::WatchdogTripped { .. }))
     );
     assert_eq!(dev.finish().stats().watchdog_trips, 1);
-}
-
-#[test]
-fn link_tweezer_follows_the_simulated_tweezer_exactly() {
-    let rc = RigConfig::default();
-    let dev = Device::spawn(
-        TweezerInstrument::new(&rc).unwrap(),
-        EmulatorConfig {
-            batch: 1,
-            ..emu_cfg()
-        },
-    );
-    let mut tw = LinkTweezer::open(&SerialConfig::new(&dev.path)).unwrap();
-    let p = TweezerParams::from_config(&rc.tweezer);
-    let kappa = p.stiffness_n_per_m;
-    let mut reference = SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap();
-    assert_eq!(tw.sample_rate_hz(), rc.rig.sample_rate_hz);
-    assert_eq!(tw.stiffness_n_per_m(), kappa);
-    tw.reset([1e-6, 0.0]);
-    reference.reset([1e-6, 0.0]);
-    let mut contact = false;
-    for i in 0..1500 {
-        // The trap sweeps towards the obstacle at x = 12 µm (radius 5 µm).
-        let trap = [
-            1e-6 + 6e-6 * (i as f64 / 1500.0),
-            0.2e-6 * (i as f64 * 0.01).sin(),
-        ];
-        let g = tw.step(trap);
-        let w = reference.step(trap);
-        assert_eq!(g.bead_m, w.bead_m, "sample {i}");
-        assert_eq!(g.trapped, w.trapped);
-        assert_eq!(g.in_contact, w.in_contact);
-        assert_eq!(g.events, w.events);
-        for k in 0..2 {
-            assert!(
-                (g.force_n[k] - w.force_n[k]).abs() <= 1e-9 * kappa * 1e-6,
-                "{i}"
-            );
-        }
-        contact |= g.in_contact;
-    }
-    assert!(contact, "the sweep must reach the obstacle");
-    assert_eq!(tw.failures(), 0);
-    assert_eq!(tw.link_stats().lost, 0);
 }
 
 /// Late commands of `blocks` blocks of 10 samples (zero commands) against a
