@@ -10,7 +10,8 @@ use kilotouch_rig::RigConfig;
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::serial::LinkTweezer;
 use kilotouch_rig::tweezer::calibration::{
-    MAX_RECORD_SAMPLES, TrapCalibration, TrapCalibrationSettings, calibrate_trap, record_detector,
+    MAX_RECORD_SAMPLES, RECORD_BLOCK, TrapCalibration, TrapCalibrationSettings, calibrate_trap,
+    record_detector,
 };
 use kilotouch_rig::tweezer::{
     DetectedTweezer, SurfaceDrag, TrapCalibrationRecord, Tweezer, TweezerParams, surface_drag,
@@ -30,6 +31,20 @@ pub struct DetectorRecord {
     /// For the simulated tweezer: the drag its obstacles add at the trap
     /// spot (`None` for a live tweezer, whose surroundings are unknown).
     pub surface: Option<SurfaceDrag>,
+    /// For a live tweezer: its link's round trip measured at connection
+    /// and the command lead of the record's blocks.
+    pub link: Option<LinkTiming>,
+}
+
+/// The timing of a live tweezer's link during a record.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct LinkTiming {
+    /// Round trip measured at connection (longest of the HELLO probes), ms.
+    pub round_trip_ms: Option<f64>,
+    /// Command lead of the record's blocks, samples.
+    pub lead_samples: u64,
+    /// Samples per block.
+    pub block_samples: usize,
 }
 
 /// Prefix of the comment line of a record CSV that carries the predicted
@@ -82,6 +97,7 @@ pub fn record(
     }
     let surface = matches!(spec, RigSpec::Sim)
         .then(|| surface_drag(&TweezerParams::from_config(&rc.tweezer), trap_m));
+    let mut link = None;
     let (fs, volts) = match spec {
         RigSpec::Sim => {
             let mut tw = DetectedTweezer::new(
@@ -96,6 +112,11 @@ pub fn record(
         // link saw (stall, end of file, watchdog), naming the port.
         RigSpec::Serial(cfg) => {
             let mut tw = LinkTweezer::open(cfg)?;
+            link = Some(LinkTiming {
+                round_trip_ms: tw.round_trip_s().map(|r| r * 1e3),
+                lead_samples: tw.lead_samples(RECORD_BLOCK),
+                block_samples: RECORD_BLOCK,
+            });
             record_from(&mut tw, duration_s, trap_m, progress).map_err(|e| match tw.failure() {
                 Some(f) => anyhow::anyhow!("{e}: {f}"),
                 None => e,
@@ -110,6 +131,7 @@ pub fn record(
         volts,
         source: spec.describe(),
         surface,
+        link,
     })
 }
 

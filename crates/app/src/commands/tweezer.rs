@@ -235,6 +235,8 @@ struct RecordReport {
     file: String,
     fs_hz: f64,
     n_samples: usize,
+    /// A live tweezer's link: round trip at connection, command lead.
+    link: Option<crate::tweezer_cal::LinkTiming>,
     /// `free` or `scene`.
     spot: &'static str,
     trap_um: [f64; 2],
@@ -299,6 +301,7 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
             file: a.out.display().to_string(),
             fs_hz: fs,
             n_samples: n,
+            link: rec.link,
             spot,
             trap_um,
             drag_factor: rec.surface.map(|d| d.drag_factor),

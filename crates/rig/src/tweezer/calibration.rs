@@ -375,6 +375,62 @@ mod tests {
         assert!(c.kappa_se_pn_um / c.kappa_pn_um < 0.03, "{c:?}");
     }
 
+    /// A tweezer whose link fails, or whose bead escapes, at sample `at`.
+    struct Failing {
+        at: usize,
+        n: usize,
+        escape: bool,
+    }
+
+    impl Tweezer for Failing {
+        fn sample_rate_hz(&self) -> f64 {
+            1e4
+        }
+        fn stiffness_n_per_m(&self) -> f64 {
+            1e-5
+        }
+        fn step(&mut self, trap_m: [f64; 2]) -> crate::tweezer::TweezerSample {
+            self.n += 1;
+            crate::tweezer::TweezerSample {
+                trap_m,
+                trapped: !(self.escape && self.n > self.at),
+                ..Default::default()
+            }
+        }
+        fn reset(&mut self, _trap_m: [f64; 2]) {}
+        fn detector_v(&self) -> Option<[f64; 2]> {
+            Some([0.0; 2])
+        }
+        fn link_error(&self) -> Option<crate::device::LinkErrorKind> {
+            (!self.escape && self.n > self.at).then_some(crate::device::LinkErrorKind::Watchdog)
+        }
+    }
+
+    /// A failed link is reported as the tweezer link's failure, an escape
+    /// as an escape; neither returns a partial record.
+    #[test]
+    fn a_link_failure_is_not_an_escape() {
+        let mut tw = Failing {
+            at: 25,
+            n: 0,
+            escape: false,
+        };
+        let e = record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the tweezer link failed at sample 15 of 100"), "{e}");
+        assert!(e.contains("watchdog tripped") && !e.contains("not trapped"), "{e}");
+        let mut tw = Failing {
+            at: 25,
+            n: 0,
+            escape: true,
+        };
+        let e = record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the bead was not trapped at sample 20"), "{e}");
+    }
+
     #[test]
     fn settings_are_checked() {
         let mut s = settings(1e4);
