@@ -10,6 +10,7 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use kilotouch_rig::AnyTweezer;
 use kilotouch_rig::tweezer::{DetectedTweezer, DetectorConfig};
 use kilotouch_study::runner::{
     Next, RAW_CHANNELS, Resumed, RunError, RunnerConfig, RunnerState, SittingCore, TrialSetup,
@@ -210,7 +211,7 @@ impl Worker {
         Ok(Box::new(TrialSlot {
             setup,
             rig: kit.rig.map(Box::new),
-            tweezer: Box::new(tweezer),
+            tweezer: AnyTweezer::Sim(Box::new(tweezer)),
             safety: Box::new(kit.safety),
             trajectory: Vec::with_capacity(cap),
             outcome: None,

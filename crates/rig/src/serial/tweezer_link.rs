@@ -132,6 +132,7 @@ pub struct LinkTweezer {
     link: Link,
     fs: f64,
     kappa: f64,
+    announced_kappa: f64,
     seq: u64,
     running: bool,
     last: TweezerSample,
@@ -160,6 +161,7 @@ impl LinkTweezer {
             link,
             fs: f64::from(h.sample_rate_hz),
             kappa: c.stiffness_n_per_m,
+            announced_kappa: c.stiffness_n_per_m,
             seq,
             running: true,
             last: TweezerSample {
@@ -182,6 +184,41 @@ impl LinkTweezer {
         self.kappa = c.stiffness_n_per_m;
         self.calibration = Some(c);
         Ok(())
+    }
+
+    /// Use `c` from now on, or (None) the instrument's own bead position
+    /// and announced κ again ([`Self::apply_calibration`]).
+    pub fn set_calibration(&mut self, c: Option<AppliedTrap>) -> Result<(), RigError> {
+        match c {
+            Some(c) => self.apply_calibration(c),
+            None => {
+                self.kappa = self.announced_kappa;
+                self.calibration = None;
+                Ok(())
+            }
+        }
+    }
+
+    /// The instrument's handshake answer.
+    pub fn hello(&self) -> &Hello {
+        self.link.hello()
+    }
+
+    /// The link's configuration (port, options).
+    pub fn link_config(&self) -> &SerialConfig {
+        self.link.config()
+    }
+
+    /// Bead centre of the last sample, m.
+    pub fn bead(&self) -> [f64; 2] {
+        self.last.bead_m
+    }
+
+    /// Stop the instrument's stream (trap held where it is); [`Self::recover`]
+    /// starts it again.
+    pub fn stop(&mut self) {
+        self.link.stop();
+        self.running = false;
     }
 
     /// The calibration in use (None: the instrument's own bead position
