@@ -126,7 +126,10 @@ fn a_killed_tweezer_ends_the_loop_as_a_link_failure_naming_the_tweezer() {
     // Outputs at zero: nothing more is sent while the loop is stopped.
     let mut late = Vec::new();
     h.drain_telemetry(|s| late.push(*s));
-    assert!(late.iter().all(|s| s.output.force_n == [0.0; 2]), "{late:?}");
+    assert!(
+        late.iter().all(|s| s.output.force_n == [0.0; 2]),
+        "{late:?}"
+    );
 }
 
 #[test]
@@ -151,7 +154,10 @@ fn an_applied_trap_calibration_sets_the_stiffness_of_the_live_force() {
             })
     };
     let (lo, hi) = ratio(&before[1000..], kappa);
-    assert!((lo - 1.0).abs() < 1e-9 && (hi - 1.0).abs() < 1e-9, "{lo} {hi}");
+    assert!(
+        (lo - 1.0).abs() < 1e-9 && (hi - 1.0).abs() < 1e-9,
+        "{lo} {hi}"
+    );
     // A calibration with twice the stiffness and the emulator's own
     // detector sensitivity: the force is κ_cal (trap − bead) from now on.
     let rd = [1.0 / cfg.tweezer.detector.sensitivity_v_per_m; 2];
@@ -164,7 +170,10 @@ fn an_applied_trap_calibration_sets_the_stiffness_of_the_live_force() {
     let _ = samples(&mut h, 2000, Duration::from_secs(30));
     let (after, _) = samples(&mut h, 3000, Duration::from_secs(30));
     let (lo, hi) = ratio(&after, 2.0 * kappa);
-    assert!((lo - 1.0).abs() < 1e-9 && (hi - 1.0).abs() < 1e-9, "{lo} {hi}");
+    assert!(
+        (lo - 1.0).abs() < 1e-9 && (hi - 1.0).abs() < 1e-9,
+        "{lo} {hi}"
+    );
     // The bead now comes from the detector volts (R_d·V, its filter and
     // noise), so the force's spread is about twice the uncalibrated one.
     let spread = |tel: &[TelemetrySample]| sd(tel.iter().map(|s| s.bead_force_n[0]));

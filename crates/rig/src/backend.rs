@@ -288,7 +288,20 @@ pub enum AnyTweezer {
     /// study; obstacles replaceable in Explore).
     Sim(Box<DetectedTweezer>),
     /// A live tweezer (or its emulator): its micro-world is its own.
-    Link(Box<LinkTweezer>),
+    Link(Box<LiveTweezer>),
+}
+
+/// A live tweezer and where the loop's frame sits in the instrument's.
+/// The loop (the hand↔trap mapping, the trial's scene, the metrics) works
+/// in its own frame; the instrument's obstacles are where they are. For
+/// each trial the frame is translated so that the instrument's obstacle
+/// appears where the trial's scene puts it (the physics in the focal plane
+/// is invariant under translation): trap set-points go out as
+/// trap + origin, bead positions come back as bead − origin.
+#[derive(Debug)]
+pub struct LiveTweezer {
+    link: LinkTweezer,
+    origin_m: [f64; 2],
 }
 
 impl AnyTweezer {
@@ -323,7 +336,10 @@ impl AnyTweezer {
                         c.path
                     )));
                 }
-                Ok(Self::Link(Box::new(t)))
+                Ok(Self::Link(Box::new(LiveTweezer {
+                    link: t,
+                    origin_m: [0.0; 2],
+                })))
             }
         }
     }
@@ -344,8 +360,20 @@ impl AnyTweezer {
     /// The live tweezer, if this is one.
     pub fn as_link(&self) -> Option<&LinkTweezer> {
         match self {
-            Self::Link(t) => Some(t),
+            Self::Link(t) => Some(&t.link),
             Self::Sim(_) => None,
+        }
+    }
+
+    /// Put the loop frame's origin at `origin_m` of a live instrument's
+    /// frame (m; [`LiveTweezer`]); nothing for a simulated tweezer, whose
+    /// scene is built in the loop's frame. Takes effect at the next
+    /// [`Tweezer::reset`].
+    pub fn set_frame_origin(&mut self, origin_m: [f64; 2]) {
+        if let Self::Link(t) = self
+            && origin_m.iter().all(|v| v.is_finite())
+        {
+            t.origin_m = origin_m;
         }
     }
 
@@ -353,7 +381,10 @@ impl AnyTweezer {
     pub fn bead(&self) -> [f64; 2] {
         match self {
             Self::Sim(t) => t.bead(),
-            Self::Link(t) => t.bead(),
+            Self::Link(t) => {
+                let b = t.link.bead();
+                [b[0] - t.origin_m[0], b[1] - t.origin_m[1]]
+            }
         }
     }
 
@@ -369,7 +400,7 @@ impl AnyTweezer {
     pub fn calibration(&self) -> Option<AppliedTrap> {
         match self {
             Self::Sim(t) => t.calibration(),
-            Self::Link(t) => t.calibration(),
+            Self::Link(t) => t.link.calibration(),
         }
     }
 
@@ -383,7 +414,7 @@ impl AnyTweezer {
     pub fn set_calibration(&mut self, c: Option<AppliedTrap>) -> Result<(), RigError> {
         match self {
             Self::Sim(t) => t.set_calibration(c),
-            Self::Link(t) => t.set_calibration(c),
+            Self::Link(t) => t.link.set_calibration(c),
         }
     }
 
@@ -396,7 +427,7 @@ impl AnyTweezer {
     pub fn start(&mut self) -> Result<(), RigError> {
         match self {
             Self::Sim(_) => Ok(()),
-            Self::Link(t) => t.recover(),
+            Self::Link(t) => t.link.recover(),
         }
     }
 
@@ -404,8 +435,72 @@ impl AnyTweezer {
     /// simulated one.
     pub fn stop(&mut self) {
         if let Self::Link(t) = self {
-            t.stop();
+            t.link.stop();
         }
+    }
+}
+
+impl LiveTweezer {
+    /// A sample from the instrument's frame into the loop's.
+    #[inline]
+    fn to_loop(&self, mut s: TweezerSample) -> TweezerSample {
+        for k in 0..2 {
+            s.bead_m[k] -= self.origin_m[k];
+            s.trap_m[k] -= self.origin_m[k];
+        }
+        s
+    }
+
+    /// A trap set-point from the loop's frame into the instrument's.
+    #[inline]
+    fn to_instrument(&self, t: [f64; 2]) -> [f64; 2] {
+        [t[0] + self.origin_m[0], t[1] + self.origin_m[1]]
+    }
+}
+
+impl Tweezer for LiveTweezer {
+    fn sample_rate_hz(&self) -> f64 {
+        self.link.sample_rate_hz()
+    }
+    fn stiffness_n_per_m(&self) -> f64 {
+        self.link.stiffness_n_per_m()
+    }
+    fn step(&mut self, trap_m: [f64; 2]) -> TweezerSample {
+        let s = self.link.step(self.to_instrument(trap_m));
+        self.to_loop(s)
+    }
+    fn step_block(&mut self, traps: &[[f64; 2]], out: &mut [TweezerSample]) {
+        let mut dev = [[0.0; 2]; crate::haptic_loop::MAX_BLOCK];
+        for chunk in (0..traps.len()).step_by(dev.len()) {
+            let end = (chunk + dev.len()).min(traps.len()).min(out.len());
+            if end <= chunk {
+                break;
+            }
+            for (d, t) in dev.iter_mut().zip(&traps[chunk..end]) {
+                *d = self.to_instrument(*t);
+            }
+            let n = end - chunk;
+            self.link.step_block(&dev[..n], &mut out[chunk..end]);
+            for o in &mut out[chunk..end] {
+                *o = self.to_loop(*o);
+            }
+        }
+    }
+    fn reset(&mut self, trap_m: [f64; 2]) {
+        let t = self.to_instrument(trap_m);
+        self.link.reset(t);
+    }
+    fn detector_v(&self) -> Option<[f64; 2]> {
+        self.link.detector_v()
+    }
+    fn loop_delay_samples(&self, block_len: usize) -> u32 {
+        self.link.loop_delay_samples(block_len)
+    }
+    fn link_error(&self) -> Option<LinkErrorKind> {
+        self.link.link_error()
+    }
+    fn round_trip_s(&self) -> Option<f64> {
+        self.link.round_trip_s()
     }
 }
 

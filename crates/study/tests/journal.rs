@@ -5,7 +5,9 @@ use std::fs;
 
 use kilotouch_study::export::ExportError;
 use kilotouch_study::export::checksum::{Sha256, crc32, sha256_hex};
-use kilotouch_study::export::session::{CalibrationRef, DeviceRecord, OrderRow, TweezerDeviceRecord};
+use kilotouch_study::export::session::{
+    CalibrationRef, DeviceRecord, OrderRow, TweezerDeviceRecord,
+};
 use kilotouch_study::export::utc::UtcTime;
 use kilotouch_study::journal::{
     Entry, Journal, Record, RecoveryRecord, SessionStart, decode_line, encode_line, parse_journal,

@@ -66,7 +66,9 @@ pub fn engine_pair_with_devices<C: Clock>(
     let shared = Arc::new(Shared::default());
     let spec = rig.spec().clone();
     let tweezer_spec = match &tweezer {
-        Some(AnyTweezer::Link(t)) => TweezerSpec::Serial(t.link_config().clone()),
+        Some(t @ AnyTweezer::Link(_)) => t.as_link().map_or(TweezerSpec::Sim, |l| {
+            TweezerSpec::Serial(l.link_config().clone())
+        }),
         _ => TweezerSpec::Sim,
     };
     let core = EngineCore::new(
@@ -95,6 +97,7 @@ pub fn engine_pair_with_devices<C: Clock>(
         firmware: t.hello().firmware.clone(),
         lead_samples: kilotouch_rig::Tweezer::loop_delay_samples(t, block_len),
         round_trip_s: kilotouch_rig::Tweezer::round_trip_s(t),
+        obstacles: t.obstacles().to_vec(),
     });
     let chain = core.initial_chain().clone();
     let clearance = core.closed_loop().clearance();
@@ -142,6 +145,8 @@ pub struct LiveTweezerInfo {
     pub lead_samples: u32,
     /// The link's round trip measured at connection, s.
     pub round_trip_s: Option<f64>,
+    /// The obstacles it reports, in its own frame.
+    pub obstacles: Vec<kilotouch_rig::tweezer::Obstacle>,
 }
 
 /// The GUI's end of a running engine (module docs of [`crate::engine`]).

@@ -505,10 +505,19 @@ impl KilotouchApp {
         t: &kilotouch_rig::tweezer::TrapCalibrationRecord,
     ) -> Result<(), String> {
         t.check()?;
-        if t.source != "sim" {
+        let (tweezer, what) = match h.live_tweezer() {
+            Some(l) => (
+                l.spec.describe(),
+                format!("the live tweezer on {}", l.spec.describe()),
+            ),
+            None => (
+                "sim".to_owned(),
+                "the rig file's simulated tweezer".to_owned(),
+            ),
+        };
+        if t.source != tweezer {
             return Err(format!(
-                "it was recorded from {}, and the engine's loop drives the rig file's simulated \
-                 tweezer",
+                "it was recorded from {}, and the engine's loop drives {what}",
                 t.source
             ));
         }

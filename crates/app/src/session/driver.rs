@@ -47,6 +47,9 @@ pub(crate) struct TrialSlot {
     /// The trial's simulated tweezer (unused, and dropped by the worker,
     /// when the loop runs a live tweezer: that one stays and is reset).
     pub tweezer: AnyTweezer,
+    /// Where the trial's frame sits in a live tweezer's, m
+    /// ([`kilotouch_rig::backend::LiveTweezer`]).
+    pub tweezer_origin_m: [f64; 2],
     /// Its safety layer, armed.
     pub safety: Box<SafetyLayer>,
     /// The kept trajectory's buffer (capacity for the whole trial).
@@ -305,6 +308,7 @@ impl SittingDriver {
         }
         // The applied trap calibration carries over (validated when applied).
         let _ = slot.tweezer.set_calibration(lp.tweezer.calibration());
+        lp.tweezer.set_frame_origin(slot.tweezer_origin_m);
         let tweezer = (!lp.tweezer.is_live()).then_some(&mut slot.tweezer);
         let start = if lp.rig.is_live() {
             TrialStart::AtHandle

@@ -461,6 +461,7 @@ impl SessionHandle {
             rig: engine.spec().describe(),
             device,
         };
+        let live_obstacle_m = live_obstacle(engine, &info.protocol)?;
         let (to_driver, inbox) = rtrb::RingBuffer::new(TO_DRIVER);
         let (outbox, from_driver) = rtrb::RingBuffer::new(FROM_DRIVER);
         let (raw_tx, raw_rx) = rtrb::RingBuffer::new(driver::RAW_QUEUE_ROWS);
@@ -517,6 +518,7 @@ impl SessionHandle {
             last_ended: None,
             waiting_since: None,
             last_state: None,
+            live_obstacle_m,
         };
         if !engine.set_driver(Box::new(d)) {
             return Err(SessionError::Invalid(
@@ -699,6 +701,44 @@ fn check_options(
         ));
     }
     Ok(())
+}
+
+/// Largest relative difference between a live tweezer's obstacle radius
+/// and the protocol's for the scene to be that obstacle.
+const OBSTACLE_RADIUS_TOLERANCE: f64 = 0.05;
+
+/// A live tweezer's obstacle for the protocol's scene (instrument frame,
+/// m): the one whose radius is the protocol's (within
+/// [`OBSTACLE_RADIUS_TOLERANCE`]); `None` with the simulated tweezer.
+fn live_obstacle(
+    engine: &EngineHandle,
+    protocol: &kilotouch_study::protocol::Protocol,
+) -> Result<Option<[f64; 2]>, SessionError> {
+    let Some(t) = engine.live_tweezer() else {
+        return Ok(None);
+    };
+    let want = kilotouch_study::task::Geometry::of_protocol(&protocol.task).obstacle_radius_m;
+    let near = |r: f64| (r - want).abs() <= OBSTACLE_RADIUS_TOLERANCE * want;
+    if let Some(o) = t.obstacles.iter().find(|o| near(o.radius_m)) {
+        return Ok(Some(o.centre_m));
+    }
+    let seen = if t.obstacles.is_empty() {
+        "reports no obstacle".to_owned()
+    } else {
+        let radii: Vec<String> = t
+            .obstacles
+            .iter()
+            .map(|o| format!("{:.2} µm", o.radius_m * 1e6))
+            .collect();
+        format!("reports obstacles of radius {}", radii.join(", "))
+    };
+    Err(SessionError::Invalid(format!(
+        "the tweezer {} {seen}, the protocol `{}` needs one of radius {:.2} µm: the task's \
+         contacts, gaps and metrics are computed from that obstacle",
+        t.spec.describe(),
+        protocol.name,
+        want * 1e6
+    )))
 }
 
 /// The live device's record for `session.json` (`None`: the simulated rig).

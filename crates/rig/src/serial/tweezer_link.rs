@@ -199,6 +199,12 @@ impl LinkTweezer {
         }
     }
 
+    /// The obstacles the instrument reports, in its frame (none yet: the
+    /// link does not carry the scene).
+    pub fn obstacles(&self) -> &[crate::tweezer::Obstacle] {
+        &[]
+    }
+
     /// The instrument's handshake answer.
     pub fn hello(&self) -> &Hello {
         self.link.hello()

@@ -280,6 +280,9 @@ impl RigPage {
                 }
             });
             ui.add_space(6.0);
+            self.tweezer.engine_tweezer = engine
+                .and_then(|e| e.live_tweezer())
+                .map(|t| t.spec.describe());
             self.tweezer.ui(ui, env, engine.is_some());
             ui.add_space(6.0);
             ui.horizontal(|ui| match engine {
