@@ -104,9 +104,15 @@ fn a_link_failure_mid_record_is_reported_as_a_link_failure() {
         ]);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{fault}: the record must fail");
-        assert!(err.contains("the tweezer link failed at sample"), "{fault}: {err}");
+        assert!(
+            err.contains("the tweezer link failed at sample"),
+            "{fault}: {err}"
+        );
         assert!(err.contains("the record is incomplete"), "{fault}: {err}");
-        assert!(err.contains(&emu.path) && err.contains(said), "{fault}: {err}");
+        assert!(
+            err.contains(&emu.path) && err.contains(said),
+            "{fault}: {err}"
+        );
         assert!(!err.contains("not trapped"), "{fault}: {err}");
         assert!(!err.contains("panicked"), "{fault}: {err}");
         assert!(!out.exists(), "{fault}: partial data written");

@@ -281,20 +281,27 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
         rig.start()?;
         safety.arm()?;
         self.rig = rig;
-        self.begin_trial(&mut tweezer, condition, &mut safety, TrialStart::Fresh);
+        self.begin_trial(
+            Some(&mut tweezer),
+            condition,
+            &mut safety,
+            TrialStart::Fresh,
+        );
         Ok(())
     }
 
     /// Start a trial on the loop as it runs, without allocating or freeing
-    /// (the engine): the trial's tweezer and its (armed) safety layer are
-    /// swapped in — the old ones are left in the arguments, to be dropped
-    /// off the real-time path — the condition switches at once, the filters
-    /// are cleared and the bead sits in the trap at rest. `start` says where
-    /// the handle is ([`TrialStart`]). The rig is not touched: a simulated
-    /// rig is swapped by the caller beforehand ([`crate::AnyRig::swap_sim`]).
+    /// (the engine): the trial's tweezer (`Some`: a fresh simulated one;
+    /// `None`: the loop keeps its own, a live tweezer, which is reset) and
+    /// its (armed) safety layer are swapped in — the old ones are left in
+    /// the arguments, to be dropped off the real-time path — the condition
+    /// switches at once, the filters are cleared and the bead sits in the
+    /// trap at rest. `start` says where the handle is ([`TrialStart`]). The
+    /// rig is not touched: a simulated rig is swapped by the caller
+    /// beforehand ([`crate::AnyRig::swap_sim`]).
     pub fn begin_trial(
         &mut self,
-        tweezer: &mut T,
+        tweezer: Option<&mut T>,
         condition: Condition,
         safety: &mut SafetyLayer,
         start: TrialStart,
@@ -309,8 +316,13 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
             TrialStart::AtHandle => self.coupling.set_handle_origin(self.sensors.handle_m),
         }
         let trap = self.coupling.trap_target(self.sensors.handle_m);
-        tweezer.reset(trap);
-        std::mem::swap(&mut self.tweezer, tweezer);
+        match tweezer {
+            Some(t) => {
+                t.reset(trap);
+                std::mem::swap(&mut self.tweezer, t);
+            }
+            None => self.tweezer.reset(trap),
+        }
         std::mem::swap(&mut self.safety, safety);
         self.missed = false;
         self.block_len = 0;
@@ -435,16 +447,6 @@ impl<R: Rig, T: Tweezer, S: ForceSplitter> HapticLoop<R, T, S> {
                 Err(e)
             }
         }
-    }
-
-    /// The loop's delay beyond the simulated loop's one sample, for
-    /// blocks of `block_len` samples: the rig's ([`Rig::loop_delay_samples`],
-    /// which counts the block and the DAQ link's command lead) plus the
-    /// tweezer link's ([`Tweezer::loop_delay_samples`]), samples.
-    pub fn loop_delay_samples(&self, block_len: usize) -> u32 {
-        self.rig
-            .loop_delay_samples(block_len)
-            .saturating_add(self.tweezer.loop_delay_samples(block_len))
     }
 
     /// The tweezer link failed: the safety layer trips (outputs to zero)

@@ -37,7 +37,7 @@ pub mod text;
 pub mod toml_location;
 pub mod tweezer;
 
-pub use backend::{AnyRig, open_rig};
+pub use backend::{AnyRig, AnyTweezer, open_rig};
 pub use condition::{Condition, PMode};
 pub use config::{RigConfig, default_config_text};
 pub use device::{ActuatorFrame, Rig, SensorFrame};

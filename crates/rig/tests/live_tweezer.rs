@@ -88,7 +88,11 @@ fn link_tweezer_follows_the_simulated_tweezer_exactly() {
     let mut reference = SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap();
     assert_eq!(tw.sample_rate_hz(), rc.rig.sample_rate_hz);
     assert_eq!(tw.stiffness_n_per_m(), kappa);
-    assert_eq!(tw.loop_delay_samples(1), 1, "block-synchronous: the block");
+    assert_eq!(
+        tw.loop_delay_samples(1),
+        0,
+        "block-synchronous: nothing beyond the block"
+    );
     tw.reset([1e-6, 0.0]);
     reference.reset([1e-6, 0.0]);
     let mut contact = false;
@@ -122,7 +126,7 @@ fn with_a_lead_the_bead_answers_the_set_point_applied_lead_samples_earlier() {
     );
     let mut tw = link(&dev.path, CommandLead::Blocks(2));
     assert_eq!(tw.lead_samples(10), 20);
-    assert_eq!(tw.loop_delay_samples(10), 30);
+    assert_eq!(tw.loop_delay_samples(10), 20, "the lead, beyond the block");
     let p = TweezerParams::from_config(&rc.tweezer);
     let kappa = p.stiffness_n_per_m;
     let mut reference = SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap();
@@ -288,7 +292,10 @@ fn an_escape_is_reported_as_an_escape() {
 }
 
 /// Steps blocks until the link reports a failure (at most `limit` blocks).
-fn until_failure(tw: &mut LinkTweezer, limit: usize) -> (Option<LinkErrorKind>, [TweezerSample; 10]) {
+fn until_failure(
+    tw: &mut LinkTweezer,
+    limit: usize,
+) -> (Option<LinkErrorKind>, [TweezerSample; 10]) {
     let mut out = [TweezerSample::default(); 10];
     for _ in 0..limit {
         tw.step_block(&[[0.0; 2]; 10], &mut out);
@@ -363,7 +370,10 @@ fn a_watchdog_trip_is_a_link_failure_and_a_reset_restarts() {
     std::thread::sleep(Duration::from_millis(200));
     let (k, out) = until_failure(&mut tw, 10);
     assert_eq!(k, Some(LinkErrorKind::Watchdog));
-    assert!(out.iter().all(|s| s.force_n == [0.0; 2] && !s.events.escaped));
+    assert!(
+        out.iter()
+            .all(|s| s.force_n == [0.0; 2] && !s.events.escaped)
+    );
     tw.reset([0.0; 2]);
     assert_eq!(tw.link_error(), None);
     let mut out = [TweezerSample::default(); 10];

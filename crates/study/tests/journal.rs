@@ -5,7 +5,9 @@ use std::fs;
 
 use kilotouch_study::export::ExportError;
 use kilotouch_study::export::checksum::{Sha256, crc32, sha256_hex};
-use kilotouch_study::export::session::{CalibrationRef, DeviceRecord, OrderRow};
+use kilotouch_study::export::session::{
+    CalibrationRef, DeviceRecord, OrderRow, TweezerDeviceRecord,
+};
 use kilotouch_study::export::utc::UtcTime;
 use kilotouch_study::journal::{
     Entry, Journal, Record, RecoveryRecord, SessionStart, decode_line, encode_line, parse_journal,
@@ -104,10 +106,19 @@ fn all_records() -> Vec<Record> {
                 firmware: "0.1.0".into(),
                 sample_rate_hz: 10_000.0,
                 block_samples: 10,
-                loop_delay_samples: 21,
-                loop_delay_ms: 2.1,
-                extra_latency_ms: 2.0,
+                loop_delay_samples: 31,
+                loop_delay_ms: 3.1,
+                extra_latency_ms: 3.0,
                 round_trip_ms: Some(0.8),
+                tweezer: Some(TweezerDeviceRecord {
+                    spec: "serial:/dev/ttyACM1".into(),
+                    name: "kilotouch-tweezer".into(),
+                    serial: "KT-T-0001".into(),
+                    firmware: "0.1.0".into(),
+                    lead_samples: 10,
+                    lead_ms: 1.0,
+                    round_trip_ms: Some(0.4),
+                }),
             }),
         }),
         Record::Recovered(RecoveryRecord {

@@ -59,6 +59,11 @@ pub struct Args {
     /// kept and named in the report).
     #[arg(long, requires = "hil")]
     pub out: Option<std::path::PathBuf>,
+    /// `--hil`: the tweezer live too — the tweezer emulator serving the
+    /// paper's micro-world (`emulate tweezer --protocol paper`) beside the
+    /// DAQ emulator, block-synchronous (no command lead), in every sitting.
+    #[arg(long, requires = "hil")]
+    pub live_tweezer: bool,
 }
 
 /// JSON document.
@@ -154,6 +159,7 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             participants: a.participants,
             seed: a.seed,
             speed: a.speed,
+            live_tweezer: a.live_tweezer,
             out,
             threads: std::thread::available_parallelism().map_or(1, usize::from),
         })?;

@@ -16,6 +16,12 @@
 //! benchmark compares results, not fault timing, and must not end on a
 //! loaded machine's scheduling.
 //!
+//! With `--live-tweezer` the tweezer is live too: the tweezer emulator
+//! serving the paper's micro-world (`emulate tweezer --pty --protocol
+//! paper`) beside the DAQ emulator, exchanging blocks without a command
+//! lead, so the loop delay stays 20 samples and any difference comes from
+//! the live link and the instrument's frame, not from the margins.
+//!
 //! The emulator's clock can run faster than real time (`--speed`): the
 //! device announces its rig's rate, so the loop delay and every duration in
 //! samples are those of the real device; the emulator waits for late
@@ -51,6 +57,8 @@ pub struct HilBench {
     pub seed: u64,
     /// The emulator's clock speed (1 = real time).
     pub speed: f64,
+    /// The tweezer live too (its emulator with the paper's micro-world).
+    pub live_tweezer: bool,
     /// Where both studies go (kept for inspection).
     pub out: PathBuf,
     /// Simulation threads.
@@ -66,6 +74,8 @@ pub struct HilReport {
     pub seed: u64,
     /// The emulator's clock speed.
     pub speed: f64,
+    /// The tweezer was live too.
+    pub live_tweezer: bool,
     /// Loop delay of the live sittings, samples (block + command lead).
     pub loop_delay_samples: Option<u32>,
     /// The simulated study's folder.
@@ -84,18 +94,33 @@ pub struct HilReport {
     pub all_agree: bool,
 }
 
-/// The DAQ emulator as a child process (the current executable).
+/// A device emulator as a child process (the current executable).
 struct Device {
     child: Child,
     path: String,
 }
 
 impl Device {
-    fn spawn(seed: u64, speed: f64) -> anyhow::Result<Self> {
+    /// The DAQ emulator with the cohort of study seed `seed` at its handle.
+    fn daq(seed: u64, speed: f64) -> anyhow::Result<Self> {
+        Self::spawn(
+            &["daq", "--participant", &format!("operator:{seed}")],
+            speed,
+        )
+    }
+
+    /// The tweezer emulator serving the paper's micro-world.
+    fn tweezer(speed: f64) -> anyhow::Result<Self> {
+        Self::spawn(&["tweezer", "--protocol", "paper"], speed)
+    }
+
+    fn spawn(args: &[&str], speed: f64) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("the kilotouch executable")?;
         let mut child = Command::new(exe)
-            .args(["emulate", "daq", "--pty", "--participant"])
-            .arg(format!("operator:{seed}"))
+            .arg("emulate")
+            .args(&args[..1])
+            .arg("--pty")
+            .args(&args[1..])
             // Generous watchdogs: the benchmark compares results, not fault
             // timing, and a loaded machine (or real-time throttling of two
             // busy real-time threads on two cores) can hold either side for
@@ -106,7 +131,7 @@ impl Device {
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
-            .context("starting the DAQ emulator")?;
+            .with_context(|| format!("starting the {} emulator", args[0]))?;
         let mut line = String::new();
         let out = child.stdout.take().context("the emulator's stdout")?;
         BufReader::new(out)
@@ -115,7 +140,7 @@ impl Device {
         let path = line.trim().to_owned();
         if path.is_empty() {
             let _ = child.kill();
-            anyhow::bail!("the DAQ emulator did not print its pty");
+            anyhow::bail!("the {} emulator did not print its pty", args[0]);
         }
         Ok(Self { child, path })
     }
@@ -169,14 +194,27 @@ pub fn run(b: &HilBench) -> anyhow::Result<HilReport> {
     for k in 0..b.participants {
         let id = format!("P{:02}", k + 1);
         eprintln!(
-            "hardware in the loop: {id} on the DAQ emulator (clock ×{})",
+            "hardware in the loop: {id} on the DAQ emulator{} (clock ×{})",
+            if b.live_tweezer {
+                " and the tweezer emulator"
+            } else {
+                ""
+            },
             b.speed
         );
-        let dev = Device::spawn(b.seed, b.speed)?;
+        let dev = Device::daq(b.seed, b.speed)?;
+        let tw = if b.live_tweezer {
+            Some(Device::tweezer(b.speed)?)
+        } else {
+            None
+        };
         let args = RunArgs {
             protocol: "paper".into(),
             rig: format!("serial:{},lead=1,timeout-ms=2000", dev.path),
-            tweezer: "sim".into(),
+            tweezer: tw.as_ref().map_or_else(
+                || "sim".into(),
+                |t| format!("serial:{},lead=0,timeout-ms=2000", t.path),
+            ),
             participant: id.clone(),
             out: hil_dir.clone(),
             resume: k > 0,
@@ -207,6 +245,7 @@ pub fn run(b: &HilBench) -> anyhow::Result<HilReport> {
         participants: b.participants,
         seed: b.seed,
         speed: b.speed,
+        live_tweezer: b.live_tweezer,
         loop_delay_samples,
         simulated: sim_dir,
         hil: hil_dir,
@@ -222,12 +261,17 @@ impl HilReport {
     /// The table for a terminal (and docs/PERFORMANCE.md).
     pub fn describe(&self) -> String {
         let mut s = format!(
-            "hardware in the loop ({} participant(s), seed {}, loop delay {} samples, clock ×{}) \
+            "hardware in the loop ({} participant(s), seed {}, {}loop delay {} samples, clock ×{}) \
              against study simulate; a = HIL, b = simulation\n\n\
              | condition | metric | n a/b | mean HIL | mean sim | pooled SE | z | within {} SE |\n\
              |---|---|---|---|---|---|---|---|\n",
             self.participants,
             self.seed,
+            if self.live_tweezer {
+                "live tweezer, "
+            } else {
+                ""
+            },
             self.loop_delay_samples
                 .map_or_else(|| "?".into(), |d| d.to_string()),
             self.speed,

@@ -26,6 +26,7 @@ use kilotouch_rig::serial::emulator::{
 use kilotouch_rig::serial::pty::{Pty, ServeEnd, serve_delayed};
 use kilotouch_rig::serial::{DaqInstrument, TweezerInstrument};
 use kilotouch_study::at_device::DeviceParticipant;
+use kilotouch_study::task::{Geometry, TaskParams};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -102,6 +103,12 @@ pub struct Args {
     /// non-finite, late command, watchdog) on every sample.
     #[arg(long)]
     pub flag_every_sample: bool,
+    /// The micro-world of a study's scene (tweezer only): the protocol's
+    /// manipulated bead, escape distance and obstacle (centred at the
+    /// instrument's origin) replace the rig file's. A TOML file or a
+    /// built-in name (`paper`, `blind`).
+    #[arg(long, value_name = "PROTOCOL")]
+    pub protocol: Option<String>,
 }
 
 /// `--misbehave` modes (see [`Misbehaviour`]).
@@ -253,6 +260,12 @@ fn run_on_pty<I: Instrument>(
 pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
     match cmd {
         EmulateCommand::Daq(a) => {
+            if a.protocol.is_some() {
+                anyhow::bail!(
+                    "--protocol: the protocol's micro-world is the tweezer's (`emulate tweezer \
+                     --protocol`); the DAQ hosts the study's participant (`--participant`)"
+                );
+            }
             let rc = a.rig_config()?;
             let mut inst = DaqInstrument::new(&rc)?;
             if let Some(p) = &a.participant {
@@ -276,7 +289,17 @@ pub fn run(cmd: &EmulateCommand) -> anyhow::Result<()> {
                     "--participant: a participant sits at the DAQ's handle, not the tweezer"
                 );
             }
-            let inst = TweezerInstrument::new(&a.rig_config()?)?;
+            let mut rc = a.rig_config()?;
+            if let Some(p) = &a.protocol {
+                let protocol = super::protocol_arg::load_protocol(p)?;
+                let escape = TaskParams::from_protocol(&protocol).escape_distance_m();
+                Geometry::of_protocol(&protocol.task).apply_to(&mut rc.tweezer, escape);
+                eprintln!(
+                    "kilotouch emulate tweezer: the micro-world of the protocol `{}`",
+                    protocol.name
+                );
+            }
+            let inst = TweezerInstrument::new(&rc)?;
             run_on_pty(inst, a.config(10)?, link_delay(a.link_delay_ms)?, "tweezer")
         }
     }

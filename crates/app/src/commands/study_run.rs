@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use kilotouch_rig::config::RigConfig;
-use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use kilotouch_study::export::{DeviceRecord, SESSION_FILE, read_session};
 use kilotouch_study::runner::RunnerConfig;
 use serde::Serialize;
@@ -37,7 +37,9 @@ pub struct RunArgs {
     /// handle is real).
     #[arg(long, default_value = "sim")]
     pub rig: String,
-    /// The tweezer: `sim` (the simulated tweezer on the host).
+    /// The tweezer: `sim` (the simulated tweezer on the host) or
+    /// `serial:PATH[,…]` (a live tweezer or its emulator, streaming at the
+    /// rig's rate; its command lead enters the stability check).
     #[arg(long, default_value = "sim")]
     pub tweezer: String,
     /// The participant of this sitting (pseudonymous ID: `P01`, `p1`, `1`).
@@ -74,7 +76,8 @@ pub struct RunReport {
     pub out: PathBuf,
     /// The rig (`sim`, `serial:PATH`).
     pub rig: String,
-    /// The live device and its loop delay (`null`: the simulated rig).
+    /// The live devices and the loop delay (`null`: the simulated rig and
+    /// tweezer).
     pub device: Option<DeviceRecord>,
     /// The participant of the sitting.
     pub participant: String,
@@ -119,13 +122,8 @@ pub fn sitting(
     if !(a.timeout_s.is_finite() && a.timeout_s > 0.0) {
         anyhow::bail!("--timeout-s must be finite and > 0, got {}", a.timeout_s);
     }
-    if a.tweezer != "sim" {
-        anyhow::bail!(
-            "--tweezer {}: only the simulated tweezer (`sim`) runs in a sitting",
-            a.tweezer
-        );
-    }
     let spec: RigSpec = a.rig.parse()?;
+    let tweezer: TweezerSpec = a.tweezer.parse()?;
     let rig = RigConfig::load_or_default(a.loop_args.rig_config.as_ref())?;
     let protocol = match protocol {
         Some(p) if !a.resume => p,
@@ -138,8 +136,17 @@ pub fn sitting(
     if live && a.fast {
         anyhow::bail!("--fast is for the simulated rig: a live rig runs in real time");
     }
-    let mut engine = EngineHandle::spawn_spec(&rig, &spec, EngineOptions::default())
-        .with_context(|| format!("--rig {}", spec.describe()))?;
+    if tweezer != TweezerSpec::Sim && a.fast {
+        anyhow::bail!("--fast is for the simulated tweezer: a live tweezer runs in real time");
+    }
+    let mut engine = EngineHandle::spawn_devices(&rig, &spec, &tweezer, EngineOptions::default())
+        .with_context(|| {
+        if tweezer == TweezerSpec::Sim {
+            format!("--rig {}", spec.describe())
+        } else {
+            format!("--rig {} --tweezer {}", spec.describe(), tweezer.describe())
+        }
+    })?;
     let mut runner = RunnerConfig::default();
     if a.no_raw {
         runner.raw = None;
@@ -291,6 +298,12 @@ fn human(r: &RunReport) -> String {
             "  device: {} (firmware {}), loop delay {} samples = {:.2} ms\n",
             d.name, d.firmware, d.loop_delay_samples, d.loop_delay_ms
         ));
+        if let Some(t) = &d.tweezer {
+            s.push_str(&format!(
+                "  tweezer: {} on {} (firmware {}), command lead {} samples = {:.2} ms\n",
+                t.name, t.spec, t.firmware, t.lead_samples, t.lead_ms
+            ));
+        }
     }
     s.push_str(&format!(
         "  timing: {} deadline miss(es), worst block {:.2} ms late\n",

@@ -9,11 +9,11 @@ use kilotouch_rig::device::Clock;
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::MAX_BLOCK;
 
-/// The closed loop the engine runs (simulated or live rig, the tweezer
-/// detected or not, the swappable chain).
+/// The closed loop the engine runs (simulated or live rig, simulated or
+/// live tweezer, the swappable chain).
 pub type EngineLoop = kilotouch_rig::haptic_loop::HapticLoop<
     kilotouch_rig::AnyRig,
-    kilotouch_rig::tweezer::DetectedTweezer,
+    kilotouch_rig::AnyTweezer,
     super::splitter::SwappableChain,
 >;
 
@@ -23,8 +23,9 @@ pub struct BlockCtx<'a> {
     pub lp: &'a mut EngineLoop,
     /// Samples in this block (1–[`MAX_BLOCK`]).
     pub n: usize,
-    /// A live rig: the loop exchanges blocks ([`EngineLoop::step_block`])
-    /// and must keep exchanging them (the device paces the loop).
+    /// A live rig or a live tweezer: the loop exchanges blocks
+    /// ([`EngineLoop::step_block`]) and must keep exchanging them (the
+    /// device paces the loop).
     pub live: bool,
     /// The GUI's latest hand request (m; the mouse on the simulated rig).
     pub gui_hand: [f64; 2],
@@ -120,6 +121,15 @@ impl FreeExploration {
 impl BlockDriver for FreeExploration {
     fn run_block(&mut self, ctx: &mut BlockCtx<'_>) -> Result<usize, RigError> {
         if ctx.live {
+            if !ctx.lp.rig.is_live() {
+                // A live tweezer on the simulated rig: the hand moves once
+                // per block (the block is the loop's exchange unit).
+                let target = ctx.gui_hand;
+                let a = 1.0 - (1.0 - self.alpha).powi(ctx.n as i32);
+                self.hand[0] += a * (target[0] - self.hand[0]);
+                self.hand[1] += a * (target[1] - self.hand[1]);
+                ctx.lp.rig.set_hand(self.hand);
+            }
             let n = run_live_block(ctx)?;
             if let Some(last) = ctx.lp.block().last() {
                 self.hand = last.sensors.handle_m;

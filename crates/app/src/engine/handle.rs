@@ -7,14 +7,14 @@ use super::{
     BlockDriver, Command, Condition, EngineError, EngineEvent, EngineOptions, Health,
     TelemetrySample,
 };
-use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{ChainSource, LoopChain};
-use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::device::{Clock, RigIdentity, SystemClock};
+use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::stability::StabilityReport;
 use kilotouch_rig::tweezer::Obstacle;
 use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer};
+use kilotouch_rig::{AnyRig, AnyTweezer};
 use kilotouch_rig::{RigConfig, TweezerParams};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -34,10 +34,23 @@ pub fn engine_pair<C: Clock>(
 }
 
 /// [`engine_pair`] on a given rig (simulated or live, see
-/// [`AnyRig::open`]).
+/// [`AnyRig::open`]) with the rig file's simulated tweezer.
 pub fn engine_pair_with_rig<C: Clock>(
     cfg: &RigConfig,
     rig: AnyRig,
+    opts: EngineOptions,
+    clock: C,
+) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
+    engine_pair_with_devices(cfg, rig, None, opts, clock)
+}
+
+/// [`engine_pair`] on a given rig and tweezer (`None`: the rig file's
+/// simulated tweezer at the rig's rate; a live one from
+/// [`AnyTweezer::open`]).
+pub fn engine_pair_with_devices<C: Clock>(
+    cfg: &RigConfig,
+    rig: AnyRig,
+    tweezer: Option<AnyTweezer>,
     opts: EngineOptions,
     clock: C,
 ) -> Result<(EngineCore<C>, EngineHandle), EngineError> {
@@ -52,14 +65,40 @@ pub fn engine_pair_with_rig<C: Clock>(
     let (ev_tx, ev_rx) = rtrb::RingBuffer::new(QUEUE);
     let shared = Arc::new(Shared::default());
     let spec = rig.spec().clone();
-    let core = EngineCore::new(cfg, rig, opts, clock, cmd_rx, tel_tx, ev_tx, shared.clone())?;
+    let tweezer_spec = match &tweezer {
+        Some(t @ AnyTweezer::Link(_)) => t.as_link().map_or(TweezerSpec::Sim, |l| {
+            TweezerSpec::Serial(l.link_config().clone())
+        }),
+        _ => TweezerSpec::Sim,
+    };
+    let core = EngineCore::new(
+        cfg,
+        rig,
+        tweezer,
+        opts,
+        clock,
+        cmd_rx,
+        tel_tx,
+        ev_tx,
+        shared.clone(),
+    )?;
     let identity = kilotouch_rig::Rig::identity(&core.closed_loop().rig).clone();
     let config = core.config().clone();
     let free = core.free_exploration();
     let latency_s = core.latency_s();
     let block_len = opts.block_len;
-    let loop_delay = kilotouch_rig::Rig::loop_delay_samples(&core.closed_loop().rig, block_len);
-    let round_trip_s = kilotouch_rig::Rig::round_trip_s(&core.closed_loop().rig);
+    let lp = core.closed_loop();
+    let loop_delay = super::runner::loop_delay_samples(&lp.rig, &lp.tweezer, block_len);
+    let round_trip_s = kilotouch_rig::Rig::round_trip_s(&lp.rig);
+    let tweezer = lp.tweezer.as_link().map(|t| LiveTweezerInfo {
+        spec: tweezer_spec.clone(),
+        name: t.hello().name.clone(),
+        serial: t.hello().serial.clone(),
+        firmware: t.hello().firmware.clone(),
+        lead_samples: kilotouch_rig::Tweezer::loop_delay_samples(t, block_len),
+        round_trip_s: kilotouch_rig::Tweezer::round_trip_s(t),
+        obstacles: t.obstacles().to_vec(),
+    });
     let chain = core.initial_chain().clone();
     let clearance = core.closed_loop().clearance();
     let chain_source = clearance.source().clone();
@@ -85,9 +124,29 @@ pub fn engine_pair_with_rig<C: Clock>(
         block_len,
         loop_delay,
         round_trip_s,
+        tweezer,
         applied,
     };
     Ok((core, handle))
+}
+
+/// The live tweezer an engine runs with, as it answered at connection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveTweezerInfo {
+    /// The specification it was opened from.
+    pub spec: TweezerSpec,
+    /// Its name (HELLO).
+    pub name: String,
+    /// Its serial number (HELLO).
+    pub serial: String,
+    /// Its firmware (HELLO).
+    pub firmware: String,
+    /// The link's command lead, samples (its share of the loop delay).
+    pub lead_samples: u32,
+    /// The link's round trip measured at connection, s.
+    pub round_trip_s: Option<f64>,
+    /// The obstacles it reports, in its own frame.
+    pub obstacles: Vec<kilotouch_rig::tweezer::Obstacle>,
 }
 
 /// The GUI's end of a running engine (module docs of [`crate::engine`]).
@@ -113,6 +172,8 @@ pub struct EngineHandle {
     block_len: usize,
     loop_delay: u32,
     round_trip_s: Option<f64>,
+    /// The live tweezer (None: the simulated one).
+    tweezer: Option<LiveTweezerInfo>,
     /// The chain the engine runs and the clearance it was armed with.
     applied: Option<(LoopChain, Clearance)>,
 }
@@ -145,8 +206,30 @@ impl EngineHandle {
         spec: &RigSpec,
         opts: EngineOptions,
     ) -> Result<Self, EngineError> {
+        Self::spawn_devices(cfg, spec, &TweezerSpec::Sim, opts)
+    }
+
+    /// [`Self::spawn_spec`] with the tweezer `tweezer` names (`sim`: the
+    /// rig file's simulated tweezer; `serial:PATH…`: a live tweezer or its
+    /// emulator, which must stream at the rig's rate). Both links' command
+    /// leads enter the stability clearance.
+    pub fn spawn_devices(
+        cfg: &RigConfig,
+        spec: &RigSpec,
+        tweezer: &TweezerSpec,
+        opts: EngineOptions,
+    ) -> Result<Self, EngineError> {
         let rig = AnyRig::open(spec, cfg)?;
-        let (mut core, mut handle) = engine_pair_with_rig(cfg, rig, opts, SystemClock::default())?;
+        let tw = match tweezer {
+            TweezerSpec::Sim => None,
+            live => Some(AnyTweezer::open(
+                live,
+                cfg,
+                kilotouch_rig::Rig::identity(&rig).sample_rate_hz,
+            )?),
+        };
+        let (mut core, mut handle) =
+            engine_pair_with_devices(cfg, rig, tw, opts, SystemClock::default())?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
             .spawn(move || {
@@ -274,6 +357,11 @@ impl EngineHandle {
     pub fn reset_emergency_stop(&mut self) -> bool {
         let ack = self.estop_count();
         self.send(Command::ResetEmergencyStop { ack }).is_ok()
+    }
+
+    /// The live tweezer (None: the rig file's simulated one).
+    pub fn live_tweezer(&self) -> Option<&LiveTweezerInfo> {
+        self.tweezer.as_ref()
     }
 
     /// Replace the obstacles (builds a new tweezer here; the engine swaps it in).

@@ -78,7 +78,10 @@ pub mod splitter;
 
 pub use driver::EngineLoop;
 pub use driver::{BlockCtx, BlockDriver, FreeExploration, Publisher, run_live_block};
-pub use handle::{EngineHandle, EstopTrigger, engine_pair, engine_pair_with_rig};
+pub use handle::{
+    EngineHandle, EstopTrigger, LiveTweezerInfo, engine_pair, engine_pair_with_devices,
+    engine_pair_with_rig,
+};
 pub use kilotouch_rig::AnyRig;
 pub use runner::EngineCore;
 

@@ -9,15 +9,14 @@ use super::{
     flags,
 };
 use kilotouch_dsp::chain::Chain;
-use kilotouch_rig::AnyRig;
 use kilotouch_rig::coupling::{Coupling, LoopChain};
 use kilotouch_rig::device::Clock;
 use kilotouch_rig::device::RigSpec;
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::{Clearance, HapticLoop, MAX_BLOCK};
 use kilotouch_rig::safety::{SafetyLayer, SafetyState, TripReason};
-use kilotouch_rig::tweezer::DetectedTweezer;
-use kilotouch_rig::{Rig, RigConfig, Tweezer, TweezerParams};
+use kilotouch_rig::{AnyRig, AnyTweezer};
+use kilotouch_rig::{Rig, RigConfig, Tweezer};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -31,11 +30,26 @@ pub(crate) struct Shared {
     pub shutdown: AtomicBool,
 }
 
-/// The loop delay of `rig` exchanging blocks of `block_len` samples at
-/// `fs` Hz beyond the one sample of the simulated loop, s: what the
-/// stability analysis adds ([`Rig::loop_delay_samples`]).
-pub fn extra_latency_s(rig: &AnyRig, block_len: usize, fs: f64) -> f64 {
-    f64::from(rig.loop_delay_samples(block_len).saturating_sub(1)) / fs
+/// The loop delay of `rig` and `tweezer` for blocks of `block_len`
+/// samples, samples: the simulated loop's one sample, or when either device
+/// is live and the loop exchanges blocks, the rig's block and command lead
+/// ([`Rig::loop_delay_samples`]; the block on the simulated rig) plus the
+/// tweezer link's command lead ([`Tweezer::loop_delay_samples`]).
+pub fn loop_delay_samples(rig: &AnyRig, tweezer: &AnyTweezer, block_len: usize) -> u32 {
+    let rig_delay = if rig.is_live() {
+        rig.loop_delay_samples(block_len)
+    } else if tweezer.is_live() {
+        u32::try_from(block_len.max(1)).unwrap_or(u32::MAX)
+    } else {
+        1
+    };
+    rig_delay.saturating_add(tweezer.loop_delay_samples(block_len))
+}
+
+/// [`loop_delay_samples`] beyond the one sample of the simulated loop at
+/// `fs` Hz, s: what the stability analysis adds.
+pub fn extra_latency_s(rig: &AnyRig, tweezer: &AnyTweezer, block_len: usize, fs: f64) -> f64 {
+    f64::from(loop_delay_samples(rig, tweezer, block_len).saturating_sub(1)) / fs
 }
 
 /// Idle period while the rig is stopped, s.
@@ -90,6 +104,7 @@ impl<C: Clock> EngineCore<C> {
     pub(crate) fn new(
         cfg: &RigConfig,
         rig: AnyRig,
+        tweezer: Option<AnyTweezer>,
         opts: EngineOptions,
         clock: C,
         commands: rtrb::Consumer<Command>,
@@ -122,16 +137,21 @@ impl<C: Clock> EngineCore<C> {
         cfg.safety.ramp_time_s = opts.ramp_s;
         let cfg = &cfg;
         let fs = cfg.rig.sample_rate_hz;
-        let live = rig.is_live();
-        let tweezer = DetectedTweezer::new(
-            TweezerParams::from_config(&cfg.tweezer),
-            &cfg.tweezer.detector,
-            fs,
-        )?;
+        let tweezer = match tweezer {
+            Some(t) => t,
+            None => AnyTweezer::sim(cfg, fs)?,
+        };
+        let rate = kilotouch_rig::Tweezer::sample_rate_hz(&tweezer);
+        if rate != fs {
+            return Err(EngineError::Rig(RigError::Device(format!(
+                "the tweezer runs at {rate} Hz, the rig at {fs} Hz: both must stream at the same rate"
+            ))));
+        }
+        let live = rig.is_live() || tweezer.is_live();
         // The loop is armed only if its margins meet the rig file's minimum
-        // with the loop's own delay: one sample on the simulated rig, the
-        // block and the link's command lead on a live one.
-        let latency_s = extra_latency_s(&rig, opts.block_len, fs);
+        // with the loop's own delay: one sample on the simulated loop, the
+        // block and the links' command leads on a live one.
+        let latency_s = extra_latency_s(&rig, &tweezer, opts.block_len, fs);
         let chain = LoopChain::as_designed(cfg)?;
         let clearance = Clearance::check_with_latency(cfg, &chain, latency_s)?;
         let (splitter, swap_port) = SwappableChain::new(Chain::new(&chain.coefficients));
@@ -291,8 +311,23 @@ impl<C: Clock> EngineCore<C> {
 
     fn stop_rig(&mut self) {
         let _ = self.lp.rig.stop();
+        self.lp.tweezer.stop();
         self.lp.safety.disarm();
         self.running = false;
+    }
+
+    /// Start the rig, then a live tweezer (its link reopened if it was
+    /// lost). Blocks for the devices' answers: only while the loop is
+    /// stopped.
+    fn start_devices(&mut self) -> Result<(), RigError> {
+        self.lp.rig.start()?;
+        if let Err(e) = self.lp.tweezer.start() {
+            let _ = self.lp.rig.stop();
+            return Err(RigError::Disconnected(format!(
+                "the tweezer did not start: {e}"
+            )));
+        }
+        Ok(())
     }
 
     fn handle_commands(&mut self) {
@@ -352,12 +387,20 @@ impl<C: Clock> EngineCore<C> {
                 self.lp.coupling.set_condition(c);
             }
             Command::SetTweezer(mut t) => {
-                let bead = self.lp.tweezer.bead();
-                t.reset(self.out.last_trap);
-                t.set_bead(bead);
-                // Validated when it was applied.
-                let _ = t.set_calibration(self.lp.tweezer.calibration());
-                std::mem::swap(&mut *t, &mut self.lp.tweezer);
+                let calibration = self.lp.tweezer.calibration();
+                if let AnyTweezer::Sim(cur) = &mut self.lp.tweezer {
+                    let bead = cur.bead();
+                    t.reset(self.out.last_trap);
+                    t.set_bead(bead);
+                    // Validated when it was applied.
+                    let _ = t.set_calibration(calibration);
+                    std::mem::swap(&mut t, cur);
+                } else {
+                    self.push_notice(EngineEvent::Refused(
+                        "the obstacles of a live tweezer are its own: they cannot be replaced \
+                         from the Explore page",
+                    ));
+                }
                 self.push_event(EngineEvent::Garbage(Garbage::Tweezer(t)));
             }
             Command::SetTrapCalibration(c) => {
@@ -385,7 +428,7 @@ impl<C: Clock> EngineCore<C> {
             Command::ResetBead => self.lp.tweezer.reset(self.out.last_trap),
             Command::Start => {
                 if !self.running {
-                    match self.lp.rig.start() {
+                    match self.start_devices() {
                         Ok(()) => self.resume(),
                         Err(e) => self.push_notice(EngineEvent::RigError(e)),
                     }
@@ -448,7 +491,7 @@ impl<C: Clock> EngineCore<C> {
         // command lead) must be within what the stability clearance was
         // made for; a longer one needs a new connection, which checks the
         // margins again.
-        let latency = extra_latency_s(&self.lp.rig, self.opts.block_len, self.fs);
+        let latency = extra_latency_s(&self.lp.rig, &self.lp.tweezer, self.opts.block_len, self.fs);
         if latency > self.latency_s + 0.5 / self.fs {
             let _ = self.lp.rig.stop();
             self.faulted = true;
@@ -475,7 +518,7 @@ impl<C: Clock> EngineCore<C> {
                 return;
             }
         }
-        match self.lp.rig.start() {
+        match self.start_devices() {
             Ok(()) => {
                 self.faulted = true; // clears the rig-error trip in resume()
                 self.resume();

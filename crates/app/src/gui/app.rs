@@ -15,7 +15,7 @@ use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
 use egui::{Color32, RichText};
 use kilotouch_rig::RigConfig;
-use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -45,6 +45,9 @@ pub struct AppOptions {
     /// The rig to connect at start (`sim`, `serial:PATH[,…]`; else the one
     /// used last, else the simulated rig).
     pub rig: Option<String>,
+    /// The tweezer to connect at start (`sim`, `serial:PATH[,…]`; else the
+    /// one used last, else the simulated tweezer).
+    pub tweezer: Option<String>,
 }
 
 impl Default for AppOptions {
@@ -59,6 +62,7 @@ impl Default for AppOptions {
             simulate_sitting: false,
             calibrate_tweezer: false,
             rig: None,
+            tweezer: None,
         }
     }
 }
@@ -215,6 +219,9 @@ impl KilotouchApp {
         if let Some(r) = opts.rig.as_ref().or(settings.rig_spec.as_ref()) {
             rig_page.rig_text = r.clone();
         }
+        if let Some(t) = opts.tweezer.as_ref().or(settings.tweezer_spec.as_ref()) {
+            rig_page.tweezer_text = t.clone();
+        }
         let mut study = StudyPage::with_gpu(gpu);
         match settings.protocol_source.as_deref() {
             Some("blind") => study.source = ProtocolSource::Blind,
@@ -292,27 +299,34 @@ impl KilotouchApp {
     pub fn connect(&mut self) {
         self.engine = None;
         self.connecting = None;
-        let spec = match self.rig_page.spec() {
-            Ok(spec) => spec,
+        let specs = self
+            .rig_page
+            .spec()
+            .and_then(|r| Ok((r, self.rig_page.tweezer_spec()?)));
+        let (spec, tweezer) = match specs {
+            Ok(s) => s,
             Err(e) => {
                 self.notify(format!("cannot start the engine: {e}"), true);
                 return;
             }
         };
-        if spec == RigSpec::Sim {
+        if spec == RigSpec::Sim && tweezer == TweezerSpec::Sim {
             let spawned = EngineHandle::spawn_spec(&self.rig_config, &spec, self.engine_opts);
             self.engine_ready(spawned);
             return;
         }
         let (tx, rx) = mpsc::channel();
-        let label = self.rig_page.rig_text.trim().to_owned();
+        let mut label = self.rig_page.rig_text.trim().to_owned();
+        if tweezer != TweezerSpec::Sim {
+            label = format!("{label} + tweezer {}", tweezer.describe());
+        }
         let (cfg, opts) = (self.rig_config.clone(), self.engine_opts);
         let worker = std::thread::Builder::new()
             .name("kilotouch-connect".into())
             .spawn(move || {
                 // If the GUI gave up meanwhile, the handle drops here and
                 // its engine stops.
-                let _ = tx.send(EngineHandle::spawn_spec(&cfg, &spec, opts));
+                let _ = tx.send(EngineHandle::spawn_devices(&cfg, &spec, &tweezer, opts));
             });
         match worker {
             Ok(_) => self.connecting = Some(PendingConnect { label, rx }),
@@ -491,10 +505,19 @@ impl KilotouchApp {
         t: &kilotouch_rig::tweezer::TrapCalibrationRecord,
     ) -> Result<(), String> {
         t.check()?;
-        if t.source != "sim" {
+        let (tweezer, what) = match h.live_tweezer() {
+            Some(l) => (
+                l.spec.describe(),
+                format!("the live tweezer on {}", l.spec.describe()),
+            ),
+            None => (
+                "sim".to_owned(),
+                "the rig file's simulated tweezer".to_owned(),
+            ),
+        };
+        if t.source != tweezer {
             return Err(format!(
-                "it was recorded from {}, and the engine's loop drives the rig file's simulated \
-                 tweezer",
+                "it was recorded from {}, and the engine's loop drives {what}",
                 t.source
             ));
         }
@@ -997,6 +1020,8 @@ impl eframe::App for KilotouchApp {
         if !self.fresh {
             let rig = self.rig_page.rig_text.trim();
             self.settings.rig_spec = (!rig.is_empty()).then(|| rig.to_owned());
+            let tw = self.rig_page.tweezer_text.trim();
+            self.settings.tweezer_spec = (!tw.is_empty() && tw != "sim").then(|| tw.to_owned());
             self.settings.protocol_source = Some(
                 match self.study.source {
                     ProtocolSource::Paper => "paper",

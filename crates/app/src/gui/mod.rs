@@ -41,6 +41,11 @@ pub struct GuiArgs {
     /// its emulator); default: the one used last, else the simulated rig.
     #[arg(long, value_name = "SPEC")]
     pub rig: Option<String>,
+    /// The tweezer to connect at start: `sim` or `serial:PATH[,…]` (a live
+    /// tweezer or its emulator); default: the one used last, else the
+    /// simulated tweezer.
+    #[arg(long, value_name = "SPEC")]
+    pub tweezer: Option<String>,
     /// Save a PNG of the window after --quit-after seconds, then exit
     /// (exit status 1 if the image is blank). Uses fresh settings.
     #[arg(long, value_name = "FILE.png", requires = "quit_after")]
@@ -121,6 +126,7 @@ pub fn run(args: &GuiArgs) -> anyhow::Result<ExitCode> {
         simulate_sitting: args.simulate_sitting,
         calibrate_tweezer: args.calibrate_tweezer,
         rig: args.rig.clone(),
+        tweezer: args.tweezer.clone(),
         ..Default::default()
     };
     let native = eframe::NativeOptions {

@@ -59,6 +59,10 @@ pub struct Settings {
     /// Rig last connected, in `--rig` syntax (`sim`, `serial:PATH[,…]`,
     /// `audio[:DEVICE]`); `None` = the simulated rig.
     pub rig_spec: Option<String>,
+    /// Tweezer last connected, in `--tweezer` syntax (`serial:PATH[,…]`);
+    /// `None` = the simulated tweezer.
+    #[serde(default)]
+    pub tweezer_spec: Option<String>,
     /// Study protocol last used: `paper` / `blind` (built-in) or `file`.
     pub protocol_source: Option<String>,
     /// Study protocol file last used (with `protocol_source = "file"`).
@@ -79,6 +83,7 @@ impl Default for Settings {
             page: Page::Explore,
             rig_file: None,
             rig_spec: None,
+            tweezer_spec: None,
             protocol_source: None,
             protocol_file: None,
             output_dir: None,
@@ -130,6 +135,7 @@ mod tests {
             page: Page::Results,
             rig_file: Some("/tmp/rig.toml".into()),
             rig_spec: Some("serial:/dev/ttyACM0".into()),
+            tweezer_spec: Some("serial:/dev/ttyACM1".into()),
             protocol_source: Some("file".into()),
             protocol_file: Some("/tmp/p.toml".into()),
             output_dir: Some("/tmp/out".into()),

@@ -17,6 +17,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use kilotouch_rig::AnyTweezer;
 use kilotouch_rig::Rig;
 use kilotouch_rig::coupling::{ChainSource, HandMapping};
 use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
@@ -24,7 +25,6 @@ use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::TrialStart;
 use kilotouch_rig::safety::SafetyLayer;
 use kilotouch_rig::sim::SimRig;
-use kilotouch_rig::tweezer::DetectedTweezer;
 use kilotouch_study::export::ExportError;
 use kilotouch_study::export::TaskKind;
 use kilotouch_study::runner::{RAW_CHANNELS, RawSink, RunError, TrialCore, TrialOutcome};
@@ -44,8 +44,12 @@ pub(crate) struct TrialSlot {
     pub setup: kilotouch_study::runner::TrialSetup,
     /// A fresh simulated rig (the simulated rig only).
     pub rig: Option<Box<SimRig>>,
-    /// The trial's tweezer.
-    pub tweezer: Box<DetectedTweezer>,
+    /// The trial's simulated tweezer (unused, and dropped by the worker,
+    /// when the loop runs a live tweezer: that one stays and is reset).
+    pub tweezer: AnyTweezer,
+    /// Where the trial's frame sits in a live tweezer's, m
+    /// ([`kilotouch_rig::backend::LiveTweezer`]).
+    pub tweezer_origin_m: [f64; 2],
     /// Its safety layer, armed.
     pub safety: Box<SafetyLayer>,
     /// The kept trajectory's buffer (capacity for the whole trial).
@@ -145,7 +149,7 @@ impl Station for LoopStation<'_, '_> {
     }
 
     fn hand_is_real(&self) -> bool {
-        self.ctx.live
+        self.ctx.lp.rig.is_live()
     }
 
     #[inline]
@@ -156,6 +160,13 @@ impl Station for LoopStation<'_, '_> {
     ) -> Result<(), RunError> {
         let ctx = &mut *self.ctx;
         if ctx.live {
+            if !ctx.lp.rig.is_live()
+                && let Some(h) = hands.last()
+            {
+                // A live tweezer on the simulated rig: block exchange, the
+                // simulated hand set once per block.
+                ctx.lp.rig.set_hand(*h);
+            }
             ctx.exchange(hands.len())?;
             for (o, l) in out.iter_mut().zip(ctx.lp.block()) {
                 ctx.out.publish(l, l.sensors.handle_m);
@@ -297,13 +308,15 @@ impl SittingDriver {
         }
         // The applied trap calibration carries over (validated when applied).
         let _ = slot.tweezer.set_calibration(lp.tweezer.calibration());
-        let start = if ctx.live {
+        lp.tweezer.set_frame_origin(slot.tweezer_origin_m);
+        let tweezer = (!lp.tweezer.is_live()).then_some(&mut slot.tweezer);
+        let start = if lp.rig.is_live() {
             TrialStart::AtHandle
         } else {
             TrialStart::Fresh
         };
         let condition = slot.setup.feedback.condition;
-        lp.begin_trial(&mut slot.tweezer, condition, &mut slot.safety, start);
+        lp.begin_trial(tweezer, condition, &mut slot.safety, start);
         slot.setup.brief.mapping = *lp.coupling.mapping();
         let trajectory = std::mem::take(&mut slot.trajectory);
         if self

@@ -80,8 +80,8 @@ use kilotouch_rig::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_study::export::{
-    DeviceRecord, PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow, plan,
-    read_session, read_trials,
+    DeviceRecord, PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow,
+    TweezerDeviceRecord, plan, read_session, read_trials,
 };
 use kilotouch_study::operator::SimCohort;
 use kilotouch_study::participant::{MouseParticipant, VisualFrame};
@@ -430,7 +430,7 @@ impl SessionHandle {
     /// not next in the plan, a done study), a chain whose margins at the
     /// rig's loop delay are below the minimum, storage errors.
     pub fn spawn(opts: SessionOptions, engine: &mut EngineHandle) -> Result<Self, SessionError> {
-        check_options(&opts, engine.is_live())?;
+        check_options(&opts, engine.is_live(), engine.live_tweezer().is_some())?;
         let (mut meta, chain) = sim_meta(
             &opts.rig,
             opts.calibration.as_deref(),
@@ -461,6 +461,7 @@ impl SessionHandle {
             rig: engine.spec().describe(),
             device,
         };
+        let live_obstacle_m = live_obstacle(engine, &info.protocol)?;
         let (to_driver, inbox) = rtrb::RingBuffer::new(TO_DRIVER);
         let (outbox, from_driver) = rtrb::RingBuffer::new(FROM_DRIVER);
         let (raw_tx, raw_rx) = rtrb::RingBuffer::new(driver::RAW_QUEUE_ROWS);
@@ -517,6 +518,7 @@ impl SessionHandle {
             last_ended: None,
             waiting_since: None,
             last_state: None,
+            live_obstacle_m,
         };
         if !engine.set_driver(Box::new(d)) {
             return Err(SessionError::Invalid(
@@ -660,7 +662,11 @@ impl Drop for SessionHandle {
 }
 
 /// Refuses option sets that do not fit the rig.
-fn check_options(opts: &SessionOptions, live: bool) -> Result<(), SessionError> {
+fn check_options(
+    opts: &SessionOptions,
+    live: bool,
+    live_tweezer: bool,
+) -> Result<(), SessionError> {
     if opts.telemetry_every == 0 {
         return Err(SessionError::Invalid("telemetry_every must be ≥ 1".into()));
     }
@@ -687,17 +693,72 @@ fn check_options(opts: &SessionOptions, live: bool) -> Result<(), SessionError> 
                 .into(),
         ));
     }
+    if opts.speed == Speed::Fast && live_tweezer {
+        return Err(SessionError::Invalid(
+            "\"as fast as possible\" needs the simulated tweezer: a live tweezer streams at its \
+             own rate"
+                .into(),
+        ));
+    }
     Ok(())
+}
+
+/// Largest relative difference between a live tweezer's obstacle radius
+/// and the protocol's for the scene to be that obstacle.
+const OBSTACLE_RADIUS_TOLERANCE: f64 = 0.05;
+
+/// A live tweezer's obstacle for the protocol's scene (instrument frame,
+/// m): the one whose radius is the protocol's (within
+/// [`OBSTACLE_RADIUS_TOLERANCE`]); `None` with the simulated tweezer.
+fn live_obstacle(
+    engine: &EngineHandle,
+    protocol: &kilotouch_study::protocol::Protocol,
+) -> Result<Option<[f64; 2]>, SessionError> {
+    let Some(t) = engine.live_tweezer() else {
+        return Ok(None);
+    };
+    let want = kilotouch_study::task::Geometry::of_protocol(&protocol.task).obstacle_radius_m;
+    let near = |r: f64| (r - want).abs() <= OBSTACLE_RADIUS_TOLERANCE * want;
+    if let Some(o) = t.obstacles.iter().find(|o| near(o.radius_m)) {
+        return Ok(Some(o.centre_m));
+    }
+    let seen = if t.obstacles.is_empty() {
+        "reports no obstacle".to_owned()
+    } else {
+        let radii: Vec<String> = t
+            .obstacles
+            .iter()
+            .map(|o| format!("{:.2} µm", o.radius_m * 1e6))
+            .collect();
+        format!("reports obstacles of radius {}", radii.join(", "))
+    };
+    Err(SessionError::Invalid(format!(
+        "the tweezer {} {seen}, the protocol `{}` needs one of radius {:.2} µm: the task's \
+         contacts, gaps and metrics are computed from that obstacle",
+        t.spec.describe(),
+        protocol.name,
+        want * 1e6
+    )))
 }
 
 /// The live device's record for `session.json` (`None`: the simulated rig).
 fn device_record(engine: &EngineHandle) -> Option<DeviceRecord> {
-    if !engine.is_live() {
+    let tweezer = engine.live_tweezer();
+    if !engine.is_live() && tweezer.is_none() {
         return None;
     }
     let id = engine.identity();
     let fs = id.sample_rate_hz;
     let delay = engine.loop_delay_samples();
+    let tweezer = tweezer.map(|t| TweezerDeviceRecord {
+        spec: t.spec.describe(),
+        name: t.name.clone(),
+        serial: t.serial.clone(),
+        firmware: t.firmware.clone(),
+        lead_samples: t.lead_samples,
+        lead_ms: f64::from(t.lead_samples) / fs * 1e3,
+        round_trip_ms: t.round_trip_s.map(|s| s * 1e3),
+    });
     Some(DeviceRecord {
         spec: engine.spec().describe(),
         kind: format!("{:?}", id.kind),
@@ -710,6 +771,7 @@ fn device_record(engine: &EngineHandle) -> Option<DeviceRecord> {
         loop_delay_ms: f64::from(delay) / fs * 1e3,
         extra_latency_ms: engine.latency_s() * 1e3,
         round_trip_ms: engine.round_trip_s().map(|s| s * 1e3),
+        tweezer,
     })
 }
 

@@ -10,6 +10,7 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use kilotouch_rig::AnyTweezer;
 use kilotouch_rig::tweezer::{DetectedTweezer, DetectorConfig};
 use kilotouch_study::runner::{
     Next, RAW_CHANNELS, Resumed, RunError, RunnerConfig, RunnerState, SittingCore, TrialSetup,
@@ -62,6 +63,10 @@ pub(crate) struct Worker {
     pub last_ended: Option<TrialKey>,
     pub waiting_since: Option<Instant>,
     pub last_state: Option<RunnerState>,
+    /// A live tweezer's obstacle (the one the protocol's scene uses), in
+    /// the instrument's frame, m: each trial's frame is placed so that it
+    /// sits where the trial's scene puts the obstacle.
+    pub live_obstacle_m: Option<[f64; 2]>,
 }
 
 impl std::fmt::Debug for Worker {
@@ -207,10 +212,15 @@ impl Worker {
         )?;
         let tweezer = DetectedTweezer::wrap(kit.tweezer, &self.detector)?;
         let cap = trajectory_capacity(&self.runner, self.fs, &setup, 1)?;
+        let c = setup.scene.geometry.obstacle_m;
+        let tweezer_origin_m = self
+            .live_obstacle_m
+            .map_or([0.0; 2], |o| [o[0] - c[0], o[1] - c[1]]);
         Ok(Box::new(TrialSlot {
             setup,
             rig: kit.rig.map(Box::new),
-            tweezer: Box::new(tweezer),
+            tweezer: AnyTweezer::Sim(Box::new(tweezer)),
+            tweezer_origin_m,
             safety: Box::new(kit.safety),
             trajectory: Vec::with_capacity(cap),
             outcome: None,

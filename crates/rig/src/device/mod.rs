@@ -46,7 +46,7 @@ pub use identity::{
     ANNOUNCED_BOUNDS, AnnouncedBound, RigIdentity, RigKind, RigState, RigStatus, validate_announced,
 };
 pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
-pub use spec::RigSpec;
+pub use spec::{RigSpec, TweezerSpec};
 
 use crate::error::RigError;
 

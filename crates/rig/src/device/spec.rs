@@ -114,10 +114,76 @@ impl std::str::FromStr for RigSpec {
     }
 }
 
+/// Which tweezer the loop talks to (`--tweezer`): the simulated one of the
+/// rig file, or a live tweezer (or its emulator) on a serial port, with the
+/// same options as a serial rig (`serial:PATH[,baud=N][,timeout-ms=N]
+/// [,lead=auto|N]`).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum TweezerSpec {
+    /// The simulated tweezer (with its simulated position detector).
+    #[default]
+    Sim,
+    /// A live tweezer on a serial port.
+    Serial(SerialConfig),
+}
+
+impl TweezerSpec {
+    /// Short description for messages, e.g. `serial:/dev/ttyACM1`.
+    pub fn describe(&self) -> String {
+        match self {
+            TweezerSpec::Sim => "sim".into(),
+            TweezerSpec::Serial(c) => format!("serial:{}", c.path),
+        }
+    }
+}
+
+impl std::str::FromStr for TweezerSpec {
+    type Err = RigError;
+
+    fn from_str(s: &str) -> Result<Self, RigError> {
+        let t = s.trim();
+        if t.starts_with("audio") {
+            return Err(RigError::InvalidInput(format!(
+                "--tweezer {s}: an audio interface is not a tweezer \
+                 (expected `sim` or `serial:PATH[,baud=N][,timeout-ms=N][,lead=auto|N]`)"
+            )));
+        }
+        match t.parse::<RigSpec>() {
+            Ok(RigSpec::Serial(c)) => Ok(TweezerSpec::Serial(c)),
+            Ok(_) => Ok(TweezerSpec::Sim),
+            Err(RigError::InvalidInput(m)) => Err(RigError::InvalidInput(m.replacen(
+                "--rig ",
+                "--tweezer ",
+                1,
+            ))),
+            Err(e) => Err(e),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn tweezer_specs_are_sim_or_serial() {
+        assert_eq!("sim".parse::<TweezerSpec>().unwrap(), TweezerSpec::Sim);
+        let TweezerSpec::Serial(c) = "serial:/dev/pts/4,lead=2".parse().unwrap() else {
+            panic!()
+        };
+        assert_eq!(
+            (c.path.as_str(), c.lead),
+            ("/dev/pts/4", CommandLead::Blocks(2))
+        );
+        let e = "audio".parse::<TweezerSpec>().unwrap_err().to_string();
+        assert!(e.contains("not a tweezer"), "{e}");
+        let e = "serial:".parse::<TweezerSpec>().unwrap_err().to_string();
+        assert!(
+            e.contains("--tweezer serial:") && e.contains("missing port path"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn parses_every_form_and_rejects_bad_ones() {

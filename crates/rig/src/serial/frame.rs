@@ -12,9 +12,9 @@ use kilotouch_proto::info::{Info, TrialBegin, View};
 pub use kilotouch_proto::{
     CRC16, Caps, DaqCaps, DaqCommand, DaqSample, Decoder, DecoderStats, DeviceKind, DeviceState,
     FaultReport, FrameRef, HEADER, MAX_FRAME, MAX_PAYLOAD, MAX_SCENE_OBSTACLES, PROTOCOL_VERSION,
-    SYNC, Scene, SceneObstacle, Status, TRAILER,
-    TrapCommand, TweezerCaps, TweezerWireSample, WireItem, block_header, block_item, fault, flag,
-    max_items, testing, tweezer_status, ty, unwrap_seq,
+    SYNC, Scene, SceneObstacle, Status, TRAILER, TrapCommand, TweezerCaps, TweezerWireSample,
+    WireItem, block_header, block_item, fault, flag, max_items, testing, tweezer_status, ty,
+    unwrap_seq,
 };
 
 /// Handshake answer (device → host, [`ty::HELLO`]): the owned form of

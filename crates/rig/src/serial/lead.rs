@@ -133,8 +133,8 @@ impl Pipeline {
         self.next_seq += n as u64;
     }
 
-    /// Loop delay of blocks of `n` samples: the block plus the lead (this
-    /// run's, or the lead the next run would take).
+    /// Loop delay of a rig's blocks of `n` samples: the block plus the lead
+    /// (this run's, or the lead the next run would take).
     pub fn loop_delay_samples(&self, link: &Link, block_len: usize) -> u32 {
         let n = block_len.max(1);
         let lead = self.lead.unwrap_or_else(|| link.lead_samples(n));
@@ -150,7 +150,11 @@ mod tests {
     fn a_run_sends_its_lead_first_then_every_block_lead_samples_ahead() {
         let mut p = Pipeline::start(100);
         assert_eq!(p.open_lead(20), Some((100, 20)));
-        assert_eq!(p.open_lead(30), None, "the lead is fixed at the first block");
+        assert_eq!(
+            p.open_lead(30),
+            None,
+            "the lead is fixed at the first block"
+        );
         assert_eq!(p.queue(10), 120);
         p.received(10);
         assert_eq!(p.queue(10), 130);

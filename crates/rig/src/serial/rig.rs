@@ -68,8 +68,8 @@ pub struct SerialConfig {
     pub min_rate_fraction: f64,
 }
 
-pub use super::lead::{CommandLead, MAX_LEAD_SAMPLES};
 use super::lead::Pipeline;
+pub use super::lead::{CommandLead, MAX_LEAD_SAMPLES};
 
 /// How far past the block being waited for a device's sample may lie and
 /// still be one of the stream's (kept for the next block): the largest

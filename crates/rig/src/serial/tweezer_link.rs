@@ -14,8 +14,8 @@
 //! the device applied at that sample (a ring of the set-points sent, by
 //! sequence number; the previous one when the device flags a held
 //! set-point), F = κ(trap − bead) (paper §4.1, eq. 4), zero while the bead
-//! is not trapped. The loop delay is n + L samples
-//! ([`Tweezer::loop_delay_samples`]).
+//! is not trapped. The link adds its lead of L samples to the loop's
+//! delay beyond the block ([`Tweezer::loop_delay_samples`]).
 //!
 //! **Scene.** After the handshake the host asks for the tweezer's scene
 //! (SCENE_REQ → SCENE, §6.5: bead radius, obstacles in the trap's frame)
@@ -167,7 +167,6 @@ impl Instrument for TweezerInstrument {
     }
 }
 
-
 /// Largest block exchanged at once, samples: a longer `step_block` is
 /// exchanged in pieces of this length.
 pub const MAX_BLOCK_SAMPLES: usize = 1024;
@@ -188,6 +187,8 @@ pub struct LinkTweezer {
     link: Link,
     fs: f64,
     kappa: f64,
+    /// κ of the handshake (the force's stiffness without a calibration).
+    announced_kappa: f64,
     pipe: Pipeline,
     running: bool,
     /// The trap of the lead's set-points: where it was reset, then the
@@ -225,7 +226,12 @@ struct Decode<'a> {
 impl Decode<'_> {
     /// The sample `w` with the set-point `trap` applied; `last_v` holds the
     /// last finite detector signals.
-    fn sample(&self, w: &TweezerWireSample, trap: [f64; 2], last_v: &mut [f64; 2]) -> TweezerSample {
+    fn sample(
+        &self,
+        w: &TweezerWireSample,
+        trap: [f64; 2],
+        last_v: &mut [f64; 2],
+    ) -> TweezerSample {
         let trapped = w.status & ts::TRAPPED != 0;
         let v = [f64::from(w.detector_v[0]), f64::from(w.detector_v[1])];
         if v.iter().all(|x| x.is_finite()) {
@@ -318,6 +324,7 @@ impl LinkTweezer {
             link,
             fs: f64::from(h.sample_rate_hz),
             kappa: c.stiffness_n_per_m,
+            announced_kappa: c.stiffness_n_per_m,
             pipe: Pipeline::start(seq),
             running: true,
             hold: [0.0; 2],
@@ -402,6 +409,36 @@ impl LinkTweezer {
         self.kappa = c.stiffness_n_per_m;
         self.calibration = Some(c);
         Ok(())
+    }
+
+    /// Use `c` from now on, or (None) the instrument's own bead position
+    /// and announced κ again ([`Self::apply_calibration`]).
+    pub fn set_calibration(&mut self, c: Option<AppliedTrap>) -> Result<(), RigError> {
+        match c {
+            Some(c) => self.apply_calibration(c),
+            None => {
+                self.kappa = self.announced_kappa;
+                self.calibration = None;
+                Ok(())
+            }
+        }
+    }
+
+    /// The link's configuration (port, options).
+    pub fn link_config(&self) -> &SerialConfig {
+        self.link.config()
+    }
+
+    /// Bead centre of the last sample, m.
+    pub fn bead(&self) -> [f64; 2] {
+        self.last.bead_m
+    }
+
+    /// Stop the instrument's stream (trap held where it is);
+    /// [`Self::recover`] starts it again (a new run).
+    pub fn stop(&mut self) {
+        self.link.stop();
+        self.running = false;
     }
 
     /// The calibration in use (None: the instrument's own bead position
@@ -565,38 +602,35 @@ impl LinkTweezer {
             &mut self.last_v,
         );
         let mut done = 0;
-        let r = self.link.exchange::<TweezerWireSample>(
-            frame::ty::TWEEZER_SAMPLES,
-            s,
-            n,
-            |i, w| {
-                let set = sent[((s + i as u64) % SENT_RING as u64) as usize];
-                out[i] = match w {
-                    Some(w) => {
-                        // A held set-point (late, or the watchdog's): the
-                        // device kept the previous one.
-                        let held = w.status & (ts::CMD_LATE | ts::WATCHDOG) != 0;
-                        *applied = if held { *applied } else { set };
-                        *last = dec.sample(w, *applied, last_v);
-                        *last
-                    }
-                    // Lost sample: hold the bead, report no force.
-                    None => {
-                        *applied = set;
-                        TweezerSample {
-                            trap_m: set,
-                            force_n: [0.0; 2],
-                            events: TweezerEvents::default(),
-                            ..*last
+        let r =
+            self.link
+                .exchange::<TweezerWireSample>(frame::ty::TWEEZER_SAMPLES, s, n, |i, w| {
+                    let set = sent[((s + i as u64) % SENT_RING as u64) as usize];
+                    out[i] = match w {
+                        Some(w) => {
+                            // A held set-point (late, or the watchdog's): the
+                            // device kept the previous one.
+                            let held = w.status & (ts::CMD_LATE | ts::WATCHDOG) != 0;
+                            *applied = if held { *applied } else { set };
+                            *last = dec.sample(w, *applied, last_v);
+                            *last
                         }
+                        // Lost sample: hold the bead, report no force.
+                        None => {
+                            *applied = set;
+                            TweezerSample {
+                                trap_m: set,
+                                force_n: [0.0; 2],
+                                events: TweezerEvents::default(),
+                                ..*last
+                            }
+                        }
+                    };
+                    if let Some(v) = volts.as_deref_mut() {
+                        v[i] = *last_v;
                     }
-                };
-                if let Some(v) = volts.as_deref_mut() {
-                    v[i] = *last_v;
-                }
-                done = i + 1;
-            },
-        );
+                    done = i + 1;
+                });
         match r {
             Ok(_) => self.pipe.received(n),
             Err(e) => {
@@ -662,9 +696,14 @@ impl Tweezer for LinkTweezer {
         true
     }
 
-    /// The block plus the command lead (this run's, or the next run's).
+    /// The command lead (this run's, or the next run's): what the link
+    /// adds to the loop beyond the block, which the rig's delay counts.
     fn loop_delay_samples(&self, block_len: usize) -> u32 {
-        self.pipe.loop_delay_samples(&self.link, block_len)
+        let lead = self
+            .pipe
+            .lead
+            .unwrap_or_else(|| self.link.lead_samples(block_len));
+        u32::try_from(lead).unwrap_or(u32::MAX)
     }
 
     fn link_error(&self) -> Option<LinkErrorKind> {
@@ -689,9 +728,10 @@ impl Tweezer for LinkTweezer {
             return;
         }
         let c = TrapCommand { trap_m: t };
-        match self.link.restart(|tx| {
-            frame::write_frame(tx, frame::ty::RESET, |o| frame::put_item(o, &c))
-        }) {
+        match self
+            .link
+            .restart(|tx| frame::write_frame(tx, frame::ty::RESET, |o| frame::put_item(o, &c)))
+        {
             Ok(seq) => {
                 self.pipe = Pipeline::start(seq);
                 self.running = true;

@@ -418,8 +418,14 @@ mod tests {
         let e = record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
             .unwrap_err()
             .to_string();
-        assert!(e.contains("the tweezer link failed at sample 15 of 100"), "{e}");
-        assert!(e.contains("watchdog tripped") && !e.contains("not trapped"), "{e}");
+        assert!(
+            e.contains("the tweezer link failed at sample 15 of 100"),
+            "{e}"
+        );
+        assert!(
+            e.contains("watchdog tripped") && !e.contains("not trapped"),
+            "{e}"
+        );
         let mut tw = Failing {
             at: 25,
             n: 0,

@@ -325,8 +325,10 @@ pub trait Tweezer {
     }
     /// Samples by which the bead's answer to a trap set-point comes later
     /// than in the simulated loop, for blocks of `block_len` samples: 0 for
-    /// a simulated tweezer; a live link's block plus its command lead. The
-    /// stability clearance adds it to the rig's loop delay.
+    /// a simulated tweezer and for a block-synchronous link (the block's
+    /// samples answer the block's set-points within the same exchange); a
+    /// live link's command lead otherwise. The stability clearance adds it
+    /// to the rig's loop delay.
     fn loop_delay_samples(&self, block_len: usize) -> u32 {
         let _ = block_len;
         0

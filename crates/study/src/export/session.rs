@@ -78,6 +78,29 @@ pub struct DeviceRecord {
     pub extra_latency_ms: f64,
     /// Link round trip measured at connection, ms (`None`: not measured).
     pub round_trip_ms: Option<f64>,
+    /// The live tweezer in the loop (absent: the simulated tweezer). Its
+    /// command lead is part of [`Self::loop_delay_samples`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tweezer: Option<TweezerDeviceRecord>,
+}
+
+/// The live tweezer of a sitting, as it answered at connection.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TweezerDeviceRecord {
+    /// How it was opened, e.g. `serial:/dev/ttyACM1`.
+    pub spec: String,
+    /// Model name as the device reports it.
+    pub name: String,
+    /// Serial number.
+    pub serial: String,
+    /// Firmware version.
+    pub firmware: String,
+    /// The tweezer link's command lead, samples.
+    pub lead_samples: u32,
+    /// The command lead, ms.
+    pub lead_ms: f64,
+    /// Link round trip measured at connection, ms (`None`: not measured).
+    pub round_trip_ms: Option<f64>,
 }
 
 impl StudyMeta {

@@ -10,6 +10,7 @@ use rand_chacha::rand_core::Rng;
 use super::UM;
 use super::vec2::norm;
 use crate::protocol::Task;
+use kilotouch_rig::config::{ObstacleConfig, TweezerConfig};
 
 /// The fixed obstacle and the bead sizes (sample plane, m).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,6 +41,33 @@ impl Geometry {
     #[inline]
     pub fn gap_m(&self, p: [f64; 2]) -> f64 {
         norm(self.rel(p)) - self.contact_radius_m()
+    }
+
+    /// The micro-world of this geometry in a rig file's `[tweezer]`
+    /// section: the manipulated bead's radius, the trap's escape distance
+    /// `escape_distance_m` and the one obstacle (the simulated trial's
+    /// tweezer and `kilotouch emulate tweezer --protocol` alike).
+    pub fn apply_to(&self, tc: &mut TweezerConfig, escape_distance_m: f64) {
+        tc.radius_m = self.bead_radius_m;
+        tc.escape_distance_m = escape_distance_m;
+        tc.obstacles = vec![ObstacleConfig {
+            x_m: self.obstacle_m[0],
+            y_m: self.obstacle_m[1],
+            radius_m: self.obstacle_radius_m,
+        }];
+    }
+
+    /// The protocol's geometry with the obstacle centred at the origin.
+    pub fn of_protocol(task: &Task) -> Self {
+        let (obstacle, bead) = match task {
+            Task::Circling(t) => (t.obstacle_radius_um, t.bead_radius_um),
+            Task::BlindNavigation(t) => (t.obstacle_radius_um, t.bead_radius_um),
+        };
+        Self {
+            obstacle_m: [0.0; 2],
+            obstacle_radius_m: obstacle * UM,
+            bead_radius_m: bead * UM,
+        }
     }
 
     /// Outward unit normal of the obstacle at the direction of `p` (the
@@ -98,12 +126,8 @@ impl Scene {
         let phi = 2.0 * PI * unit_uniform(rng);
         let u = [phi.cos(), phi.sin()];
         match task {
-            Task::Circling(t) => {
-                let geometry = Geometry {
-                    obstacle_m: [0.0; 2],
-                    obstacle_radius_m: t.obstacle_radius_um * UM,
-                    bead_radius_m: t.bead_radius_um * UM,
-                };
+            Task::Circling(_) => {
+                let geometry = Geometry::of_protocol(task);
                 let d = geometry.contact_radius_m() + CIRCLING_START_GAP_M;
                 Self {
                     geometry: Geometry {
@@ -115,7 +139,8 @@ impl Scene {
                 }
             }
             Task::BlindNavigation(t) => {
-                let rc = (t.obstacle_radius_um + t.bead_radius_um) * UM;
+                let geometry = Geometry::of_protocol(task);
+                let rc = geometry.contact_radius_m();
                 let d = rc + t.start_distance_um * UM;
                 let cone = BLIND_HEADING_CONE_FRACTION * (rc / d).asin();
                 let off = cone * (2.0 * unit_uniform(rng) - 1.0);
@@ -123,8 +148,7 @@ impl Scene {
                 Self {
                     geometry: Geometry {
                         obstacle_m: [start_m[0] + d * u[0], start_m[1] + d * u[1]],
-                        obstacle_radius_m: t.obstacle_radius_um * UM,
-                        bead_radius_m: t.bead_radius_um * UM,
+                        ..geometry
                     },
                     start_m,
                     heading: [h.cos(), h.sin()],

@@ -11,7 +11,7 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::device::RigIdentity;
 use kilotouch_rig::safety::SafetyLayer;
 use kilotouch_rig::sim::SimRig;
-use kilotouch_rig::tweezer::{Obstacle, SimTweezer, TweezerParams};
+use kilotouch_rig::tweezer::{SimTweezer, TweezerParams};
 use rand_chacha::ChaCha20Rng;
 use rand_chacha::rand_core::Rng;
 
@@ -117,13 +117,8 @@ impl KitBuilder {
                 Some(rig)
             }
         };
+        scene.geometry.apply_to(&mut cfg.tweezer, escape_distance_m);
         let mut p = TweezerParams::from_config(&cfg.tweezer);
-        p.radius_m = scene.geometry.bead_radius_m;
-        p.escape_distance_m = escape_distance_m;
-        p.obstacles = vec![Obstacle {
-            centre_m: scene.geometry.obstacle_m,
-            radius_m: scene.geometry.obstacle_radius_m,
-        }];
         p.seed = rng.next_u64();
         let mut tweezer = SimTweezer::new(p, fs)?;
         tweezer.set_contact_exact(plan.contact_exact);

@@ -10,7 +10,7 @@ use crate::gui::env::PageEnv;
 use crate::gui::path_field::{PathField, PathKind, TOML};
 use crate::gui::plot::format_si;
 use egui::{Color32, RichText};
-use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use kilotouch_rig::stability::StabilityReport;
 
 /// Hint shown under the rig field.
@@ -43,6 +43,8 @@ pub enum RigAction {
 pub struct RigPage {
     /// Text of the rig field (`sim`, `serial:PATH…`, `audio[:DEVICE]`).
     pub rig_text: String,
+    /// Text of the tweezer field (`sim`, `serial:PATH…`).
+    pub tweezer_text: String,
     /// Text of the rig-file field.
     pub path_text: String,
     /// The Tweezer section (trap calibration).
@@ -61,6 +63,7 @@ impl RigPage {
     pub fn new() -> Self {
         Self {
             rig_text: "sim".to_owned(),
+            tweezer_text: "sim".to_owned(),
             path_text: String::new(),
             tweezer: TweezerSection::new(),
             rig_file_field: PathField::default(),
@@ -74,6 +77,85 @@ impl RigPage {
             Ok(RigSpec::Sim)
         } else {
             t.parse()
+        }
+    }
+
+    /// The tweezer the tweezer field names (empty = `sim`).
+    pub fn tweezer_spec(&self) -> Result<TweezerSpec, kilotouch_rig::RigError> {
+        let t = self.tweezer_text.trim();
+        if t.is_empty() {
+            Ok(TweezerSpec::Sim)
+        } else {
+            t.parse()
+        }
+    }
+
+    /// The tweezer row of the Device group: simulated or live, the field,
+    /// and what the running engine has.
+    fn tweezer_row(
+        &mut self,
+        ui: &mut egui::Ui,
+        engine: Option<&EngineHandle>,
+        actions: &mut Vec<RigAction>,
+    ) {
+        let spec = self.tweezer_spec();
+        ui.horizontal(|ui| {
+            for (label, text) in [
+                ("Simulated tweezer", "sim"),
+                ("Serial tweezer", "serial:/dev/ttyACM1"),
+            ] {
+                let on = matches!(
+                    (&spec, text),
+                    (Ok(TweezerSpec::Sim), "sim")
+                        | (Ok(TweezerSpec::Serial(_)), "serial:/dev/ttyACM1")
+                );
+                if ui.add(egui::Button::selectable(on, label)).clicked() && !on {
+                    self.tweezer_text = text.to_owned();
+                }
+            }
+        });
+        ui.horizontal(|ui| {
+            let label = ui.label("Tweezer:");
+            let edit = ui
+                .add(
+                    egui::TextEdit::singleline(&mut self.tweezer_text)
+                        .hint_text("sim")
+                        .desired_width(360.0),
+                )
+                .labelled_by(label.id);
+            if edit.lost_focus()
+                && ui.input(|i| i.key_pressed(egui::Key::Enter))
+                && self.tweezer_spec().is_ok()
+            {
+                actions.push(RigAction::Connect);
+            }
+        });
+        match spec {
+            Err(e) => {
+                ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_string());
+            }
+            Ok(TweezerSpec::Sim) => {
+                ui.weak("Simulated tweezer: the rig file's bead, trap and obstacles.");
+            }
+            Ok(TweezerSpec::Serial(_)) => {
+                ui.label(
+                    "Live tweezer: trap set-points and bead samples are exchanged in blocks at \
+                     the rig's rate; its command lead adds to the loop delay the stability \
+                     check is made with. An applied trap calibration sets the κ and the \
+                     detector sensitivity the optical force is computed with. Connect to use it.",
+                );
+            }
+        }
+        if let Some(t) = engine.and_then(|e| e.live_tweezer()) {
+            ui.label(format!(
+                "Connected tweezer: {} (firmware {}), command lead {} samples{}",
+                t.name,
+                t.firmware,
+                t.lead_samples,
+                t.round_trip_s
+                    .map(|r| format!(", round trip {:.2} ms", r * 1e3))
+                    .unwrap_or_default()
+            ));
         }
     }
 
@@ -162,6 +244,8 @@ impl RigPage {
                         );
                     }
                 }
+                ui.add_space(4.0);
+                self.tweezer_row(ui, engine, &mut actions);
             });
             ui.add_space(6.0);
             ui.group(|ui| {
@@ -196,6 +280,9 @@ impl RigPage {
                 }
             });
             ui.add_space(6.0);
+            self.tweezer.engine_tweezer = engine
+                .and_then(|e| e.live_tweezer())
+                .map(|t| t.spec.describe());
             self.tweezer.ui(ui, env, engine.is_some());
             ui.add_space(6.0);
             ui.horizontal(|ui| match engine {

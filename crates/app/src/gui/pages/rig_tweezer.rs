@@ -72,6 +72,10 @@ pub struct TweezerSection {
     pub near_surface: bool,
     /// Bead-centre to coverslip distance, µm.
     pub distance_um: f64,
+    /// The live tweezer the engine holds (`serial:PATH`), set by the Rig
+    /// page each frame: recording from its port while the loop runs would
+    /// share the port's bytes between two readers.
+    pub engine_tweezer: Option<String>,
     seeded_for: Option<u64>,
     run: Option<TrapCalibrationRun>,
     done: Option<Box<TrapCalibrationDone>>,
@@ -101,6 +105,7 @@ impl TweezerSection {
             diode: false,
             near_surface: false,
             distance_um: 5.0,
+            engine_tweezer: None,
             seeded_for: None,
             run: None,
             done: None,
@@ -185,6 +190,16 @@ impl TweezerSection {
                 return;
             }
         };
+        if let (RigSpec::Serial(_), Some(held)) = (&spec, &self.engine_tweezer)
+            && spec.describe() == *held
+        {
+            self.error = Some(format!(
+                "the engine's loop runs the tweezer on {held}: disconnect the engine (Rig page), \
+                 record and calibrate, then connect again — the applied calibration is re-applied \
+                 on connection"
+            ));
+            return;
+        }
         // Check the settings before recording (the sample rate is the
         // record's: the check uses the loop rate of the rig file).
         let mut s = self.settings();

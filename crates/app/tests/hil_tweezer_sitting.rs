@@ -1,0 +1,256 @@
+//! Both devices live: a participant's sitting with the DAQ emulator hosting
+//! the study's simulated participant (`kilotouch emulate daq --pty
+//! --participant operator:SEED`) and the tweezer emulator serving the
+//! protocol's micro-world (`kilotouch emulate tweezer --pty --protocol
+//! FILE`), through the one real-time engine — `kilotouch study run --rig
+//! serial:PTY1 --tweezer serial:PTY2`. The folder is that of every study
+//! and `session.json` names both devices and their delays; a tweezer killed
+//! mid-trial ends the sitting naming the tweezer, and `--resume` with the
+//! tweezer back continues at the aborted trial; both links' command leads
+//! enter the stability check.
+
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use std::collections::HashSet;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::{Emulator, kilotouch};
+use kilotouch::engine::{EngineHandle, EngineOptions};
+use kilotouch::session::{
+    FinishReason, ParticipantKind, SessionCommand, SessionEvent, SessionHandle, SessionOptions,
+};
+use kilotouch_rig::RigConfig;
+use kilotouch_rig::device::TweezerSpec;
+use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
+use kilotouch_study::protocol::Protocol;
+use serde_json::Value;
+
+/// 2 participants × 3 conditions × 1 test trial, 1 practice trial per
+/// condition, 2 s time-outs: P01's sitting is 6 trials.
+const TINY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny.toml");
+
+fn tiny() -> Protocol {
+    Protocol::load(Path::new(TINY)).unwrap()
+}
+
+/// The emulated DAQ with the protocol's simulated participants at its
+/// handle.
+fn daq() -> Emulator {
+    let p = format!("operator:{}", tiny().seeds.study);
+    Emulator::spawn("daq", &["--participant", p.as_str()])
+}
+
+/// The emulated tweezer serving the protocol's micro-world.
+fn tweezer() -> Emulator {
+    Emulator::spawn("tweezer", &["--protocol", TINY])
+}
+
+fn rows(dir: &Path) -> Vec<TrialRow> {
+    read_trials(&dir.join(TRIALS_FILE))
+        .map(|r| r.rows)
+        .unwrap_or_default()
+}
+
+/// `study run` of P01 with the DAQ leading by one block and the tweezer
+/// `tweezer_opts` (`,lead=0`: block-synchronous, so the loop delay is the
+/// DAQ's 20 samples, inside D's margins).
+fn study_run(
+    daq: &Emulator,
+    tw: &Emulator,
+    tweezer_opts: &str,
+    out: &Path,
+    resume: bool,
+) -> std::process::Output {
+    let rig = format!("{},lead=1", daq.rig());
+    let tweezer = format!("{}{tweezer_opts}", tw.rig());
+    let out_s = out.to_str().unwrap();
+    let mut args = vec![
+        "study",
+        "run",
+        "--protocol",
+        TINY,
+        "--rig",
+        &rig,
+        "--tweezer",
+        &tweezer,
+        "--participant",
+        "P01",
+        "--out",
+        out_s,
+        "--json",
+    ];
+    if resume {
+        args.push("--resume");
+    }
+    kilotouch(&args)
+}
+
+#[test]
+fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
+    let (d, t) = (daq(), tweezer());
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let run = study_run(&d, &t, ",lead=0", &out, false);
+    assert!(
+        run.status.success(),
+        "study run failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["finish"], "participant_done", "{report}");
+    assert_eq!(report["committed"], 6, "{report}");
+    let got = rows(&out);
+    assert_eq!(got.len(), 6);
+    for r in &got {
+        assert!(r.time_s.is_some_and(|t| t > 0.0 && t <= 2.1), "{r:?}");
+        assert!(out.join(&r.raw_file).is_file(), "{}", r.raw_file);
+    }
+    // The live bead was pressed against the live obstacle: contact in some
+    // trials (the circling task's scene is the tweezer's micro-world).
+    assert!(
+        got.iter()
+            .any(|r| r.contact_fraction.is_some_and(|c| c > 0.0)),
+        "{got:?}"
+    );
+    // session.json: both devices and their delays.
+    let session: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    let dev = &session["sittings"][0]["device"];
+    assert!(
+        dev["spec"].as_str().is_some_and(|s| s.contains(&d.path)),
+        "{session}"
+    );
+    assert_eq!(dev["loop_delay_samples"], 20, "{dev}");
+    let tw = &dev["tweezer"];
+    assert!(
+        tw["spec"].as_str().is_some_and(|s| s.contains(&t.path)),
+        "{dev}"
+    );
+    assert_eq!(tw["lead_samples"], 0, "{dev}");
+    assert!(tw["name"].as_str().is_some_and(|n| n.contains("tweezer")));
+    let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();
+    assert!(journal.contains(&t.path), "{journal}");
+    assert!(out.join("datapackage.json").is_file());
+}
+
+#[test]
+fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
+    let d = daq();
+    let mut t = tweezer();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let rig = RigConfig::default();
+    let tspec: TweezerSpec = format!("{},lead=0", t.rig()).parse().unwrap();
+    let mut engine =
+        EngineHandle::spawn_devices(&rig, &d.spec(",lead=1"), &tspec, EngineOptions::default())
+            .unwrap();
+    let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
+    opts.participant = ParticipantKind::Handle;
+    opts.only_participant = Some(0);
+    let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
+    assert!(s.send(SessionCommand::Start));
+    let t0 = Instant::now();
+    let (mut committed, mut started) = (Vec::new(), 0);
+    while started < 2 && t0.elapsed() < Duration::from_secs(30) {
+        let _ = engine.poll_events();
+        for e in s.poll() {
+            match e {
+                SessionEvent::TrialStarted { .. } => started += 1,
+                SessionEvent::Committed(r) => committed.push(*r),
+                SessionEvent::Finished(r) => panic!("finished early: {r:?}"),
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(started, 2, "the second trial never began");
+    t.kill();
+    let killed = Instant::now();
+    let reason = loop {
+        assert!(
+            killed.elapsed() < Duration::from_secs(10),
+            "the sitting did not end"
+        );
+        let _ = engine.poll_events();
+        if let Some(r) = s.poll().into_iter().find_map(|e| match e {
+            SessionEvent::Committed(r) => {
+                committed.push(*r);
+                None
+            }
+            SessionEvent::Finished(r) => Some(r),
+            _ => None,
+        }) {
+            break r;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    let ended_s = killed.elapsed().as_secs_f64();
+    let FinishReason::Failed(why) = reason else {
+        panic!("{reason:?}")
+    };
+    assert!(
+        why.contains("tweezer"),
+        "the reason names the tweezer: {why}"
+    );
+    assert!(ended_s < 5.0, "ended {ended_s:.2} s after the kill");
+    let _ = s.close(&mut engine);
+    let t1 = Instant::now();
+    while t1.elapsed() < Duration::from_secs(2) {
+        let _ = engine.poll_events();
+        if engine.health().is_some_and(|h| !h.running) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(
+        engine
+            .health()
+            .is_some_and(|h| !h.running && h.safety.latched()),
+        "outputs held at zero"
+    );
+    engine.shutdown();
+    drop(d);
+    let on_disk = rows(&out);
+    assert_eq!(on_disk, committed);
+    assert!(!committed.is_empty() && committed.len() < 6);
+    // Both devices back (new ptys): --resume continues at the aborted trial.
+    let (d2, t2) = (daq(), tweezer());
+    let run = study_run(&d2, &t2, ",lead=0", &out, true);
+    assert!(
+        run.status.success(),
+        "resume failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let all = rows(&out);
+    assert_eq!(all.len(), 6, "{all:?}");
+    let keys: HashSet<_> = all
+        .iter()
+        .map(|r| (r.phase, r.condition, r.trial))
+        .collect();
+    assert_eq!(keys.len(), 6, "a duplicate row: {all:?}");
+    assert_eq!(&all[..committed.len()], &committed[..]);
+    eprintln!("the sitting ended {ended_s:.3} s after the tweezer was killed");
+}
+
+#[test]
+fn both_links_leads_enter_the_stability_check() {
+    // DAQ: 10-sample blocks + one block of lead; the tweezer another block
+    // of lead: 30 samples of loop delay, 2.9 ms beyond the simulated
+    // loop's one sample: D's phase margin is below the rig file's 30°
+    // (THEORY.md, loop delay: below 30° from 28 samples).
+    let (d, t) = (daq(), tweezer());
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let run = study_run(&d, &t, ",lead=1", &out, false);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("D has a phase margin of") || err.contains("D is unstable (phase margin"),
+        "{err}"
+    );
+    assert!(err.contains("extra loop delay of 2.90 ms"), "{err}");
+    assert!(rows(&out).is_empty());
+}
