@@ -98,7 +98,14 @@ fn status(out: &mut Vec<u8>, state: DeviceState, next: u64) {
 }
 
 fn serve(mut master: PtyMaster, release: &AtomicBool, stop: &AtomicBool) {
-    let hello = DaqInstrument::new(&RigConfig::default()).unwrap().hello();
+    // A device announces its watchdog window and batch (the host refuses
+    // zeros, docs/PROTOCOL.md §5.1); the instrument leaves them to the
+    // emulator.
+    let hello = frame::Hello {
+        watchdog_ms: 100,
+        batch: 10,
+        ..DaqInstrument::new(&RigConfig::default()).unwrap().hello()
+    };
     let mut dec = Decoder::new();
     let mut buf = [0u8; 1024];
     let (mut state, mut next, mut engaged) = (DeviceState::Idle, 0u64, false);
