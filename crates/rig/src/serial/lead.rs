@@ -7,9 +7,6 @@
 //! commands L samples ahead of the block whose samples come back), and the
 //! encoding of command blocks ([`super::rig::Link::queue_items`]).
 
-use super::frame::{self, WireItem};
-use super::rig::Link;
-
 /// The command lead of a link: how many blocks of commands the host sends
 /// ahead of the block whose samples it waits for, so that a free-running
 /// device always holds its next commands (`docs/PROTOCOL.md` §7). A lead
@@ -32,54 +29,22 @@ pub enum CommandLead {
 /// the emulator's 8192).
 pub const MAX_LEAD_SAMPLES: u64 = 2048;
 
-impl Link {
-    /// The command lead, samples, for blocks of `n` samples: `lead=N` blocks,
-    /// or for [`CommandLead::Auto`] enough whole blocks to cover
-    /// 1.5 × the round trip measured at connection + 0.5 ms at the
-    /// device's rate (at least one block); at most [`MAX_LEAD_SAMPLES`]
-    /// (whole blocks).
-    pub fn lead_samples(&self, n: usize) -> u64 {
-        let n = n.max(1) as u64;
-        let blocks = match self.config().lead {
-            CommandLead::Blocks(b) => u64::from(b),
-            CommandLead::Auto => {
-                let fs = f64::from(self.hello().sample_rate_hz);
-                let rtt = self.round_trip().map_or(0.0, |d| d.as_secs_f64());
-                let need = (1.5 * rtt + 5e-4) * fs / n as f64;
-                (need.ceil() as u64).max(1)
-            }
-        };
-        (blocks * n).min(MAX_LEAD_SAMPLES / n * n)
-    }
-
-    /// Queue (in the transmit buffer, sent by the next flush) the commands
-    /// of samples `first .. first + n` as block frames of type `ty` of at
-    /// most `per_frame` items (and at most what fits a frame): item `i` is
-    /// `item(i)`. Allocates nothing once the transmit buffer has grown to a
-    /// block's frames.
-    pub(crate) fn queue_items<C: WireItem>(
-        &mut self,
-        ty: u8,
-        first: u64,
-        n: usize,
-        per_frame: usize,
-        mut item: impl FnMut(usize) -> C,
-    ) {
-        let per = per_frame.clamp(1, frame::max_items::<C>());
-        let mut i = 0;
-        while i < n {
-            let k = (n - i).min(per);
-            let seq = (first + i as u64) as u32;
-            frame::write_frame(&mut self.tx, ty, |o| {
-                o.extend_from_slice(&seq.to_le_bytes());
-                o.push(k as u8);
-                for j in i..i + k {
-                    frame::put_item(o, &item(j));
-                }
-            });
-            i += k;
+/// The command lead, samples, for blocks of `n` samples of a device at
+/// `rate_hz` whose link's round trip measured at connection is
+/// `round_trip_s`: `lead=N` blocks, or for [`CommandLead::Auto`] enough
+/// whole blocks to cover 1.5 × the round trip + 0.5 ms (at least one
+/// block); at most [`MAX_LEAD_SAMPLES`] (whole blocks).
+pub fn lead_samples(lead: CommandLead, rate_hz: f64, round_trip_s: Option<f64>, n: usize) -> u64 {
+    let n = n.max(1) as u64;
+    let blocks = match lead {
+        CommandLead::Blocks(b) => u64::from(b),
+        CommandLead::Auto => {
+            let rtt = round_trip_s.unwrap_or(0.0);
+            let need = (1.5 * rtt + 5e-4) * rate_hz / n as f64;
+            (need.ceil() as u64).max(1)
         }
-    }
+    };
+    (blocks * n).min(MAX_LEAD_SAMPLES / n * n)
 }
 
 /// Sequence bookkeeping of a pipelined run: the samples the host waits for
@@ -133,12 +98,9 @@ impl Pipeline {
         self.next_seq += n as u64;
     }
 
-    /// Loop delay of a rig's blocks of `n` samples: the block plus the lead
-    /// (this run's, or the lead the next run would take).
-    pub fn loop_delay_samples(&self, link: &Link, block_len: usize) -> u32 {
-        let n = block_len.max(1);
-        let lead = self.lead.unwrap_or_else(|| link.lead_samples(n));
-        u32::try_from(n as u64 + lead).unwrap_or(u32::MAX)
+    /// This run's lead, or `next` (the lead the next run would take).
+    pub fn lead_or(&self, next: impl FnOnce() -> u64) -> u64 {
+        self.lead.unwrap_or_else(next)
     }
 }
 
@@ -161,5 +123,20 @@ mod tests {
         p.received(10);
         assert_eq!((p.next_seq, p.sent_until), (120, 140));
         assert_eq!(p.sent_until - p.next_seq, 20);
+        assert_eq!(p.lead_or(|| 99), 20);
+        assert_eq!(Pipeline::start(0).lead_or(|| 99), 99);
+    }
+
+    /// Auto: ⌈(1.5 · rtt + 0.5 ms) · f_s / n⌉ blocks, at least one; bounded.
+    #[test]
+    fn the_automatic_lead_covers_the_round_trip_in_whole_blocks() {
+        let auto = |rtt: f64, n| lead_samples(CommandLead::Auto, 1e4, Some(rtt), n);
+        assert_eq!(auto(0.0, 10), 10, "0.5 ms = 5 samples: one block");
+        assert_eq!(auto(1e-3, 10), 20, "2 ms = 20 samples: two blocks");
+        assert_eq!(auto(1.1e-3, 10), 30, "2.15 ms: three blocks");
+        assert_eq!(auto(1.0, 10), MAX_LEAD_SAMPLES / 10 * 10);
+        assert_eq!(lead_samples(CommandLead::Auto, 1e4, None, 1), 5);
+        assert_eq!(lead_samples(CommandLead::Blocks(3), 1e4, Some(1.0), 10), 30);
+        assert_eq!(lead_samples(CommandLead::Blocks(0), 1e4, None, 10), 0);
     }
 }

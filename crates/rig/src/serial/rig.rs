@@ -924,6 +924,49 @@ fn read_into(
     }
 }
 
+impl Link {
+    /// The command lead, samples, for blocks of `n` samples of this link
+    /// ([`super::lead::lead_samples`] with its `lead`, the device's rate and
+    /// the round trip measured at connection).
+    pub fn lead_samples(&self, n: usize) -> u64 {
+        super::lead::lead_samples(
+            self.cfg.lead,
+            f64::from(self.hello.sample_rate_hz),
+            self.round_trip.map(|d| d.as_secs_f64()),
+            n,
+        )
+    }
+
+    /// Queue (in the transmit buffer, sent by the next flush) the commands
+    /// of samples `first .. first + n` as block frames of type `ty` of at
+    /// most `per_frame` items (and at most what fits a frame): item `i` is
+    /// `item(i)`. Allocates nothing once the transmit buffer has grown to a
+    /// block's frames.
+    pub(crate) fn queue_items<C: WireItem>(
+        &mut self,
+        ty: u8,
+        first: u64,
+        n: usize,
+        per_frame: usize,
+        mut item: impl FnMut(usize) -> C,
+    ) {
+        let per = per_frame.clamp(1, frame::max_items::<C>());
+        let mut i = 0;
+        while i < n {
+            let k = (n - i).min(per);
+            let seq = (first + i as u64) as u32;
+            frame::write_frame(&mut self.tx, ty, |o| {
+                o.extend_from_slice(&seq.to_le_bytes());
+                o.push(k as u8);
+                for j in i..i + k {
+                    frame::put_item(o, &item(j));
+                }
+            });
+            i += k;
+        }
+    }
+}
+
 pub use crate::device::LinkErrorKind;
 
 /// A DAQ on a serial link as a [`Rig`] (module docs).
@@ -1260,7 +1303,9 @@ impl Rig for SerialRig {
 
     /// The block plus the command lead ([`CommandLead`]).
     fn loop_delay_samples(&self, block_len: usize) -> u32 {
-        self.pipe.loop_delay_samples(&self.link, block_len)
+        let n = block_len.max(1);
+        let lead = self.pipe.lead_or(|| self.link.lead_samples(n));
+        u32::try_from(n as u64 + lead).unwrap_or(u32::MAX)
     }
 
     fn round_trip_s(&self) -> Option<f64> {

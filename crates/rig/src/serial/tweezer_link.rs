@@ -699,10 +699,7 @@ impl Tweezer for LinkTweezer {
     /// The command lead (this run's, or the next run's): what the link
     /// adds to the loop beyond the block, which the rig's delay counts.
     fn loop_delay_samples(&self, block_len: usize) -> u32 {
-        let lead = self
-            .pipe
-            .lead
-            .unwrap_or_else(|| self.link.lead_samples(block_len));
+        let lead = self.pipe.lead_or(|| self.link.lead_samples(block_len));
         u32::try_from(lead).unwrap_or(u32::MAX)
     }
 
