@@ -101,6 +101,9 @@ pub struct StudyResults {
     pub torn: Option<TornTail>,
     /// Participant × condition summary of the test rows.
     pub summary: Summary,
+    /// The sittings' timing verdicts from `session.json` (start time, rig,
+    /// verdict), in order; empty for a batch simulation.
+    pub timing: Vec<(String, kilotouch_study::export::SittingTiming)>,
 }
 
 /// Mean and SD of one bar.
@@ -370,11 +373,24 @@ impl StudyResults {
         }
         let read = read_trials(&path).map_err(|e| e.to_string())?;
         let summary = summarize(&read.rows).map_err(|e| e.to_string())?;
+        let timing =
+            kilotouch_study::export::read_session(&dir.join(kilotouch_study::export::SESSION_FILE))
+                .map(|s| {
+                    s.sittings
+                        .into_iter()
+                        .filter_map(|x| {
+                            x.timing
+                                .map(|t| (format!("sitting of {} on {}", x.started_utc, x.rig), t))
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
         Ok(Self {
             dir: dir.to_path_buf(),
             rows: read.rows,
             torn: read.torn,
             summary,
+            timing,
         })
     }
 

@@ -12,7 +12,7 @@ use egui_kittest::kittest::Queryable;
 use kilotouch::gui::env::ShellRequest;
 use kilotouch::gui::pages::results::ResultsPage;
 use kilotouch::results::ResultMetric;
-use kilotouch_study::export::{Metric, StudyMeta, StudyStore, UtcTime};
+use kilotouch_study::export::{Metric, SittingTiming, StudyMeta, StudyStore, UtcTime};
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::rawsig::{Channel, Dtype, RawLayout};
 use kilotouch_study::seeds::Phase;
@@ -114,6 +114,11 @@ fn write_study(dir: &Path) {
         }
         store.commit_trial(ticket, &row).expect("test setup");
     }
+    // A sitting that ran late: 40 missed blocks of 10 samples and 5 late
+    // commands in 360 000 samples, 0.1125 % > the 0.1 % limit.
+    store.set_timing(Some(SittingTiming::judge(
+        360_000, 36_000, 40, 0.0123, 5, 10, 1e-3,
+    )));
     store.close().expect("test setup");
 }
 
@@ -210,6 +215,10 @@ fn results_page_shows_bars_and_statistics_that_match_the_references() {
     );
     // 4 × 3 × 3 test trials (practice rows are read but not counted).
     h.get_by_label_contains("4 participants, conditions V, P, D, 36 test trials (48 rows)");
+    // The late sitting is flagged with its numbers (from session.json).
+    h.get_by_label_contains(
+        "on sim-test: LATE: 0.11 % of samples late (limit 0.10 %), 40 missed block(s), worst 12.3 ms late, 5 late command(s)",
+    );
 
     // Manipulation time (the default metric).
     let y = cell_means(time_s);

@@ -132,6 +132,29 @@ fn a_whole_participant_on_emulated_hardware() {
     // Block (10) + one block of command lead.
     assert_eq!(samples, 20, "{d}");
     assert!(d["round_trip_ms"].as_f64().unwrap() > 0.0, "{d}");
+    // The sitting's timing verdict: its samples, blocks and the rule.
+    let tm = &session["sittings"][0]["timing"];
+    let samples = tm["samples"].as_u64().unwrap();
+    assert!(
+        samples > 6 * 1000 && tm["blocks"].as_u64().unwrap() > samples / 10,
+        "{tm}"
+    );
+    let lf = tm["late_fraction"].as_f64().unwrap();
+    let max = tm["max_late_fraction"].as_f64().unwrap();
+    assert_eq!(max, 1e-3, "the rig file's sitting_max_late_fraction");
+    let late = (tm["deadline_misses"].as_u64().unwrap() * 10
+        + tm["late_commands"].as_u64().unwrap()) as f64
+        / samples as f64;
+    assert!((lf - late.min(1.0)).abs() < 1e-12, "{tm}");
+    assert_eq!(
+        tm["verdict"],
+        if lf > max { "late" } else { "on_time" },
+        "{tm}"
+    );
+    assert_eq!(
+        report["timing"], *tm,
+        "the report gives session.json's verdict"
+    );
     // The journal: the sitting's opening with the device, six completed
     // trials, a clean end.
     let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();

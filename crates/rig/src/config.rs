@@ -384,6 +384,11 @@ pub struct SafetyConfig {
     /// Arm when a closed loop starts (forces still wait for a small command
     /// and ramp on).
     pub arm_on_start: bool,
+    /// A sitting's timing verdict is "late" when more than this fraction
+    /// of its samples ran late (in blocks that missed their deadline, or
+    /// on a command the device received late): its data then deserve a
+    /// second look before analysis (docs/STUDY.md, timing verdict).
+    pub sitting_max_late_fraction: f64,
 }
 
 impl Default for SafetyConfig {
@@ -398,6 +403,7 @@ impl Default for SafetyConfig {
             watchdog_window_s: 0.1,
             watchdog_max_missed_fraction: 0.1,
             arm_on_start: true,
+            sitting_max_late_fraction: 1e-3,
         }
     }
 }
@@ -541,6 +547,14 @@ impl SafetyConfig {
                 "watchdog_max_missed_fraction",
                 q,
                 format!("must be in [0, 1) (got {q}); 1 would never trip"),
+            ));
+        }
+        let l = self.sitting_max_late_fraction;
+        if !(l.is_finite() && (0.0..=1.0).contains(&l)) {
+            v.push((
+                "sitting_max_late_fraction",
+                l,
+                format!("must be in [0, 1] (got {l})"),
             ));
         }
         v

@@ -161,7 +161,8 @@ fn rows_round_trip_and_match_the_simulated_outcomes() {
         j.entries.last().unwrap().record,
         Record::SessionDone {
             completed: 24,
-            planned: 24
+            planned: 24,
+            timing: None,
         }
     ));
 }

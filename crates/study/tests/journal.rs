@@ -6,7 +6,7 @@ use std::fs;
 use kilotouch_study::export::ExportError;
 use kilotouch_study::export::checksum::{Sha256, crc32, sha256_hex};
 use kilotouch_study::export::session::{
-    CalibrationRef, DeviceRecord, OrderRow, TweezerDeviceRecord,
+    CalibrationRef, DeviceRecord, OrderRow, SittingTiming, TweezerDeviceRecord,
 };
 use kilotouch_study::export::utc::UtcTime;
 use kilotouch_study::journal::{
@@ -151,6 +151,9 @@ fn all_records() -> Vec<Record> {
         Record::SessionDone {
             completed: 30,
             planned: 240,
+            timing: Some(SittingTiming::judge(
+                300_000, 30_000, 4, 0.0031, 2, 10, 1e-3,
+            )),
         },
     ]
 }

@@ -96,6 +96,9 @@ pub struct RunReport {
     pub deadline_misses: u64,
     /// Worst lateness of a block, ms.
     pub worst_lateness_ms: f64,
+    /// The sitting's timing verdict as `session.json` records it (`null`:
+    /// the sitting did not close).
+    pub timing: Option<kilotouch_study::export::SittingTiming>,
     /// Wall time of the sitting, s.
     pub wall_s: f64,
 }
@@ -279,6 +282,11 @@ fn report(
             0.0
         },
         wall_s: t0.elapsed().as_secs_f64(),
+        timing: kilotouch_study::export::read_session(
+            &a.out.join(kilotouch_study::export::SESSION_FILE),
+        )
+        .ok()
+        .and_then(|s| s.sittings.last().and_then(|x| x.timing.clone())),
     }
 }
 
@@ -309,6 +317,9 @@ fn human(r: &RunReport) -> String {
         "  timing: {} deadline miss(es), worst block {:.2} ms late\n",
         r.deadline_misses, r.worst_lateness_ms
     ));
+    if let Some(t) = &r.timing {
+        s.push_str(&format!("  timing verdict: {}\n", t.describe()));
+    }
     if let Some(w) = &r.reason {
         s.push_str(&format!("  reason: {w}\n"));
     }

@@ -38,6 +38,9 @@ pub struct BlockCtx<'a> {
     pub clock: &'a dyn Clock,
     /// Time spent waiting for a live device in this block, s (not load).
     pub wait_s: f64,
+    /// How the previous block kept its deadline (a sitting counts its late
+    /// blocks for its timing verdict).
+    pub prev_block: super::pacing::BlockTiming,
 }
 
 impl std::fmt::Debug for BlockCtx<'_> {

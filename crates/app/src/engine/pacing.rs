@@ -30,7 +30,7 @@ use kilotouch_rig::device::Clock;
 use std::time::Duration;
 
 /// Timing of one block.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BlockTiming {
     /// t_end − deadline, s (negative = early).
     pub lateness_s: f64,

@@ -2,7 +2,7 @@
 //! [`crate::engine`]). No allocation, freeing or locking after construction.
 
 use super::driver::{BlockCtx, BlockDriver, EngineLoop, FreeExploration, Publisher};
-use super::pacing::Pacer;
+use super::pacing::{BlockTiming, Pacer};
 use super::splitter::{SwapPort, SwappableChain};
 use super::{
     Command, Condition, EngineError, EngineEvent, EngineOptions, Garbage, Health, TelemetrySample,
@@ -96,6 +96,8 @@ pub struct EngineCore<C: Clock> {
     latency_s: f64,
     /// The engine thread runs `SCHED_FIFO`.
     realtime: bool,
+    /// How the last block kept its deadline (drivers see it in the next).
+    prev_block: BlockTiming,
 }
 
 impl<C: Clock> EngineCore<C> {
@@ -201,6 +203,7 @@ impl<C: Clock> EngineCore<C> {
             latency_s,
             chain,
             realtime: false,
+            prev_block: BlockTiming::default(),
         };
         if !opts.start {
             core.stop_rig();
@@ -623,6 +626,7 @@ impl<C: Clock> EngineCore<C> {
             out: &mut self.out,
             clock: self.pacer.clock(),
             wait_s: 0.0,
+            prev_block: self.prev_block,
         };
         let res = self.driver.run_block(&mut ctx);
         // Load counts computation only, not the wait for a live device.
@@ -673,6 +677,7 @@ impl<C: Clock> EngineCore<C> {
         self.run_driver(self.opts.block_len);
         self.forward_swaps_and_faults();
         let timing = self.pacer.end_block();
+        self.prev_block = timing;
         self.blocks += 1;
         // Load counts computation only, not the wait for a live device.
         self.window_busy_s += (timing.busy_s - self.wait_s).max(0.0);

@@ -25,8 +25,8 @@ use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::TrialStart;
 use kilotouch_rig::safety::SafetyLayer;
 use kilotouch_rig::sim::SimRig;
-use kilotouch_study::export::ExportError;
 use kilotouch_study::export::TaskKind;
+use kilotouch_study::export::{ExportError, SittingTiming};
 use kilotouch_study::runner::{RAW_CHANNELS, RawSink, RunError, TrialCore, TrialOutcome};
 use kilotouch_study::seeds::{Phase, TrialKey};
 use kilotouch_study::task::station::{Station, StationSample};
@@ -102,6 +102,29 @@ pub(crate) struct SittingCounters {
     pub samples: AtomicU64,
     /// Participant telemetry events the GUI did not drain in time.
     pub telemetry_dropped: AtomicU64,
+    /// Engine blocks while the sitting ran.
+    pub blocks: AtomicU64,
+    /// Of them, blocks that missed their deadline.
+    pub deadline_misses: AtomicU64,
+    /// Latest block end past its deadline, s (bits of an f64; 0 = none).
+    pub worst_lateness_bits: AtomicU64,
+    /// Commands the device flagged as late during the sitting.
+    pub late_commands: AtomicU64,
+}
+
+impl SittingCounters {
+    /// The sitting's timing verdict so far ([`SittingTiming::judge`]).
+    pub fn timing(&self, block_len: u64, max_late_fraction: f64) -> SittingTiming {
+        SittingTiming::judge(
+            self.samples.load(Ordering::Relaxed),
+            self.blocks.load(Ordering::Relaxed),
+            self.deadline_misses.load(Ordering::Relaxed),
+            f64::from_bits(self.worst_lateness_bits.load(Ordering::Relaxed)),
+            self.late_commands.load(Ordering::Relaxed),
+            block_len,
+            max_late_fraction,
+        )
+    }
 }
 
 /// The raw rows' queue to the worker (a full queue drops and counts: it
@@ -227,6 +250,11 @@ pub(crate) struct SittingDriver {
     /// What the driver does once detached (the sitting ended but the engine
     /// still runs it): free exploration.
     free: FreeExploration,
+    /// The device's late-command count when the sitting began (None: not
+    /// read yet).
+    late_commands_at_start: Option<u64>,
+    /// Latest block lateness so far, s.
+    worst_lateness_s: f64,
 }
 
 /// What a [`SittingDriver`] is built from.
@@ -269,7 +297,28 @@ impl SittingDriver {
             last_view: None,
             mapping: p.mapping,
             free: p.free,
+            late_commands_at_start: None,
+            worst_lateness_s: 0.0,
         }
+    }
+
+    /// Count the previous block for the sitting's timing verdict.
+    #[inline]
+    fn count_timing(&mut self, ctx: &BlockCtx<'_>) {
+        let c = &self.counters;
+        c.blocks.fetch_add(1, Ordering::Relaxed);
+        if ctx.prev_block.missed {
+            c.deadline_misses.fetch_add(1, Ordering::Relaxed);
+        }
+        if ctx.prev_block.lateness_s > self.worst_lateness_s {
+            self.worst_lateness_s = ctx.prev_block.lateness_s;
+            c.worst_lateness_bits
+                .store(self.worst_lateness_s.to_bits(), Ordering::Relaxed);
+        }
+        let late = ctx.lp.rig.status().late_commands;
+        let start = *self.late_commands_at_start.get_or_insert(late);
+        c.late_commands
+            .store(late.saturating_sub(start), Ordering::Relaxed);
     }
 
     /// Sends to the worker; the worker drains its queue every few
@@ -511,6 +560,7 @@ impl BlockDriver for SittingDriver {
         if self.detached {
             return self.free.run_block(ctx);
         }
+        self.count_timing(ctx);
         if ctx.latched && !self.latched_seen {
             self.latched_seen = true;
             let key = (self.state != State::Idle)

@@ -356,6 +356,9 @@ pub struct SessionHandle {
     /// Engine health when the sitting began (misses are counted from it).
     health0: Option<Health>,
     counters: Arc<driver::SittingCounters>,
+    /// Samples per engine block and the rig file's late limit (the timing
+    /// verdict's).
+    timing_params: (u64, f64),
 }
 
 /// Read-only look at an output folder (no journal entry, no repair).
@@ -462,6 +465,10 @@ impl SessionHandle {
             device,
         };
         let live_obstacle_m = live_obstacle(engine, &info.protocol)?;
+        let timing_params = (
+            engine.block_len() as u64,
+            opts.rig.safety.sitting_max_late_fraction,
+        );
         let (to_driver, inbox) = rtrb::RingBuffer::new(TO_DRIVER);
         let (outbox, from_driver) = rtrb::RingBuffer::new(FROM_DRIVER);
         let (raw_tx, raw_rx) = rtrb::RingBuffer::new(driver::RAW_QUEUE_ROWS);
@@ -519,6 +526,9 @@ impl SessionHandle {
             waiting_since: None,
             last_state: None,
             live_obstacle_m,
+            counters: counters.clone(),
+            block_len: timing_params.0,
+            max_late_fraction: timing_params.1,
         };
         if !engine.set_driver(Box::new(d)) {
             return Err(SessionError::Invalid(
@@ -544,7 +554,16 @@ impl SessionHandle {
             fast,
             health0: engine.health().copied(),
             counters,
+            timing_params,
         })
+    }
+
+    /// The sitting's timing verdict so far (what `session.json` records
+    /// when it ends): late blocks and late device commands against the rig
+    /// file's `sitting_max_late_fraction`.
+    pub fn timing(&self) -> kilotouch_study::export::SittingTiming {
+        self.counters
+            .timing(self.timing_params.0, self.timing_params.1)
     }
 
     /// What was known at opening.

@@ -67,6 +67,12 @@ pub(crate) struct Worker {
     /// the instrument's frame, m: each trial's frame is placed so that it
     /// sits where the trial's scene puts the obstacle.
     pub live_obstacle_m: Option<[f64; 2]>,
+    /// What the driver counts (the timing verdict's inputs).
+    pub counters: std::sync::Arc<super::driver::SittingCounters>,
+    /// Samples per engine block.
+    pub block_len: u64,
+    /// The rig file's `sitting_max_late_fraction`.
+    pub max_late_fraction: f64,
 }
 
 impl std::fmt::Debug for Worker {
@@ -113,6 +119,7 @@ impl Worker {
         };
         if let Some(why) = why {
             self.detach();
+            self.update_timing();
             if let Err(e) = self.core.end_sitting(&why)
                 && !matches!(reason, FinishReason::Failed(_))
             {
@@ -345,8 +352,15 @@ impl Worker {
     }
 
     /// A trial ended: its rows are on their way, then the row is committed.
+    /// The timing verdict so far, for the sitting's `session_done`.
+    fn update_timing(&mut self) {
+        let t = self.counters.timing(self.block_len, self.max_late_fraction);
+        self.core.set_timing(Some(t));
+    }
+
     fn ended(&mut self, mut slot: Box<TrialSlot>) -> Result<Option<FinishReason>, RunError> {
         self.drain_raw()?;
+        self.update_timing();
         let Some(outcome) = slot.outcome.take() else {
             return Err(RunError::State(format!(
                 "trial {} ended without an outcome",

@@ -178,6 +178,9 @@ pub enum Record {
         completed: u64,
         /// Planned trials of the protocol.
         planned: u64,
+        /// The sitting's timing verdict (absent: a batch simulation).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        timing: Option<super::session::SittingTiming>,
     },
 }
 
@@ -454,10 +457,12 @@ pub(crate) fn sittings(entries: &[Entry]) -> Vec<Sitting> {
                 calibration: s.calibration.clone(),
                 resumed: s.resumed,
                 device: s.device.clone(),
+                timing: None,
             }),
-            Record::SessionDone { .. } => {
+            Record::SessionDone { timing, .. } => {
                 if let Some(last) = out.last_mut() {
                     last.done_utc = Some(e.utc);
+                    last.timing.clone_from(timing);
                 }
             }
             _ => {}

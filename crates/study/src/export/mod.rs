@@ -97,7 +97,7 @@ pub use raw_check::QUARANTINE_DIR;
 pub use reconcile::{DamagedRaw, Recovery};
 pub use session::{
     CalibrationRef, DeviceRecord, OrderRow, Progress, SESSION_FILE, SOFTWARE_VERSION, SessionInfo,
-    SimulationInfo, Sitting, StudyMeta, TweezerDeviceRecord, read_session,
+    SimulationInfo, Sitting, SittingTiming, StudyMeta, TweezerDeviceRecord, read_session,
 };
 pub use store::{StudyStore, TrialTicket, refuse_links};
 pub use summary::{

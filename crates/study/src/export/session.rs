@@ -217,6 +217,95 @@ pub struct Sitting {
     /// The live device it ran on (absent: the simulated rig).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device: Option<DeviceRecord>,
+    /// Its timing verdict (absent: a batch simulation, which runs no
+    /// clock, or a sitting that did not close).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timing: Option<SittingTiming>,
+}
+
+/// How well a sitting kept time: the real-time engine's blocks that missed
+/// their deadline and the commands a device received late, against the
+/// rig file's `sitting_max_late_fraction`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SittingTiming {
+    /// Samples the sitting's trials ran.
+    pub samples: u64,
+    /// Engine blocks while the sitting ran.
+    pub blocks: u64,
+    /// Of them, blocks that ended past their deadline's tolerance.
+    pub deadline_misses: u64,
+    /// Latest block end past its deadline, ms.
+    pub worst_lateness_ms: f64,
+    /// Commands the device flagged as received late.
+    pub late_commands: u64,
+    /// Share of the samples that ran late: (misses × block + late
+    /// commands) / samples, 0–1.
+    pub late_fraction: f64,
+    /// The threshold, 0–1 (the rig file's `sitting_max_late_fraction`).
+    pub max_late_fraction: f64,
+    /// `on_time` or `late`.
+    pub verdict: String,
+}
+
+impl SittingTiming {
+    /// The verdict of a sitting's counts (`block_len` samples per block).
+    pub fn judge(
+        samples: u64,
+        blocks: u64,
+        deadline_misses: u64,
+        worst_lateness_s: f64,
+        late_commands: u64,
+        block_len: u64,
+        max_late_fraction: f64,
+    ) -> Self {
+        let late = deadline_misses
+            .saturating_mul(block_len)
+            .saturating_add(late_commands);
+        let late_fraction = if samples > 0 {
+            (late as f64 / samples as f64).min(1.0)
+        } else {
+            0.0
+        };
+        Self {
+            samples,
+            blocks,
+            deadline_misses,
+            worst_lateness_ms: if worst_lateness_s.is_finite() {
+                (worst_lateness_s * 1e3).max(0.0)
+            } else {
+                0.0
+            },
+            late_commands,
+            late_fraction,
+            max_late_fraction,
+            verdict: if late_fraction > max_late_fraction {
+                "late"
+            } else {
+                "on_time"
+            }
+            .into(),
+        }
+    }
+
+    /// Did the sitting run late?
+    pub fn is_late(&self) -> bool {
+        self.verdict == "late"
+    }
+
+    /// One line for people: "on time: 0.00 % of samples late (limit
+    /// 0.10 %), 3 missed blocks, worst 2.4 ms".
+    pub fn describe(&self) -> String {
+        format!(
+            "{}: {:.2} % of samples late (limit {:.2} %), {} missed block(s), worst {:.1} ms late, \
+             {} late command(s)",
+            if self.is_late() { "LATE" } else { "on time" },
+            100.0 * self.late_fraction,
+            100.0 * self.max_late_fraction,
+            self.deadline_misses,
+            self.worst_lateness_ms,
+            self.late_commands
+        )
+    }
 }
 
 /// Progress counts.
@@ -510,4 +599,30 @@ pub(crate) fn write_session(path: &Path, info: &SessionInfo) -> Result<()> {
     let body = text.strip_suffix("\n}").unwrap_or(&text);
     let json = format!("{body},\n  \"{INTEGRITY_KEY}\": {integrity}\n}}\n");
     write_atomic(path, json.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SittingTiming;
+
+    #[test]
+    fn the_timing_verdict_counts_late_blocks_and_late_commands_against_the_limit() {
+        // 2 missed blocks of 10 samples in 10 000 samples: 0.2 % > 0.1 %.
+        let t = SittingTiming::judge(10_000, 1_000, 2, 0.0042, 0, 10, 1e-3);
+        assert!((t.late_fraction - 2e-3).abs() < 1e-15);
+        assert!(t.is_late());
+        assert!((t.worst_lateness_ms - 4.2).abs() < 1e-12);
+        assert!(
+            t.describe()
+                .starts_with("LATE: 0.20 % of samples late (limit 0.10 %)")
+        );
+        // Exactly at the limit is on time; late commands count one sample each.
+        let t = SittingTiming::judge(10_000, 1_000, 0, f64::NEG_INFINITY, 10, 10, 1e-3);
+        assert_eq!(t.verdict, "on_time");
+        assert_eq!(t.worst_lateness_ms, 0.0);
+        // No samples: nothing was late.
+        let t = SittingTiming::judge(0, 0, 3, 0.1, 0, 10, 0.0);
+        assert_eq!(t.late_fraction, 0.0);
+        assert_eq!(t.verdict, "on_time");
+    }
 }

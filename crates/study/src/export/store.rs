@@ -13,8 +13,8 @@ use super::open::{self, FolderRead, NewStudy};
 use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
 use super::reconcile::{DamagedRaw, Expected, PendingQuarantine, Recovery, Verdict, reconcile};
 use super::session::{
-    self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, StudyMeta, read_session,
-    write_session,
+    self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, SittingTiming, StudyMeta,
+    read_session, write_session,
 };
 use super::summary::{SummaryFiles, regenerate_summaries};
 use super::trials::{IDENTITY_COLUMNS, TaskKind, TrialRow, TrialsWriter, first_difference};
@@ -81,6 +81,8 @@ pub struct StudyStore {
     recovery: Recovery,
     info: SessionInfo,
     poisoned: Option<String>,
+    /// The timing verdict `session_done` records ([`Self::set_timing`]).
+    timing: Option<SittingTiming>,
     /// The folder's one-writer lock, released when the store is dropped.
     _lock: FolderLock,
     /// Test hook: fail the journal append of the next commit (simulates a
@@ -236,6 +238,7 @@ impl StudyStore {
             recovery,
             info,
             poisoned: None,
+            timing: None,
             _lock: lock,
             #[cfg(test)]
             fail_completion_record: false,
@@ -587,6 +590,13 @@ impl StudyStore {
         Ok(files)
     }
 
+    /// The timing verdict `session_done` will record for this sitting
+    /// (the real-time engine's; a batch simulation records none). Update it
+    /// as the sitting goes: whichever ends the sitting writes the latest.
+    pub fn set_timing(&mut self, t: Option<SittingTiming>) {
+        self.timing = t;
+    }
+
     /// Ends this sitting without closing the study (a participant finished,
     /// or the experimenter stopped the sitting): journals `session_done`
     /// with the progress so far and rewrites `session.json`; the next
@@ -605,6 +615,7 @@ impl StudyStore {
         self.journal.append(Record::SessionDone {
             completed: self.completed.len() as u64,
             planned: self.plan.len() as u64,
+            timing: self.timing.take(),
         })?;
         self.write_session_info()?;
         Ok(())
@@ -629,6 +640,7 @@ impl StudyStore {
         self.journal.append(Record::SessionDone {
             completed: self.completed.len() as u64,
             planned: self.plan.len() as u64,
+            timing: self.timing.take(),
         })?;
         self.write_session_info()?;
         Ok(files)

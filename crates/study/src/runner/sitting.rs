@@ -336,6 +336,14 @@ impl SittingCore {
         Ok(())
     }
 
+    /// The timing verdict the sitting's `session_done` records (the store's
+    /// [`StudyStore::set_timing`]); nothing once the store is closed.
+    pub fn set_timing(&mut self, t: Option<crate::export::SittingTiming>) {
+        if let Some(store) = self.store.as_mut() {
+            store.set_timing(t);
+        }
+    }
+
     /// Ends this sitting cleanly without closing the study (the next
     /// participant, or a later sitting, resumes the folder): a trial in
     /// progress is journaled as aborted with `reason` (no row; it runs

@@ -329,6 +329,28 @@ impl ResultsPage {
             d.n_test_trials(),
             d.rows.len()
         ));
+        let late: Vec<_> = d.timing.iter().filter(|(_, t)| t.is_late()).collect();
+        if !late.is_empty() {
+            for (which, t) in &late {
+                ui.colored_label(FAIL_COLOR, format!("Timing: {which}: {}", t.describe()))
+                    .on_hover_text(
+                        "More of this sitting's samples ran late than the rig file's \
+                         sitting_max_late_fraction allows: check its trials (raw files, \
+                         deadline misses) before analysis, or run the sitting again \
+                         (docs/STUDY.md, timing verdict).",
+                    );
+            }
+        } else if !d.timing.is_empty() {
+            ui.label(format!(
+                "Timing: all {} sitting(s) on time (worst {:.2} % of samples late)",
+                d.timing.len(),
+                100.0
+                    * d.timing
+                        .iter()
+                        .map(|(_, t)| t.late_fraction)
+                        .fold(0.0, f64::max)
+            ));
+        }
         let package = d.dir.join(kilotouch_study::export::DATAPACKAGE_FILE);
         ui.label(if package.is_file() {
             format!(

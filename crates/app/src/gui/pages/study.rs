@@ -117,6 +117,8 @@ pub struct StudyPage {
     current: Option<(TrialKey, Scene)>,
     telemetry: Option<Telemetry>,
     health: SessionHealth,
+    /// The running sitting's timing verdict so far.
+    timing: Option<kilotouch_study::export::SittingTiming>,
     rows: Vec<TrialRow>,
     committed: usize,
     planned: usize,
@@ -172,6 +174,7 @@ impl StudyPage {
             current: None,
             telemetry: None,
             health: SessionHealth::default(),
+            timing: None,
             rows: Vec::new(),
             committed: 0,
             planned: 0,
@@ -340,6 +343,7 @@ impl StudyPage {
         if let Some(e) = engine.as_deref() {
             self.health = s.health(e);
         }
+        self.timing = Some(s.timing());
         let mut end = None;
         for e in events {
             match e {
@@ -1174,6 +1178,19 @@ impl StudyPage {
                 f(l.disp_err_mean_um, 2)
             ))
             .on_hover_text("live estimates from the camera frames and the handle force; the row holds the exact values");
+        }
+        if let Some(t) = &self.timing {
+            let text = format!("timing verdict so far: {}", t.describe());
+            let hover = "Blocks of the real-time loop that missed their deadline and commands the \
+                         device received late, against the rig file's sitting_max_late_fraction; \
+                         session.json records the verdict when the sitting ends (docs/STUDY.md, \
+                         timing verdict).";
+            if t.is_late() {
+                ui.colored_label(Color32::from_rgb(230, 140, 40), text)
+                    .on_hover_text(hover);
+            } else {
+                ui.weak(text).on_hover_text(hover);
+            }
         }
         let h = self.health;
         ui.weak(format!(
