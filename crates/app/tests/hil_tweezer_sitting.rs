@@ -133,7 +133,6 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
     assert!(tw["name"].as_str().is_some_and(|n| n.contains("tweezer")));
     let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();
     assert!(journal.contains(&t.path), "{journal}");
-    assert!(out.join("datapackage.json").is_file());
 }
 
 #[test]

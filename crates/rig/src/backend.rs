@@ -451,6 +451,46 @@ impl LiveTweezer {
         s
     }
 
+    /// Step the link in pieces of at most [`crate::haptic_loop::MAX_BLOCK`]
+    /// with the set-points moved into the instrument's frame and the
+    /// samples back into the loop's (with the detector volts when `volts`
+    /// is given; `false` if the link gives none).
+    fn translated(
+        &mut self,
+        traps: &[[f64; 2]],
+        out: &mut [TweezerSample],
+        mut volts: Option<&mut [[f64; 2]]>,
+    ) -> bool {
+        let mut dev = [[0.0; 2]; crate::haptic_loop::MAX_BLOCK];
+        let mut detected = true;
+        let n_all = traps.len().min(out.len());
+        for chunk in (0..n_all).step_by(dev.len()) {
+            let end = (chunk + dev.len()).min(n_all);
+            for (d, t) in dev.iter_mut().zip(&traps[chunk..end]) {
+                *d = self.to_instrument(*t);
+            }
+            let n = end - chunk;
+            match volts.as_deref_mut() {
+                Some(v) if v.len() >= end => {
+                    detected &= self.link.step_block_detected(
+                        &dev[..n],
+                        &mut out[chunk..end],
+                        &mut v[chunk..end],
+                    );
+                }
+                Some(_) => {
+                    detected = false;
+                    self.link.step_block(&dev[..n], &mut out[chunk..end]);
+                }
+                None => self.link.step_block(&dev[..n], &mut out[chunk..end]),
+            }
+            for o in &mut out[chunk..end] {
+                *o = self.to_loop(*o);
+            }
+        }
+        detected
+    }
+
     /// A trap set-point from the loop's frame into the instrument's.
     #[inline]
     fn to_instrument(&self, t: [f64; 2]) -> [f64; 2] {
@@ -470,21 +510,15 @@ impl Tweezer for LiveTweezer {
         self.to_loop(s)
     }
     fn step_block(&mut self, traps: &[[f64; 2]], out: &mut [TweezerSample]) {
-        let mut dev = [[0.0; 2]; crate::haptic_loop::MAX_BLOCK];
-        for chunk in (0..traps.len()).step_by(dev.len()) {
-            let end = (chunk + dev.len()).min(traps.len()).min(out.len());
-            if end <= chunk {
-                break;
-            }
-            for (d, t) in dev.iter_mut().zip(&traps[chunk..end]) {
-                *d = self.to_instrument(*t);
-            }
-            let n = end - chunk;
-            self.link.step_block(&dev[..n], &mut out[chunk..end]);
-            for o in &mut out[chunk..end] {
-                *o = self.to_loop(*o);
-            }
-        }
+        self.translated(traps, out, None);
+    }
+    fn step_block_detected(
+        &mut self,
+        traps: &[[f64; 2]],
+        out: &mut [TweezerSample],
+        volts: &mut [[f64; 2]],
+    ) -> bool {
+        self.translated(traps, out, Some(volts))
     }
     fn reset(&mut self, trap_m: [f64; 2]) {
         let t = self.to_instrument(trap_m);
@@ -530,6 +564,14 @@ impl Tweezer for AnyTweezer {
     #[inline]
     fn step_block(&mut self, traps: &[[f64; 2]], out: &mut [TweezerSample]) {
         each_tw!(self, t => t.step_block(traps, out))
+    }
+    fn step_block_detected(
+        &mut self,
+        traps: &[[f64; 2]],
+        out: &mut [TweezerSample],
+        volts: &mut [[f64; 2]],
+    ) -> bool {
+        each_tw!(self, t => t.step_block_detected(traps, out, volts))
     }
     fn reset(&mut self, trap_m: [f64; 2]) {
         each_tw!(self, t => t.reset(trap_m))
