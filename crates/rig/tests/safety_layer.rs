@@ -26,6 +26,7 @@ fn cfg() -> SafetyConfig {
         watchdog_window_s: 0.1,             // 100 samples
         watchdog_max_missed_fraction: 0.03, // M = 3
         arm_on_start: true,
+        ..SafetyConfig::default()
     }
 }
 

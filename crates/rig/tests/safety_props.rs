@@ -146,6 +146,7 @@ fn setup() -> impl Strategy<Value = Setup> {
                     watchdog_window_s: (2 * missed + 10) as f64 / fs,
                     watchdog_max_missed_fraction: missed as f64 / (2 * missed + 10) as f64,
                     arm_on_start: true,
+                    ..SafetyConfig::default()
                 },
             },
         )
