@@ -561,6 +561,11 @@ impl Protocol {
                     t.start_distance_um + t.retreat_distance_um,
                     "start_distance_um to the contact, then retreat_distance_um",
                 )?;
+                fits_scene(
+                    format!("{p}.start_distance_um"),
+                    t.obstacle_radius_um + t.bead_radius_um + t.start_distance_um,
+                    "to the obstacle's centre: R_o + R_b + start_distance_um",
+                )?;
                 positive_at_most(
                     &format!("{p}.timeout_s"),
                     t.timeout_s,

@@ -301,6 +301,29 @@ fn semantic_errors_name_file_line_and_field() {
     assert_eq!(&line[location.column.unwrap() - 1..], "\"V\"]");
 }
 
+/// The obstacle of a blind trial lies R_o + R_b + start_distance from the
+/// start; its centre must be inside the scene's reach even when the
+/// movement itself (start_distance + retreat) is short. Found by
+/// `loader_props` at 100 000 cases: R_o = 15 µm put the centre at 26.5 µm.
+#[test]
+fn blind_task_obstacle_centre_fits_the_scene() {
+    let src = BLIND_TOML.replacen("obstacle_radius_um = 5.0", "obstacle_radius_um = 15.0", 1);
+    let err = Protocol::from_toml_str(&src, "blind.toml").unwrap_err();
+    let ProtocolError::Invalid { invalid, location } = &err else {
+        panic!("{err:?}")
+    };
+    assert_eq!(
+        invalid.field, "task.blind_navigation.start_distance_um",
+        "{err}"
+    );
+    assert_eq!(location.line, Some(line_of(&src, "start_distance_um = ")));
+    assert!(err.to_string().contains("26.5 µm"), "{err}");
+    // 5 + 1.5 + 13.5 = 20 µm: exactly at the reach, accepted.
+    let src = BLIND_TOML.replacen("start_distance_um = 10.0", "start_distance_um = 13.5", 1);
+    let src = src.replacen("retreat_distance_um = 3.0", "retreat_distance_um = 1.0", 1);
+    Protocol::from_toml_str(&src, "blind.toml").expect("R_o + R_b + start = reach fits");
+}
+
 #[test]
 fn blind_task_rejects_vision_only() {
     let src = BLIND_TOML.replacen("conditions = [\"D\"]", "conditions = [\"D\", \"V\"]", 1);
