@@ -19,6 +19,41 @@ use kilotouch_rig::tweezer::{
 use plotters::prelude::*;
 use std::path::Path;
 
+/// Periodogram bins averaged per block by default (the Rig page's and
+/// `kilotouch tweezer record --calibration-out`'s).
+pub const DEFAULT_POINTS_PER_BLOCK: usize = 100;
+
+/// The calibration settings a rig file implies for its tweezer: its bead,
+/// medium and detector; the fit range from 10 Hz to the Nyquist frequency
+/// of the loop rate; the aliased Lorentzian for a detector without an
+/// anti-aliasing (diode) filter, point-sampled at the loop rate (Berg-Sørensen
+/// & Flyvbjerg 2004, eq. 4), the diode filter when the detector has one;
+/// Faxén's wall correction when the rig file places the bead near the
+/// coverslip. The sample rate is the loop rate (a record's replaces it in
+/// [`calibrate_axes`]).
+pub fn default_settings(rc: &RigConfig) -> TrapCalibrationSettings {
+    use kilotouch_rig::tweezer::calibration::{
+        DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3,
+    };
+    let t = &rc.tweezer;
+    let fs = rc.rig.sample_rate_hz;
+    let diode = t.detector.diode_hz.is_some();
+    TrapCalibrationSettings {
+        fs_hz: fs,
+        radius_m: t.radius_m,
+        viscosity_pa_s: t.viscosity_pa_s,
+        temperature_k: t.temperature_k,
+        fit_range_hz: (10.0, 0.5 * fs),
+        points_per_block: DEFAULT_POINTS_PER_BLOCK,
+        hydro: false,
+        diode,
+        aliased: !diode,
+        fluid_density_kg_m3: DEFAULT_FLUID_DENSITY_KG_M3,
+        bead_density_kg_m3: DEFAULT_BEAD_DENSITY_KG_M3,
+        distance_to_surface_m: t.wall_distance_m,
+    }
+}
+
 /// A record of a tweezer's position-detector signals.
 #[derive(Debug, Clone)]
 pub struct DetectorRecord {

@@ -64,6 +64,18 @@ fn study_run(
     out: &Path,
     resume: bool,
 ) -> std::process::Output {
+    study_run_with(daq, tw, tweezer_opts, out, resume, &[])
+}
+
+/// [`study_run`] with `extra` arguments.
+fn study_run_with(
+    daq: &Emulator,
+    tw: &Emulator,
+    tweezer_opts: &str,
+    out: &Path,
+    resume: bool,
+    extra: &[&str],
+) -> std::process::Output {
     let rig = format!("{},lead=1", daq.rig());
     let tweezer = format!("{}{tweezer_opts}", tw.rig());
     let out_s = out.to_str().unwrap();
@@ -85,7 +97,38 @@ fn study_run(
     if resume {
         args.push("--resume");
     }
+    args.extend_from_slice(extra);
     kilotouch(&args)
+}
+
+/// `kilotouch tweezer record --rig SPEC --duration-s 2 --trap-um 15,0
+/// --calibration-out FILE --json` into `dir`: the report and the
+/// calibration file. The trap is held 15 µm from the protocol's obstacle
+/// (at the emulator's origin), a surface-to-surface gap of 8.5 µm.
+fn record_calibration(spec: &str, dir: &Path, name: &str) -> (Value, std::path::PathBuf) {
+    let csv = dir.join(format!("{name}.csv"));
+    let cal = dir.join(format!("{name}.json"));
+    let out = kilotouch(&[
+        "tweezer",
+        "record",
+        "--rig",
+        spec,
+        "--duration-s",
+        "2",
+        "--trap-um",
+        "15,0",
+        "--out",
+        csv.to_str().unwrap(),
+        "--calibration-out",
+        cal.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "tweezer record failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (serde_json::from_slice(&out.stdout).unwrap(), cal)
 }
 
 #[test]
@@ -93,7 +136,32 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
     let (d, t) = (daq(), tweezer());
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
-    let run = study_run(&d, &t, ",lead=0", &out, false);
+    // The trap calibrated through the live link first: κ of the emulated
+    // trap (the rig file's) within 4 standard errors plus 5 % (the
+    // obstacle's drag at 8.5 µm), R_d of its detector (1/S = 2 µm/V).
+    let (rec, cal) = record_calibration(&t.rig(), dir.path(), "trap");
+    let truth = RigConfig::default().tweezer.stiffness_n_per_m * 1e6;
+    let (kappa, se) = (
+        rec["calibration"]["kappa_pn_um"].as_f64().unwrap(),
+        rec["calibration"]["kappa_se_pn_um"].as_f64().unwrap(),
+    );
+    assert!(
+        (kappa - truth).abs() < 4.0 * se + 0.05 * truth,
+        "κ {kappa} ± {se} pN/µm against the emulated trap's {truth}"
+    );
+    for rd in rec["calibration"]["rd_um_per_v"].as_array().unwrap() {
+        let rd = rd.as_f64().unwrap();
+        assert!((rd / 2.0 - 1.0).abs() < 0.05, "R_d {rd} µm/V");
+    }
+    let cal_s = cal.to_str().unwrap();
+    let run = study_run_with(
+        &d,
+        &t,
+        ",lead=0",
+        &out,
+        false,
+        &["--trap-calibration", cal_s],
+    );
     assert!(
         run.status.success(),
         "study run failed: {}",
@@ -133,6 +201,61 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
     assert!(tw["name"].as_str().is_some_and(|n| n.contains("tweezer")));
     let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();
     assert!(journal.contains(&t.path), "{journal}");
+    // The applied trap calibration, as the file gave it.
+    let applied = &session["trap_calibration"];
+    assert_eq!(applied["source"], t.rig().as_str(), "{applied}");
+    assert_eq!(applied["kappa_pn_um"].as_f64(), Some(kappa), "{applied}");
+}
+
+/// `study run --trap-calibration` refuses, before any sitting, a
+/// calibration recorded from another tweezer and one whose fit fails the
+/// checks, saying why; the folder is not created.
+#[test]
+fn a_trap_calibration_of_another_tweezer_or_a_failed_fit_is_refused() {
+    let (d, t) = (daq(), tweezer());
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let (_, sim) = record_calibration("sim", dir.path(), "sim");
+    let run = study_run_with(
+        &d,
+        &t,
+        ",lead=0",
+        &out,
+        false,
+        &["--trap-calibration", sim.to_str().unwrap()],
+    );
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("not applied: it was recorded from sim")
+            && err.contains(&format!("the live tweezer on {}", t.rig())),
+        "{err}"
+    );
+    assert!(!out.join("session.json").exists());
+    // The same file from the right tweezer, but a fit that does not
+    // describe the spectrum.
+    drop((d, t));
+    let (d2, t2) = (daq(), tweezer());
+    let mut bad: Value = serde_json::from_str(&std::fs::read_to_string(&sim).unwrap()).unwrap();
+    bad["source"] = Value::from(t2.rig());
+    bad["y"]["backing_pct"] = Value::from(1e-6);
+    let bad_file = dir.path().join("bad.json");
+    std::fs::write(&bad_file, bad.to_string()).unwrap();
+    let run = study_run_with(
+        &d2,
+        &t2,
+        ",lead=0",
+        &out,
+        false,
+        &["--trap-calibration", bad_file.to_str().unwrap()],
+    );
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("not applied: y axis: the model does not describe the spectrum"),
+        "{err}"
+    );
+    assert!(!out.join("session.json").exists());
 }
 
 #[test]

@@ -9,6 +9,7 @@ use anyhow::Context;
 use clap::Subcommand;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::device::RigSpec;
+use kilotouch_rig::tweezer::TrapCalibrationRecord;
 use kilotouch_rig::tweezer::calibration::{
     DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, TrapCalibrationSettings,
     calibrate_trap,
@@ -97,6 +98,12 @@ pub struct RecordArgs {
     /// Output CSV (columns t_s, x_v, y_v).
     #[arg(long)]
     pub out: PathBuf,
+    /// Also calibrate both axes with the settings the rig file implies (its bead, medium and
+    /// detector; 10 Hz to Nyquist) and write the trap calibration (JSON) that `kilotouch study
+    /// run --trap-calibration` applies. Refused, and not written, when the fit fails the
+    /// checks the Rig page applies (the CSV is kept).
+    #[arg(long, value_name = "FILE")]
+    pub calibration_out: Option<PathBuf>,
     /// Print JSON (sample rate, samples, file).
     #[arg(long)]
     pub json: bool,
@@ -245,7 +252,23 @@ struct RecordReport {
     drag_factor: Option<[f64; 2]>,
     /// Predicted relative error of κ (x, y).
     kappa_bias: Option<[f64; 2]>,
+    /// The calibration of both axes (with `--calibration-out`).
+    calibration: Option<RecordCalibration>,
     warnings: Vec<String>,
+}
+
+/// The trap calibration `kilotouch tweezer record --calibration-out` wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+struct RecordCalibration {
+    /// The JSON file written.
+    file: String,
+    /// κ of both axes, inverse-variance weighted, pN/µm, and its SE.
+    kappa_pn_um: f64,
+    kappa_se_pn_um: f64,
+    /// R_d per axis (x, y), µm/V.
+    rd_um_per_v: [f64; 2],
+    /// Corner frequency per axis (x, y), Hz.
+    fc_hz: [f64; 2],
 }
 
 fn record(a: &RecordArgs) -> anyhow::Result<()> {
@@ -295,6 +318,10 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
     for m in &warnings {
         eprintln!("warning: {m}");
     }
+    let calibration = match &a.calibration_out {
+        Some(path) => Some(write_calibration(&rec, &rc, path, &a.out)?),
+        None => None,
+    };
     emit(
         a.json,
         &RecordReport {
@@ -306,10 +333,83 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
             trap_um,
             drag_factor: rec.surface.map(|d| d.drag_factor),
             kappa_bias: rec.surface.map(|d| d.kappa_bias()),
+            calibration: calibration.as_ref().map(|(c, _)| c.clone()),
             warnings: warnings.clone(),
         },
-        || format!("{n} samples at {fs} Hz written to {}\n", a.out.display()),
+        || {
+            let mut t = format!("{n} samples at {fs} Hz written to {}\n", a.out.display());
+            if let Some((c, _)) = &calibration {
+                t += &format!(
+                    "trap calibration: κ = {:.4} ± {:.4} pN/µm, R_d = ({:.5}, {:.5}) µm/V, \
+                     f_c = ({:.1}, {:.1}) Hz, written to {}\n",
+                    c.kappa_pn_um,
+                    c.kappa_se_pn_um,
+                    c.rd_um_per_v[0],
+                    c.rd_um_per_v[1],
+                    c.fc_hz[0],
+                    c.fc_hz[1],
+                    c.file
+                );
+            }
+            t
+        },
     )
+}
+
+/// Calibrate both axes of `rec` with the settings the rig file `rc`
+/// implies ([`crate::tweezer_cal::default_settings`]) and write the record
+/// to `path` (JSON, [`TrapCalibrationRecord`]) when it passes the checks of
+/// an applicable calibration; `csv` (the record's file, kept) is named in
+/// the refusal.
+fn write_calibration(
+    rec: &crate::tweezer_cal::DetectorRecord,
+    rc: &RigConfig,
+    path: &std::path::Path,
+    csv: &std::path::Path,
+) -> anyhow::Result<(RecordCalibration, TrapCalibrationRecord)> {
+    let settings = crate::tweezer_cal::default_settings(rc);
+    let (cal, _) = crate::tweezer_cal::calibrate_axes(rec, &settings)
+        .with_context(|| format!("calibrating the record {}", csv.display()))?;
+    if let Err(why) = cal.check() {
+        anyhow::bail!(
+            "the trap calibration was not written to {}: {why} (the record is kept in {}; \
+             calibrate it with other settings with `kilotouch tweezer calibrate`)",
+            path.display(),
+            csv.display()
+        );
+    }
+    let text = serde_json::to_string_pretty(&cal)?;
+    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    Ok((
+        RecordCalibration {
+            file: path.display().to_string(),
+            kappa_pn_um: cal.kappa_pn_um,
+            kappa_se_pn_um: cal.kappa_se_pn_um,
+            rd_um_per_v: cal.rd_um_per_v,
+            fc_hz: [cal.x.fc_hz, cal.y.fc_hz],
+        },
+        cal,
+    ))
+}
+
+/// Read a trap calibration written by `kilotouch tweezer record
+/// --calibration-out`.
+///
+/// # Errors
+/// The file cannot be read, or is not such a record (the parser's line and
+/// column named).
+pub fn read_calibration(path: &std::path::Path) -> anyhow::Result<TrapCalibrationRecord> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| {
+        anyhow::anyhow!(
+            "{}:{}:{}: not a trap calibration (as `kilotouch tweezer record --calibration-out` \
+             writes): {e}",
+            path.display(),
+            e.line(),
+            e.column()
+        )
+    })
 }
 
 /// The surface-drag warning for column `column` of the record `file`

@@ -13,7 +13,7 @@ use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::stability::StabilityReport;
 use kilotouch_rig::tweezer::Obstacle;
-use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer};
+use kilotouch_rig::tweezer::{AppliedTrap, DetectedTweezer, TrapCalibrationRecord};
 use kilotouch_rig::{AnyRig, AnyTweezer};
 use kilotouch_rig::{RigConfig, TweezerParams};
 use std::sync::Arc;
@@ -374,6 +374,38 @@ impl EngineHandle {
                 name: "queue",
                 reason: "command queue full, try again",
             })
+    }
+
+    /// Why this engine must not use the trap calibration `t`, in a
+    /// researcher's words: a fit that fails the checks
+    /// ([`TrapCalibrationRecord::check`]), a record of another tweezer
+    /// than the one the engine's loop drives (`sim` or the live link's
+    /// `serial:PATH`), or a κ that renders beyond the margins the loop was
+    /// cleared for ([`kilotouch_rig::tweezer::check_loop_gain`]). The Rig
+    /// page and `kilotouch study run --trap-calibration` both ask this
+    /// before [`Self::apply_trap_calibration`].
+    pub fn check_trap_calibration(&self, t: &TrapCalibrationRecord) -> Result<(), String> {
+        t.check()?;
+        let (tweezer, what) = match self.live_tweezer() {
+            Some(l) => (
+                l.spec.describe(),
+                format!("the live tweezer on {}", l.spec.describe()),
+            ),
+            None => (
+                "sim".to_owned(),
+                "the rig file's simulated tweezer".to_owned(),
+            ),
+        };
+        if t.source != tweezer {
+            return Err(format!(
+                "it was recorded from {}, and the engine's loop drives {what}",
+                t.source
+            ));
+        }
+        match self.stability() {
+            Some(r) => kilotouch_rig::tweezer::check_loop_gain(r, t.applied().stiffness_n_per_m),
+            None => Err("the loop was armed without its stability analysis".into()),
+        }
     }
 
     /// Report the tweezer through this trap calibration (κ, R_d) from the

@@ -368,7 +368,7 @@ impl KilotouchApp {
                     self.applied = None;
                 }
                 if let Some(t) = &self.trap_applied
-                    && let Err(e) = Self::trap_calibration_fits(&h, t).and_then(|()| {
+                    && let Err(e) = h.check_trap_calibration(t).and_then(|()| {
                         h.apply_trap_calibration(Some(t.applied()))
                             .map_err(|e| e.to_string())
                     })
@@ -497,36 +497,6 @@ impl KilotouchApp {
         }
     }
 
-    /// Why the engine `h` must not use the trap calibration `t`: a bad fit,
-    /// a record of another tweezer than the engine's, or a loop gain beyond
-    /// the margins it was cleared for.
-    fn trap_calibration_fits(
-        h: &EngineHandle,
-        t: &kilotouch_rig::tweezer::TrapCalibrationRecord,
-    ) -> Result<(), String> {
-        t.check()?;
-        let (tweezer, what) = match h.live_tweezer() {
-            Some(l) => (
-                l.spec.describe(),
-                format!("the live tweezer on {}", l.spec.describe()),
-            ),
-            None => (
-                "sim".to_owned(),
-                "the rig file's simulated tweezer".to_owned(),
-            ),
-        };
-        if t.source != tweezer {
-            return Err(format!(
-                "it was recorded from {}, and the engine's loop drives {what}",
-                t.source
-            ));
-        }
-        match h.stability() {
-            Some(r) => kilotouch_rig::tweezer::check_loop_gain(r, t.applied().stiffness_n_per_m),
-            None => Err("the loop was armed without its stability analysis".into()),
-        }
-    }
-
     fn handle_requests(&mut self) {
         for r in std::mem::take(&mut self.requests) {
             match r {
@@ -550,7 +520,7 @@ impl KilotouchApp {
                         Err(e) => self.notify(format!("trap calibration not removed: {e}"), true),
                     },
                     (Some(h), Some(t)) => {
-                        let r = Self::trap_calibration_fits(h, &t).and_then(|()| {
+                        let r = h.check_trap_calibration(&t).and_then(|()| {
                             h.apply_trap_calibration(Some(t.applied()))
                                 .map_err(|e| e.to_string())
                         });

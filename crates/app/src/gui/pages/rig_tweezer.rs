@@ -99,7 +99,7 @@ impl TweezerSection {
             viscosity_mpa_s: 0.0,
             temperature_k: 0.0,
             fit_range_hz: [0.0; 2],
-            points_per_block: 100,
+            points_per_block: crate::tweezer_cal::DEFAULT_POINTS_PER_BLOCK,
             aliased: true,
             hydro: false,
             diode: false,
@@ -115,22 +115,20 @@ impl TweezerSection {
         s
     }
 
-    /// Settings from a rig file's tweezer: its bead, medium and detector;
-    /// the fit range from 10 Hz to the Nyquist frequency of the loop rate;
-    /// the aliased Lorentzian for the simulated detector (point-sampled at
-    /// the loop rate without an anti-aliasing filter), the diode filter
-    /// when the detector has one.
+    /// Settings from a rig file's tweezer
+    /// ([`crate::tweezer_cal::default_settings`]).
     pub fn seed_from(&mut self, rc: &RigConfig) {
-        let t = &rc.tweezer;
-        self.radius_um = t.radius_m * 1e6;
-        self.viscosity_mpa_s = t.viscosity_pa_s * 1e3;
-        self.temperature_k = t.temperature_k;
-        self.fit_range_hz = [10.0, 0.5 * rc.rig.sample_rate_hz];
-        self.diode = t.detector.diode_hz.is_some();
-        self.aliased = !self.diode;
-        self.hydro = false;
-        self.near_surface = t.wall_distance_m.is_some();
-        if let Some(h) = t.wall_distance_m {
+        let s = crate::tweezer_cal::default_settings(rc);
+        self.radius_um = s.radius_m * 1e6;
+        self.viscosity_mpa_s = s.viscosity_pa_s * 1e3;
+        self.temperature_k = s.temperature_k;
+        self.fit_range_hz = [s.fit_range_hz.0, s.fit_range_hz.1];
+        self.points_per_block = s.points_per_block;
+        self.diode = s.diode;
+        self.aliased = s.aliased;
+        self.hydro = s.hydro;
+        self.near_surface = s.distance_to_surface_m.is_some();
+        if let Some(h) = s.distance_to_surface_m {
             self.distance_um = h * 1e6;
         }
         self.seeded_for = Some(rig_key(rc));

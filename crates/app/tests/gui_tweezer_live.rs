@@ -1,0 +1,107 @@
+//! The Rig page's Tweezer section with a live tweezer (its emulator,
+//! `kilotouch emulate tweezer --pty`), through the UI (egui_kittest, no
+//! GPU): record and calibrate the tweezer through its link; Apply is
+//! refused while the engine's loop drives the rig file's simulated tweezer
+//! (the record is of another tweezer), recording is refused while the
+//! engine holds the tweezer's port, and once the Rig page connects the
+//! engine to the live tweezer the calibration applies: the engine's
+//! tweezer reports through it (the force it then computes is tested
+//! against the emulator in `engine_live_tweezer.rs`).
+
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use common::{Emulator, engine_reporting, step_until};
+use egui_kittest::kittest::Queryable;
+use kilotouch::gui::{KilotouchApp, Page};
+use kilotouch_rig::RigConfig;
+
+fn live_tweezer_running(a: &KilotouchApp, path: &str) -> bool {
+    a.engine.as_ref().is_some_and(|e| {
+        e.live_tweezer()
+            .is_some_and(|l| l.spec.describe().ends_with(path))
+            && e.health().is_some_and(|x| x.running)
+    })
+}
+
+#[test]
+fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
+    let emu = Emulator::spawn("tweezer", &[]);
+    let mut h = common::app_harness(common::fresh_app(Some(Page::Rig)), 1400.0, 2200.0, Some(16));
+    assert!(step_until(&mut h, 10.0, engine_reporting));
+    {
+        let t = &mut h.state_mut().rig_page_mut().tweezer;
+        t.source_text = emu.rig();
+        t.duration_s = 2.0;
+    }
+    h.step();
+    h.get_by_label("Record and calibrate").click();
+    h.step();
+    assert!(step_until(&mut h, 60.0, |a| !a
+        .rig_page()
+        .tweezer
+        .is_busy()));
+    h.step();
+    assert_eq!(h.state().rig_page().tweezer.error(), None);
+    let r = h.state().rig_page().tweezer.result().unwrap().clone();
+    assert_eq!(r.source, emu.rig());
+    assert_eq!(r.n_samples, 20_000);
+    // κ of the emulated trap (the rig file's), R_d of its detector.
+    let truth = RigConfig::default().tweezer.stiffness_n_per_m * 1e6;
+    assert!(
+        (r.kappa_pn_um - truth).abs() < 4.0 * r.kappa_se_pn_um + 0.05 * truth,
+        "κ {} ± {} pN/µm against the emulated trap's {truth}",
+        r.kappa_pn_um,
+        r.kappa_se_pn_um
+    );
+    h.get_by_label("fit accepted");
+
+    // The engine drives the simulated tweezer: another tweezer, refused.
+    h.get_by_label("Apply").click();
+    h.step();
+    h.step();
+    h.get_by_label_contains(&format!(
+        "trap calibration not applied: it was recorded from {}, and the engine's loop drives \
+         the rig file's simulated tweezer",
+        emu.rig()
+    ));
+    assert!(h.state().trap_calibration().is_none());
+
+    // The Rig page connects the engine to the live tweezer
+    // (block-synchronous: no lead, so the loop delay stays inside D's
+    // margins on the simulated rig).
+    h.state_mut().rig_page_mut().tweezer_text = format!("{},lead=0", emu.rig());
+    h.step();
+    h.get_by_label("Connect (restart)").click();
+    assert!(
+        step_until(&mut h, 10.0, |a| live_tweezer_running(a, &emu.path)),
+        "the live tweezer did not come up"
+    );
+    h.step();
+
+    // Recording from the port the engine holds is refused, saying why.
+    h.get_by_label("Record and calibrate").click();
+    h.step();
+    assert!(
+        h.state()
+            .rig_page()
+            .tweezer
+            .error()
+            .is_some_and(|e| e.contains("the engine's loop runs the tweezer on")),
+        "{:?}",
+        h.state().rig_page().tweezer.error()
+    );
+    // The calibration of this tweezer now applies.
+    h.get_by_label("Apply").click();
+    assert!(step_until(&mut h, 5.0, |a| a.trap_calibration().is_some()));
+    assert!(step_until(&mut h, 5.0, |a| a
+        .engine
+        .as_ref()
+        .and_then(|e| e.health())
+        .is_some_and(
+            |x| x.running && x.trap_calibration == Some(r.applied())
+        )));
+    h.step();
+    h.get_by_label_contains("Active trap calibration: κ =");
+}
