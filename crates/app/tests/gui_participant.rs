@@ -67,9 +67,8 @@ fn study_page(proto: &std::path::Path, out: &std::path::Path) -> H {
 /// Click "Open session", check it opened, click Start.
 fn open_and_start(h: &mut H) {
     h.get_by_label("Open session").click();
-    h.step();
     assert!(
-        h.state().study.is_running(),
+        common::until_sitting_opened(h),
         "{:?}",
         h.state().study.error()
     );
@@ -316,8 +315,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         kilotouch::session::FolderStatus::Study { completed: 1, .. }
     ));
     h.get_by_label_contains("Resume at trial").click();
-    h.step();
-    assert!(h.state().study.is_running());
+    assert!(common::until_sitting_opened(&mut h));
     h.step();
     assert!(
         h.query_by_label_contains("without closing").is_none(),

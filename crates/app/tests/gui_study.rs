@@ -53,9 +53,8 @@ fn study_page(
 /// Click "Open session" and check that the session opened.
 fn open_session(h: &mut egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>) {
     h.get_by_label("Open session").click();
-    h.step();
     assert!(
-        h.state().study.is_running(),
+        common::until_sitting_opened(h),
         "{:?}",
         h.state().study.error()
     );
@@ -228,9 +227,8 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
     assert!(h.query_by_label_contains("Finished trials: 0").is_some());
     // P01's sitting was closed: resuming reports no crash.
     h.get_by_label_contains("Resume at trial P02").click();
+    assert!(common::until_sitting_opened(&mut h));
     h.step();
-    h.step();
-    assert!(h.state().study.is_running());
     assert!(h.query_by_label_contains("resumed:").is_some());
     assert!(
         h.query_by_label_contains("without closing").is_none(),
@@ -267,4 +265,90 @@ fn run_all_remaining_participants_finishes_the_study() {
     h.step();
     h.step();
     assert!(h.query_by_label_contains("study complete").is_none());
+}
+
+/// Step until a widget whose label contains `text` is shown (≤ 60 s).
+fn until_label(
+    h: &mut egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>,
+    text: &str,
+) -> bool {
+    let t0 = std::time::Instant::now();
+    while t0.elapsed() < Duration::from_secs(60) {
+        h.step();
+        if h.query_by_label_contains(text).is_some() {
+            return true;
+        }
+        std::thread::sleep(POLL);
+    }
+    false
+}
+
+/// Before a sitting writes more than the page's threshold, the page states
+/// the estimate and asks: Cancel opens nothing, "Without raw signals" runs
+/// the sitting without raw files. A sitting larger than the free space of
+/// its disk is refused with the numbers.
+#[test]
+fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, tiny()).unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "P01", &out);
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    // Every sitting with raw files is "large" at a 1 kB threshold.
+    h.state_mut().study.size_gate.confirm_over_bytes = 1_000;
+    h.step();
+    h.get_by_label("Open session").click();
+    assert!(
+        until_label(&mut h, "This sitting will write"),
+        "no confirmation: {:?}",
+        h.state().study.error()
+    );
+    assert!(!h.state().study.is_running());
+    h.get_by_label_contains("more than the 1.0 kB the page asks about");
+    h.get_by_label("Cancel").click();
+    h.step();
+    h.step();
+    assert!(!h.state().study.is_running());
+    assert!(
+        h.query_by_label_contains("This sitting will write")
+            .is_none()
+    );
+    assert!(!out.join("session.json").exists(), "nothing written");
+
+    // Asked again; written without raw signals.
+    h.get_by_label("Open session").click();
+    assert!(until_label(&mut h, "Without raw signals"));
+    h.get_by_label_contains("Without raw signals").click();
+    assert!(common::until_sitting_opened(&mut h));
+    h.step();
+    h.get_by_label("Start").click();
+    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+        .study
+        .finished()
+        .is_some()));
+    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(rows.len(), 3);
+    assert!(rows.iter().all(|r| r.raw_file.is_empty()), "{rows:?}");
+    assert!(!out.join("raw").exists() || std::fs::read_dir(out.join("raw")).unwrap().count() == 0);
+
+    // A new folder on a "disk" with 1 kB free: refused, with the numbers.
+    let out2 = dir.path().join("out2");
+    h.state_mut().study.out_text = out2.display().to_string();
+    h.state_mut().study.size_gate.confirm_over_bytes = 1_000_000_000;
+    h.state_mut().study.size_gate.assume_free_bytes = Some(1_000);
+    h.step();
+    h.step();
+    h.get_by_label("Open session").click();
+    assert!(step_until_every(&mut h, POLL, 60.0, |a| a
+        .study
+        .error()
+        .is_some()));
+    let err = h.state().study.error().unwrap().to_owned();
+    assert!(
+        err.contains("not enough disk space") && err.contains("1.0 kB free"),
+        "{err}"
+    );
+    assert!(!h.state().study.is_running());
+    assert!(!out2.join("session.json").exists());
 }

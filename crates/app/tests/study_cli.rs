@@ -1,5 +1,5 @@
 //! `kilotouch study simulate`: the export it writes, its errors, and a real
-//! kill of the process followed by `--resume`.
+//! kill of the process followed by `--resume`; `study run`'s size check.
 
 #![allow(clippy::unwrap_used)]
 
@@ -322,4 +322,47 @@ fn simulate_refuses_a_run_larger_than_the_free_space() {
         "2000000",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// `study run` (a sitting on the engine) states what it will write and
+/// refuses a sitting larger than the free space before anything is
+/// written; without raw files the same sitting fits and runs.
+#[test]
+fn study_run_states_its_size_and_refuses_a_sitting_larger_than_the_free_space() {
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = write_protocol(tmp.path(), 1, 0);
+    let out = tmp.path().join("study");
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "study",
+            "run",
+            "--protocol",
+            proto.as_str(),
+            "--participant",
+            "P01",
+            "--fast",
+            "--out",
+            out.to_str().unwrap(),
+            "--assume-free-bytes",
+            "100000",
+        ];
+        a.extend_from_slice(extra);
+        run(&a)
+    };
+    let o = args(&[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("the sitting will write")
+            && err.contains("not enough disk space")
+            && err.contains("100 kB free")
+            && err.contains("add --no-raw"),
+        "{err}"
+    );
+    assert!(!out.join(TRIALS_FILE).exists());
+    let o = args(&["--no-raw"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("the sitting will write about"), "{err}");
+    assert_eq!(rows(&out).len(), 3);
 }

@@ -157,6 +157,17 @@ impl StudySize {
             }
             RowsBasis::TimeOut => "if every trial ran to its time-out".to_owned(),
         };
+        if self.raw_files > 0 && self.basis == RowsBasis::TimeOut {
+            return format!(
+                "at most {}: {} trials with raw files of at most {} (every trial run to its \
+                 {:.0} s time-out); without raw files {}",
+                format_bytes(self.bytes),
+                self.trials,
+                format_bytes(self.raw_bytes / self.raw_files.max(1) as u64),
+                self.mean_trial_s,
+                format_bytes(self.no_raw_bytes)
+            );
+        }
         if self.raw_files == 0 {
             return format!(
                 "about {} for {} trials (no raw files)",
@@ -455,7 +466,49 @@ pub fn estimate_study_size(
 pub fn estimate_simulated_study(opts: &SimulateOptions) -> Result<StudySize, RunError> {
     let shard = opts.shard;
     let in_shard = move |p: u32| shard.is_none_or(|s| s.contains(p));
-    let pending = pending_trials(&opts.protocol, &opts.out, Some(&in_shard))?;
+    estimate_pending(opts, &in_shard)
+}
+
+/// The estimate for a sitting on the real-time engine (the Study page):
+/// the pending trials of the 0-based participant `only` (every
+/// participant: `None`) of the study `opts` describes, on the same bases as
+/// [`estimate_simulated_study`] (the folder's raw files, else a pilot by
+/// the simulated participant: for a person at the handle, what the
+/// simulated participant would take).
+///
+/// # Errors
+/// As [`estimate_simulated_study`].
+pub fn estimate_sitting(opts: &SimulateOptions, only: Option<u32>) -> Result<StudySize, RunError> {
+    let keep = move |p: u32| only.is_none_or(|o| o == p);
+    estimate_pending(opts, &keep)
+}
+
+/// The upper bound for the same sitting as [`estimate_sitting`]: every
+/// pending trial runs to the task's time-out ([`TrialRows::time_out`]; no
+/// pilot, only `trials.csv` is read). A sitting whose bound is small needs
+/// no better estimate.
+///
+/// # Errors
+/// As [`pending_trials`].
+pub fn bound_sitting(opts: &SimulateOptions, only: Option<u32>) -> Result<StudySize, RunError> {
+    let keep = move |p: u32| only.is_none_or(|o| o == p);
+    let pending = pending_trials(&opts.protocol, &opts.out, Some(&keep))?;
+    let rows = TrialRows::time_out(&opts.protocol, opts.rig.rig.sample_rate_hz);
+    Ok(estimate_study_size(
+        &opts.protocol,
+        opts.runner.raw,
+        &pending,
+        &rows,
+    ))
+}
+
+/// [`estimate_simulated_study`] for the pending trials of the participants
+/// `keep` accepts.
+fn estimate_pending(
+    opts: &SimulateOptions,
+    keep: &dyn Fn(u32) -> bool,
+) -> Result<StudySize, RunError> {
+    let pending = pending_trials(&opts.protocol, &opts.out, Some(keep))?;
     let raw = opts.runner.raw;
     let rows = match (raw, opts.resume) {
         (None, _) => TrialRows::time_out(&opts.protocol, opts.rig.rig.sample_rate_hz),
@@ -583,6 +636,29 @@ mod tests {
             "{m}"
         );
         assert!(check_free_space(&s, Path::new("/x"), s.bytes).is_ok());
+    }
+
+    /// The bound of one participant's sitting in a new folder: that
+    /// participant's trials, each to the time-out (120 s at 10 kHz), stated
+    /// as a bound.
+    #[test]
+    fn a_sittings_bound_counts_its_participants_trials_to_the_time_out() {
+        let protocol = Protocol::builtin("paper").unwrap();
+        let dir = std::env::temp_dir().join(format!("kt-size-bound-{}", std::process::id()));
+        let opts = SimulateOptions::new(protocol.clone(), &dir);
+        let all = plan(&protocol, &order_rows(&protocol.assignment().unwrap()));
+        let b = bound_sitting(&opts, Some(1)).unwrap();
+        let n = all.iter().filter(|p| p.key.participant == 1).count();
+        assert_eq!(b.trials, n);
+        assert_eq!(b.basis, RowsBasis::TimeOut);
+        assert_eq!(b.bytes, b.timeout_bytes);
+        assert_eq!(
+            b.raw_bytes,
+            n as u64 * (1_200_000 * 19 * 4 + RAW_FILE_OVERHEAD_BYTES)
+        );
+        assert!(b.describe().starts_with("at most "), "{}", b.describe());
+        let every = bound_sitting(&opts, None).unwrap();
+        assert_eq!(every.trials, all.len());
     }
 
     #[test]

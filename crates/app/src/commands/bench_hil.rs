@@ -215,6 +215,8 @@ pub fn run(b: &HilBench) -> anyhow::Result<HilReport> {
                 || "sim".into(),
                 |t| format!("serial:{},lead=0,timeout-ms=2000", t.path),
             ),
+            trap_calibration: None,
+            assume_free_bytes: None,
             participant: id.clone(),
             out: hil_dir.clone(),
             resume: k > 0,

@@ -42,6 +42,13 @@ pub struct RunArgs {
     /// rig's rate; its command lead enters the stability check).
     #[arg(long, default_value = "sim")]
     pub tweezer: String,
+    /// Apply this trap calibration (κ, detector sensitivity R_d) to the
+    /// tweezer for the sitting: a JSON file written by `kilotouch tweezer
+    /// record --calibration-out` from the same tweezer. Refused when its fit
+    /// fails the checks, it was recorded from another tweezer, or its κ
+    /// would take the loop beyond its margins. `session.json` records it.
+    #[arg(long, value_name = "FILE")]
+    pub trap_calibration: Option<PathBuf>,
     /// The participant of this sitting (pseudonymous ID: `P01`, `p1`, `1`).
     #[arg(long)]
     pub participant: String,
@@ -58,6 +65,10 @@ pub struct RunArgs {
     /// time.
     #[arg(long)]
     pub fast: bool,
+    /// Free space of the target disk in bytes, instead of asking the
+    /// operating system (tests of the refusal).
+    #[arg(long, hide = true, value_name = "BYTES")]
+    pub assume_free_bytes: Option<u64>,
     /// Give up (stop the sitting, exit non-zero) after this long, s.
     #[arg(long, default_value_t = 86_400.0)]
     pub timeout_s: f64,
@@ -150,6 +161,22 @@ pub fn sitting(
             format!("--rig {} --tweezer {}", spec.describe(), tweezer.describe())
         }
     })?;
+    let trap_calibration = match &a.trap_calibration {
+        Some(path) => {
+            let t = super::tweezer::read_calibration(path)?;
+            let applied = engine.check_trap_calibration(&t).and_then(|()| {
+                engine
+                    .apply_trap_calibration(Some(t.applied()))
+                    .map_err(|e| e.to_string())
+            });
+            if let Err(why) = applied {
+                engine.shutdown();
+                anyhow::bail!("--trap-calibration {}: not applied: {why}", path.display());
+            }
+            Some(t)
+        }
+        None => None,
+    };
     let mut runner = RunnerConfig::default();
     if a.no_raw {
         runner.raw = None;
@@ -164,6 +191,20 @@ pub fn sitting(
     opts.only_participant = Some(pid.index);
     opts.runner = runner;
     opts.calibration.clone_from(&a.loop_args.calibration);
+    opts.trap_calibration = trap_calibration;
+    // What the sitting will write, against the free space of the disk (no
+    // confirmation on the command line: the bound suffices when it fits).
+    let fits =
+        crate::session::estimate_size(&opts, opts.only_participant, a.assume_free_bytes, u64::MAX)
+            .and_then(|(size, available)| {
+                eprintln!("kilotouch: the sitting will write {}", size.describe());
+                kilotouch_study::size::check_free_space(&size, &a.out, available)
+                    .map_err(|e| crate::session::space_refusal(&e, "add --no-raw"))
+            });
+    if let Err(why) = fits {
+        engine.shutdown();
+        anyhow::bail!("{why}");
+    }
     let mut session = SessionHandle::spawn(opts, &mut engine)
         .with_context(|| format!("study run into {}", a.out.display()))?;
     let info = session.info().clone();

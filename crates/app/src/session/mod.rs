@@ -67,9 +67,11 @@
 
 mod driver;
 mod participant;
+mod size;
 mod worker;
 
 pub use participant::{LiveMetrics, ParticipantId, validate_participant_id};
+pub use size::{estimate_size, space_refusal};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;

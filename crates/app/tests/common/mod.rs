@@ -79,6 +79,16 @@ pub fn step_until_every(
     false
 }
 
+/// Step until the Study page's sitting opened (after its size check,
+/// which runs on a thread of its own) or the page shows an error; whether
+/// it opened.
+#[allow(dead_code)]
+pub fn until_sitting_opened(h: &mut Harness<'_, KilotouchApp>) -> bool {
+    step_until(h, 60.0, |a| {
+        a.study.is_running() || a.study.error().is_some()
+    }) && h.state().study.is_running()
+}
+
 /// Whether the app's engine is up and has reported its health.
 #[allow(dead_code)]
 pub fn engine_reporting(a: &KilotouchApp) -> bool {

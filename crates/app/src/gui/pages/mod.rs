@@ -9,6 +9,7 @@ pub mod results;
 pub mod rig;
 pub mod rig_tweezer;
 pub mod study;
+pub mod study_size;
 
 pub use calibration::CalibrationPage;
 pub use explore::ExplorePage;

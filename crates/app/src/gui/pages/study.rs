@@ -24,6 +24,7 @@ use kilotouch_study::task::station::HandMapping;
 
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::pages::study_size::{PreparedSitting, SizeGate, Verdict};
 use crate::gui::participant_screen::{ParticipantScreen, Routine};
 use crate::gui::scene::{self, SceneFrame, View};
 use crate::gui::scene_wgpu::SceneCallback;
@@ -132,6 +133,8 @@ pub struct StudyPage {
     pending_hand: Option<[f64; 2]>,
     /// The rig of the sitting (`sim`, `serial:PATH`), its loop delay.
     rig_used: Option<String>,
+    /// The size check before a sitting opens.
+    pub size_gate: SizeGate,
 }
 
 impl Default for StudyPage {
@@ -186,6 +189,7 @@ impl StudyPage {
             trap_target_m: [0.0; 2],
             pending_hand: None,
             rig_used: None,
+            size_gate: SizeGate::default(),
         }
     }
 
@@ -523,13 +527,23 @@ impl StudyPage {
         ui.label(RichText::new(trap).weak());
     }
 
+    /// Open a sitting (`resume`: at the folder's next pending trial;
+    /// `start`: send Start once it is open) after the size check
+    /// ([`SizeGate`]): at once when it writes no raw files, else once the
+    /// estimate fits the disk and, above the page's threshold, the
+    /// experimenter confirmed.
     fn open_session(
         &mut self,
         env: &mut PageEnv<'_>,
         engine: Option<&mut EngineHandle>,
         resume: bool,
+        start: bool,
     ) {
         self.error = None;
+        if self.size_gate.is_busy() {
+            self.error = Some("a sitting is already being checked: confirm or cancel it".into());
+            return;
+        }
         let Some(engine) = engine else {
             self.error = Some(
                 "no rig is connected: connect the simulated rig or a live rig on the Rig page"
@@ -537,19 +551,66 @@ impl StudyPage {
             );
             return;
         };
+        let Some(prepared) = self.prepare_session(env, engine, resume, start) else {
+            return;
+        };
+        if let Some(v) = self.size_gate.check(prepared) {
+            self.on_verdict(v, env, Some(engine));
+        }
+    }
+
+    /// Act on the size check's verdict.
+    fn on_verdict(&mut self, v: Verdict, env: &mut PageEnv<'_>, engine: Option<&mut EngineHandle>) {
+        match (v, engine) {
+            (Verdict::Open(p), Some(engine)) => {
+                let start = p.start;
+                self.spawn_session(*p, env, engine);
+                if start {
+                    if self.session.is_some() {
+                        self.send(SessionCommand::Start);
+                    } else {
+                        self.run_all = false;
+                    }
+                }
+            }
+            (Verdict::Open(_), None) => {
+                self.run_all = false;
+                self.error = Some("the rig was disconnected before the sitting opened".into());
+            }
+            (Verdict::Refused(why), _) => {
+                self.run_all = false;
+                self.error = Some(why);
+            }
+            (Verdict::Cancelled, _) => {
+                self.run_all = false;
+                self.log
+                    .push("the sitting was not opened (cancelled)".into());
+            }
+        }
+    }
+
+    /// Validate the page's choices into a sitting's options, or set the
+    /// error and return `None`.
+    fn prepare_session(
+        &mut self,
+        env: &mut PageEnv<'_>,
+        engine: &EngineHandle,
+        resume: bool,
+        start: bool,
+    ) -> Option<PreparedSitting> {
         self.finished = None;
         self.screen = None;
         let out = PathBuf::from(self.out_text.trim());
         if self.out_text.trim().is_empty() {
             self.error = Some("choose an output folder".into());
-            return;
+            return None;
         }
         let (protocol, pid) = if resume {
             let next = match self.folder_status() {
                 Some(FolderStatus::Study { next: Some(n), .. }) => n.clone(),
                 _ => {
                     self.error = Some("nothing to resume in this folder".into());
-                    return;
+                    return None;
                 }
             };
             (
@@ -562,13 +623,13 @@ impl StudyPage {
         } else {
             let (Some(p), Some(t)) = (&self.protocol, &self.table) else {
                 self.error = Some("load a valid protocol first".into());
-                return;
+                return None;
             };
             match validate_participant_id(&self.participant_text, t) {
                 Ok(id) => (Some(p.clone()), id),
                 Err(e) => {
                     self.error = Some(e);
-                    return;
+                    return None;
                 }
             }
         };
@@ -576,7 +637,7 @@ impl StudyPage {
             Ok(c) => c,
             Err(e) => {
                 self.error = Some(e);
-                return;
+                return None;
             }
         };
         let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
@@ -599,6 +660,26 @@ impl StudyPage {
         // The participant's screens run in real time (a person, or the
         // simulated participant paced like one); a fast dry run skips them.
         opts.screens = opts.speed == Speed::RealTime;
+        Some(PreparedSitting {
+            opts,
+            pid,
+            resume,
+            start,
+        })
+    }
+
+    /// Open the sitting `p` on `engine`.
+    fn spawn_session(
+        &mut self,
+        p: PreparedSitting,
+        env: &mut PageEnv<'_>,
+        engine: &mut EngineHandle,
+    ) {
+        let PreparedSitting {
+            opts, pid, resume, ..
+        } = p;
+        let kind = opts.participant;
+        let out = opts.out.clone();
         let opts_screens = opts.screens;
         match SessionHandle::spawn(opts, engine) {
             Ok(mut h) => {
@@ -693,8 +774,7 @@ impl StudyPage {
                     .map(|p| p.id.clone())
                     .unwrap_or_default(),
             };
-            self.open_session(env, engine.as_deref_mut(), resume);
-            self.send(SessionCommand::Start);
+            self.open_session(env, engine.as_deref_mut(), resume, true);
         }
         ui.heading("Study");
         egui::ScrollArea::vertical()
@@ -934,7 +1014,7 @@ impl StudyPage {
                 )
                 .clicked()
             {
-                self.open_session(env, engine.as_deref_mut(), false);
+                self.open_session(env, engine.as_deref_mut(), false, false);
             }
             let resume_text = match &next {
                 Some(n) => format!("Resume at trial {} ({})", n.key, n.participant),
@@ -967,7 +1047,7 @@ impl StudyPage {
             }
         });
         if resume {
-            self.open_session(env, engine.as_deref_mut(), true);
+            self.open_session(env, engine.as_deref_mut(), true, false);
         }
         if run_all {
             self.run_all = true;
@@ -976,12 +1056,13 @@ impl StudyPage {
             {
                 self.participant_text = first.id.clone();
             }
-            self.open_session(env, engine, resume);
-            if self.session.is_some() {
-                self.send(SessionCommand::Start);
-            } else {
-                self.run_all = false;
-            }
+            self.open_session(env, engine.as_deref_mut(), resume, true);
+        }
+        if let Some(v) = self.size_gate.ui(ui) {
+            self.on_verdict(v, env, engine);
+        }
+        if let Some(last) = &self.size_gate.last {
+            ui.label(RichText::new(last).weak());
         }
         if self.screen.is_some() {
             ui.horizontal(|ui| {
