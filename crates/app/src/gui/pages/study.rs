@@ -26,6 +26,7 @@ use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::pages::study_size::{PreparedSitting, SizeGate, Verdict};
 use crate::gui::participant_screen::{ParticipantScreen, Routine};
+use crate::gui::path_field::{PathField, PathKind, TOML};
 use crate::gui::scene::{self, SceneFrame, View};
 use crate::gui::scene_wgpu::SceneCallback;
 use crate::session::{
@@ -135,6 +136,9 @@ pub struct StudyPage {
     rig_used: Option<String>,
     /// The size check before a sitting opens.
     pub size_gate: SizeGate,
+    protocol_field: PathField,
+    out_field: PathField,
+    calibration_field: PathField,
 }
 
 impl Default for StudyPage {
@@ -190,6 +194,9 @@ impl StudyPage {
             pending_hand: None,
             rig_used: None,
             size_gate: SizeGate::default(),
+            protocol_field: PathField::default(),
+            out_field: PathField::default(),
+            calibration_field: PathField::default(),
         }
     }
 
@@ -501,13 +508,14 @@ impl StudyPage {
             );
             ui.radio_value(&mut self.calibration, CalibrationChoice::File, "file:");
             if self.calibration == CalibrationChoice::File {
-                let l = ui.label("calibration file");
-                ui.add(
-                    egui::TextEdit::singleline(&mut self.calibration_file)
-                        .hint_text("calibration file (.toml)")
-                        .desired_width(260.0),
-                )
-                .labelled_by(l.id);
+                self.calibration_field.ui(
+                    ui,
+                    "calibration file",
+                    &mut self.calibration_file,
+                    PathKind::Open(TOML.0, TOML.1),
+                    "calibration file (.toml)",
+                    260.0,
+                );
             }
         });
         let recorded = match self.resolve_calibration(env) {
@@ -810,13 +818,15 @@ impl StudyPage {
             ui.radio_value(&mut self.source, ProtocolSource::Blind, "blind (built-in)");
             ui.radio_value(&mut self.source, ProtocolSource::File, "file");
             if self.source == ProtocolSource::File {
-                let l = ui.label("Protocol file:");
-                ui.add(
-                    egui::TextEdit::singleline(&mut self.protocol_file)
-                        .hint_text("path/to/protocol.toml"),
-                )
-                .labelled_by(l.id);
-                if ui.button("Reload").clicked() {
+                let r = self.protocol_field.ui(
+                    ui,
+                    "Protocol file:",
+                    &mut self.protocol_file,
+                    PathKind::Open(TOML.0, TOML.1),
+                    "path/to/protocol.toml",
+                    260.0,
+                );
+                if ui.button("Reload").clicked() || r.picked {
                     self.loaded_source = None;
                 }
             }
@@ -886,11 +896,15 @@ impl StudyPage {
             _ => {}
         }
         ui.horizontal(|ui| {
-            let l = ui.label("Output folder:");
-            let r = ui
-                .add(egui::TextEdit::singleline(&mut self.out_text).desired_width(380.0))
-                .labelled_by(l.id);
-            if r.lost_focus() && !self.out_text.trim().is_empty() {
+            let r = self.out_field.ui(
+                ui,
+                "Output folder:",
+                &mut self.out_text,
+                PathKind::Folder,
+                "study folder",
+                380.0,
+            );
+            if (r.edit.lost_focus() || r.picked) && !self.out_text.trim().is_empty() {
                 env.requests.push(ShellRequest::SetOutputDir(PathBuf::from(
                     self.out_text.trim(),
                 )));
