@@ -352,3 +352,25 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     assert!(!h.state().study.is_running());
     assert!(!out2.join("session.json").exists());
 }
+
+/// With the participant's view in a window of its own, the experimenter's
+/// page mirrors it (not interactive).
+#[test]
+fn a_separate_participant_window_is_mirrored_on_the_study_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("tiny.toml");
+    std::fs::write(&proto, tiny()).unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "P01", &out);
+    h.state_mut().study.separate_window = true;
+    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    h.step();
+    open_session(&mut h);
+    h.step();
+    h.get_by_label_contains("Participant's screen (mirror of their window)");
+    h.get_by_label("participant screen (mirror)");
+    assert!(
+        h.query_by_label_contains("Participant view (inline)")
+            .is_none()
+    );
+}

@@ -323,8 +323,21 @@ impl StudyPage {
                 .with_inner_size([720.0, 720.0])
                 .with_fullscreen(self.fullscreen);
             let monitor_w = ctx.input(|i| i.viewport().monitor_size.map_or(1920.0, |m| m.x));
+            let main = ctx.input(|i| i.viewport().outer_rect);
             match self.monitor {
-                Monitor::Same => {}
+                // Beside the experimenter's window when it fits on the
+                // monitor, else over it offset from its corner (never at
+                // the screen's origin over the console).
+                Monitor::Same => {
+                    if let Some(r) = main {
+                        let beside = r.max.x + 8.0;
+                        builder = if beside + 720.0 <= monitor_w {
+                            builder.with_position([beside, r.min.y])
+                        } else {
+                            builder.with_position([r.min.x + 40.0, r.min.y + 40.0])
+                        };
+                    }
+                }
                 Monitor::Right => builder = builder.with_position([monitor_w + 40.0, 40.0]),
                 Monitor::Left => builder = builder.with_position([-monitor_w + 40.0, 40.0]),
             }
@@ -793,11 +806,25 @@ impl StudyPage {
                 } else {
                     self.running_ui(ui);
                 }
-                if (self.session.is_some() || self.screen.is_some()) && !self.separate_window {
+                if self.session.is_some() || self.screen.is_some() {
                     ui.separator();
-                    ui.label(RichText::new("Participant view (inline)").strong());
-                    let side = ui.available_width().min(420.0);
-                    ui.allocate_ui(egui::vec2(side, side), |ui| self.participant_view(ui, true));
+                    if self.separate_window {
+                        // What the participant's window shows, for the
+                        // experimenter (not interactive).
+                        ui.label(
+                            RichText::new("Participant's screen (mirror of their window)").strong(),
+                        );
+                        let side = ui.available_width().min(300.0);
+                        ui.allocate_ui(egui::vec2(side, side), |ui| {
+                            self.participant_view(ui, false)
+                        });
+                    } else {
+                        ui.label(RichText::new("Participant view (inline)").strong());
+                        let side = ui.available_width().min(420.0);
+                        ui.allocate_ui(egui::vec2(side, side), |ui| {
+                            self.participant_view(ui, true)
+                        });
+                    }
                 }
                 ui.separator();
                 self.rows_ui(ui);
@@ -1357,7 +1384,12 @@ impl StudyPage {
         };
         let resp = ui.allocate_rect(rect, sense);
         resp.widget_info(|| {
-            egui::WidgetInfo::labeled(egui::Role::Button, true, "participant screen")
+            let label = if interactive {
+                "participant screen"
+            } else {
+                "participant screen (mirror)"
+            };
+            egui::WidgetInfo::labeled(egui::Role::Button, true, label)
         });
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, Color32::from_gray(8));
