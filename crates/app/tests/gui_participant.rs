@@ -245,8 +245,17 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     assert!(h.state().study.estop_latched());
     // The shell says what happened to the study, not "no rig connected".
     assert!(h.query_by_label_contains("no rig connected").is_none());
+    // Which trial, in the notice and on the page.
     assert!(
-        h.query_by_label_contains("the study's trial was aborted")
+        h.state()
+            .notices()
+            .any(|n| n.starts_with("emergency stop: trial ")
+                && n.contains("was aborted (its row is kept as `aborted`")),
+        "{:?}",
+        h.state().notices().collect::<Vec<_>>()
+    );
+    assert!(
+        h.query_by_label_contains("EMERGENCY STOP: trial ")
             .is_some()
     );
     // The status bar: the engine's stop and the sitting's state.
@@ -283,6 +292,8 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     h.step();
     h.step();
     assert!(!h.state().study.estop_latched());
+    // After the reset no notice of the stop remains (newest or "+N more").
+    assert_no_stop_notice(&mut h);
     // Resume: the next trial waits for the participant's ready screen.
     h.get_by_label("Resume").click();
     assert!(step_until_routine(&mut h, 5.0, |r| matches!(
@@ -293,6 +304,33 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         h.state().study.runner_state(),
         Some(RunnerState::Waiting(_))
     ));
+    // Esc on the instructions screen: no trial was running, and it says so.
+    h.key_press(egui::Key::Escape);
+    h.step();
+    h.step();
+    assert!(h.state().study.estop_latched());
+    assert!(
+        h.state()
+            .notices()
+            .any(|n| n.contains("no trial was running, none was aborted"))
+    );
+    assert!(
+        h.query_by_label_contains("EMERGENCY STOP: no trial was running")
+            .is_some()
+    );
+    assert!(h.query_by_label_contains("was aborted (its row").is_none());
+    h.get_by_label("Reset emergency stop…").click();
+    h.step();
+    h.step();
+    h.step();
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
+    h.step();
+    h.step();
+    assert!(!h.state().study.estop_latched());
+    assert_no_stop_notice(&mut h);
     // Stop sitting: the Explore engine takes the rig back, not armed.
     h.get_by_label("Stop sitting").click();
     assert!(step_until_every(&mut h, POLL, 5.0, |a| a
@@ -321,6 +359,20 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         h.query_by_label_contains("without closing").is_none(),
         "a stopped sitting is not a crash"
     );
+}
+
+/// No notice of the emergency stop remains, nor the page's red line (the
+/// reset's own "emergency stop reset: …" aside).
+fn assert_no_stop_notice(h: &mut H) {
+    h.step();
+    let left: Vec<_> = h
+        .state()
+        .notices()
+        .filter(|n| n.starts_with("emergency stop: "))
+        .map(str::to_owned)
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    assert!(h.query_by_label_contains("EMERGENCY STOP:").is_none());
 }
 
 /// An emergency stop that is never reset outlives the sitting: the engine

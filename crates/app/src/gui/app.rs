@@ -268,6 +268,11 @@ impl KilotouchApp {
         app
     }
 
+    /// The notices on screen (the newest last), their texts.
+    pub fn notices(&self) -> impl Iterator<Item = &str> {
+        self.notices.iter().map(|n| n.text.as_str())
+    }
+
     /// Show a message; the same text again counts up ("×N") and refreshes
     /// the existing notice instead of stacking copies.
     fn notify(&mut self, text: impl Into<String>, error: bool) {
@@ -406,15 +411,16 @@ impl KilotouchApp {
 
     /// THE emergency stop of the GUI (button and Esc): never blocks.
     pub fn emergency_stop(&mut self) {
-        let sitting = self.study.is_running();
-        self.study.emergency_stop();
+        let sitting = self.study.emergency_stop();
         match &self.engine {
             Some(e) => {
                 e.emergency_stop();
-                if sitting {
+                if let Some(what) = sitting {
                     self.notify(
-                        "emergency stop: the study's trial was aborted and the sitting paused; \
-                         outputs held at zero until the stop is reset",
+                        format!(
+                            "emergency stop: {what}; the sitting is paused and the outputs held \
+                             at zero until the stop is reset"
+                        ),
                         true,
                     );
                 }
@@ -747,6 +753,9 @@ impl KilotouchApp {
         });
         self.reset_dialog = Some(confirmed);
         if release {
+            // The stop's notices are history once it is reset.
+            self.notices
+                .retain(|n| !n.text.starts_with("emergency stop"));
             if let Some(e) = &mut self.engine
                 && !e.reset_emergency_stop()
             {
@@ -809,6 +818,9 @@ impl KilotouchApp {
         self.handle_requests();
         // Study sittings: drain events, the participant window.
         self.study.background(&ctx, self.engine.as_mut());
+        if self.study.take_estop_request() {
+            self.emergency_stop();
+        }
         self.reset_dialog_ui(&ctx);
         self.settings.page = self.page;
         self.settings.camera = self.explore.camera.model;

@@ -134,6 +134,10 @@ pub struct StudyPage {
     pending_hand: Option<[f64; 2]>,
     /// The rig of the sitting (`sim`, `serial:PATH`), its loop delay.
     rig_used: Option<String>,
+    /// What the last emergency stop did to the sitting.
+    estop_what: Option<String>,
+    /// Esc in the participant's window, for the shell.
+    estop_request: bool,
     /// The size check before a sitting opens.
     pub size_gate: SizeGate,
     protocol_field: PathField,
@@ -193,6 +197,8 @@ impl StudyPage {
             trap_target_m: [0.0; 2],
             pending_hand: None,
             rig_used: None,
+            estop_what: None,
+            estop_request: false,
             size_gate: SizeGate::default(),
             protocol_field: PathField::default(),
             out_field: PathField::default(),
@@ -236,10 +242,32 @@ impl StudyPage {
     /// aborts its trial and pauses (the engine's driver reports it); it
     /// cannot resume until the stop is reset through the shell's
     /// confirmation ([`StudyPage::release_emergency_stop`]).
-    pub fn emergency_stop(&mut self) {
-        if self.session.is_some() {
-            self.estop_latched = true;
-        }
+    ///
+    /// Returns what the stop did to the sitting, in one sentence for the
+    /// shell's notice (`None`: no sitting runs): which trial was aborted,
+    /// or that none was (an instructions, ready or break screen, the
+    /// inter-trial interval).
+    pub fn emergency_stop(&mut self) -> Option<String> {
+        self.session.as_ref()?;
+        self.estop_latched = true;
+        let what = match self.state {
+            Some(
+                RunnerState::Training(k) | RunnerState::Trial(k) | RunnerState::Paused(Some(k)),
+            ) => {
+                format!(
+                    "trial {k} was aborted (its row is kept as `aborted`; it runs again on Resume)"
+                )
+            }
+            _ => "no trial was running, none was aborted".to_owned(),
+        };
+        self.estop_what = Some(what.clone());
+        Some(what)
+    }
+
+    /// Esc was pressed in the participant's window since the last call
+    /// (the shell then stops as from its own window).
+    pub fn take_estop_request(&mut self) -> bool {
+        std::mem::take(&mut self.estop_request)
     }
 
     /// On the first draw, open a sitting of the folder's next pending
@@ -261,6 +289,7 @@ impl StudyPage {
     /// dialog): Resume is possible again (it is not pressed for them).
     pub fn release_emergency_stop(&mut self) {
         self.estop_latched = false;
+        self.estop_what = None;
     }
 
     /// One line for the shell's status bar while a sitting owns the rig:
@@ -1203,8 +1232,11 @@ impl StudyPage {
         if self.estop_latched {
             ui.colored_label(
                 Color32::from_rgb(235, 80, 70),
-                "EMERGENCY STOP: the trial was aborted (its row is kept as `aborted`) and the \
-                 sitting is paused. Reset the stop (top right) once the rig is safe, then Resume.",
+                format!(
+                    "EMERGENCY STOP: {}; the sitting is paused. Reset the stop (top right) once \
+                     the rig is safe, then Resume.",
+                    self.estop_what.as_deref().unwrap_or("outputs held at zero")
+                ),
             );
         }
         if let Some(sc) = &self.screen {
@@ -1393,6 +1425,12 @@ impl StudyPage {
         });
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, Color32::from_gray(8));
+        // The emergency stop key works in the participant's window too
+        // (it has the keyboard during a trial); the shell stops.
+        if interactive && ui.input_mut(|i| i.consume_key(egui::Modifiers::NONE, egui::Key::Escape))
+        {
+            self.estop_request = true;
+        }
         if let Some(sc) = &self.screen {
             // The participant's routines: text screens advance on Space,
             // Enter or a click (keys only while no text field has focus).
