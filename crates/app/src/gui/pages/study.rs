@@ -254,9 +254,7 @@ impl StudyPage {
             Some(
                 RunnerState::Training(k) | RunnerState::Trial(k) | RunnerState::Paused(Some(k)),
             ) => {
-                format!(
-                    "trial {k} was aborted (its row is kept as `aborted`; it runs again on Resume)"
-                )
+                format!("trial {k} was aborted (its row is kept as `aborted`)")
             }
             _ => "no trial was running, none was aborted".to_owned(),
         };
