@@ -138,6 +138,8 @@ pub struct StudyPage {
     estop_what: Option<String>,
     /// Esc in the participant's window, for the shell.
     estop_request: bool,
+    /// Where the participant's window opened (screen points).
+    participant_at: Option<[f32; 2]>,
     /// The size check before a sitting opens.
     pub size_gate: SizeGate,
     protocol_field: PathField,
@@ -199,6 +201,7 @@ impl StudyPage {
             rig_used: None,
             estop_what: None,
             estop_request: false,
+            participant_at: None,
             size_gate: SizeGate::default(),
             protocol_field: PathField::default(),
             out_field: PathField::default(),
@@ -350,19 +353,26 @@ impl StudyPage {
                 .with_inner_size([720.0, 720.0])
                 .with_fullscreen(self.fullscreen);
             let monitor_w = ctx.input(|i| i.viewport().monitor_size.map_or(1920.0, |m| m.x));
-            let main = ctx.input(|i| i.viewport().outer_rect);
             match self.monitor {
                 // Beside the experimenter's window when it fits on the
                 // monitor, else over it offset from its corner (never at
-                // the screen's origin over the console).
+                // the screen's origin over the console); where the window
+                // was when it opened, so that moving the console does not
+                // move the participant's window.
                 Monitor::Same => {
-                    if let Some(r) = main {
+                    let main = ctx.input(|i| i.viewport().outer_rect);
+                    if self.participant_at.is_none()
+                        && let Some(r) = main
+                    {
                         let beside = r.max.x + 8.0;
-                        builder = if beside + 720.0 <= monitor_w {
-                            builder.with_position([beside, r.min.y])
+                        self.participant_at = Some(if beside + 720.0 <= monitor_w {
+                            [beside, r.min.y]
                         } else {
-                            builder.with_position([r.min.x + 40.0, r.min.y + 40.0])
-                        };
+                            [r.min.x + 40.0, r.min.y + 40.0]
+                        });
+                    }
+                    if let Some(at) = self.participant_at {
+                        builder = builder.with_position(at);
                     }
                 }
                 Monitor::Right => builder = builder.with_position([monitor_w + 40.0, 40.0]),
@@ -373,6 +383,8 @@ impl StudyPage {
                     .frame(egui::Frame::NONE.fill(Color32::BLACK))
                     .show(ui, |ui| self.participant_view(ui, true));
             });
+        } else {
+            self.participant_at = None;
         }
         self.flush_hand(engine);
     }
