@@ -22,10 +22,12 @@ use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::{
     FinishReason, ParticipantKind, SessionCommand, SessionEvent, SessionHandle, SessionOptions,
 };
-use kilotouch_rig::RigConfig;
 use kilotouch_rig::device::TweezerSpec;
+use kilotouch_rig::tweezer::surface_drag;
+use kilotouch_rig::{RigConfig, TweezerParams};
 use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
 use kilotouch_study::protocol::Protocol;
+use kilotouch_study::task::Geometry;
 use serde_json::Value;
 
 /// 2 participants × 3 conditions × 1 test trial, 1 practice trial per
@@ -101,11 +103,15 @@ fn study_run_with(
     kilotouch(&args)
 }
 
-/// `kilotouch tweezer record --rig SPEC --duration-s 2 --trap-um 15,0
+/// `kilotouch tweezer record --rig SPEC --duration-s 2 --trap-um SPOT
 /// --calibration-out FILE --json` into `dir`: the report and the
-/// calibration file. The trap is held 15 µm from the protocol's obstacle
-/// (at the emulator's origin), a surface-to-surface gap of 8.5 µm.
-fn record_calibration(spec: &str, dir: &Path, name: &str) -> (Value, std::path::PathBuf) {
+/// calibration file.
+fn record_calibration(
+    spec: &str,
+    spot: &str,
+    dir: &Path,
+    name: &str,
+) -> (Value, std::path::PathBuf) {
     let csv = dir.join(format!("{name}.csv"));
     let cal = dir.join(format!("{name}.json"));
     let out = kilotouch(&[
@@ -116,7 +122,7 @@ fn record_calibration(spec: &str, dir: &Path, name: &str) -> (Value, std::path::
         "--duration-s",
         "2",
         "--trap-um",
-        "15,0",
+        spot,
         "--out",
         csv.to_str().unwrap(),
         "--calibration-out",
@@ -136,22 +142,44 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
     let (d, t) = (daq(), tweezer());
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
-    // The trap calibrated through the live link first: κ of the emulated
-    // trap (the rig file's) within 4 standard errors plus 5 % (the
-    // obstacle's drag at 8.5 µm), R_d of its detector (1/S = 2 µm/V).
-    let (rec, cal) = record_calibration(&t.rig(), dir.path(), "trap");
-    let truth = RigConfig::default().tweezer.stiffness_n_per_m * 1e6;
-    let (kappa, se) = (
-        rec["calibration"]["kappa_pn_um"].as_f64().unwrap(),
-        rec["calibration"]["kappa_se_pn_um"].as_f64().unwrap(),
-    );
-    assert!(
-        (kappa - truth).abs() < 4.0 * se + 0.05 * truth,
-        "κ {kappa} ± {se} pN/µm against the emulated trap's {truth}"
-    );
-    for rd in rec["calibration"]["rd_um_per_v"].as_array().unwrap() {
+    // The trap calibrated through the live link first: κ per axis of the
+    // emulated trap (the rig file's) as the drag of the protocol's
+    // obstacle biases it at the recording spot (`tweezer::spot`), R_d of
+    // its detector (1/S = 2 µm/V).
+    // The trap 15 µm from the protocol's obstacle (at the emulator's
+    // origin), a surface-to-surface gap of 8.5 µm.
+    let (rec, cal) = record_calibration(&t.rig(), "15,0", dir.path(), "trap");
+    let mut rc = RigConfig::default();
+    let escape = rc.tweezer.escape_distance_m;
+    Geometry::of_protocol(&tiny().task).apply_to(&mut rc.tweezer, escape);
+    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
+    let drag = surface_drag(&TweezerParams::from_config(&rc.tweezer), [15e-6, 0.0]);
+    let bias = drag.kappa_bias();
+    let file: Value = serde_json::from_str(&std::fs::read_to_string(&cal).unwrap()).unwrap();
+    for (axis, name) in ["x", "y"].into_iter().enumerate() {
+        let k = file[name]["kappa_pn_um"].as_f64().unwrap();
+        let se = file[name]["kappa_se_pn_um"].as_f64().unwrap();
+        let want = truth * (1.0 + bias[axis]);
+        assert!(
+            (k - want).abs() < 4.0 * se + 0.05 * want,
+            "{name}: κ {k} ± {se} pN/µm against {want} (the trap's {truth}, bias {:+.3})",
+            bias[axis]
+        );
+    }
+    let kappa = rec["calibration"]["kappa_pn_um"].as_f64().unwrap();
+    // R_d = √(D_theory / D_fit) grows with the drag: 2 µm/V × √(drag).
+    for (axis, rd) in rec["calibration"]["rd_um_per_v"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+    {
         let rd = rd.as_f64().unwrap();
-        assert!((rd / 2.0 - 1.0).abs() < 0.05, "R_d {rd} µm/V");
+        let want = 2.0 * drag.drag_factor[axis].sqrt();
+        assert!(
+            (rd / want - 1.0).abs() < 0.05,
+            "R_d {rd} µm/V against {want}"
+        );
     }
     let cal_s = cal.to_str().unwrap();
     let run = study_run_with(
@@ -215,7 +243,7 @@ fn a_trap_calibration_of_another_tweezer_or_a_failed_fit_is_refused() {
     let (d, t) = (daq(), tweezer());
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
-    let (_, sim) = record_calibration("sim", dir.path(), "sim");
+    let (_, sim) = record_calibration("sim", "free", dir.path(), "sim");
     let run = study_run_with(
         &d,
         &t,
