@@ -539,6 +539,10 @@ pub fn bars_with_whiskers(
         .y_axis_label(y_label.to_owned())
         .include_y(0.0)
         .include_y(1.08 * top)
+        // The x marks are the group centres, for the labels only: a grid
+        // line there would run through the middle bar up to the top of the
+        // plot and read as a whisker.
+        .show_grid([false, true])
         .x_grid_spacer(move |input: GridInput| {
             let (lo, hi) = input.bounds;
             (0..labels.len())
