@@ -319,14 +319,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
             .is_some()
     );
     assert!(h.query_by_label_contains("was aborted (its row").is_none());
-    h.get_by_label("Reset emergency stop…").click();
-    h.step();
-    h.step();
-    h.step();
-    h.get_by_label("I have checked that the rig is safe")
-        .click();
-    h.step();
-    h.get_by_label("Re-enable outputs (ramped)").click();
+    confirm_reset(&mut h);
     h.step();
     h.step();
     assert!(!h.state().study.estop_latched());
@@ -359,6 +352,19 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         h.query_by_label_contains("without closing").is_none(),
         "a stopped sitting is not a crash"
     );
+}
+
+/// The reset dialog, confirmed: open it (its first frame is a sizing
+/// pass), tick the check, re-enable.
+fn confirm_reset(h: &mut H) {
+    h.get_by_label("Reset emergency stop…").click();
+    h.step();
+    h.step();
+    h.step();
+    h.get_by_label("I have checked that the rig is safe")
+        .click();
+    h.step();
+    h.get_by_label("Re-enable outputs (ramped)").click();
 }
 
 /// No notice of the emergency stop remains, nor the page's red line (the
@@ -483,14 +489,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
     let rows = read_trials(&trials).unwrap().rows;
     assert_eq!(rows[0].reject_reason, "aborted");
     // The confirmed reset, then Resume.
-    h.get_by_label("Reset emergency stop…").click();
-    h.step();
-    h.step();
-    h.step();
-    h.get_by_label("I have checked that the rig is safe")
-        .click();
-    h.step();
-    h.get_by_label("Re-enable outputs (ramped)").click();
+    confirm_reset(&mut h);
     // The engine reports the reset with its next health report.
     assert!(step_until_every(&mut h, POLL, 5.0, |a| !a.any_estop_latched()));
     h.get_by_label("Resume").click();

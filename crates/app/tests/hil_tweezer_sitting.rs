@@ -240,50 +240,47 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
 /// checks, saying why; the folder is not created.
 #[test]
 fn a_trap_calibration_of_another_tweezer_or_a_failed_fit_is_refused() {
-    let (d, t) = (daq(), tweezer());
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
+    // `study run --trap-calibration FILE` on fresh emulators: refused, its
+    // stderr; nothing written.
+    let refused = |file: &Path, tw: &Emulator| {
+        let d = daq();
+        let file = file.to_str().unwrap();
+        let run = study_run_with(
+            &d,
+            tw,
+            ",lead=0",
+            &out,
+            false,
+            &["--trap-calibration", file],
+        );
+        assert!(!run.status.success());
+        assert!(!out.join("session.json").exists());
+        String::from_utf8_lossy(&run.stderr).into_owned()
+    };
     let (_, sim) = record_calibration("sim", "free", dir.path(), "sim");
-    let run = study_run_with(
-        &d,
-        &t,
-        ",lead=0",
-        &out,
-        false,
-        &["--trap-calibration", sim.to_str().unwrap()],
-    );
-    assert!(!run.status.success());
-    let err = String::from_utf8_lossy(&run.stderr);
+    let t = tweezer();
+    let err = refused(&sim, &t);
     assert!(
         err.contains("not applied: it was recorded from sim")
             && err.contains(&format!("the live tweezer on {}", t.rig())),
         "{err}"
     );
-    assert!(!out.join("session.json").exists());
     // The same file from the right tweezer, but a fit that does not
     // describe the spectrum.
-    drop((d, t));
-    let (d2, t2) = (daq(), tweezer());
+    drop(t);
+    let t = tweezer();
     let mut bad: Value = serde_json::from_str(&std::fs::read_to_string(&sim).unwrap()).unwrap();
-    bad["source"] = Value::from(t2.rig());
+    bad["source"] = Value::from(t.rig());
     bad["y"]["backing_pct"] = Value::from(1e-6);
     let bad_file = dir.path().join("bad.json");
     std::fs::write(&bad_file, bad.to_string()).unwrap();
-    let run = study_run_with(
-        &d2,
-        &t2,
-        ",lead=0",
-        &out,
-        false,
-        &["--trap-calibration", bad_file.to_str().unwrap()],
-    );
-    assert!(!run.status.success());
-    let err = String::from_utf8_lossy(&run.stderr);
+    let err = refused(&bad_file, &t);
     assert!(
         err.contains("not applied: y axis: the model does not describe the spectrum"),
         "{err}"
     );
-    assert!(!out.join("session.json").exists());
 }
 
 #[test]
