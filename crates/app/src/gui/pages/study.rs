@@ -1334,14 +1334,18 @@ impl StudyPage {
                 v.map(|x| format!("{x:.d$}")).unwrap_or_else(|| "—".into())
             };
             ui.label(format!(
-                "time {:.1} s · contact fraction {} · mean force {} N (peak {:.3}) · disp. error {} µm",
+                "time {:.1} s · contact fraction {} · mean handle force {} N (peak {:.3}) · disp. error {} µm",
                 l.t_s,
                 f(l.contact_fraction, 2),
                 f(l.force_mean_n, 3),
                 l.force_peak_n,
                 f(l.disp_err_mean_um, 2)
             ))
-            .on_hover_text("live estimates from the camera frames and the handle force; the row holds the exact values");
+            .on_hover_text(
+                "live estimates from the camera frames and the force at the handle (N, what the \
+                 participant feels); the row holds the exact time, contact and displacement \
+                 error, and the mean optical force on the bead (pN, the paper's force metric)",
+            );
         }
         if let Some(t) = &self.timing {
             let text = format!("timing verdict so far: {}", t.describe());
@@ -1387,7 +1391,7 @@ impl StudyPage {
                 "reject",
                 "time s",
                 "contact",
-                "force pN",
+                "bead force pN",
                 "disp. µm",
             ] {
                 ui.label(RichText::new(h).strong());
