@@ -297,13 +297,23 @@ impl StudyPage {
     /// participant and runner state.
     pub fn status_line(&self) -> Option<String> {
         self.session.as_ref()?;
+        Some(format!("study sitting: {}", self.heading()))
+    }
+
+    /// "P01 · trial P01/V/test/3": whose sitting it is and where the runner
+    /// is (a run of every remaining participant says so: the trial's key
+    /// names its participant).
+    fn heading(&self) -> String {
+        let state = self.state.unwrap_or(RunnerState::Idle);
+        if self.run_all {
+            return format!("all remaining participants · {state}");
+        }
         let id = self
             .sitting_id
             .as_ref()
             .map(|p| p.id.clone())
             .unwrap_or_default();
-        let state = self.state.unwrap_or(RunnerState::Idle);
-        Some(format!("study sitting: {id} · {state}"))
+        format!("{id} · {state}")
     }
 
     /// The participant's screen (while a sitting runs, and its end screen
@@ -1216,14 +1226,9 @@ impl StudyPage {
     }
 
     fn running_ui(&mut self, ui: &mut egui::Ui) {
-        let id = self
-            .sitting_id
-            .as_ref()
-            .map(|p| p.id.clone())
-            .unwrap_or_default();
         let state = self.state.unwrap_or(RunnerState::Idle);
         ui.horizontal(|ui| {
-            ui.label(RichText::new(format!("{id} · {state}")).strong().size(16.0));
+            ui.label(RichText::new(self.heading()).strong().size(16.0));
             ui.separator();
             ui.label(format!(
                 "committed {} of {} trials (study)",
