@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 use common::{Emulator, kilotouch};
 use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::{
-    FinishReason, ParticipantKind, SessionCommand, SessionEvent, SessionHandle, SessionOptions,
+    FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
 };
 use kilotouch_rig::RigConfig;
 use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
@@ -177,44 +177,12 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
     assert!(s.send(SessionCommand::Start));
     // Wait for the second trial to be under way (one row committed).
-    let t0 = Instant::now();
-    let (mut committed, mut started) = (Vec::new(), 0);
-    while started < 2 && t0.elapsed() < Duration::from_secs(30) {
-        let _ = engine.poll_events();
-        for e in s.poll() {
-            match e {
-                SessionEvent::TrialStarted { .. } => started += 1,
-                SessionEvent::Committed(r) => committed.push(*r),
-                SessionEvent::Finished(r) => panic!("finished early: {r:?}"),
-                _ => {}
-            }
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    assert_eq!(started, 2, "the second trial never began");
+    let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     std::thread::sleep(Duration::from_millis(300));
     // The cable is pulled: the device vanishes mid-trial.
     dev.kill();
     let killed = Instant::now();
-    let reason = loop {
-        assert!(
-            killed.elapsed() < Duration::from_secs(10),
-            "the sitting did not end"
-        );
-        let _ = engine.poll_events();
-        if let Some(r) = s.poll().into_iter().find_map(|e| match e {
-            SessionEvent::Committed(r) => {
-                committed.push(*r);
-                None
-            }
-            SessionEvent::Finished(r) => Some(r),
-            _ => None,
-        }) {
-            break r;
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    };
-    let ended_s = killed.elapsed().as_secs_f64();
+    let (reason, ended_s) = common::until_finished(&mut engine, &mut s, &mut committed, killed);
     let FinishReason::Failed(why) = reason else {
         panic!("{reason:?}")
     };

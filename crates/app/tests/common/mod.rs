@@ -237,3 +237,63 @@ pub fn page_harness<P: 'static>(
             state,
         )
 }
+
+/// Poll the sitting `s` on `engine` until its `n`-th trial has begun
+/// (≤ 30 s); the rows committed meanwhile. Panics if the sitting finishes
+/// first.
+#[allow(dead_code)]
+pub fn until_trials_started(
+    engine: &mut kilotouch::engine::EngineHandle,
+    s: &mut kilotouch::session::SessionHandle,
+    n: usize,
+) -> Vec<kilotouch_study::export::TrialRow> {
+    use kilotouch::session::SessionEvent;
+    let t0 = Instant::now();
+    let (mut committed, mut started) = (Vec::new(), 0);
+    while started < n && t0.elapsed() < Duration::from_secs(30) {
+        let _ = engine.poll_events();
+        for e in s.poll() {
+            match e {
+                SessionEvent::TrialStarted { .. } => started += 1,
+                SessionEvent::Committed(r) => committed.push(*r),
+                SessionEvent::Finished(r) => panic!("finished early: {r:?}"),
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(started, n, "trial {n} never began");
+    committed
+}
+
+/// Poll the sitting `s` on `engine` until it finishes (≤ 10 s after
+/// `since`, when a device was killed), adding the rows it commits to
+/// `committed`; how it finished and the seconds since `since`.
+#[allow(dead_code)]
+pub fn until_finished(
+    engine: &mut kilotouch::engine::EngineHandle,
+    s: &mut kilotouch::session::SessionHandle,
+    committed: &mut Vec<kilotouch_study::export::TrialRow>,
+    since: Instant,
+) -> (kilotouch::session::FinishReason, f64) {
+    use kilotouch::session::SessionEvent;
+    let reason = loop {
+        assert!(
+            since.elapsed() < Duration::from_secs(10),
+            "the sitting did not end"
+        );
+        let _ = engine.poll_events();
+        if let Some(r) = s.poll().into_iter().find_map(|e| match e {
+            SessionEvent::Committed(r) => {
+                committed.push(*r);
+                None
+            }
+            SessionEvent::Finished(r) => Some(r),
+            _ => None,
+        }) {
+            break r;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    (reason, since.elapsed().as_secs_f64())
+}
