@@ -315,6 +315,8 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
         h.query_by_label_contains("This sitting will write")
             .is_none()
     );
+    // The cancelled sitting's estimate stays as one line.
+    h.get_by_label_contains("the sitting would write about");
     assert!(!out.join("session.json").exists(), "nothing written");
 
     // Asked again; written without raw signals.
@@ -322,6 +324,10 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     assert!(until_label(&mut h, "Without raw signals"));
     h.get_by_label_contains("Without raw signals").click();
     assert!(common::until_sitting_opened(&mut h));
+    assert!(
+        h.state().study.size_gate.last.is_none(),
+        "an opened sitting clears it"
+    );
     h.step();
     h.get_by_label("Start").click();
     assert!(step_until_every(&mut h, POLL, 20.0, |a| a

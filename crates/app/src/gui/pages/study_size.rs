@@ -66,7 +66,9 @@ pub struct SizeGate {
     /// Free space of the target disk in bytes instead of asking the
     /// operating system (tests of the refusal).
     pub assume_free_bytes: Option<u64>,
-    /// The last estimate, one sentence (shown until the next sitting).
+    /// The estimate of a sitting that was refused or cancelled, one
+    /// sentence (shown beside the page's message until the next check; a
+    /// sitting that opens clears it).
     pub last: Option<String>,
 }
 
@@ -91,8 +93,8 @@ impl SizeGate {
     /// no raw files; else starts the estimate and returns `None` (the
     /// verdict comes from [`Self::ui`]).
     pub fn check(&mut self, sitting: PreparedSitting) -> Option<Verdict> {
+        self.last = None;
         if sitting.opts.runner.raw.is_none() {
-            self.last = None;
             return Some(Verdict::Open(Box::new(sitting)));
         }
         let opts = sitting.opts.clone();
@@ -145,8 +147,8 @@ impl SizeGate {
                 )),
                 Ok(Err(e)) => Some(Verdict::Refused(e)),
                 Ok(Ok((size, available))) => {
-                    self.last = Some(format!("the sitting will write {}", size.describe()));
                     if let Err(e) = check_free_space(&size, &sitting.opts.out, available) {
+                        self.last = Some(format!("the sitting would write {}", size.describe()));
                         return Some(Verdict::Refused(crate::session::space_refusal(
                             &e,
                             "run without raw signals",
@@ -196,6 +198,8 @@ impl SizeGate {
                             verdict = Some(Verdict::Open(sitting.clone()));
                         }
                         if ui.button("Cancel").clicked() {
+                            self.last =
+                                Some(format!("the sitting would write {}", size.describe()));
                             verdict = Some(Verdict::Cancelled);
                         }
                     });
