@@ -32,7 +32,7 @@ fn every_page_opens() {
         (Page::Study, "Study"),
         (Page::Results, "Results"),
     ];
-    assert!(step_until(&mut h, 5.0, engine_reporting));
+    assert!(step_until(&mut h, common::WAIT_S, engine_reporting));
     for (page, mark) in marks {
         h.get_by_label(page.title()).click();
         h.step();
@@ -50,7 +50,7 @@ fn every_page_opens() {
 
 fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
     assert!(
-        step_until(h, 5.0, |a| a
+        step_until(h, common::WAIT_S, |a| a
             .engine
             .as_ref()
             .and_then(|e| e.health())
@@ -82,7 +82,7 @@ fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
 
 fn armed(h: &mut Harness<'_, KilotouchApp>) {
     assert!(
-        step_until(h, 5.0, |a| a
+        step_until(h, common::WAIT_S, |a| a
             .engine
             .as_ref()
             .and_then(|e| e.health())
@@ -131,7 +131,10 @@ fn dragging_in_the_scene_moves_the_trap() {
     a.page = Page::Explore;
     let mut h = harness(a);
     // Wait for the camera's first frame so that the scene is laid out.
-    assert!(step_until(&mut h, 5.0, |a| a.explore.view.is_some()
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
+        .explore
+        .view
+        .is_some()
         && a.explore.camera.visible().is_some()));
     let start = h.state().explore.last.unwrap().trap_m;
     // Drag from the centre to a point 6 µm right, 4 µm up. Screen positions

@@ -33,7 +33,7 @@ fn the_engine_keeps_its_rate_while_the_gui_resizes_and_plots() {
     let strict = std::env::var("KILOTOUCH_STRICT_RT").is_ok_and(|v| v == "1");
     let mut h = common::app_harness(common::fresh_app(Some(Page::Explore)), 1280.0, 860.0, None);
     assert!(
-        common::step_until(&mut h, 5.0, common::engine_reporting),
+        common::step_until(&mut h, common::WAIT_S, common::engine_reporting),
         "the engine did not start"
     );
     let opts = EngineOptions::default();
@@ -60,7 +60,7 @@ fn the_engine_keeps_its_rate_while_the_gui_resizes_and_plots() {
     let floor = reference.stop().unwrap();
     // One more health report after the busy period.
     let seen = h.state().engine.as_ref().unwrap().health().unwrap().blocks;
-    assert!(common::step_until(&mut h, 2.0, |a| a
+    assert!(common::step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())

@@ -40,13 +40,16 @@ fn readable(what: &str, a: &AxisReadout, unit: &str) {
 fn explore_plots_have_scales_with_units_in_every_condition_and_size() {
     for (w, hgt) in [(900.0, 600.0), (1100.0, 760.0), (1600.0, 1000.0)] {
         let mut h = app_harness(fresh_app(Some(Page::Explore)), w, hgt, Some(16));
-        assert!(step_until(&mut h, 20.0, engine_reporting), "engine up");
+        assert!(
+            step_until(&mut h, common::WAIT_S, engine_reporting),
+            "engine up"
+        );
         for c in Condition::ALL {
             h.state_mut().engine.as_mut().unwrap().set_condition(c);
             // A second and a half of telemetry: the histogram's second and
             // the free agitation fill.
             let t0 = std::time::Instant::now();
-            let filled = step_until(&mut h, 20.0, |a| {
+            let filled = step_until(&mut h, common::WAIT_S, |a| {
                 let r = a.explore.readouts();
                 t0.elapsed().as_secs_f64() > 1.5
                     && r.sd_free_m_s2.is_some()
@@ -81,14 +84,14 @@ fn the_free_agitation_is_the_simulated_sensors_and_loops() {
     // quantisation adds 4 mm/s² in quadrature: 0.1 %). The SD now and free
     // reads within 15 % of it.
     let mut h = app_harness(fresh_app(Some(Page::Explore)), 1100.0, 760.0, Some(16));
-    assert!(step_until(&mut h, 20.0, engine_reporting));
+    assert!(step_until(&mut h, common::WAIT_S, engine_reporting));
     h.state_mut()
         .engine
         .as_mut()
         .unwrap()
         .set_condition(Condition::V);
     let t0 = std::time::Instant::now();
-    assert!(step_until(&mut h, 20.0, |a| {
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
         t0.elapsed().as_secs_f64() > 1.5 && a.explore.readouts().sd_free_m_s2.is_some()
     }));
     let r = h.state().explore.readouts().clone();

@@ -86,7 +86,12 @@ fn open(dir: &std::path::Path) -> H {
         s.kind = ParticipantKind::Mouse;
         s.speed = Speed::RealTime;
     }
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     h.step();
     open_and_start(&mut h);
     h
@@ -123,7 +128,7 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
     let dir = tempfile::tempdir().unwrap();
     let mut h = open(dir.path());
     // Instructions of the first block (V: no condition text).
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Instructions { .. }
     )));
@@ -148,7 +153,7 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
     assert!(h.query_by_label_contains("READY: press space").is_some());
     // A click on the ready screen begins the trial.
     h.get_by_label_contains("READY: press space").click();
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Trial(_)
     )));
@@ -165,17 +170,17 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
         .0;
     assert_eq!(counter, "Session 1 of 2 — trial 1 of 2");
     // The trial times out; the interval is blank and lasts iti_s.
-    assert!(step_until_routine(&mut h, 5.0, |r| *r == Routine::Iti));
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| *r == Routine::Iti));
     let iti_start = Instant::now();
     assert!(h.query_by_label_contains("READY").is_none());
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Trial(k) if k.trial == 2
     )));
     let iti = iti_start.elapsed().as_secs_f64();
     assert!(iti >= 0.4 - 0.02, "inter-trial interval {iti} s < 0.4 s");
     // After the session: the break, then D's instructions with its text.
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Break { .. }
     )));
@@ -187,7 +192,7 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
     press_space(&mut h);
     assert!(matches!(routine(&h), Some(Routine::Ready { .. })));
     press_space(&mut h);
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Trial(k) if k.trial == 1
     )));
@@ -201,7 +206,7 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
         "Session 2 of 2 — trial 1 of 2"
     );
     // Last trial → the study is done → the end screen stays.
-    assert!(step_until_every(&mut h, POLL, 10.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .finished()
         .is_some()));
@@ -224,22 +229,24 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
 fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     let dir = tempfile::tempdir().unwrap();
     let mut h = open(dir.path());
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Instructions { .. }
     )));
     press_space(&mut h);
     press_space(&mut h);
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Trial(_)
     )));
     // Esc: the trial is aborted (its row kept), the sitting paused.
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
-        a.study.runner_state(),
-        Some(RunnerState::Paused(None))
-    )));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
+    ));
     h.step();
     h.step();
     assert!(h.state().study.estop_latched());
@@ -263,10 +270,9 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
     // The aborted trial's row, committed by the sitting's worker.
     let trials = dir.path().join("out").join(TRIALS_FILE);
-    assert!(step_until_every(&mut h, POLL, 10.0, |_| read_trials(
-        &trials
-    )
-    .is_ok_and(|t| t.rows.len() == 1)));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |_| {
+        read_trials(&trials).is_ok_and(|t| t.rows.len() == 1)
+    }));
     let rows = read_trials(&trials).unwrap().rows;
     assert_eq!(rows[0].reject_reason, "aborted");
     // Resume is refused until the stop is reset with the confirmation.
@@ -296,7 +302,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     assert_no_stop_notice(&mut h);
     // Resume: the next trial waits for the participant's ready screen.
     h.get_by_label("Resume").click();
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Instructions { .. }
     )));
@@ -326,7 +332,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     assert_no_stop_notice(&mut h);
     // Stop sitting: the Explore engine takes the rig back, not armed.
     h.get_by_label("Stop sitting").click();
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -387,17 +393,19 @@ fn assert_no_stop_notice(h: &mut H) {
 fn an_unreset_stop_keeps_the_engine_latched_after_the_sitting() {
     let dir = tempfile::tempdir().unwrap();
     let mut h = open(dir.path());
-    assert!(step_until_routine(&mut h, 5.0, |r| matches!(
+    assert!(step_until_routine(&mut h, common::WAIT_S, |r| matches!(
         r,
         Routine::Instructions { .. }
     )));
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
-        a.study.runner_state(),
-        Some(RunnerState::Paused(None))
-    )));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
+    ));
     h.get_by_label("Stop sitting").click();
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a.estop_latched()));
     assert!(h.state().any_estop_latched());
 }
 
@@ -449,7 +457,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         a.connect();
     }
     assert!(
-        step_until_every(&mut h, POLL, 20.0, |a| a
+        step_until_every(&mut h, POLL, common::WAIT_S, |a| a
             .engine
             .as_ref()
             .is_some_and(|e| e.is_live() && e.health().is_some())),
@@ -464,39 +472,45 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
     assert!(h.query_by_label("Use the simulated rig").is_some());
     open_and_start(&mut h);
     // Into the first trial, then the emergency stop.
-    assert!(space_through_screens_until(&mut h, 20.0, |h| matches!(
-        routine(h),
-        Some(Routine::Trial(_))
-    )));
+    assert!(space_through_screens_until(
+        &mut h,
+        common::WAIT_S,
+        |h| matches!(routine(h), Some(Routine::Trial(_)))
+    ));
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| matches!(
-        a.study.runner_state(),
-        Some(RunnerState::Paused(None))
-    )));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
+    ));
     h.step();
     h.step();
     assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());
     assert!(
-        step_until_every(&mut h, POLL, 5.0, |a| a.estop_latched()),
+        step_until_every(&mut h, POLL, common::WAIT_S, |a| a.estop_latched()),
         "the engine's stop is latched"
     );
     // The aborted trial's row, committed by the sitting's worker.
     let trials = out.join(TRIALS_FILE);
-    assert!(step_until_every(&mut h, POLL, 10.0, |_| read_trials(
-        &trials
-    )
-    .is_ok_and(|t| t.rows.len() == 1)));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |_| {
+        read_trials(&trials).is_ok_and(|t| t.rows.len() == 1)
+    }));
     let rows = read_trials(&trials).unwrap().rows;
     assert_eq!(rows[0].reject_reason, "aborted");
     // The confirmed reset, then Resume.
     confirm_reset(&mut h);
     // The engine reports the reset with its next health report.
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| !a.any_estop_latched()));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| !a.any_estop_latched()));
     h.get_by_label("Resume").click();
     h.step();
     // The rest of the sitting on the device: every trial's row.
     assert!(
-        space_through_screens_until(&mut h, 60.0, |h| h.state().study.finished().is_some()),
+        space_through_screens_until(&mut h, common::WAIT_S, |h| h
+            .state()
+            .study
+            .finished()
+            .is_some()),
         "the sitting did not finish"
     );
     assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));

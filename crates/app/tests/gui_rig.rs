@@ -42,7 +42,7 @@ fn live_running(a: &KilotouchApp) -> bool {
 #[test]
 fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     let mut h = harness();
-    assert!(step_until(&mut h, 5.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .is_some_and(|e| e.health().is_some())));
@@ -59,10 +59,10 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     h.get_by_label_contains("the hand is the real handle");
     h.get_by_label("Connect (restart)").click();
     assert!(
-        step_until(&mut h, 5.0, live_running),
+        step_until(&mut h, common::WAIT_S, live_running),
         "the serial rig did not come up"
     );
-    assert!(step_until(&mut h, 3.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -87,7 +87,7 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     // The device vanishes: error on the page, FAULT in the status bar, the
     // app keeps running, Reconnect offered.
     emu.kill();
-    assert!(step_until(&mut h, 3.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -102,7 +102,7 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     type_rig(&mut h, &format!("serial:{}", emu2.path));
     h.get_by_label("Reconnect").click();
     assert!(
-        step_until(&mut h, 6.0, |a| live_running(a)
+        step_until(&mut h, common::WAIT_S, |a| live_running(a)
             && a.engine.as_ref().unwrap().last_error().is_none()),
         "no reconnect"
     );
@@ -113,7 +113,7 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
 #[test]
 fn a_silent_device_does_not_freeze_the_gui_while_connecting() {
     let mut h = harness();
-    assert!(step_until(&mut h, 5.0, |a| a.engine.is_some()));
+    assert!(step_until(&mut h, common::WAIT_S, |a| a.engine.is_some()));
     // An emulator that hangs from the start: the handshake gets no answer.
     let emu = Emulator::spawn("daq", &["--stall-after-s", "0"]);
     type_rig(&mut h, &format!("serial:{}", emu.path));
@@ -131,7 +131,7 @@ fn a_silent_device_does_not_freeze_the_gui_while_connecting() {
     h.get_by_label_contains(&format!("connecting to serial:{}", emu.path));
     // The handshake times out on the worker thread; the error reaches the page.
     assert!(
-        step_until(&mut h, 8.0, |a| !a.is_connecting()),
+        step_until(&mut h, common::WAIT_S, |a| !a.is_connecting()),
         "the connect never ended"
     );
     h.step();

@@ -75,7 +75,12 @@ fn open_session(h: &mut egui_kittest::Harness<'static, kilotouch::gui::Kilotouch
 fn study_page_runs_a_simulated_sitting() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "jane@example.org", &out);
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     h.step();
     // An e-mail address is refused as participant ID.
     assert!(h.query_by_label_contains("e-mail").is_some());
@@ -88,7 +93,7 @@ fn study_page_runs_a_simulated_sitting() {
     // P02 is not next in plan order (P01 is): opening is refused with a
     // clear message (once the size check let it through to the sitting).
     h.get_by_label("Open session").click();
-    assert!(step_until_every(&mut h, POLL, 30.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .error()
         .is_some()));
@@ -108,7 +113,7 @@ fn study_page_runs_a_simulated_sitting() {
             .is_some()
     );
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .finished()
         .is_some()));
@@ -125,7 +130,7 @@ fn study_page_runs_a_simulated_sitting() {
     assert_eq!(h.state().study.rows(), &rows[..]);
     assert!(rows.iter().all(|r| r.participant == "P01"));
     // Free exploration has the engine back, stopped.
-    assert!(step_until_every(&mut h, POLL, 5.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -166,7 +171,12 @@ fn study_page_records_the_chosen_calibration() {
             s.calibration = choice;
             s.calibration_file = cal.display().to_string();
         }
-        assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+        assert!(step_until_every(
+            &mut h,
+            POLL,
+            common::WAIT_S,
+            engine_reporting
+        ));
         h.step();
         h.step();
         let shown = match choice {
@@ -176,7 +186,7 @@ fn study_page_records_the_chosen_calibration() {
         assert!(h.query_by_label_contains(&shown).is_some(), "{shown}");
         open_session(&mut h);
         h.get_by_label("Start").click();
-        assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+        assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
             .study
             .finished()
             .is_some()));
@@ -201,14 +211,19 @@ fn study_page_records_the_chosen_calibration() {
 fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     h.step();
     h.step();
     let resume_before = h.get_by_label("Resume").rect();
     let radio_before = h.get_by_label("person (mouse)").rect();
     open_session(&mut h);
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .finished()
         .is_some()));
@@ -249,11 +264,16 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
 fn run_all_remaining_participants_finishes_the_study() {
     let (dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "", &out);
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     h.step();
     h.step();
     h.get_by_label("Run all remaining participants").click();
-    assert!(step_until_every(&mut h, POLL, 30.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .finished()
         .is_some()));
@@ -295,7 +315,12 @@ fn until_label(
 fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     let (dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     // Every sitting with raw files is "large" at a 1 kB threshold.
     h.state_mut().study.size_gate.confirm_over_bytes = 1_000;
     h.step();
@@ -330,7 +355,7 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     );
     h.step();
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, 20.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .finished()
         .is_some()));
@@ -347,7 +372,7 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     h.step();
     h.step();
     h.get_by_label("Open session").click();
-    assert!(step_until_every(&mut h, POLL, 60.0, |a| a
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
         .study
         .error()
         .is_some()));
@@ -367,7 +392,12 @@ fn a_separate_participant_window_is_mirrored_on_the_study_page() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
     h.state_mut().study.separate_window = true;
-    assert!(step_until_every(&mut h, POLL, 5.0, engine_reporting));
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
     h.step();
     open_session(&mut h);
     h.step();

@@ -24,14 +24,14 @@ fn shown_kappa(h: &egui_kittest::Harness<'_, KilotouchApp>) -> f64 {
 #[test]
 fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     let mut h = common::app_harness(common::fresh_app(Some(Page::Rig)), 1400.0, 2200.0, Some(16));
-    assert!(step_until(&mut h, 10.0, engine_reporting));
+    assert!(step_until(&mut h, common::WAIT_S, engine_reporting));
     let truth = h.state().rig_config.tweezer.stiffness_n_per_m * 1e6;
     h.get_by_label("Tweezer: trap calibration");
     h.get_by_label_contains("Active trap calibration: none");
     h.get_by_label("Record and calibrate").click();
     // Background work: the page keeps drawing and shows its progress.
     h.step();
-    assert!(step_until(&mut h, 60.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .rig_page()
         .tweezer
         .result()
@@ -56,12 +56,14 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.get_by_label_contains("simulated trap: κ =");
 
     h.get_by_label("Apply").click();
-    assert!(step_until(&mut h, 5.0, |a| a.trap_calibration().is_some()));
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
+        .trap_calibration()
+        .is_some()));
     assert_eq!(h.state().trap_calibration(), Some(&r));
     h.step();
     h.get_by_label_contains("Active trap calibration: κ =");
     // The engine's tweezer reports through it.
-    assert!(step_until(&mut h, 5.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -78,8 +80,10 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.state_mut().page = Page::Rig;
     h.step();
     h.get_by_label("Remove").click();
-    assert!(step_until(&mut h, 5.0, |a| a.trap_calibration().is_none()));
-    assert!(step_until(&mut h, 5.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
+        .trap_calibration()
+        .is_none()));
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())
@@ -90,7 +94,7 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.state_mut().rig_page_mut().tweezer.aliased = false;
     h.get_by_label("Record and calibrate").click();
     h.step();
-    assert!(step_until(&mut h, 60.0, |a| !a
+    assert!(step_until(&mut h, common::WAIT_S, |a| !a
         .rig_page()
         .tweezer
         .is_busy()));

@@ -30,7 +30,7 @@ fn live_tweezer_running(a: &KilotouchApp, path: &str) -> bool {
 fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     let emu = Emulator::spawn("tweezer", &[]);
     let mut h = common::app_harness(common::fresh_app(Some(Page::Rig)), 1400.0, 2200.0, Some(16));
-    assert!(step_until(&mut h, 10.0, engine_reporting));
+    assert!(step_until(&mut h, common::WAIT_S, engine_reporting));
     {
         let t = &mut h.state_mut().rig_page_mut().tweezer;
         t.source_text = emu.rig();
@@ -39,7 +39,7 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     h.step();
     h.get_by_label("Record and calibrate").click();
     h.step();
-    assert!(step_until(&mut h, 60.0, |a| !a
+    assert!(step_until(&mut h, common::WAIT_S, |a| !a
         .rig_page()
         .tweezer
         .is_busy()));
@@ -85,7 +85,9 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     h.step();
     h.get_by_label("Connect (restart)").click();
     assert!(
-        step_until(&mut h, 10.0, |a| live_tweezer_running(a, &emu.path)),
+        step_until(&mut h, common::WAIT_S, |a| live_tweezer_running(
+            a, &emu.path
+        )),
         "the live tweezer did not come up"
     );
     h.step();
@@ -104,8 +106,10 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     );
     // The calibration of this tweezer now applies.
     h.get_by_label("Apply").click();
-    assert!(step_until(&mut h, 5.0, |a| a.trap_calibration().is_some()));
-    assert!(step_until(&mut h, 5.0, |a| a
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
+        .trap_calibration()
+        .is_some()));
+    assert!(step_until(&mut h, common::WAIT_S, |a| a
         .engine
         .as_ref()
         .and_then(|e| e.health())

@@ -11,6 +11,8 @@
 
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -122,7 +124,7 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
     assert_eq!(h.info().planned, 12);
     assert!(h.send(SessionCommand::Start));
     let mut seen = 0usize;
-    let (events, fin) = run_until_finished(&mut h, 20.0, |e, _| {
+    let (events, fin) = run_until_finished(&mut h, common::WAIT_S, |e, _| {
         if let SessionEvent::Committed(row) = e {
             // A committed row is on disk (fsynced) before the event is sent.
             let on_disk = rows(&out);
@@ -173,7 +175,7 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
     o.only_participant = Some(1);
     let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
-    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    let (_, fin) = run_until_finished(&mut h, common::WAIT_S, |_, _| {});
     assert_eq!(fin, Some(FinishReason::StudyDone));
     drop(h);
     assert_same_rows(&rows(&out), &want);
@@ -222,7 +224,7 @@ fn kill_mid_session_then_resume_gives_the_uninterrupted_rows() {
         .key
     );
     assert!(h.send(SessionCommand::Start));
-    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    let (_, fin) = run_until_finished(&mut h, common::WAIT_S, |_, _| {});
     assert_eq!(fin, Some(FinishReason::StudyDone));
     drop(h);
     let got = rows(&out);
@@ -426,7 +428,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     o.trap_calibration = Some(cal.clone());
     let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
-    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    let (_, fin) = run_until_finished(&mut h, common::WAIT_S, |_, _| {});
     assert_eq!(fin, Some(FinishReason::ParticipantDone("P01".into())));
     drop(h);
     let json: serde_json::Value =
@@ -471,7 +473,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     o.trap_calibration = Some(cal.clone());
     let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
     assert!(h.send(SessionCommand::Start));
-    let (_, fin) = run_until_finished(&mut h, 20.0, |_, _| {});
+    let (_, fin) = run_until_finished(&mut h, common::WAIT_S, |_, _| {});
     assert_eq!(fin, Some(FinishReason::StudyDone));
     drop(h);
     let json: serde_json::Value =
