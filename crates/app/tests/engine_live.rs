@@ -63,7 +63,7 @@ fn wait_health(
     mut pred: impl FnMut(&kilotouch::engine::Health) -> bool,
 ) -> Option<kilotouch::engine::Health> {
     let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_secs(2) {
+    while t0.elapsed().as_secs_f64() < common::WAIT_S {
         h.drain_telemetry(|_| {});
         let _ = h.poll_events();
         if let Some(x) = h.health().filter(|x| pred(x)) {
@@ -232,7 +232,7 @@ fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
     );
 
     emu.kill();
-    let took = wait_event(&mut h, Duration::from_secs(3), |e| {
+    let took = wait_event(&mut h, Duration::from_secs_f64(common::WAIT_S), |e| {
         matches!(e, EngineEvent::RigError(_))
     })
     .expect("a rig error after the emulator was killed");
@@ -254,13 +254,13 @@ fn killed_emulator_is_reported_promptly_and_a_restarted_one_reconnects() {
     // Reconnecting to the dead port fails cleanly; a restarted emulator
     // (new pty) is picked up without restarting the engine.
     assert!(h.reconnect(None));
-    wait_event(&mut h, Duration::from_secs(5), |e| {
+    wait_event(&mut h, Duration::from_secs_f64(common::WAIT_S), |e| {
         matches!(e, EngineEvent::RigError(_))
     })
     .expect("reconnect to a dead port reports an error");
     let emu2 = Emulator::start();
     assert!(h.reconnect(Some(emu2.spec(",lead=1"))));
-    wait_event(&mut h, Duration::from_secs(5), |e| {
+    wait_event(&mut h, Duration::from_secs_f64(common::WAIT_S), |e| {
         matches!(e, EngineEvent::Reconnected(_))
     })
     .expect("reconnected");
@@ -316,7 +316,7 @@ fn stalled_device_times_out_and_the_same_port_reconnects() {
         (t0 + Duration::from_millis(1000)).saturating_duration_since(Instant::now()),
     );
     assert!(h.reconnect(None));
-    wait_event(&mut h, Duration::from_secs(5), |e| {
+    wait_event(&mut h, Duration::from_secs_f64(common::WAIT_S), |e| {
         matches!(e, EngineEvent::Reconnected(_))
     })
     .expect("same port reconnected");
@@ -368,7 +368,7 @@ fn the_loop_delay_of_a_live_rig_is_in_the_stability_clearance() {
     // 39 samples beyond one) is refused: the clearance was made for 19.
     let emu3 = Emulator::start();
     assert!(h.reconnect(Some(emu3.spec(",lead=3"))));
-    wait_event(&mut h, Duration::from_secs(5), |e| {
+    wait_event(&mut h, Duration::from_secs_f64(common::WAIT_S), |e| {
         matches!(e, EngineEvent::RigError(_))
     })
     .expect("a longer loop delay on reconnection is refused");

@@ -336,6 +336,26 @@ fn a_vanished_device_is_reported_at_once() {
     assert!(rig.reconnect().is_err(), "the pty is gone");
 }
 
+/// A device that vanished while the host was between blocks: the next
+/// block's write fails first, and the rig reports it as the failed read
+/// does: disconnected (so the engine offers Reconnect, not Start).
+#[test]
+fn a_device_gone_before_the_next_write_leaves_the_rig_disconnected() {
+    let dev = daq(emu_cfg());
+    let mut rig = SerialRig::open(&SerialConfig::new(&dev.path)).unwrap();
+    rig.start().unwrap();
+    let cmds = commands(20, 0);
+    let mut out = vec![SensorFrame::default(); 20];
+    rig.process_block(&cmds, &mut out).unwrap();
+    // The device's thread ends and closes the pty (joined: it is gone).
+    drop(dev.finish());
+    let err = rig.process_block(&cmds, &mut out).unwrap_err();
+    assert!(matches!(err, RigError::Disconnected(_)), "{err}");
+    assert!(err.to_string().contains("vanished"), "{err}");
+    assert_eq!(rig.status().state, RigState::Disconnected);
+    assert!(rig.start().is_err(), "start needs a reconnect first");
+}
+
 #[test]
 fn the_device_watchdog_zeroes_the_outputs_when_the_host_goes_silent() {
     // A window long enough that a loaded machine's scheduling never trips

@@ -1210,7 +1210,14 @@ impl Rig for SerialRig {
             }
             let at = self.pipe.queue(n);
             self.queue_commands(at, commands);
-            self.link.flush_tx()?;
+            if let Err(e) = self.link.flush_tx() {
+                // The write failed: the device vanished (as a failed read
+                // does in `fail`).
+                self.link.stop();
+                self.state = RigState::Disconnected;
+                self.counters.push(RigFault::Disconnected);
+                return Err(e);
+            }
             let s = self.pipe.next_seq;
             report.first_seq = s;
             let caps = self.caps;
