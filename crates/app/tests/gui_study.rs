@@ -140,6 +140,63 @@ fn study_page_runs_a_simulated_sitting() {
     assert!(h.query_by_label_contains("Resume at trial P02").is_some());
 }
 
+/// Extra practice trials from the Study page: the protocol's line states
+/// them; in a sitting where every 2 s practice trial times out, each
+/// condition's practice earns its one extra and the page's plan count
+/// grows with them.
+#[test]
+fn unsuccessful_practice_trials_are_run_again_in_a_sitting_from_the_study_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let proto = dir.path().join("retry.toml");
+    std::fs::write(
+        &proto,
+        include_str!("data/tiny.toml").replace(
+            "practice_trials = 1",
+            "practice_trials = 1\npractice_retries = 1",
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let mut h = study_page(&proto, "P01", &out);
+    assert!(step_until_every(
+        &mut h,
+        POLL,
+        common::WAIT_S,
+        engine_reporting
+    ));
+    h.step();
+    assert!(
+        h.query_by_label_contains(
+            "1 practice trials per condition (up to 1 more for unsuccessful ones)"
+        )
+        .is_some()
+    );
+    open_session(&mut h);
+    assert!(
+        h.query_by_label_contains("committed 0 of 12 trials")
+            .is_some()
+    );
+    h.get_by_label("Start").click();
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
+        .study
+        .finished()
+        .is_some()));
+    h.step();
+    h.step();
+    // P01: 3 practice trials, 3 extra ones, 3 test trials; the plan grew
+    // from 12 to 15 trials.
+    let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(rows.len(), 9);
+    assert_eq!(h.state().study.planned(), 15, "the plan counts the extras");
+    let extra: Vec<_> = rows.iter().filter(|r| r.trial == 2).collect();
+    assert_eq!(extra.len(), 3);
+    assert!(
+        extra
+            .iter()
+            .all(|r| r.phase == kilotouch_study::seeds::Phase::Practice)
+    );
+}
+
 /// The sitting runs and records the calibration chosen on the page: the
 /// file and its SHA-256 land in `session.json`; "as designed" is recorded
 /// as uncalibrated.

@@ -58,11 +58,16 @@ fn opts(out: &Path, protocol: Option<Protocol>, raw: bool) -> SessionOptions {
 
 /// The headless reference rows.
 fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
+    reference_of(tiny(), dir, raw)
+}
+
+/// The headless reference rows of `protocol`.
+fn reference_of(protocol: Protocol, dir: &Path, raw: bool) -> Vec<TrialRow> {
     let o = SimulateOptions {
         runner: runner_cfg(raw),
         threads: 2,
         fidelity: kilotouch_study::fidelity::Fidelity::Full,
-        ..SimulateOptions::new(tiny(), dir)
+        ..SimulateOptions::new(protocol, dir)
     };
     simulate(&o, &mut |_, _| {}).unwrap();
     rows(dir)
@@ -180,6 +185,70 @@ fn simulated_sittings_write_the_headless_rows_with_fsync_ordering() {
     drop(h);
     assert_same_rows(&rows(&out), &want);
     assert!(out.join("cells_long.csv").exists() && out.join("cells_wide.csv").exists());
+}
+
+/// Extra practice trials (`training.practice_retries = 1`): in the tiny
+/// protocol every 2 s trial times out, so each condition's practice trial
+/// earns exactly one extra, run at once (before the next condition's
+/// practice) in the sitting and headless alike: the same rows in the same
+/// order.
+#[test]
+fn unsuccessful_practice_trials_run_again_in_a_sitting_as_headless() {
+    let with_retry = || {
+        let mut p = tiny();
+        p.training.practice_retries = 1;
+        p
+    };
+    let mut eng = engine();
+    let dir = tempfile::tempdir().unwrap();
+    let want = reference_of(with_retry(), &dir.path().join("ref"), false);
+    let out = dir.path().join("gui");
+    let mut h = SessionHandle::spawn(opts(&out, Some(with_retry()), false), &mut eng).unwrap();
+    assert_eq!(h.info().planned, 12, "the plan starts as the protocol's");
+    assert!(h.send(SessionCommand::Start));
+    let (events, fin) = run_until_finished(&mut h, common::WAIT_S, |_, _| {});
+    assert_eq!(fin, Some(FinishReason::StudyDone));
+    drop(h);
+    let got = rows(&out);
+    // 2 participants × 3 conditions × (1 test + 1 practice + 1 extra).
+    assert_eq!(got.len(), 18);
+    let practice: Vec<_> = got.iter().filter(|r| r.phase == Phase::Practice).collect();
+    assert!(
+        practice
+            .iter()
+            .all(|r| !r.success && r.reject_reason == "timeout"),
+        "the premise: every practice trial times out"
+    );
+    // In the sitting, each extra trial follows its condition's practice.
+    let started: Vec<_> = events
+        .iter()
+        .filter_map(|e| match e {
+            SessionEvent::TrialStarted { key, .. } if key.phase == Phase::Practice => {
+                Some((key.participant, key.condition, key.trial))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(started.len(), 12);
+    let replanned: Vec<usize> = events
+        .iter()
+        .filter_map(|e| match e {
+            SessionEvent::Replanned(n) => Some(*n),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        replanned,
+        (13..=18).collect::<Vec<_>>(),
+        "one per extra trial"
+    );
+    for pair in started.chunks(2) {
+        assert_eq!((pair[0].2, pair[1].2), (1, 2), "{pair:?}");
+        assert_eq!((pair[0].0, pair[0].1), (pair[1].0, pair[1].1), "{pair:?}");
+    }
+    // Headless, the extra trial is committed in its place too: the same
+    // rows in the same order.
+    assert_same_rows(&got, &want);
 }
 
 #[test]

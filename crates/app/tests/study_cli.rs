@@ -366,3 +366,82 @@ fn study_run_states_its_size_and_refuses_a_sitting_larger_than_the_free_space() 
     assert!(err.contains("the sitting will write about"), "{err}");
     assert_eq!(rows(&out).len(), 3);
 }
+
+/// Extra practice trials (`training.practice_retries = 2`): with a 1 s
+/// time-out every trial is unsuccessful, so each condition's one practice
+/// trial earns both extras. `study simulate` and a `study run` sitting
+/// write the same rows in the same order, and both count the extras in
+/// what they report.
+#[test]
+fn unsuccessful_practice_trials_are_run_again_by_simulate_and_by_a_sitting() {
+    let tmp = tempfile::tempdir().unwrap();
+    let proto = tmp.path().join("retry.toml");
+    std::fs::write(
+        &proto,
+        "name = \"retry\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
+         trials_per_session = 1\n[training]\npractice_trials = 1\npractice_retries = 2\n\
+         [task.circling]\ntimeout_s = 1.0\n[seeds]\nstudy = 3\n",
+    )
+    .unwrap();
+    let proto = proto.to_str().unwrap();
+    let sim = tmp.path().join("sim");
+    let o = run(&[
+        "study",
+        "simulate",
+        "--protocol",
+        proto,
+        "--no-raw",
+        "--out",
+        sim.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: Value = serde_json::from_slice(&o.stdout).unwrap();
+    // 3 conditions × (1 practice + 2 extra) practice rows, 3 test rows.
+    assert_eq!(j["practice_rows"], 9, "{j}");
+    assert_eq!(j["test_rows"], 3, "{j}");
+    assert_eq!(j["planned"], 12, "{j}");
+    assert_eq!(j["ran"], 12, "{j}");
+    let sitting = tmp.path().join("sitting");
+    let o = run(&[
+        "study",
+        "run",
+        "--protocol",
+        proto,
+        "--participant",
+        "P01",
+        "--fast",
+        "--no-raw",
+        "--out",
+        sitting.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["planned"], 12, "{j}");
+    let key = |r: &TrialRow| (r.phase, r.condition, r.trial);
+    let a = rows(&sim);
+    let b = rows(&sitting);
+    assert!(
+        a.iter()
+            .filter(|r| r.phase == Phase::Practice)
+            .all(|r| r.reject_reason == "timeout"),
+        "the premise: every practice trial times out"
+    );
+    // Both practise each condition to its end before the next.
+    for r in [&a, &b] {
+        let practice: Vec<_> = r
+            .iter()
+            .filter(|r| r.phase == Phase::Practice)
+            .map(|r| r.trial)
+            .collect();
+        assert_eq!(practice, [1, 2, 3, 1, 2, 3, 1, 2, 3]);
+    }
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(
+            (key(x), x.success, &x.reject_reason, x.seed),
+            (key(y), y.success, &y.reject_reason, y.seed)
+        );
+    }
+}

@@ -219,3 +219,64 @@ fn a_shard_resumes_only_as_itself() {
     ok(&[&base[..], &["--shard", "1/2", "--resume"]].concat());
     refused(&[&base[..], &["--shard", "0/2"]].concat(), "shard number");
 }
+
+/// Extra practice trials (`training.practice_retries`) across shards: with
+/// a 1 s time-out every practice trial is unsuccessful and earns its
+/// extras; each shard plans its own participants' extras, and the merged
+/// folder equals the unsharded run row for row, complete.
+#[test]
+fn shards_with_extra_practice_trials_merge_to_the_unsharded_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = |name: &str| tmp.path().join(name).to_string_lossy().into_owned();
+    let proto = tmp.path().join("retry.toml");
+    std::fs::write(
+        &proto,
+        "name = \"retry\"\nparticipants = 3\nconditions = [\"P\", \"D\"]\n\
+         trials_per_session = 1\n[training]\npractice_trials = 1\npractice_retries = 1\n\
+         [task.circling]\ntimeout_s = 1.0\n[seeds]\nstudy = 9\n",
+    )
+    .unwrap();
+    let study = [
+        "study",
+        "simulate",
+        "--protocol",
+        proto.to_str().unwrap(),
+        "--no-raw",
+        "--threads",
+        "2",
+    ];
+    let with = |extra: &[&str]| -> Vec<String> {
+        study.iter().chain(extra).map(|s| (*s).to_owned()).collect()
+    };
+    ok(&with(&["--out", &d("all")]));
+    for k in 1..=2 {
+        ok(&with(&[
+            "--shard",
+            &format!("{k}/2"),
+            "--out",
+            &d(&format!("s{k}")),
+        ]));
+    }
+    ok(&[
+        "study",
+        "merge",
+        &d("s1"),
+        &d("s2"),
+        "--out",
+        &d("merged"),
+        "--require-complete",
+    ]);
+    let all = rows(&tmp.path().join("all"));
+    // 3 participants × 2 conditions × (1 practice + 1 extra + 1 test).
+    assert_eq!(all.len(), 18);
+    assert_eq!(
+        all.iter()
+            .filter(|r| r.phase == kilotouch_study::seeds::Phase::Practice && r.trial == 2)
+            .count(),
+        6,
+        "one extra practice trial per participant and condition"
+    );
+    assert_eq!(rows(&tmp.path().join("merged")), all);
+    let m = read_session(&tmp.path().join("merged/session.json")).unwrap();
+    assert_eq!((m.progress.completed, m.progress.planned), (18, 18));
+}

@@ -22,6 +22,15 @@ use thread_priority::{
 /// and stay above), below the watchdogs.
 pub const REALTIME_PRIORITY: u8 = 40;
 
+/// Stack of every thread that builds or runs a simulated rig, trial or
+/// closed loop (the engine, a sitting's worker, the simulation and
+/// calibration workers), bytes. Rust's default for spawned threads is
+/// 2 MiB; an unoptimised (`cargo build`) binary overflowed it while
+/// building the plant (frames of ≈ 60 kB each, measured with gdb in
+/// `AxisSim::new`), where 4 MiB sufficed. 16 MiB leaves room; only the
+/// pages a thread touches are committed.
+pub const THREAD_STACK_BYTES: usize = 16 << 20;
+
 /// How the calling thread is scheduled after [`promote_current_thread`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Scheduling {

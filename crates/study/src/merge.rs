@@ -331,13 +331,17 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
             .collect::<Vec<_>>()
             .join(", ")
     ))?;
-    let plan: Vec<TrialKey> = store.plan().iter().map(|p| p.key).collect();
+    // In plan order; the plan grows while the rows are committed when an
+    // unsuccessful practice row earns an extra practice trial
+    // (`training.practice_retries`), always after the row's own place.
     let mut raw_files = 0;
-    for key in &plan {
-        let Some(&(i, row)) = by_key.get(key) else {
+    let mut at = 0;
+    while let Some(key) = store.plan().get(at).map(|p| p.key) {
+        at += 1;
+        let Some(&(i, row)) = by_key.get(&key) else {
             continue;
         };
-        let mut ticket = store.begin_trial(*key, row.started_utc)?;
+        let mut ticket = store.begin_trial(key, row.started_utc)?;
         if !row.raw_file.is_empty() {
             copy_raw(&read[i].dir, out, &row.raw_file)?;
             store.attach_raw(&mut ticket)?;
@@ -346,7 +350,21 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
         store.commit_trial(ticket, row)?;
     }
     let rows = store.completed_count();
-    let planned = plan.len();
+    if rows != by_key.len() {
+        let lost: Vec<String> = by_key
+            .keys()
+            .filter(|k| !store.is_completed(k))
+            .take(5)
+            .map(ToString::to_string)
+            .collect();
+        return Err(RunError::State(format!(
+            "{} of the inputs' rows are not trials of the protocol's plan (first: {}); \
+             nothing was merged for them",
+            by_key.len() - rows,
+            lost.join(", ")
+        )));
+    }
+    let planned = store.plan().len();
     store.close()?;
     Ok(MergeReport {
         out: out.to_path_buf(),

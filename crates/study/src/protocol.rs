@@ -127,6 +127,20 @@ fn default_trials() -> u32 {
 pub struct Training {
     /// Practice trials per condition (0 = no training). Default 3.
     pub practice_trials: u32,
+    /// Extra practice trials per condition that may replace practice
+    /// trials whose row is not a success (rejected, e.g. `escaped` or
+    /// `timeout`, or `aborted` by the emergency stop), so the participant
+    /// gets `practice_trials` good ones before the test sessions, as a
+    /// PsychoPy loop that repeats failed trials does. Each unsuccessful
+    /// practice row adds one extra trial (numbered after the protocol's
+    /// practice trials, with its own seed) while fewer than
+    /// `practice_retries` were added for that condition. Default 0 (a
+    /// protocol file without the key runs exactly `practice_trials`, as
+    /// before; the key is then also left out of the protocol's text, so a
+    /// study's recorded protocol identity does not change). At most
+    /// [`MAX_PRACTICE_TRIALS`].
+    #[serde(skip_serializing_if = "is_zero")]
+    pub practice_retries: u32,
     /// Upper bound of the training block, minutes (the paper: 10–15 min).
     /// Default 15.
     pub max_duration_min: f64,
@@ -136,9 +150,16 @@ impl Default for Training {
     fn default() -> Self {
         Self {
             practice_trials: 3,
+            practice_retries: 0,
             max_duration_min: 15.0,
         }
     }
+}
+
+/// Serde's `skip_serializing_if` for counts whose default is 0.
+#[allow(clippy::trivially_copy_pass_by_ref)] // serde passes a reference
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 /// Circling task (§4.3): keep the manipulated bead in contact with a fixed
@@ -449,6 +470,12 @@ impl Protocol {
             0,
             MAX_PRACTICE_TRIALS,
         )?;
+        count_in(
+            "training.practice_retries",
+            self.training.practice_retries,
+            0,
+            MAX_PRACTICE_TRIALS,
+        )?;
         if self.conditions.is_empty() {
             return Err(invalid(
                 "conditions",
@@ -463,19 +490,21 @@ impl Protocol {
                 ));
             }
         }
+        let practice =
+            u64::from(self.training.practice_trials) + u64::from(self.training.practice_retries);
         let planned = u64::from(self.participants)
             * self.conditions.len() as u64
-            * (u64::from(self.trials_per_session) + u64::from(self.training.practice_trials));
+            * (u64::from(self.trials_per_session) + practice);
         if planned > MAX_PLANNED_TRIALS {
             return Err(invalid(
                 "participants",
                 format!(
-                    "{} participants × {} condition(s) × ({} test + {} practice) trials = \
-                     {planned} trials, more than the {MAX_PLANNED_TRIALS} a study may plan",
+                    "{} participants × {} condition(s) × ({} test + {practice} practice, \
+                     extra practice included) trials = {planned} trials, more than the \
+                     {MAX_PLANNED_TRIALS} a study may plan",
                     self.participants,
                     self.conditions.len(),
                     self.trials_per_session,
-                    self.training.practice_trials
                 ),
             ));
         }

@@ -10,12 +10,15 @@
 //! rows strictly in plan order (journal `trial_started`, row + fsync,
 //! `trial_completed`), so after a kill the completed trials are a prefix of
 //! the plan and a resumed run re-runs exactly the rest (a raw file written
-//! ahead of its row is simply rewritten).
+//! ahead of its row is simply rewritten). An extra practice trial
+//! (`training.practice_retries`) joins the plan when an unsuccessful
+//! practice row is committed; it goes to the front of the workers' queue
+//! and its row is committed in its place, so `trials.csv` has the rows in
+//! the order a sitting writes them.
 
-use std::collections::BTreeMap;
+use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::mpsc;
+use std::sync::{Condvar, Mutex, PoisonError, mpsc};
 use std::time::Instant;
 
 use kilotouch_rig::config::RigConfig;
@@ -33,6 +36,7 @@ use crate::rawsig::NpyWriter;
 use crate::runner::{
     NoRaw, RunError, RunnerConfig, TrialEngine, TrialOutcome, raw_layout, with_scene,
 };
+use crate::seeds::TrialKey;
 use crate::shard::Shard;
 use crate::task::sim_station::SimStation;
 
@@ -283,7 +287,6 @@ pub fn simulate(
     store.set_simulation(simulation)?;
     let recovery = store.recovery().to_string();
     let in_shard = |p: &PlannedTrial| opts.shard.is_none_or(|s| s.contains(p.key.participant));
-    let planned_total = store.plan().iter().filter(|p| in_shard(p)).count();
     let already = store
         .plan()
         .iter()
@@ -299,10 +302,18 @@ pub fn simulate(
         engines.push(TrialEngine::new(station, opts.runner)?);
     }
     let mut completed = already;
-    let simulated = run_in_plan_order(opts, &mut store, &pending, engines, &mut || {
-        completed += 1;
-        progress(completed, planned_total);
-    })?;
+    let (simulated, ran) = run_in_plan_order(
+        opts,
+        &mut store,
+        &pending,
+        &in_shard,
+        engines,
+        &mut |planned| {
+            completed += 1;
+            progress(completed, planned);
+        },
+    )?;
+    let planned_total = store.plan().iter().filter(|p| in_shard(p)).count();
     store.close()?;
     let rows = crate::export::read_trials(&opts.out.join(crate::export::TRIALS_FILE))?.rows;
     let test: Vec<_> = rows
@@ -316,7 +327,7 @@ pub fn simulate(
         participants: opts.protocol.participants,
         planned: planned_total,
         already_completed: already,
-        ran: pending.len(),
+        ran,
         test_rows: test.len(),
         practice_rows: rows.len() - test.len(),
         test_success: test.iter().filter(|r| r.success).count(),
@@ -330,33 +341,78 @@ pub fn simulate(
     })
 }
 
-/// The pending trials, handed out to the workers in plan order until they
-/// run out or the run is cancelled.
-struct Queue<'a> {
-    pending: &'a [PlannedTrial],
-    next: AtomicUsize,
-    cancelled: AtomicBool,
+/// The trials to run, handed out to the workers in plan order. An extra
+/// practice trial earned while the rows are committed goes to the front
+/// (the committer waits for it); workers wait for work until the queue is
+/// closed (every trial committed, or an error).
+struct Queue {
+    state: Mutex<QueueState>,
+    ready: Condvar,
 }
 
-impl Queue<'_> {
-    /// The next trial to run and its index in `pending`.
-    fn take(&self) -> Option<(usize, &PlannedTrial)> {
-        if self.cancelled.load(Ordering::Relaxed) {
-            return None;
+struct QueueState {
+    trials: VecDeque<PlannedTrial>,
+    closed: bool,
+}
+
+impl Queue {
+    fn new(trials: &[PlannedTrial]) -> Self {
+        Self {
+            state: Mutex::new(QueueState {
+                trials: trials.iter().cloned().collect(),
+                closed: false,
+            }),
+            ready: Condvar::new(),
         }
-        let i = self.next.fetch_add(1, Ordering::Relaxed);
-        self.pending.get(i).map(|p| (i, p))
     }
 
-    /// Stops handing out trials.
-    fn cancel(&self) {
-        self.cancelled.store(true, Ordering::Relaxed);
+    /// The next trial to run; `None` once the queue is closed.
+    fn take(&self) -> Option<PlannedTrial> {
+        let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        loop {
+            if s.closed {
+                return None;
+            }
+            if let Some(t) = s.trials.pop_front() {
+                return Some(t);
+            }
+            s = self.ready.wait(s).unwrap_or_else(PoisonError::into_inner);
+        }
+    }
+
+    /// Runs `t` before every trial still queued.
+    fn first(&self, t: PlannedTrial) {
+        let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        s.trials.push_front(t);
+        self.ready.notify_one();
+    }
+
+    /// Stops handing out trials; waiting workers return.
+    fn close(&self) {
+        let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        s.closed = true;
+        s.trials.clear();
+        self.ready.notify_all();
+    }
+}
+
+/// Closes the queue when dropped by a panicking worker.
+struct CloseOnPanic<'a>(&'a Queue);
+
+impl Drop for CloseOnPanic<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.close();
+        }
     }
 }
 
 /// Runs `pending` on one thread per engine and commits the rows on this
 /// thread strictly in plan order (module docs), calling `committed` after
-/// each. Returns the simulated time of the trials run, s.
+/// each; the extra practice trials earned meanwhile
+/// (`training.practice_retries`) run at once, in their place in the plan.
+/// `keep`: the trials of this run (a shard's). Returns the simulated time
+/// of the trials run, s, and how many ran.
 ///
 /// # Errors
 /// The first worker or storage error (the workers then stop after their
@@ -365,76 +421,119 @@ fn run_in_plan_order(
     opts: &SimulateOptions,
     store: &mut StudyStore,
     pending: &[PlannedTrial],
+    keep: &dyn Fn(&PlannedTrial) -> bool,
     engines: Vec<TrialEngine<SimStation>>,
-    committed: &mut dyn FnMut(),
-) -> Result<f64, RunError> {
-    let queue = Queue {
-        pending,
-        next: AtomicUsize::new(0),
-        cancelled: AtomicBool::new(false),
-    };
+    committed: &mut dyn FnMut(usize),
+) -> Result<(f64, usize), RunError> {
+    let queue = Queue::new(pending);
     std::thread::scope(|scope| {
-        let (tx, rx) = mpsc::channel::<(usize, WorkerResult)>();
+        let (tx, rx) = mpsc::channel::<(TrialKey, WorkerResult)>();
         for mut engine in engines {
             let (tx, queue) = (tx.clone(), &queue);
-            scope.spawn(move || {
-                while let Some((i, planned)) = queue.take() {
-                    let r = run_planned(&mut engine, &opts.protocol, planned, &opts.out);
-                    let failed = r.is_err();
-                    if tx.send((i, r)).is_err() || failed {
-                        break;
+            let spawned = std::thread::Builder::new()
+                .name("kilotouch-simulate".into())
+                .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
+                .spawn_scoped(scope, move || {
+                    // A worker that panics closes the queue, so the others stop
+                    // waiting for work and the committer sees them gone.
+                    let _guard = CloseOnPanic(queue);
+                    while let Some(planned) = queue.take() {
+                        let r = run_planned(&mut engine, &opts.protocol, &planned, &opts.out);
+                        let failed = r.is_err();
+                        if tx.send((planned.key, r)).is_err() || failed {
+                            break;
+                        }
                     }
-                }
-            });
+                });
+            if let Err(e) = spawned {
+                queue.close();
+                return Err(RunError::State(format!(
+                    "could not start a simulation thread: {e}"
+                )));
+            }
         }
         drop(tx);
         let attach_raw = opts.runner.raw.is_some();
-        let r = commit_results(store, pending, rx, attach_raw, committed);
-        if r.is_err() {
-            queue.cancel();
-        }
+        let r = commit_results(store, &queue, keep, &rx, attach_raw, committed);
+        queue.close();
         r
     })
 }
 
-/// Commits the workers' results (index in `pending`, start time and
-/// outcome) in plan order as they arrive; `attach_raw`: the rows name the
-/// raw files the workers wrote. Returns the simulated time, s (each trial's
-/// samples at its own rate).
+/// Commits the workers' results (trial, start time and outcome) in plan
+/// order as they arrive: the next row is always the store's first pending
+/// trial that `keep` accepts; an extra practice trial it earns joins the
+/// front of `queue`. `attach_raw`: the rows name the raw files the workers
+/// wrote. Returns the simulated time, s (each trial's samples at its own
+/// rate), and the number of trials committed.
 ///
 /// # Errors
 /// A worker's error; storage errors; [`RunError::State`] when the workers
 /// stopped before every trial was run.
 fn commit_results(
     store: &mut StudyStore,
-    pending: &[PlannedTrial],
-    results: mpsc::Receiver<(usize, WorkerResult)>,
+    queue: &Queue,
+    keep: &dyn Fn(&PlannedTrial) -> bool,
+    results: &mpsc::Receiver<(TrialKey, WorkerResult)>,
     attach_raw: bool,
-    committed: &mut dyn FnMut(),
-) -> Result<f64, RunError> {
-    let mut done: BTreeMap<usize, (UtcTime, TrialOutcome)> = BTreeMap::new();
-    let mut commit_at = 0usize;
-    let mut simulated = 0.0;
-    for (i, r) in results {
-        done.insert(i, r?);
-        while let Some((started, outcome)) = done.remove(&commit_at) {
-            let mut ticket = store.begin_trial(pending[commit_at].key, started)?;
-            if attach_raw {
-                store.attach_raw(&mut ticket)?;
+    committed: &mut dyn FnMut(usize),
+) -> Result<(f64, usize), RunError> {
+    let mut done: HashMap<TrialKey, (UtcTime, TrialOutcome)> = HashMap::new();
+    let (mut simulated, mut n) = (0.0, 0usize);
+    let mut planned = store.plan().iter().filter(|p| keep(p)).count();
+    // The plan position of the next row: rows are committed in plan order
+    // and an extra trial is always inserted after the row that earned it.
+    let mut at = 0usize;
+    loop {
+        let next = loop {
+            match store.plan().get(at) {
+                None => break None,
+                Some(p) if keep(p) && !store.is_completed(&p.key) => break Some(p.key),
+                Some(_) => at += 1,
             }
-            let mut row = ticket.row();
-            outcome.metrics.fill_row(&mut row);
-            store.commit_trial(ticket, &row)?;
-            simulated += outcome.samples as f64 / outcome.sample_rate_hz;
-            commit_at += 1;
-            committed();
+        };
+        let Some(next) = next else {
+            return Ok((simulated, n));
+        };
+        let Some((started, outcome)) = done.remove(&next) else {
+            match results.recv() {
+                Ok((key, r)) => {
+                    done.insert(key, r?);
+                    continue;
+                }
+                Err(_) => {
+                    return Err(RunError::State(format!(
+                        "workers stopped after {n} trials, before trial {next}"
+                    )));
+                }
+            }
+        };
+        let len = store.plan().len();
+        let mut ticket = store.begin_trial(next, started)?;
+        if attach_raw {
+            store.attach_raw(&mut ticket)?;
         }
+        let mut row = ticket.row();
+        outcome.metrics.fill_row(&mut row);
+        store.commit_trial(ticket, &row)?;
+        if store.plan().len() > len {
+            // The extra practice trial the row earned: the last of its
+            // block (contiguous in the plan), run before everything queued.
+            let plan = store.plan();
+            let same_block = |p: &PlannedTrial| {
+                p.key.participant == next.participant
+                    && p.key.condition == next.condition
+                    && p.key.phase == next.phase
+            };
+            let end = plan[at..].iter().take_while(|p| same_block(p)).count();
+            if let Some(extra) = plan.get(at + end.saturating_sub(1)) {
+                planned += 1;
+                queue.first(extra.clone());
+            }
+        }
+        at += 1;
+        simulated += outcome.samples as f64 / outcome.sample_rate_hz;
+        n += 1;
+        committed(planned);
     }
-    if commit_at != pending.len() {
-        return Err(RunError::State(format!(
-            "workers stopped after {commit_at} of {} trials",
-            pending.len()
-        )));
-    }
-    Ok(simulated)
 }

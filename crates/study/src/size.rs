@@ -54,6 +54,7 @@ use crate::export::{PlannedTrial, TRIALS_FILE, plan, read_trials};
 use crate::protocol::{Condition, Protocol, Task};
 use crate::rawsig::Dtype;
 use crate::runner::{RAW_CHANNELS, RunError, RunnerConfig, TrialEngine};
+use crate::seeds::Phase;
 use crate::simulate::{SimulateOptions, run_planned, sim_meta};
 use crate::task::sim_station::SimStation;
 
@@ -261,7 +262,7 @@ impl TrialRows {
                 .into_iter()
                 .map(|chunk| {
                     let chain = chain.clone();
-                    scope.spawn(move || -> Result<Vec<(Condition, u64, f64)>, RunError> {
+                    let work = move || -> Result<Vec<(Condition, u64, f64)>, RunError> {
                         let mut station = SimStation::with_chain(&opts.rig, chain)?;
                         station.set_fidelity(opts.fidelity);
                         let mut engine = TrialEngine::new(station, runner)?;
@@ -273,14 +274,22 @@ impl TrialRows {
                                 Ok((p.key.condition, o.samples, o.sample_rate_hz))
                             })
                             .collect()
-                    })
+                    };
+                    std::thread::Builder::new()
+                        .name("kilotouch-pilot".into())
+                        .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
+                        .spawn_scoped(scope, work)
                 })
                 .collect();
             handles
                 .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or_else(|_| Err(RunError::State("a pilot thread panicked".into())))
+                .map(|h| match h {
+                    Ok(h) => h
+                        .join()
+                        .unwrap_or_else(|_| Err(RunError::State("a pilot thread panicked".into()))),
+                    Err(e) => Err(RunError::State(format!(
+                        "could not start a pilot thread: {e}"
+                    ))),
                 })
                 .collect()
         });
@@ -376,12 +385,69 @@ pub fn pending_trials(
         .assignment()
         .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
     let all = plan(protocol, &order_rows(&table));
-    let trials = out.join(TRIALS_FILE);
-    // A damaged `trials.csv` (a writer killed while creating it) is the
-    // store's to repair when it opens; until then the estimate counts
-    // every trial as pending (an upper bound).
-    let done: std::collections::HashSet<_> = if let Ok(read) = read_trials(&trials) {
-        read.rows
+    let done = done_keys(protocol, out)?;
+    Ok(all
+        .into_iter()
+        .filter(|p| !done.contains(&p.key))
+        .filter(|p| participants.is_none_or(|f| f(p.key.participant)))
+        .collect())
+}
+
+/// [`pending_trials`] and every extra practice trial they may still earn
+/// (`training.practice_retries` per participant and condition), for an
+/// upper bound: in the worst case every practice trial is unsuccessful.
+/// A participant with no pending trial earns none.
+///
+/// # Errors
+/// As [`pending_trials`].
+pub fn pending_trials_at_most(
+    protocol: &Protocol,
+    out: &Path,
+    participants: Option<&dyn Fn(u32) -> bool>,
+) -> Result<Vec<PlannedTrial>, RunError> {
+    let mut pending = pending_trials(protocol, out, participants)?;
+    let retries = protocol.training.practice_retries;
+    if retries == 0 {
+        return Ok(pending);
+    }
+    let done = done_keys(protocol, out)?;
+    let n = protocol.training.practice_trials;
+    let mut extra = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for p in &pending {
+        let cell = (p.key.participant, p.key.condition);
+        if !seen.insert(cell) {
+            continue;
+        }
+        for t in n + 1..=n + retries {
+            let key = crate::seeds::TrialKey::new(cell.0, cell.1, Phase::Practice, t);
+            if !done.contains(&key) {
+                extra.push(PlannedTrial {
+                    key,
+                    seed: key.seed(protocol.seeds.study),
+                    ..p.clone()
+                });
+            }
+        }
+    }
+    pending.extend(extra);
+    Ok(pending)
+}
+
+/// The trials with a row in the folder `out`'s `trials.csv`. A damaged
+/// file (a writer killed while creating it) is the store's to repair when
+/// it opens; until then no trial counts as done (an upper bound).
+fn done_keys(
+    protocol: &Protocol,
+    out: &Path,
+) -> Result<std::collections::HashSet<crate::seeds::TrialKey>, RunError> {
+    let table = protocol
+        .assignment()
+        .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
+    let all = plan(protocol, &order_rows(&table));
+    Ok(match read_trials(&out.join(TRIALS_FILE)) {
+        Ok(read) => read
+            .rows
             .iter()
             .map(|r| {
                 crate::seeds::TrialKey::new(
@@ -391,15 +457,9 @@ pub fn pending_trials(
                     r.trial,
                 )
             })
-            .collect()
-    } else {
-        Default::default()
-    };
-    Ok(all
-        .into_iter()
-        .filter(|p| !done.contains(&p.key))
-        .filter(|p| participants.is_none_or(|f| f(p.key.participant)))
-        .collect())
+            .collect(),
+        Err(_) => Default::default(),
+    })
 }
 
 fn participant_index(plan: &[PlannedTrial], id: &str) -> u32 {
@@ -485,14 +545,15 @@ pub fn estimate_sitting(opts: &SimulateOptions, only: Option<u32>) -> Result<Stu
 
 /// The upper bound for the same sitting as [`estimate_sitting`]: every
 /// pending trial runs to the task's time-out ([`TrialRows::time_out`]; no
-/// pilot, only `trials.csv` is read). A sitting whose bound is small needs
+/// pilot, only `trials.csv` is read), and every extra practice trial the
+/// protocol allows is earned ([`pending_trials_at_most`]). A sitting whose bound is small needs
 /// no better estimate.
 ///
 /// # Errors
 /// As [`pending_trials`].
 pub fn bound_sitting(opts: &SimulateOptions, only: Option<u32>) -> Result<StudySize, RunError> {
     let keep = move |p: u32| only.is_none_or(|o| o == p);
-    let pending = pending_trials(&opts.protocol, &opts.out, Some(&keep))?;
+    let pending = pending_trials_at_most(&opts.protocol, &opts.out, Some(&keep))?;
     let rows = TrialRows::time_out(&opts.protocol, opts.rig.rig.sample_rate_hz);
     Ok(estimate_study_size(
         &opts.protocol,
@@ -603,6 +664,32 @@ mod tests {
     }
 
     #[test]
+    fn the_bound_counts_every_extra_practice_trial_the_protocol_allows() {
+        let mut protocol = Protocol::builtin("paper").unwrap();
+        protocol.training.practice_retries = 0;
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("new");
+        let plain = pending_trials(&protocol, &out, None).unwrap();
+        assert_eq!(
+            pending_trials_at_most(&protocol, &out, None).unwrap(),
+            plain,
+            "no extra practice without practice_retries"
+        );
+        protocol.training.practice_retries = 2;
+        let most = pending_trials_at_most(&protocol, &out, None).unwrap();
+        // 8 participants × 3 conditions × 2 extra trials.
+        assert_eq!(most.len(), plain.len() + 8 * 3 * 2);
+        let extra = &most[plain.len()..];
+        assert!(extra.iter().all(|p| p.key.phase == Phase::Practice
+            && (4..=5).contains(&p.key.trial)
+            && p.seed == p.key.seed(protocol.seeds.study)));
+        // Only the kept participants.
+        let one = |p: u32| p == 3;
+        let most = pending_trials_at_most(&protocol, &out, Some(&one)).unwrap();
+        assert_eq!(most.len(), 3 * (10 + 3 + 2));
+    }
+
+    #[test]
     fn estimate_counts_rows_overheads_and_the_time_out_bound() {
         let protocol = Protocol::builtin("paper").unwrap();
         let table = protocol.assignment().unwrap();
@@ -648,7 +735,11 @@ mod tests {
         let opts = SimulateOptions::new(protocol.clone(), &dir);
         let all = plan(&protocol, &order_rows(&protocol.assignment().unwrap()));
         let b = bound_sitting(&opts, Some(1)).unwrap();
-        let n = all.iter().filter(|p| p.key.participant == 1).count();
+        // The plan's trials and every extra practice trial allowed (3 per
+        // condition in the built-in protocol).
+        let extra = 3 * protocol.training.practice_retries as usize;
+        assert_eq!(extra, 9);
+        let n = all.iter().filter(|p| p.key.participant == 1).count() + extra;
         assert_eq!(b.trials, n);
         assert_eq!(b.basis, RowsBasis::TimeOut);
         assert_eq!(b.bytes, b.timeout_bytes);
@@ -658,7 +749,7 @@ mod tests {
         );
         assert!(b.describe().starts_with("at most "), "{}", b.describe());
         let every = bound_sitting(&opts, None).unwrap();
-        assert_eq!(every.trials, all.len());
+        assert_eq!(every.trials, all.len() + 8 * extra);
     }
 
     #[test]

@@ -207,7 +207,7 @@ pub fn sitting(
     }
     let mut session = SessionHandle::spawn(opts, &mut engine)
         .with_context(|| format!("study run into {}", a.out.display()))?;
-    let info = session.info().clone();
+    let mut info = session.info().clone();
     eprintln!(
         "sitting of {} on {} ({}), {} of {} trials done",
         pid.id,
@@ -221,7 +221,10 @@ pub fn sitting(
     );
     session.send(SessionCommand::Start);
     let t0 = Instant::now();
-    let (finish, committed) = wait_for_end(&mut session, &mut engine, a.timeout_s, info.planned)?;
+    let mut planned = info.planned;
+    let (finish, committed) = wait_for_end(&mut session, &mut engine, a.timeout_s, &mut planned)?;
+    // Extra practice trials earned during the sitting are in the plan now.
+    info.planned = planned;
     let health = session.health(&engine);
     let _ = session.close(&mut engine);
     let report = report(a, &pid.id, &info, committed, &finish, health, t0);
@@ -258,7 +261,7 @@ fn wait_for_end(
     session: &mut SessionHandle,
     engine: &mut EngineHandle,
     timeout_s: f64,
-    planned: usize,
+    planned: &mut usize,
 ) -> anyhow::Result<(FinishReason, usize)> {
     let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
     let mut bar = Progress::new("trials");
@@ -275,10 +278,14 @@ fn wait_for_end(
                 SessionEvent::Committed(_) => {
                     committed += 1;
                     done += 1;
-                    bar.count(done, planned);
+                    bar.count(done, *planned);
                 }
                 SessionEvent::Error(msg) => eprintln!("sitting: {msg}"),
                 SessionEvent::Noted(msg) => eprintln!("journal: {msg}"),
+                SessionEvent::Replanned(n) => {
+                    *planned = n;
+                    bar.count(done, n);
+                }
                 SessionEvent::Finished(r) => return Ok((r, committed)),
                 _ => {}
             }

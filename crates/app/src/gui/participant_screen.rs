@@ -141,8 +141,9 @@ impl ParticipantScreen {
         }
     }
 
-    /// The counter of trial `k`: "Practice — trial 1 of 3" or "Session 2
-    /// of 3 — trial 4 of 10", and the fraction of the block done.
+    /// The counter of trial `k`: "Practice — trial 1 of 3", "Practice —
+    /// extra trial 1" (one replacing an unsuccessful practice trial) or
+    /// "Session 2 of 3 — trial 4 of 10", and the fraction of the block done.
     pub fn counter(&self, k: TrialKey) -> (String, f32) {
         let order = self
             .orders
@@ -155,10 +156,16 @@ impl ParticipantScreen {
             self.protocol.training.practice_trials,
         );
         let text = match k.phase {
+            // An extra trial replacing an unsuccessful one
+            // (`training.practice_retries`).
+            Phase::Practice if trial > of => {
+                format!("Practice — extra trial {}", trial - of)
+            }
             Phase::Practice => format!("Practice — trial {trial} of {of}"),
             Phase::Test => format!("Session {session} of {sessions} — trial {trial} of {of}"),
         };
-        (text, (trial as f32 - 1.0) / of.max(1) as f32)
+        let done = (trial as f32 - 1.0) / of.max(1) as f32;
+        (text, done.min(1.0))
     }
 
     /// The text of the current screen (`None`: blank or the scene).
@@ -268,6 +275,11 @@ mod tests {
         assert_eq!(
             s.counter(k(Phase::Practice, Condition::P, 1)).0,
             "Practice — trial 1 of 3"
+        );
+        // An extra trial replacing an unsuccessful one: no "4 of 3".
+        assert_eq!(
+            s.counter(k(Phase::Practice, Condition::P, 4)),
+            ("Practice — extra trial 1".to_owned(), 1.0)
         );
         s.on_trial_ended(k(Phase::Practice, Condition::P, 1));
         s.on_state(RunnerState::Waiting(k(Phase::Practice, Condition::P, 2)));

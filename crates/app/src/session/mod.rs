@@ -289,6 +289,10 @@ pub enum SessionEvent {
     TrialEnded(TrialKey, TrialEnd),
     /// A row was committed (fsynced).
     Committed(Box<TrialRow>),
+    /// The plan grew to this many trials: an unsuccessful practice row
+    /// earned an extra practice trial (`training.practice_retries`).
+    /// Follows that row's [`SessionEvent::Committed`].
+    Replanned(usize),
     /// Decimated telemetry.
     Telemetry(Telemetry),
     /// A note was journaled.
@@ -542,6 +546,7 @@ impl SessionHandle {
         }
         let thread = std::thread::Builder::new()
             .name("kilotouch-sitting".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || w.run())
             .map_err(|e| SessionError::Thread(e.to_string()))?;
         Ok(Self {

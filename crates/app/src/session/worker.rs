@@ -383,10 +383,15 @@ impl Worker {
             let id = self.participant_id(key);
             self.core.pause(&format!("participant {id} finished"))?;
         }
+        let planned = self.planned();
         let Some((row, next)) = self.core.commit(&outcome)? else {
             return Ok(None);
         };
         self.emit(SessionEvent::Committed(Box::new(row)));
+        let now_planned = self.planned();
+        if now_planned > planned {
+            self.emit(SessionEvent::Replanned(now_planned));
+        }
         if boundary {
             return Ok(Some(FinishReason::ParticipantDone(
                 self.participant_id(key),
@@ -406,6 +411,11 @@ impl Worker {
                 Ok(None)
             }
         }
+    }
+
+    /// Trials in the study's plan now (0 once the store is closed).
+    fn planned(&self) -> usize {
+        self.core.store().map_or(0, |s| s.plan().len())
     }
 
     /// Is `key` the last pending trial of the sitting's participant while

@@ -92,6 +92,55 @@ pub fn plan(protocol: &Protocol, orders: &[OrderRow]) -> Vec<PlannedTrial> {
     out
 }
 
+/// The extra practice trial a practice row that is not a success earns
+/// (`training.practice_retries`, [`crate::protocol::Training`]): where it
+/// goes in `plan` (right after the last practice trial of the same
+/// participant and condition, so the participant practises that condition
+/// again before the next block) and the trial, numbered after the cell's
+/// last practice trial, with its own seed. `None` when `failed` is not a
+/// practice trial of `plan` or its condition's extra trials are used up.
+///
+/// Applying this once per unsuccessful practice row, in any order, gives
+/// the same plan: a resumed folder rebuilds its extra trials from the rows
+/// of `trials.csv`.
+pub fn practice_retry(
+    protocol: &Protocol,
+    plan: &[PlannedTrial],
+    failed: TrialKey,
+) -> Option<(usize, PlannedTrial)> {
+    if failed.phase != Phase::Practice {
+        return None;
+    }
+    let same_cell = |p: &PlannedTrial| {
+        p.key.participant == failed.participant
+            && p.key.condition == failed.condition
+            && p.key.phase == Phase::Practice
+    };
+    let last = plan.iter().rposition(same_cell)?;
+    let in_cell = plan.iter().filter(|p| same_cell(p)).count();
+    let extra = u32::try_from(in_cell)
+        .ok()?
+        .saturating_sub(protocol.training.practice_trials);
+    if extra >= protocol.training.practice_retries {
+        return None;
+    }
+    let template = &plan[last];
+    let key = TrialKey::new(
+        failed.participant,
+        failed.condition,
+        Phase::Practice,
+        template.key.trial.checked_add(1)?,
+    );
+    Some((
+        last + 1,
+        PlannedTrial {
+            key,
+            seed: key.seed(protocol.seeds.study),
+            ..template.clone()
+        },
+    ))
+}
+
 /// Relative path (with `/`) of a trial's raw file.
 pub fn raw_file_name(planned: &PlannedTrial) -> String {
     format!(

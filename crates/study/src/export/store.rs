@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use super::checksum;
 use super::journal::{Journal, Record, SessionStart, read_journal, sittings};
 use super::open::{self, FolderRead, NewStudy};
-use super::plan::{PlannedTrial, plan, raw_file_name, raw_layout_for};
+use super::plan::{PlannedTrial, plan, practice_retry, raw_file_name, raw_layout_for};
 use super::reconcile::{DamagedRaw, Expected, PendingQuarantine, Recovery, Verdict, reconcile};
 use super::session::{
     self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, SittingTiming, StudyMeta,
@@ -26,6 +26,35 @@ use crate::storage::error::{ExportError, Result};
 use crate::storage::fsutil::{entry_exists, refuse_link};
 use crate::storage::lock::FolderLock;
 use crate::storage::utc::UtcTime;
+
+/// Each trial's position in `plan`.
+fn index_plan(plan: &[PlannedTrial]) -> HashMap<TrialKey, usize> {
+    plan.iter().enumerate().map(|(i, p)| (p.key, i)).collect()
+}
+
+/// Adds to `plan` the extra practice trials that the unsuccessful practice
+/// rows of `rows` (a resumed folder's `trials.csv`) earned, as
+/// [`StudyStore::commit_trial`] added them when those rows were committed
+/// ([`practice_retry`]). Rows of unknown participants are left to the
+/// reconciliation, which names them.
+fn replay_practice_retries(
+    protocol: &Protocol,
+    orders: &[OrderRow],
+    plan: &mut Vec<PlannedTrial>,
+    rows: &[TrialRow],
+) {
+    if protocol.training.practice_retries == 0 {
+        return;
+    }
+    for row in rows.iter().filter(|r| !r.success) {
+        let Some(o) = orders.iter().find(|o| o.participant == row.participant) else {
+            continue;
+        };
+        if let Some((at, extra)) = practice_retry(protocol, plan, row.key(o.index)) {
+            plan.insert(at, extra);
+        }
+    }
+}
 
 /// Proof that a trial was begun ([`StudyStore::begin_trial`]); consumed by
 /// [`StudyStore::commit_trial`] or [`StudyStore::abort_trial`].
@@ -117,9 +146,7 @@ impl StudyStore {
         let (protocol_toml, protocol_sha256) = session::protocol_identity(protocol)?;
         let table = protocol.assignment()?;
         let orders = session::order_rows(&table);
-        let plan = plan(protocol, &orders);
-        let plan_index: HashMap<TrialKey, usize> =
-            plan.iter().enumerate().map(|(i, p)| (p.key, i)).collect();
+        let mut plan = plan(protocol, &orders);
         refuse_links(dir)?;
         let lock = FolderLock::acquire(
             dir,
@@ -157,6 +184,10 @@ impl StudyStore {
         // Read and check everything before modifying anything: an error
         // leaves the folder exactly as it was.
         let mut read = FolderRead::read(dir, &info.protocol_sha256)?;
+        if let Some(t) = &read.trials {
+            replay_practice_retries(protocol, &orders, &mut plan, &t.rows);
+        }
+        let plan_index = index_plan(&plan);
         let task = TaskKind::of(&protocol.task);
         let verdict = reconcile(
             &read.found(),
@@ -504,6 +535,12 @@ impl StudyStore {
         self.poison(r)?;
         self.completed.insert(key, crc);
         self.open_trial = None;
+        if !row.success
+            && let Some((at, extra)) = practice_retry(&self.protocol, &self.plan, key)
+        {
+            self.plan.insert(at, extra);
+            self.plan_index = index_plan(&self.plan);
+        }
         Ok(crc)
     }
 

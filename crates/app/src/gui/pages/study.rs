@@ -220,6 +220,12 @@ impl StudyPage {
         self.session.is_some()
     }
 
+    /// Trials in the study's plan as the sitting last reported it (it grows
+    /// when an unsuccessful practice trial earns an extra one).
+    pub fn planned(&self) -> usize {
+        self.planned
+    }
+
     /// Rows shown in the table (this participant's, from `trials.csv` and
     /// the rows committed in this sitting).
     pub fn rows(&self) -> &[TrialRow] {
@@ -442,6 +448,12 @@ impl StudyPage {
                 SessionEvent::Committed(row) => {
                     self.committed += 1;
                     self.rows.push(*row);
+                }
+                SessionEvent::Replanned(n) => {
+                    self.planned = n;
+                    self.log.push(format!(
+                        "an unsuccessful practice trial earned an extra one ({n} trials planned)"
+                    ));
                 }
                 SessionEvent::Telemetry(t) => self.telemetry = Some(t),
                 SessionEvent::Noted(n) => self.log.push(format!("note: {n}")),
@@ -915,8 +927,13 @@ impl StudyPage {
             );
         }
         if let Some(p) = &self.protocol {
+            let extra = match p.training.practice_retries {
+                0 => String::new(),
+                r => format!(" (up to {r} more for unsuccessful ones)"),
+            };
             ui.label(format!(
-                "{} — {} participants × {} sessions × {} trials, {} practice trials per condition; task: {}",
+                "{} — {} participants × {} sessions × {} trials, {} practice trials per \
+                 condition{extra}; task: {}",
                 p.name,
                 p.participants,
                 p.sessions(),
