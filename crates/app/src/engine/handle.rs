@@ -232,6 +232,7 @@ impl EngineHandle {
             engine_pair_with_devices(cfg, rig, tw, opts, SystemClock::default())?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 core.thread_started();
                 while core.run_block() {}
@@ -249,6 +250,7 @@ impl EngineHandle {
         let (mut core, mut handle) = engine_pair(cfg, opts, clock)?;
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 core.thread_started();
                 while core.run_block() {}

@@ -128,6 +128,7 @@ impl PlanState {
         let dir = dir.to_path_buf();
         let spawned = std::thread::Builder::new()
             .name("kilotouch-power".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 let r = power_from_path(&dir, &opts, &|k, n| {
                     d.store(k, Ordering::Relaxed);

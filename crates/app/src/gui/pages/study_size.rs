@@ -104,6 +104,7 @@ impl SizeGate {
         let (tx, rx) = mpsc::channel();
         let spawned = std::thread::Builder::new()
             .name("size-estimate".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 let r = std::panic::catch_unwind(|| {
                     crate::session::estimate_size(&opts, only, assume, threshold)

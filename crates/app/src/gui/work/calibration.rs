@@ -133,6 +133,7 @@ impl CalibrationRun {
         let worker_tx = tx.clone();
         let spawned = std::thread::Builder::new()
             .name("kilotouch-calibration".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 let tx = worker_tx;
                 let ctx = repaint;

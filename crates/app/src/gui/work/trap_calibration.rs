@@ -62,6 +62,7 @@ impl TrapCalibrationRun {
         let (tx, rx) = mpsc::channel();
         std::thread::Builder::new()
             .name("kilotouch-trap-calibration".into())
+            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
             .spawn(move || {
                 let ptx = tx.clone();
                 let work = move || -> anyhow::Result<TrapCalibrationDone> {
