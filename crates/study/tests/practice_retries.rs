@@ -196,3 +196,70 @@ fn an_absurd_bound_is_refused_naming_the_field() {
         .to_string();
     assert!(e.contains("training.practice_retries"), "{e}");
 }
+
+/// `study simulate --resume` on a folder cut after an extra practice trial
+/// was earned (and one more was earned by the last row kept): the resumed
+/// run rebuilds the plan from the rows, runs the pending extra first and
+/// writes the uninterrupted run's rows in the same order.
+#[test]
+fn a_resumed_simulation_writes_the_uninterrupted_rows_with_their_extras() {
+    use kilotouch_study::export::SimulationInfo;
+    use kilotouch_study::runner::RunnerConfig;
+    use kilotouch_study::simulate::{SimulateOptions, sim_meta, simulate};
+
+    // A 1 s time-out: every practice trial is unsuccessful and earns its
+    // one extra.
+    let p = Protocol::from_toml_str(
+        "name = \"retry\"\nparticipants = 2\nconditions = [\"P\", \"D\"]\n\
+         trials_per_session = 1\n[training]\npractice_trials = 1\npractice_retries = 1\n\
+         [task.circling]\ntimeout_s = 1.0\n[seeds]\nstudy = 4\n",
+        "retry.toml",
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let opts = |out: &Path, resume: bool| SimulateOptions {
+        runner: RunnerConfig {
+            raw: None,
+            ..RunnerConfig::default()
+        },
+        threads: 2,
+        resume,
+        ..SimulateOptions::new(p.clone(), out)
+    };
+    let full = dir.path().join("full");
+    simulate(&opts(&full, false), &mut |_, _| {}).unwrap();
+    let want = read_trials(&full.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(want.len(), 12, "2 × 2 × (1 practice + 1 extra + 1 test)");
+
+    // The first three rows: P01's first practice trial, its extra, and the
+    // second condition's practice trial (whose extra is pending).
+    let cut = dir.path().join("cut");
+    let o = opts(&cut, false);
+    let (meta, _) = sim_meta(&o.rig, None, false, None).unwrap();
+    let mut store = StudyStore::open(&cut, &p, &meta).unwrap();
+    store
+        .set_simulation(SimulationInfo {
+            fidelity: o.fidelity,
+            shard: None,
+        })
+        .unwrap();
+    for r in &want[..3] {
+        let key = store.next_pending().unwrap().key;
+        assert_eq!(key, r.key(0), "plan order");
+        let t = store.begin_trial(key, r.started_utc).unwrap();
+        store.commit_trial(t, r).unwrap();
+    }
+    assert_eq!(store.plan().len(), 10, "two extras planned so far");
+    drop(store);
+
+    let report = simulate(&opts(&cut, true), &mut |_, _| {}).unwrap();
+    assert_eq!(report.already_completed, 3);
+    assert_eq!((report.ran, report.planned), (9, 12));
+    let got = read_trials(&cut.join(TRIALS_FILE)).unwrap().rows;
+    assert_eq!(got.len(), want.len());
+    for (g, w) in got.iter().zip(&want) {
+        let mut g = g.clone();
+        g.started_utc = w.started_utc;
+        assert_eq!(&g, w);
+    }
+}

@@ -959,16 +959,19 @@ impl StudyPage {
                     .find(|r| r.participant as u32 == id.index)
                 {
                     let order: Vec<&str> = row.sessions.iter().map(|c| c.code()).collect();
+                    let (practice, extra) = self.protocol.as_ref().map_or((0, 0), |p| {
+                        (p.training.practice_trials, p.training.practice_retries)
+                    });
+                    let extra = match extra {
+                        0 => String::new(),
+                        r => format!(", up to {r} more for unsuccessful ones"),
+                    };
                     ui.label(format!(
-                        "{}: order {} (row {} of the square) — training block ({} practice trials \
-                         per condition), then sessions {}",
+                        "{}: order {} (row {} of the square) — training block ({practice} \
+                         practice trials per condition{extra}), then sessions {}",
                         id.id,
                         order.join(" > "),
                         row.row + 1,
-                        self.protocol
-                            .as_ref()
-                            .map(|p| p.training.practice_trials)
-                            .unwrap_or(0),
                         order.join(", ")
                     ));
                     if !t.report.balanced {
