@@ -460,13 +460,13 @@ pub fn data_crc32(file: &mut File, offset: u64) -> std::io::Result<u32> {
     use std::io::Read as _;
     file.seek(SeekFrom::Start(offset))?;
     let mut buf = vec![0u8; 1 << 16];
-    let mut crc = 0u32;
+    let mut crc = crate::export::checksum::Crc32::new();
     loop {
         let n = file.read(&mut buf)?;
         if n == 0 {
-            return Ok(crc);
+            return Ok(crc.finish());
         }
-        crc = crate::export::checksum::crc32_continue(crc, &buf[..n]);
+        crc.update(&buf[..n]);
     }
 }
 

@@ -4,7 +4,7 @@
 use std::fs;
 
 use kilotouch_study::export::ExportError;
-use kilotouch_study::export::checksum::{Sha256, crc32, sha256_hex};
+use kilotouch_study::export::checksum::{Crc32, Sha256, crc32, sha256_hex};
 use kilotouch_study::export::session::{
     CalibrationRef, DeviceRecord, OrderRow, SittingTiming, TweezerDeviceRecord,
 };
@@ -32,6 +32,14 @@ fn crc32_check_values() {
         let mut l = line.clone();
         l[i / 8] ^= 1 << (i % 8);
         assert_ne!(crc32(&l), c, "bit {i}");
+    }
+    // Piece by piece (a raw file read in chunks) equals the whole.
+    let text = b"The quick brown fox jumps over the lazy dog";
+    for cut in [0, 1, 17, text.len()] {
+        let mut d = Crc32::new();
+        d.update(&text[..cut]);
+        d.update(&text[cut..]);
+        assert_eq!(d.finish(), 0x414F_A339, "cut at {cut}");
     }
 }
 
