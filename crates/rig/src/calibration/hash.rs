@@ -103,8 +103,7 @@ pub fn content_hash<T: Serialize + ?Sized>(value: &T) -> Result<String> {
 }
 
 /// Current UTC time as RFC 3339 (`YYYY-MM-DDThh:mm:ssZ`), from the system
-/// clock (civil-from-days conversion of H. Hinnant, "chrono-compatible
-/// low-level date algorithms").
+/// clock.
 pub fn utc_now_rfc3339() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -112,24 +111,24 @@ pub fn utc_now_rfc3339() -> String {
     rfc3339_from_unix(secs)
 }
 
-/// RFC 3339 UTC timestamp of `secs` seconds after 1970-01-01T00:00:00Z.
+/// RFC 3339 UTC timestamp of `secs` seconds after 1970-01-01T00:00:00Z
+/// (the `jiff` crate's proleptic Gregorian calendar; clamped to the year
+/// 9999).
 pub fn rfc3339_from_unix(secs: u64) -> String {
-    let days = (secs / 86_400) as i64;
-    let rem = secs % 86_400;
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
+    const EPOCH: jiff::civil::DateTime = jiff::civil::datetime(1970, 1, 1, 0, 0, 0, 0);
+    let last = jiff::civil::datetime(9999, 12, 31, 23, 59, 59, 0);
+    let secs = i64::try_from(secs).unwrap_or(i64::MAX);
+    let z = EPOCH
+        .checked_add(jiff::SignedDuration::from_secs(secs))
+        .unwrap_or(last);
     format!(
-        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
+        "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+        z.year(),
+        z.month(),
+        z.day(),
+        z.hour(),
+        z.minute(),
+        z.second()
     )
 }
 
@@ -181,5 +180,7 @@ mod tests {
         assert_eq!(rfc3339_from_unix(0), "1970-01-01T00:00:00Z");
         assert_eq!(rfc3339_from_unix(951_782_400), "2000-02-29T00:00:00Z");
         assert_eq!(rfc3339_from_unix(1_735_689_599), "2024-12-31T23:59:59Z");
+        assert_eq!(rfc3339_from_unix(253_402_300_799), "9999-12-31T23:59:59Z");
+        assert_eq!(rfc3339_from_unix(u64::MAX), "9999-12-31T23:59:59Z");
     }
 }

@@ -1,10 +1,10 @@
 //! UTC timestamps in ISO 8601 / RFC 3339 form, `YYYY-MM-DDTHH:MM:SS.mmmZ`.
 //!
-//! Formatted by hand from [`std::time::SystemTime`] (no date crate): the
-//! civil-from-days and days-from-civil conversions of the proleptic Gregorian
-//! calendar by H. Hinnant ("chrono-Compatible Low-Level Date Algorithms",
-//! 2013), exact for every day of years 0000–9999. Leap seconds are not
-//! represented (POSIX time), as in every mainstream reader.
+//! The calendar arithmetic (proleptic Gregorian, years 0000–9999) is the
+//! `jiff` crate's; this module fixes the one spelling kilotouch writes
+//! (always UTC, always milliseconds) and the strict parse of it, whose
+//! errors say which part is wrong. Leap seconds are not represented (POSIX
+//! time), as in every mainstream reader.
 
 use std::fmt;
 use std::str::FromStr;
@@ -23,43 +23,18 @@ const MIN_MS: i64 = -62_167_219_200_000;
 /// Last representable instant, 9999-12-31T23:59:59.999Z.
 const MAX_MS: i64 = 253_402_300_799_999;
 
-/// Days since 1970-01-01 of a proleptic Gregorian date (Hinnant).
-fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
-    let y = if m <= 2 { y - 1 } else { y };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let m = i64::from(m);
-    let doy = (153 * (if m > 2 { m - 3 } else { m + 9 }) + 2) / 5 + i64::from(d) - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
+/// The civil date and time (UTC) of `ms` milliseconds since the epoch,
+/// clamped to the representable range.
+fn civil(ms: i64) -> jiff::civil::DateTime {
+    // Civil arithmetic from the epoch: `jiff::Timestamp` stops a day short
+    // of the year 9999's end (so that every offset applies), UTC needs none.
+    EPOCH
+        .checked_add(jiff::SignedDuration::from_millis(ms.clamp(MIN_MS, MAX_MS)))
+        .unwrap_or(EPOCH)
 }
 
-/// Date (year, month 1–12, day 1–31) of a day count since 1970-01-01.
-fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    (y, m, d)
-}
-
-fn is_leap(y: i64) -> bool {
-    (y % 4 == 0 && y % 100 != 0) || y % 400 == 0
-}
-
-fn days_in_month(y: i64, m: u32) -> u32 {
-    match m {
-        1 | 3 | 5 | 7 | 8 | 10 | 12 => 31,
-        4 | 6 | 9 | 11 => 30,
-        _ if is_leap(y) => 29,
-        _ => 28,
-    }
-}
+/// 1970-01-01T00:00:00 (UTC).
+const EPOCH: jiff::civil::DateTime = jiff::civil::datetime(1970, 1, 1, 0, 0, 0, 0);
 
 impl UtcTime {
     /// The current time (clamped to the representable range).
@@ -125,14 +100,14 @@ impl UtcTime {
         if b[4] != b'-' || b[7] != b'-' || b[10] != b'T' || b[13] != b':' || b[16] != b':' {
             return Err(err("expected YYYY-MM-DDTHH:MM:SS[.fff]Z"));
         }
-        let (y, mo, d) = (i64::from(num(0..4)?), num(5..7)?, num(8..10)?);
+        let (y, mo, d) = (num(0..4)?, num(5..7)?, num(8..10)?);
         let (h, mi, sec) = (num(11..13)?, num(14..16)?, num(17..19)?);
         if !(1..=12).contains(&mo) {
             return Err(err("month out of range"));
         }
-        if d == 0 || d > days_in_month(y, mo) {
-            return Err(err("day out of range"));
-        }
+        // Four digits, month checked: the narrowing casts are exact.
+        let date = jiff::civil::Date::new(y as i16, mo as i8, d as i8)
+            .map_err(|_| err("day out of range"))?;
         if h > 23 || mi > 59 || sec > 59 {
             return Err(err("time of day out of range"));
         }
@@ -153,10 +128,11 @@ impl UtcTime {
         } else {
             return Err(err("expected `Z` (UTC) after the seconds"));
         };
-        let days = days_from_civil(y, mo, d);
-        let secs = days * 86_400 + i64::from(h) * 3600 + i64::from(mi) * 60 + i64::from(sec);
+        let since = date
+            .at(h as i8, mi as i8, sec as i8, 0)
+            .duration_since(EPOCH);
         Ok(Self {
-            unix_ms: secs * 1000 + frac_ms,
+            unix_ms: since.as_secs() * 1000 + frac_ms,
         })
     }
 }
@@ -165,16 +141,16 @@ impl fmt::Display for UtcTime {
     /// `YYYY-MM-DDTHH:MM:SS.mmmZ`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let ms = self.unix_ms.rem_euclid(1000);
-        let secs = self.unix_ms.div_euclid(1000);
-        let days = secs.div_euclid(86_400);
-        let sod = secs.rem_euclid(86_400);
-        let (y, m, d) = civil_from_days(days);
+        let t = civil(self.unix_ms);
         write!(
             f,
-            "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}.{ms:03}Z",
-            sod / 3600,
-            (sod / 60) % 60,
-            sod % 60
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{ms:03}Z",
+            t.year(),
+            t.month(),
+            t.day(),
+            t.hour(),
+            t.minute(),
+            t.second()
         )
     }
 }
@@ -204,13 +180,36 @@ impl<'de> Deserialize<'de> for UtcTime {
 mod tests {
     use super::*;
 
+    /// Known instants, the range's ends and a leap day, both ways.
     #[test]
-    fn civil_round_trip_over_four_centuries() {
-        // 146 097 days = one Gregorian cycle, both sides of the epoch.
-        for z in (-146_097 - 719_468)..(146_097 + 10) {
-            let (y, m, d) = civil_from_days(z);
-            assert_eq!(days_from_civil(y, m, d), z);
-            assert!(d >= 1 && d <= days_in_month(y, m));
+    fn known_instants_print_and_parse() {
+        for (ms, text) in [
+            (0, "1970-01-01T00:00:00.000Z"),
+            (951_782_400_000, "2000-02-29T00:00:00.000Z"),
+            (1_735_689_599_999, "2024-12-31T23:59:59.999Z"),
+            (-1, "1969-12-31T23:59:59.999Z"),
+            (MIN_MS, "0000-01-01T00:00:00.000Z"),
+            (MAX_MS, "9999-12-31T23:59:59.999Z"),
+        ] {
+            let t = UtcTime::from_unix_millis(ms);
+            assert_eq!(t.to_string(), text);
+            assert_eq!(UtcTime::parse(text), Ok(t), "{text}");
+        }
+        assert!(
+            UtcTime::parse("1900-02-29T00:00:00Z").is_err(),
+            "not a leap year"
+        );
+        assert!(UtcTime::parse("2000-02-30T00:00:00Z").is_err());
+    }
+
+    /// Every day of a Gregorian cycle (146 097 days) on both sides of the
+    /// epoch prints and parses back to itself, at a time of day that moves.
+    #[test]
+    fn every_day_of_four_centuries_round_trips() {
+        for day in (-146_097_i64 - 719_468)..(146_097 + 10) {
+            let ms = day * 86_400_000 + (day.rem_euclid(86_400)) * 1000 + day.rem_euclid(1000);
+            let t = UtcTime::from_unix_millis(ms);
+            assert_eq!(UtcTime::parse(&t.to_string()), Ok(t));
         }
     }
 }
