@@ -251,6 +251,46 @@ fn unsuccessful_practice_trials_run_again_in_a_sitting_as_headless() {
     assert_same_rows(&got, &want);
 }
 
+/// The Study page's folder check knows the extra practice trials: after
+/// an unsuccessful practice row that was its condition's last, the next
+/// trial is the extra one (as the store resumes), and the plan counts it.
+#[test]
+fn the_folder_check_names_an_earned_extra_practice_trial_as_next() {
+    let mut p = tiny();
+    p.training.practice_retries = 1;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let (meta, _) =
+        kilotouch_study::simulate::sim_meta(&RigConfig::default(), None, false, None).unwrap();
+    let mut store = kilotouch_study::export::StudyStore::open(&out, &p, &meta).unwrap();
+    let first = store.next_pending().unwrap().key;
+    assert_eq!((first.phase, first.trial), (Phase::Practice, 1));
+    let ticket = store
+        .begin_trial(first, kilotouch_study::export::UtcTime::now())
+        .unwrap();
+    let mut row = ticket.row();
+    row.reject_reason = "timeout".into();
+    store.commit_trial(ticket, &row).unwrap();
+    drop(store);
+    match inspect_folder(&out) {
+        FolderStatus::Study {
+            completed,
+            planned,
+            next,
+            ..
+        } => {
+            assert_eq!((completed, planned), (1, 13));
+            let next = next.unwrap().key;
+            assert_eq!(
+                (next.participant, next.condition, next.phase, next.trial),
+                (first.participant, first.condition, Phase::Practice, 2),
+                "the extra trial of the same condition comes next"
+            );
+        }
+        s => panic!("{s:?}"),
+    }
+}
+
 #[test]
 fn kill_mid_session_then_resume_gives_the_uninterrupted_rows() {
     let mut eng = engine();

@@ -43,18 +43,18 @@
 //! # Ok(()) }
 //! ```
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::export::session::order_rows;
-use crate::export::{PlannedTrial, TRIALS_FILE, plan, read_trials};
+use crate::export::session::{OrderRow, order_rows};
+use crate::export::{PlannedTrial, TRIALS_FILE, TrialRow, plan_with_rows, read_trials};
 use crate::protocol::{Condition, Protocol, Task};
 use crate::rawsig::Dtype;
 use crate::runner::{RAW_CHANNELS, RunError, RunnerConfig, TrialEngine};
-use crate::seeds::Phase;
+use crate::seeds::{Phase, TrialKey};
 use crate::simulate::{SimulateOptions, run_planned, sim_meta};
 use crate::task::sim_station::SimStation;
 
@@ -384,8 +384,10 @@ pub fn pending_trials(
     let table = protocol
         .assignment()
         .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
-    let all = plan(protocol, &order_rows(&table));
-    let done = done_keys(protocol, out)?;
+    let orders = order_rows(&table);
+    let rows = folder_rows(out);
+    let all = plan_with_rows(protocol, &orders, &rows);
+    let done = done_keys(&orders, &rows);
     Ok(all
         .into_iter()
         .filter(|p| !done.contains(&p.key))
@@ -410,7 +412,11 @@ pub fn pending_trials_at_most(
     if retries == 0 {
         return Ok(pending);
     }
-    let done = done_keys(protocol, out)?;
+    let table = protocol
+        .assignment()
+        .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
+    let done = done_keys(&order_rows(&table), &folder_rows(out));
+    let planned: HashSet<TrialKey> = pending.iter().map(|p| p.key).collect();
     let n = protocol.training.practice_trials;
     let mut extra = Vec::new();
     let mut seen = std::collections::BTreeSet::new();
@@ -420,8 +426,8 @@ pub fn pending_trials_at_most(
             continue;
         }
         for t in n + 1..=n + retries {
-            let key = crate::seeds::TrialKey::new(cell.0, cell.1, Phase::Practice, t);
-            if !done.contains(&key) {
+            let key = TrialKey::new(cell.0, cell.1, Phase::Practice, t);
+            if !done.contains(&key) && !planned.contains(&key) {
                 extra.push(PlannedTrial {
                     key,
                     seed: key.seed(protocol.seeds.study),
@@ -434,38 +440,23 @@ pub fn pending_trials_at_most(
     Ok(pending)
 }
 
-/// The trials with a row in the folder `out`'s `trials.csv`. A damaged
-/// file (a writer killed while creating it) is the store's to repair when
-/// it opens; until then no trial counts as done (an upper bound).
-fn done_keys(
-    protocol: &Protocol,
-    out: &Path,
-) -> Result<std::collections::HashSet<crate::seeds::TrialKey>, RunError> {
-    let table = protocol
-        .assignment()
-        .map_err(|e| RunError::Config(format!("protocol: {e}")))?;
-    let all = plan(protocol, &order_rows(&table));
-    Ok(match read_trials(&out.join(TRIALS_FILE)) {
-        Ok(read) => read
-            .rows
-            .iter()
-            .map(|r| {
-                crate::seeds::TrialKey::new(
-                    participant_index(&all, &r.participant),
-                    r.condition,
-                    r.phase,
-                    r.trial,
-                )
-            })
-            .collect(),
-        Err(_) => Default::default(),
-    })
+/// The rows of the folder `out`'s `trials.csv`. A damaged file (a writer
+/// killed while creating it) is the store's to repair when it opens; until
+/// then it counts as no row (an upper bound).
+fn folder_rows(out: &Path) -> Vec<TrialRow> {
+    read_trials(&out.join(TRIALS_FILE)).map_or_else(|_| Vec::new(), |r| r.rows)
 }
 
-fn participant_index(plan: &[PlannedTrial], id: &str) -> u32 {
-    plan.iter()
-        .find(|p| p.participant == id)
-        .map_or(u32::MAX, |p| p.key.participant)
+/// The trials `rows` hold.
+fn done_keys(orders: &[OrderRow], rows: &[TrialRow]) -> HashSet<TrialKey> {
+    rows.iter()
+        .filter_map(|r| {
+            orders
+                .iter()
+                .find(|o| o.participant == r.participant)
+                .map(|o| r.key(o.index))
+        })
+        .collect()
 }
 
 /// The size of writing `pending` with raw files of `raw` (`None`: no raw
@@ -654,6 +645,7 @@ pub fn check_free_space(size: &StudySize, target: &Path, available: u64) -> Resu
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::export::plan;
 
     #[test]
     fn bytes_read_like_a_file_manager() {

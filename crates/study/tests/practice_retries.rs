@@ -251,6 +251,13 @@ fn a_resumed_simulation_writes_the_uninterrupted_rows_with_their_extras() {
     }
     assert_eq!(store.plan().len(), 10, "two extras planned so far");
     drop(store);
+    // The size estimate's trials: the 7 pending ones (with D's earned
+    // extra), and at most P02's two extras more.
+    let pending = kilotouch_study::size::pending_trials(&p, &cut, None).unwrap();
+    assert_eq!(pending.len(), 7);
+    let most = kilotouch_study::size::pending_trials_at_most(&p, &cut, None).unwrap();
+    assert_eq!(most.len(), 9, "no extra counted twice");
+    assert_eq!(3 + most.len(), want.len(), "the bound is reached here");
 
     let report = simulate(&opts(&cut, true), &mut |_, _| {}).unwrap();
     assert_eq!(report.already_completed, 3);

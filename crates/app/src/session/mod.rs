@@ -83,7 +83,7 @@ use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_study::export::{
     DeviceRecord, PlannedTrial, Recovery, SESSION_FILE, StudyStore, TRIALS_FILE, TrialRow,
-    TweezerDeviceRecord, plan, read_session, read_trials,
+    TweezerDeviceRecord, plan_with_rows, read_session, read_trials,
 };
 use kilotouch_study::operator::SimCohort;
 use kilotouch_study::participant::{MouseParticipant, VisualFrame};
@@ -402,7 +402,7 @@ pub fn inspect_folder(dir: &Path) -> FolderStatus {
         Ok(r) => r.rows,
         Err(e) => return FolderStatus::Unreadable(e.to_string()),
     };
-    let planned = plan(&info.protocol, &info.order_table);
+    let planned = plan_with_rows(&info.protocol, &info.order_table, &rows);
     let done: std::collections::HashSet<TrialKey> = rows
         .iter()
         .filter_map(|r| {

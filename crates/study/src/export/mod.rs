@@ -92,7 +92,10 @@ pub use datapackage::{DATAPACKAGE_FILE, SummaryLayout, write_datapackage};
 pub use error::{ExportError, Position, Result};
 pub use fsutil::TornTail;
 pub use open::RECOVERY_DIR;
-pub use plan::{PlannedTrial, RAW_DIR, plan, practice_retry, raw_file_name, raw_layout_for};
+pub use plan::{
+    PlannedTrial, RAW_DIR, extend_with_rows, plan, plan_with_rows, practice_retry, raw_file_name,
+    raw_layout_for,
+};
 pub use raw_check::QUARANTINE_DIR;
 pub use reconcile::{DamagedRaw, Recovery};
 pub use session::{

@@ -141,6 +141,43 @@ pub fn practice_retry(
     ))
 }
 
+/// [`plan`] as a folder whose `trials.csv` holds `rows` has it: with the
+/// extra practice trials its unsuccessful practice rows earned
+/// ([`extend_with_rows`]). The one way to know a folder's plan (the store,
+/// the GUI's folder check and the size estimates use it).
+pub fn plan_with_rows(
+    protocol: &Protocol,
+    orders: &[OrderRow],
+    rows: &[TrialRow],
+) -> Vec<PlannedTrial> {
+    let mut out = plan(protocol, orders);
+    extend_with_rows(protocol, orders, &mut out, rows);
+    out
+}
+
+/// Adds to `plan` the extra practice trials that the unsuccessful practice
+/// rows of `rows` earned, as [`super::StudyStore::commit_trial`] added them
+/// when those rows were committed ([`practice_retry`]). Rows of unknown
+/// participants are left to the reconciliation, which names them.
+pub fn extend_with_rows(
+    protocol: &Protocol,
+    orders: &[OrderRow],
+    plan: &mut Vec<PlannedTrial>,
+    rows: &[TrialRow],
+) {
+    if protocol.training.practice_retries == 0 {
+        return;
+    }
+    for row in rows.iter().filter(|r| !r.success) {
+        let Some(o) = orders.iter().find(|o| o.participant == row.participant) else {
+            continue;
+        };
+        if let Some((at, extra)) = practice_retry(protocol, plan, row.key(o.index)) {
+            plan.insert(at, extra);
+        }
+    }
+}
+
 /// Relative path (with `/`) of a trial's raw file.
 pub fn raw_file_name(planned: &PlannedTrial) -> String {
     format!(

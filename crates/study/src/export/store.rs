@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 use super::checksum;
 use super::journal::{Journal, Record, SessionStart, read_journal, sittings};
 use super::open::{self, FolderRead, NewStudy};
-use super::plan::{PlannedTrial, plan, practice_retry, raw_file_name, raw_layout_for};
+use super::plan::{
+    PlannedTrial, extend_with_rows, plan, practice_retry, raw_file_name, raw_layout_for,
+};
 use super::reconcile::{DamagedRaw, Expected, PendingQuarantine, Recovery, Verdict, reconcile};
 use super::session::{
     self, OrderRow, Progress, SESSION_FILE, SessionInfo, SimulationInfo, SittingTiming, StudyMeta,
@@ -30,30 +32,6 @@ use crate::storage::utc::UtcTime;
 /// Each trial's position in `plan`.
 fn index_plan(plan: &[PlannedTrial]) -> HashMap<TrialKey, usize> {
     plan.iter().enumerate().map(|(i, p)| (p.key, i)).collect()
-}
-
-/// Adds to `plan` the extra practice trials that the unsuccessful practice
-/// rows of `rows` (a resumed folder's `trials.csv`) earned, as
-/// [`StudyStore::commit_trial`] added them when those rows were committed
-/// ([`practice_retry`]). Rows of unknown participants are left to the
-/// reconciliation, which names them.
-fn replay_practice_retries(
-    protocol: &Protocol,
-    orders: &[OrderRow],
-    plan: &mut Vec<PlannedTrial>,
-    rows: &[TrialRow],
-) {
-    if protocol.training.practice_retries == 0 {
-        return;
-    }
-    for row in rows.iter().filter(|r| !r.success) {
-        let Some(o) = orders.iter().find(|o| o.participant == row.participant) else {
-            continue;
-        };
-        if let Some((at, extra)) = practice_retry(protocol, plan, row.key(o.index)) {
-            plan.insert(at, extra);
-        }
-    }
 }
 
 /// Proof that a trial was begun ([`StudyStore::begin_trial`]); consumed by
@@ -185,7 +163,7 @@ impl StudyStore {
         // leaves the folder exactly as it was.
         let mut read = FolderRead::read(dir, &info.protocol_sha256)?;
         if let Some(t) = &read.trials {
-            replay_practice_retries(protocol, &orders, &mut plan, &t.rows);
+            extend_with_rows(protocol, &orders, &mut plan, &t.rows);
         }
         let plan_index = index_plan(&plan);
         let task = TaskKind::of(&protocol.task);
