@@ -21,6 +21,11 @@ use std::time::{Duration, Instant};
 #[allow(dead_code)]
 pub const WAIT_S: f64 = 120.0;
 
+/// The emulators' device watchdog window in the tests, ms
+/// ([`Emulator::spawn`]); the watchdog's own tests set theirs.
+#[allow(dead_code)]
+pub const TEST_WATCHDOG_MS: u64 = 1000;
+
 /// The executable under test.
 #[allow(dead_code)]
 pub const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
@@ -132,10 +137,20 @@ impl Emulator {
     }
 
     /// The `kind` emulator with the `extra` options; waits for the pty path
-    /// it prints on its first line.
+    /// it prints on its first line. Unless `extra` sets `--watchdog-ms`, the
+    /// device's watchdog window is [`TEST_WATCHDOG_MS`]: a test of something
+    /// else must not fail because a loaded machine held the host back for
+    /// the device's default 100 ms.
     pub fn spawn(kind: &str, extra: &[&str]) -> Self {
+        let window = TEST_WATCHDOG_MS.to_string();
+        let watchdog: &[&str] = if extra.contains(&"--watchdog-ms") {
+            &[]
+        } else {
+            &["--watchdog-ms", &window]
+        };
         let mut child = Command::new(BIN)
             .args(["emulate", kind, "--pty"])
+            .args(watchdog)
             .args(extra)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
