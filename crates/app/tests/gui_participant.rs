@@ -225,6 +225,18 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
     assert!(h.state().study.participant_screen().is_none());
 }
 
+/// Step until the engine has begun the trial the participant's screen
+/// shows. A stop pressed in the block or two between the screen and the
+/// engine's start refuses that trial instead (the next trial did not begin:
+/// the stop is latched; no row, it runs again after the reset), which is
+/// not the case these tests press Esc for.
+fn until_engine_began_the_trial(h: &mut H) {
+    assert!(step_until_every(h, POLL, common::WAIT_S, |a| a
+        .study
+        .trial_started()
+        .is_some()));
+}
+
 #[test]
 fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     let dir = tempfile::tempdir().unwrap();
@@ -239,6 +251,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
         r,
         Routine::Trial(_)
     )));
+    until_engine_began_the_trial(&mut h);
     // Esc: the trial is aborted (its row kept), the sitting paused.
     h.key_press(egui::Key::Escape);
     assert!(step_until_every(
@@ -477,6 +490,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         common::WAIT_S,
         |h| matches!(routine(h), Some(Routine::Trial(_)))
     ));
+    until_engine_began_the_trial(&mut h);
     h.key_press(egui::Key::Escape);
     assert!(step_until_every(
         &mut h,

@@ -220,6 +220,13 @@ impl StudyPage {
         self.session.is_some()
     }
 
+    /// The trial the engine has begun (its `TrialStarted` arrived), if any.
+    /// The participant's screen shows a trial as soon as the runner is in
+    /// it, a block or so before the engine begins it.
+    pub fn trial_started(&self) -> Option<TrialKey> {
+        self.current.map(|(k, _)| k)
+    }
+
     /// Trials in the study's plan as the sitting last reported it (it grows
     /// when an unsuccessful practice trial earns an extra one).
     pub fn planned(&self) -> usize {
