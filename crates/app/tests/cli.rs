@@ -2,7 +2,7 @@
 //! the real executable. Expected values come from analytic results and
 //! docs/REFERENCE-VALUES.md, not from earlier runs.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{json_ok, kilotouch};
 use serde_json::Value;

@@ -7,7 +7,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::rms;
 use kilotouch::engine::{

@@ -14,7 +14,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::Emulator;
 use kilotouch::engine::{EngineEvent, EngineHandle, EngineOptions, TelemetrySample, flags};

@@ -12,7 +12,7 @@
 //! both); without the variable each test says so and returns. Every wait
 //! is on an event (a line, a frame) with a deadline.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, json_ok, kilotouch as run};
 use kilotouch_rig::device::{ActuatorFrame, Rig, SensorFrame};

@@ -16,7 +16,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use kilotouch::engine::EngineOptions;
 use kilotouch::engine::soak::ReferenceThread;

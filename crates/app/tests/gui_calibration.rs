@@ -3,7 +3,7 @@
 //! default simulated rig, save / apply / load with the file's checks, and
 //! cancel.
 
-mod common;
+use kilotouch_testkit as common;
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;

@@ -6,7 +6,7 @@
 //! free is shown beside the histogram.
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{app_harness, engine_reporting, fresh_app, step_until};
 use egui_kittest::kittest::Queryable;

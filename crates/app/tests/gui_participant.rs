@@ -5,7 +5,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{engine_reporting, step_until_every};
 use egui_kittest::kittest::Queryable;
@@ -17,7 +17,7 @@ use kilotouch_study::export::{TRIALS_FILE, read_trials};
 use kilotouch_study::runner::RunnerState;
 use std::time::{Duration, Instant};
 
-type H = egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>;
+type H = common::AppHarness;
 
 /// One participant, sessions V then D (fixed order), two 0.6 s trials
 /// each, no practice; every screen text recognisable, a 0.4 s
@@ -50,29 +50,9 @@ D = "D-TEXT: you will feel the contact."
 
 const POLL: Duration = Duration::from_millis(5);
 
-/// The app on the Study page with the protocol file `proto`, participant
-/// P01 and the output folder `out` (inline participant view).
-fn study_page(proto: &std::path::Path, out: &std::path::Path) -> H {
-    let app = common::fresh_app(Some(Page::Study));
-    let mut h = common::app_harness(app, 1100.0, 1400.0, None);
-    let s = &mut h.state_mut().study;
-    s.source = ProtocolSource::File;
-    s.protocol_file = proto.display().to_string();
-    s.participant_text = "P01".into();
-    s.out_text = out.display().to_string();
-    s.separate_window = false;
-    h
-}
-
-/// Click "Open session", check it opened, click Start.
+/// Open the session ([`common::open_session`]) and click Start.
 fn open_and_start(h: &mut H) {
-    h.get_by_label("Open session").click();
-    assert!(
-        common::until_sitting_opened(h),
-        "{:?}",
-        h.state().study.error()
-    );
-    h.step();
+    common::open_session(h);
     h.get_by_label("Start").click();
     h.step();
 }
@@ -80,7 +60,7 @@ fn open_and_start(h: &mut H) {
 fn open(dir: &std::path::Path) -> H {
     let proto = dir.join("screens.toml");
     std::fs::write(&proto, PROTOCOL).unwrap();
-    let mut h = study_page(&proto, &dir.join("out"));
+    let mut h = common::study_page(&proto, "P01", &dir.join("out"), 1400.0);
     {
         let s = &mut h.state_mut().study;
         s.kind = ParticipantKind::Mouse;
@@ -461,7 +441,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         .study;
     let emu = common::Emulator::spawn("daq", &["--participant", &format!("operator:{seed}")]);
     let out = dir.path().join("out");
-    let mut h = study_page(&proto, &out);
+    let mut h = common::study_page(&proto, "P01", &out, 1400.0);
     {
         let a = h.state_mut();
         // A fixed lead of one block (hil_sitting.rs: a loaded machine

@@ -7,7 +7,7 @@
 //! `kilotouch_study::power` gives for the same options (results do not
 //! depend on the thread count).
 
-mod common;
+use kilotouch_testkit as common;
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;

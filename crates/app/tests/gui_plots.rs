@@ -6,7 +6,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use egui_kittest::kittest::Queryable;
 use egui_plot::PlotMemory;

@@ -5,7 +5,7 @@
 //! against textbook formulas computed here from the known cell means, and
 //! against `kilotouch_study::stats` called directly.
 
-mod common;
+use kilotouch_testkit as common;
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;

@@ -7,14 +7,15 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
-use common::{engine_reporting, step_until_every};
+use common::{AppHarness, engine_reporting, open_session, step_until_every};
 use egui_kittest::kittest::Queryable;
 use kilotouch::gui::Page;
 use kilotouch::gui::pages::study::ProtocolSource;
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
+use std::path::Path;
 use std::time::Duration;
 
 /// The tiny study of `data/tiny.toml` without practice trials: 2
@@ -27,26 +28,13 @@ fn tiny() -> String {
 /// possible).
 const POLL: Duration = Duration::from_millis(5);
 
-/// The app on the Study page with the protocol file `proto`, participant
-/// `participant`, output folder `out`, the simulated participant at full
-/// speed and the inline participant view.
-fn study_page(
-    proto: &std::path::Path,
-    participant: &str,
-    out: &std::path::Path,
-) -> egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp> {
-    let app = common::fresh_app(Some(Page::Study));
-    let mut h = common::app_harness(app, 1100.0, 900.0, None);
-    {
-        let s = &mut h.state_mut().study;
-        s.source = ProtocolSource::File;
-        s.protocol_file = proto.display().to_string();
-        s.participant_text = participant.into();
-        s.out_text = out.display().to_string();
-        s.kind = ParticipantKind::Simulated;
-        s.speed = Speed::Fast;
-        s.separate_window = false;
-    }
+/// The app on the Study page ([`common::study_page`]) with the simulated
+/// participant at full speed.
+fn study_page(proto: &Path, participant: &str, out: &Path) -> AppHarness {
+    let mut h = common::study_page(proto, participant, out, 900.0);
+    let s = &mut h.state_mut().study;
+    s.kind = ParticipantKind::Simulated;
+    s.speed = Speed::Fast;
     h
 }
 
@@ -58,17 +46,6 @@ fn tiny_folder() -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) 
     std::fs::write(&proto, tiny()).unwrap();
     let out = dir.path().join("out");
     (dir, proto, out)
-}
-
-/// Click "Open session" and check that the session opened.
-fn open_session(h: &mut egui_kittest::Harness<'static, kilotouch::gui::KilotouchApp>) {
-    h.get_by_label("Open session").click();
-    assert!(
-        common::until_sitting_opened(h),
-        "{:?}",
-        h.state().study.error()
-    );
-    h.step();
 }
 
 #[test]

@@ -7,7 +7,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{engine_reporting, step_until};
 use egui_kittest::kittest::{NodeT, Queryable};

@@ -10,7 +10,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, engine_reporting, step_until};
 use egui_kittest::kittest::Queryable;

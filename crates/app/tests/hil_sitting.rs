@@ -10,13 +10,12 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
-use std::collections::HashSet;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{Emulator, kilotouch};
+use common::{Emulator, kilotouch, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::{
     FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
@@ -50,12 +49,6 @@ fn device(extra: &[&str]) -> Emulator {
 /// (and so the clearance) the same on every run.
 fn rig_of(dev: &Emulator) -> String {
     format!("{},lead=1", dev.rig())
-}
-
-fn rows(dir: &Path) -> Vec<TrialRow> {
-    read_trials(&dir.join(TRIALS_FILE))
-        .map(|r| r.rows)
-        .unwrap_or_default()
 }
 
 fn study_run(rig: &str, out: &Path, resume: bool) -> std::process::Output {
@@ -218,19 +211,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     // A new device (a new pty): --resume continues at the aborted trial.
     let dev2 = device(&[]);
     let run = study_run(&rig_of(&dev2), &out, true);
-    assert!(
-        run.status.success(),
-        "resume failed: {}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let all = rows(&out);
-    assert_eq!(all.len(), 6, "{all:?}");
-    let keys: HashSet<_> = all
-        .iter()
-        .map(|r| (r.phase, r.condition, r.trial))
-        .collect();
-    assert_eq!(keys.len(), 6, "a duplicate row: {all:?}");
-    assert_eq!(&all[..committed.len()], &committed[..]);
+    common::assert_resumed(&run, &out, &committed, 6);
     eprintln!("the sitting ended {ended_s:.3} s after the device was killed");
 }
 

@@ -11,13 +11,12 @@
 
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
-use std::collections::HashSet;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{Emulator, kilotouch};
+use common::{Emulator, kilotouch, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::{
     FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
@@ -48,12 +47,6 @@ fn daq() -> Emulator {
 /// The emulated tweezer serving the protocol's micro-world.
 fn tweezer() -> Emulator {
     Emulator::spawn("tweezer", &["--protocol", TINY])
-}
-
-fn rows(dir: &Path) -> Vec<TrialRow> {
-    read_trials(&dir.join(TRIALS_FILE))
-        .map(|r| r.rows)
-        .unwrap_or_default()
 }
 
 /// `study run` of P01 with the DAQ leading by one block and the tweezer
@@ -334,19 +327,7 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
     // Both devices back (new ptys): --resume continues at the aborted trial.
     let (d2, t2) = (daq(), tweezer());
     let run = study_run(&d2, &t2, ",lead=0", &out, true);
-    assert!(
-        run.status.success(),
-        "resume failed: {}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let all = rows(&out);
-    assert_eq!(all.len(), 6, "{all:?}");
-    let keys: HashSet<_> = all
-        .iter()
-        .map(|r| (r.phase, r.condition, r.trial))
-        .collect();
-    assert_eq!(keys.len(), 6, "a duplicate row: {all:?}");
-    assert_eq!(&all[..committed.len()], &committed[..]);
+    common::assert_resumed(&run, &out, &committed, 6);
     eprintln!("the sitting ended {ended_s:.3} s after the tweezer was killed");
 }
 

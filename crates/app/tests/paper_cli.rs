@@ -7,13 +7,11 @@
 
 #![allow(clippy::unwrap_used)]
 
+use common::bin;
+use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-}
 
 /// Columns of a CSV with a header (lines starting with `#` skipped); empty
 /// cells as NaN.

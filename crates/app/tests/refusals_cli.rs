@@ -5,7 +5,7 @@
 //! whose geometry does not fit the scene. Each case states what used to be
 //! accepted.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{json_ok, kilotouch};
 use std::io::Write;

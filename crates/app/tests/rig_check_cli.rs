@@ -3,7 +3,7 @@
 //! (late commands, fault flags, watchdog samples) fails with each reason,
 //! and so does one that streams 7 times faster than the rate it announces.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, kilotouch};
 use serde_json::Value;

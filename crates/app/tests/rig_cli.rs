@@ -1,6 +1,6 @@
 //! `kilotouch rig …` and `kilotouch sim …` through the real executable.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{json_ok, kilotouch as run};
 

@@ -2,7 +2,7 @@
 //! `kilotouch rig check` over the emulator's pty streams 10 kHz for 60 s
 //! with no lost frame.
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, json_ok};
 

@@ -3,9 +3,9 @@
 //! calibrate --rig serial:PATH` in another (the link's checks, except the
 //! 60 s run, which lives in `serial_acceptance.rs`).
 
-mod common;
+use kilotouch_testkit as common;
 
-use common::{BIN, Emulator, json_ok, kilotouch as run};
+use common::{Emulator, json_ok, kilotouch as run};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -117,7 +117,7 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
 #[test]
 fn a_killed_emulator_is_reported_promptly_with_a_clear_error() {
     let mut emu = Emulator::spawn("daq", &[]);
-    let check = Command::new(BIN)
+    let check = Command::new(common::bin())
         .args([
             "rig",
             "check",

@@ -6,7 +6,7 @@
 //! verdict on loss and CRC errors.
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, kilotouch as run};
 use std::time::{Duration, Instant};

@@ -2,15 +2,10 @@
 
 #![allow(clippy::unwrap_used)]
 
+use common::kilotouch as run;
+use kilotouch_testkit as common;
 use serde_json::Value;
 use std::process::Command;
-
-fn run(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
 
 fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> String {
     let mut t = String::from("participant,condition,score\n");

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used)]
 
+use common::{bin, kilotouch as run, rows_without_start_time as rows};
+use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -10,14 +12,6 @@ use std::time::{Duration, Instant};
 use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_trials};
 use kilotouch_study::seeds::Phase;
 use serde_json::Value;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-}
-
-fn run(args: &[&str]) -> std::process::Output {
-    bin().args(args).output().expect("run kilotouch")
-}
 
 fn write_protocol(dir: &Path, trials: u32, practice: u32) -> String {
     let p = dir.join("proto.toml");
@@ -31,18 +25,6 @@ fn write_protocol(dir: &Path, trials: u32, practice: u32) -> String {
     )
     .unwrap();
     p.to_string_lossy().into_owned()
-}
-
-fn rows(dir: &Path) -> Vec<TrialRow> {
-    read_trials(&dir.join(TRIALS_FILE))
-        .unwrap()
-        .rows
-        .into_iter()
-        .map(|mut r| {
-            r.started_utc = UtcTime::from_unix_millis(0);
-            r
-        })
-        .collect()
 }
 
 #[test]

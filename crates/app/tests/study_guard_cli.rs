@@ -7,6 +7,8 @@
 
 #![allow(clippy::unwrap_used)]
 
+use common::{bin, kilotouch as run};
+use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -15,14 +17,6 @@ use kilotouch_study::export::journal::{JOURNAL_FILE, Record, read_journal};
 use kilotouch_study::export::lock::LOCK_FILE;
 use kilotouch_study::export::{QUARANTINE_DIR, RECOVERY_DIR, TRIALS_FILE, read_trials};
 use serde_json::Value;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-}
-
-fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
-    bin().args(args).output().expect("run kilotouch")
-}
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()

@@ -6,47 +6,13 @@
 
 #![allow(clippy::unwrap_used)]
 
+use common::{kilotouch as run, ok, refused, rows_without_start_time as rows};
+use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::Command;
 
 use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_session, read_trials};
 use kilotouch_study::fidelity::Fidelity;
-
-fn run<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_kilotouch"))
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
-
-fn ok<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S]) {
-    let o = run(args);
-    assert!(
-        o.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-fn refused<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S], why: &str) {
-    let o = run(args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{args:?} succeeded");
-    assert!(err.contains(why), "{args:?}: `{why}` not in: {err}");
-}
-
-/// Rows without the wall-clock start time (which a rerun cannot equal).
-fn rows(dir: &Path) -> Vec<TrialRow> {
-    read_trials(&dir.join(TRIALS_FILE))
-        .unwrap()
-        .rows
-        .into_iter()
-        .map(|mut r| {
-            r.started_utc = UtcTime::from_unix_millis(0);
-            r
-        })
-        .collect()
-}
 
 #[test]
 fn shards_merged_equal_the_unsharded_run() {

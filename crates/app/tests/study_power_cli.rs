@@ -3,18 +3,11 @@
 //! PNG and SVG plots, thread independence, clear errors).
 #![allow(clippy::unwrap_used)]
 
+use common::kilotouch as run;
+use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
-
-const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
-
-fn run(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .output()
-        .expect("run kilotouch")
-}
 
 /// A pilot: 6 simulated participants × V/P/D × 3 test trials, no raw files.
 fn pilot(dir: &Path) -> String {

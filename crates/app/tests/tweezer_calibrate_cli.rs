@@ -5,7 +5,7 @@
 //! calibrated — recovering the simulated κ.
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, json_ok, kilotouch as run};
 use std::io::Write;

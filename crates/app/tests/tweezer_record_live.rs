@@ -6,7 +6,7 @@
 //! link — not as an escape — with nothing written.
 #![allow(clippy::unwrap_used)]
 
-mod common;
+use kilotouch_testkit as common;
 
 use common::{Emulator, kilotouch as run};
 use std::process::{Child, Command, Stdio};

@@ -1,15 +1,23 @@
-//! Helpers shared by the app's integration tests (`mod common;` in each test
-//! file): the app under egui_kittest, stepping it until a condition holds,
-//! the device emulator on a pty, running the executable.
+//! Fixtures shared by the app's integration tests (`use kilotouch_testkit as
+//! common;` in each test file): the app under egui_kittest, stepping it until
+//! a condition holds, the device emulator on a pty, running the executable.
 //!
-//! Each test file is its own crate and uses only some of these, hence the
-//! `#[allow(dead_code)]`s.
+//! A library of its own (a dev-dependency only, never published) rather than
+//! a `tests/common` module: each test file is its own crate and uses only some
+//! of these, which as a module would be dead code in most of them.
 
 use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use kilotouch::gui::pages::study::ProtocolSource;
 use kilotouch::gui::{AppOptions, KilotouchApp, Page};
 use kilotouch_rig::device::RigSpec;
+use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_trials};
 use serde_json::Value;
+use std::collections::HashSet;
+use std::ffi::OsStr;
+use std::fmt::Debug;
 use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -18,21 +26,29 @@ use std::time::{Duration, Instant};
 /// loaded 2-core machine (CI builds alongside, fsync on a busy disk) may
 /// stretch an event that takes milliseconds to seconds. Speed claims are
 /// in the benchmarks, latency bounds in the tests that state them.
-#[allow(dead_code)]
 pub const WAIT_S: f64 = 120.0;
 
 /// The emulators' device watchdog window in the tests, ms
 /// ([`Emulator::spawn`]); the watchdog's own tests set theirs.
-#[allow(dead_code)]
 pub const TEST_WATCHDOG_MS: u64 = 1000;
 
-/// The executable under test.
-#[allow(dead_code)]
-pub const BIN: &str = env!("CARGO_BIN_EXE_kilotouch");
+/// The executable under test: the path cargo gives the tests in
+/// `CARGO_BIN_EXE_kilotouch` at run time, else `kilotouch` beside the
+/// directory of the running test binary (`target/<profile>/deps/…`).
+pub fn bin_path() -> PathBuf {
+    if let Some(p) = std::env::var_os("CARGO_BIN_EXE_kilotouch") {
+        return PathBuf::from(p);
+    }
+    let exe = std::env::current_exe().expect("the test binary's path");
+    let profile_dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("the test binary lies in target/<profile>/deps");
+    profile_dir.join(format!("kilotouch{}", std::env::consts::EXE_SUFFIX))
+}
 
 /// The app with fresh settings (nothing remembered from earlier runs),
 /// opening on `page` (the app's default page with `None`).
-#[allow(dead_code)]
 pub fn fresh_app(page: Option<Page>) -> KilotouchApp {
     KilotouchApp::new(
         AppOptions {
@@ -48,7 +64,6 @@ pub fn fresh_app(page: Option<Page>) -> KilotouchApp {
 /// A kittest harness of `width` × `height` points around the app's root UI;
 /// `max_steps` overrides the harness's limit of steps per `run` (kittest's
 /// default with `None`).
-#[allow(dead_code)]
 pub fn app_harness(
     app: KilotouchApp,
     width: f32,
@@ -64,7 +79,6 @@ pub fn app_harness(
 
 /// Step the UI until `done` or `secs` seconds have passed (the engine runs
 /// in real time), sleeping 10 ms between steps; whether `done` held.
-#[allow(dead_code)]
 pub fn step_until(
     h: &mut Harness<'_, KilotouchApp>,
     secs: f64,
@@ -74,7 +88,6 @@ pub fn step_until(
 }
 
 /// [`step_until`], sleeping `pause` between steps.
-#[allow(dead_code)]
 pub fn step_until_every(
     h: &mut Harness<'_, KilotouchApp>,
     pause: Duration,
@@ -95,21 +108,44 @@ pub fn step_until_every(
 /// Step until the Study page's sitting opened (after its size check,
 /// which runs on a thread of its own) or the page shows an error; whether
 /// it opened.
-#[allow(dead_code)]
 pub fn until_sitting_opened(h: &mut Harness<'_, KilotouchApp>) -> bool {
     step_until(h, WAIT_S, |a| {
         a.study.is_running() || a.study.error().is_some()
     }) && h.state().study.is_running()
 }
 
+/// The app under a kittest harness.
+pub type AppHarness = Harness<'static, KilotouchApp>;
+
+/// The app on the Study page, 1100 × `height` points, with the protocol
+/// file `proto`, participant `participant`, output folder `out` and the
+/// inline participant view.
+pub fn study_page(proto: &Path, participant: &str, out: &Path, height: f32) -> AppHarness {
+    let app = fresh_app(Some(Page::Study));
+    let mut h = app_harness(app, 1100.0, height, None);
+    let s = &mut h.state_mut().study;
+    s.source = ProtocolSource::File;
+    s.protocol_file = proto.display().to_string();
+    s.participant_text = participant.into();
+    s.out_text = out.display().to_string();
+    s.separate_window = false;
+    h
+}
+
+/// Click the Study page's "Open session" and check that the session opened
+/// (the page's error shown if not).
+pub fn open_session(h: &mut AppHarness) {
+    h.get_by_label("Open session").click();
+    assert!(until_sitting_opened(h), "{:?}", h.state().study.error());
+    h.step();
+}
+
 /// Whether the app's engine is up and has reported its health.
-#[allow(dead_code)]
 pub fn engine_reporting(a: &KilotouchApp) -> bool {
     a.engine.as_ref().is_some_and(|e| e.health().is_some())
 }
 
 /// Root mean square of `x` (0 for no values).
-#[allow(dead_code)]
 pub fn rms(x: impl Iterator<Item = f64>) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
     for v in x {
@@ -121,7 +157,6 @@ pub fn rms(x: impl Iterator<Item = f64>) -> f64 {
 
 /// A running device emulator (`kilotouch emulate KIND --pty`); killed on
 /// drop.
-#[allow(dead_code)]
 #[derive(Debug)]
 pub struct Emulator {
     pub child: Child,
@@ -129,7 +164,6 @@ pub struct Emulator {
     pub path: String,
 }
 
-#[allow(dead_code)]
 impl Emulator {
     /// The DAQ emulator with its default options.
     pub fn start() -> Self {
@@ -148,7 +182,7 @@ impl Emulator {
         } else {
             &["--watchdog-ms", &window]
         };
-        let mut child = Command::new(BIN)
+        let mut child = bin()
             .args(["emulate", kind, "--pty"])
             .args(watchdog)
             .args(extra)
@@ -190,18 +224,78 @@ impl Drop for Emulator {
     }
 }
 
+/// A command running the executable under test ([`bin_path`]).
+pub fn bin() -> Command {
+    Command::new(bin_path())
+}
+
 /// Run the executable with `args` and wait for it.
-#[allow(dead_code)]
-pub fn kilotouch(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .output()
-        .expect("run kilotouch")
+pub fn kilotouch<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    bin().args(args).output().expect("run kilotouch")
+}
+
+/// Run the executable with `args`; it must succeed (its stderr shown if
+/// not).
+pub fn ok<S: AsRef<OsStr> + Debug>(args: &[S]) {
+    let o = kilotouch(args);
+    assert!(
+        o.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// Run the executable with `args`; it must fail with `why` in its stderr.
+pub fn refused<S: AsRef<OsStr> + Debug>(args: &[S], why: &str) {
+    let o = kilotouch(args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    assert!(err.contains(why), "{args:?}: `{why}` not in: {err}");
+}
+
+/// The rows of the study folder `dir`'s trials file without the wall-clock
+/// start time (which a rerun cannot equal: set to the epoch).
+pub fn rows_without_start_time(dir: &Path) -> Vec<TrialRow> {
+    read_trials(&dir.join(TRIALS_FILE))
+        .expect("a readable trials file")
+        .rows
+        .into_iter()
+        .map(|mut r| {
+            r.started_utc = UtcTime::from_unix_millis(0);
+            r
+        })
+        .collect()
+}
+
+/// Checks a `study run --resume` after an interrupted sitting: `run`
+/// succeeded, and the study folder `out` then holds `total` rows, no two of
+/// one trial, beginning with the rows `committed` before the interruption.
+pub fn assert_resumed(run: &Output, out: &Path, committed: &[TrialRow], total: usize) {
+    assert!(
+        run.status.success(),
+        "resume failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let all = rows_so_far(out);
+    assert_eq!(all.len(), total, "{all:?}");
+    let keys: HashSet<_> = all
+        .iter()
+        .map(|r| (r.phase, r.condition, r.trial))
+        .collect();
+    assert_eq!(keys.len(), total, "a duplicate row: {all:?}");
+    assert_eq!(&all[..committed.len()], committed);
+}
+
+/// The rows of the study folder `dir`'s trials file so far (none while it
+/// cannot be read yet: a sitting still starting).
+pub fn rows_so_far(dir: &Path) -> Vec<TrialRow> {
+    read_trials(&dir.join(TRIALS_FILE))
+        .map(|r| r.rows)
+        .unwrap_or_default()
 }
 
 /// Run the executable with `args`; it must succeed and print one JSON
 /// document, which is returned.
-#[allow(dead_code)]
 pub fn json_ok(args: &[&str]) -> Value {
     let out = kilotouch(args);
     assert!(
@@ -214,7 +308,7 @@ pub fn json_ok(args: &[&str]) -> Value {
 
 /// One page shown alone, with the bare environment the shell would give it
 /// (the default rig, no calibration applied, shell requests collected).
-#[allow(dead_code)]
+#[derive(Debug)]
 pub struct PageState<P> {
     pub page: P,
     pub rig: kilotouch_rig::RigConfig,
@@ -222,7 +316,6 @@ pub struct PageState<P> {
     pub requests: Vec<kilotouch::gui::env::ShellRequest>,
 }
 
-#[allow(dead_code)]
 impl<P> PageState<P> {
     /// `page` with the default rig and no output folder.
     pub fn new(page: P) -> Self {
@@ -237,7 +330,6 @@ impl<P> PageState<P> {
 
 /// A harness 1400 px wide and `height` px tall drawing the page of `state`
 /// with `show` (the page's `ui` method) every frame.
-#[allow(dead_code)]
 pub fn page_harness<P: 'static>(
     state: PageState<P>,
     height: f32,
@@ -264,7 +356,6 @@ pub fn page_harness<P: 'static>(
 /// Poll the sitting `s` on `engine` until its `n`-th trial has begun
 /// (≤ [`WAIT_S`]); the rows committed meanwhile. Panics if the sitting finishes
 /// first.
-#[allow(dead_code)]
 pub fn until_trials_started(
     engine: &mut kilotouch::engine::EngineHandle,
     s: &mut kilotouch::session::SessionHandle,
@@ -292,7 +383,6 @@ pub fn until_trials_started(
 /// Poll the sitting `s` on `engine` until it finishes (≤ 10 s after
 /// `since`, when a device was killed), adding the rows it commits to
 /// `committed`; how it finished and the seconds since `since`.
-#[allow(dead_code)]
 pub fn until_finished(
     engine: &mut kilotouch::engine::EngineHandle,
     s: &mut kilotouch::session::SessionHandle,
