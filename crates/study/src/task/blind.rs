@@ -94,7 +94,6 @@ pub struct BlindAccumulator {
     p: BlindParams,
     g: Geometry,
     state: EndState,
-    first_contact_s: Option<f64>,
     contact_point: [f64; 2],
     normal: [f64; 2],
     peak_fb: f64,
@@ -110,7 +109,6 @@ impl BlindAccumulator {
             p,
             g,
             state: EndState::default(),
-            first_contact_s: None,
             contact_point: [0.0; 2],
             normal: [1.0, 0.0],
             peak_fb: 0.0,
@@ -122,29 +120,25 @@ impl BlindAccumulator {
 
     /// Time of the first contact, s.
     pub fn first_contact_s(&self) -> Option<f64> {
-        self.first_contact_s
+        self.state.first_contact_s()
     }
 
     /// Adds one sample; returns the end once an end condition is met.
     #[inline]
     pub fn push(&mut self, s: &TaskSample) -> Option<TrialEnd> {
-        if !self.state.begin(s) {
-            return None;
-        }
+        self.state.begin(s)?;
         self.n += 1;
         let fb = self.forces.add(s);
         let in_contact = self.g.gap_m(s.bead_m) < self.p.contact_gap_m;
+        self.state.note_contact(s, in_contact);
         if in_contact {
-            if self.first_contact_s.is_none() {
-                self.first_contact_s = Some(s.t_s);
-            }
             self.contact_point = s.bead_m;
             self.normal = self.g.normal(s.bead_m);
         }
-        if self.first_contact_s.is_some() && fb.is_finite() {
+        let touched = self.state.first_contact_s().is_some();
+        if touched && fb.is_finite() {
             self.peak_fb = self.peak_fb.max(fb);
         }
-        let touched = self.first_contact_s.is_some();
         let d = [
             s.bead_m[0] - self.contact_point[0],
             s.bead_m[1] - self.contact_point[1],
@@ -169,12 +163,12 @@ impl BlindAccumulator {
 
     /// Metrics so far.
     pub fn metrics(&self) -> BlindMetrics {
-        let touched = self.first_contact_s.is_some();
+        let touched = self.state.first_contact_s().is_some();
         let (force_mean_pn, force_mean_n) = self.forces.means(self.n);
         BlindMetrics {
             end: self.state.end(),
             time_s: self.state.t_last(),
-            time_to_collision_s: self.first_contact_s,
+            time_to_collision_s: self.state.first_contact_s(),
             peak_force_pn: touched.then_some(self.peak_fb * 1e12),
             retreat_angle_err_deg: self.angle_deg,
             contact_point_m: touched.then_some(self.contact_point),

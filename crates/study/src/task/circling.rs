@@ -91,7 +91,6 @@ pub struct CirclingAccumulator {
     p: CirclingParams,
     g: Geometry,
     state: EndState,
-    first_contact_s: Option<f64>,
     prev_angle: f64,
     turned: f64,
     n_phase: u64,
@@ -107,7 +106,6 @@ impl CirclingAccumulator {
             p,
             g,
             state: EndState::default(),
-            first_contact_s: None,
             prev_angle: 0.0,
             turned: 0.0,
             n_phase: 0,
@@ -119,25 +117,22 @@ impl CirclingAccumulator {
 
     /// Time of the first contact, s.
     pub fn first_contact_s(&self) -> Option<f64> {
-        self.first_contact_s
+        self.state.first_contact_s()
     }
 
     /// Adds one sample; returns the end once an end condition is met (and
     /// ignores samples after it).
     #[inline]
     pub fn push(&mut self, s: &TaskSample) -> Option<TrialEnd> {
-        if !self.state.begin(s) {
-            return None;
-        }
+        self.state.begin(s)?;
         let gap = self.g.gap_m(s.bead_m);
         let in_contact = gap < self.p.contact_gap_m;
         let rel = self.g.rel(s.bead_m);
         let angle = rel[1].atan2(rel[0]);
-        if self.first_contact_s.is_none() && in_contact {
-            self.first_contact_s = Some(s.t_s);
+        if self.state.note_contact(s, in_contact) {
             self.prev_angle = angle;
         }
-        if self.first_contact_s.is_some() {
+        if self.state.first_contact_s().is_some() {
             self.n_phase += 1;
             self.n_contact += u64::from(in_contact);
             if gap.is_finite() {
@@ -166,7 +161,7 @@ impl CirclingAccumulator {
         CirclingMetrics {
             end: self.state.end(),
             time_s: self.state.t_last(),
-            first_contact_s: self.first_contact_s,
+            first_contact_s: self.state.first_contact_s(),
             contact_fraction: if self.n_phase > 0 {
                 self.n_contact as f64 / n
             } else {

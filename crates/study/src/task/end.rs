@@ -29,8 +29,9 @@ pub(crate) fn bead_escaped(s: &TaskSample, escape_distance_m: f64) -> bool {
     !s.trapped || sep.is_nan() || sep > escape_distance_m
 }
 
-/// How a trial ends, as both tasks' accumulators decide it: samples after
-/// the end are ignored, and at each sample the end conditions are checked
+/// How a trial ends, as both tasks' accumulators decide it (and when the
+/// bead first touched the obstacle, where both tasks' phases begin): samples
+/// after the end are ignored, and at each sample the end conditions are checked
 /// in the same order — the bead escaped ([`bead_escaped`]), then the
 /// task's own end, then the time-out.
 #[derive(Debug, Clone, Copy, Default)]
@@ -38,18 +39,35 @@ pub(crate) struct EndState {
     end: Option<TrialEnd>,
     t_last: f64,
     escaped: bool,
+    first_contact_s: Option<f64>,
 }
 
 impl EndState {
-    /// Starts sample `s`: records its time and returns true, or returns
-    /// false once the trial has ended (the sample is ignored).
+    /// Starts sample `s`: records its time and returns `Some`, or returns
+    /// `None` once the trial has ended (the sample is ignored).
     #[inline]
-    pub(crate) fn begin(&mut self, s: &TaskSample) -> bool {
+    pub(crate) fn begin(&mut self, s: &TaskSample) -> Option<()> {
         if self.end.is_some() {
-            return false;
+            return None;
         }
         self.t_last = s.t_s;
-        true
+        Some(())
+    }
+
+    /// Notes whether sample `s` is in contact with the obstacle; returns
+    /// true at the first contact of the trial (its time is then kept).
+    #[inline]
+    pub(crate) fn note_contact(&mut self, s: &TaskSample, in_contact: bool) -> bool {
+        let first = in_contact && self.first_contact_s.is_none();
+        if first {
+            self.first_contact_s = Some(s.t_s);
+        }
+        first
+    }
+
+    /// Time of the first contact, s (`None`: no contact yet).
+    pub(crate) fn first_contact_s(&self) -> Option<f64> {
+        self.first_contact_s
     }
 
     /// Ends the trial at sample `s` when an end condition is met: the bead
