@@ -9,8 +9,6 @@ use kilotouch_testkit as common;
 
 use common::{engine_reporting, step_until_every};
 use egui_kittest::kittest::Queryable;
-use kilotouch::gui::Page;
-use kilotouch::gui::pages::study::ProtocolSource;
 use kilotouch::gui::participant_screen::Routine;
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};

@@ -11,8 +11,6 @@ use kilotouch_testkit as common;
 
 use common::{AppHarness, engine_reporting, open_session, step_until_every};
 use egui_kittest::kittest::Queryable;
-use kilotouch::gui::Page;
-use kilotouch::gui::pages::study::ProtocolSource;
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
 use std::path::Path;

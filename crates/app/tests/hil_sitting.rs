@@ -21,7 +21,6 @@ use kilotouch::session::{
     FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
 };
 use kilotouch_rig::RigConfig;
-use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
 use kilotouch_study::protocol::Protocol;
 use serde_json::Value;
 

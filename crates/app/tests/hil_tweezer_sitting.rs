@@ -24,7 +24,6 @@ use kilotouch::session::{
 use kilotouch_rig::device::TweezerSpec;
 use kilotouch_rig::tweezer::surface_drag;
 use kilotouch_rig::{RigConfig, TweezerParams};
-use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::task::Geometry;
 use serde_json::Value;

@@ -11,7 +11,6 @@ use common::bin;
 use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
-use std::process::Command;
 
 /// Columns of a CSV with a header (lines starting with `#` skipped); empty
 /// cells as NaN.

@@ -6,7 +6,7 @@
 use kilotouch_testkit as common;
 
 use common::{Emulator, json_ok, kilotouch as run};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 /// `kilotouch rig check --rig <the emulator> --duration SECONDS --json`.
@@ -117,7 +117,7 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
 #[test]
 fn a_killed_emulator_is_reported_promptly_with_a_clear_error() {
     let mut emu = Emulator::spawn("daq", &[]);
-    let check = Command::new(common::bin())
+    let check = common::bin()
         .args([
             "rig",
             "check",

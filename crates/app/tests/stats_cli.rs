@@ -5,7 +5,6 @@
 use common::kilotouch as run;
 use kilotouch_testkit as common;
 use serde_json::Value;
-use std::process::Command;
 
 fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> String {
     let mut t = String::from("participant,condition,score\n");

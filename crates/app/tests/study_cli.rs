@@ -6,10 +6,10 @@
 use common::{bin, kilotouch as run, rows_without_start_time as rows};
 use kilotouch_testkit as common;
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_trials};
+use kilotouch_study::export::{TRIALS_FILE, TrialRow, read_trials};
 use kilotouch_study::seeds::Phase;
 use serde_json::Value;
 

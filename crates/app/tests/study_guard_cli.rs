@@ -10,7 +10,7 @@
 use common::{bin, kilotouch as run};
 use kilotouch_testkit as common;
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
 use kilotouch_study::export::journal::{JOURNAL_FILE, Record, read_journal};

@@ -8,10 +8,8 @@
 
 use common::{kilotouch as run, ok, refused, rows_without_start_time as rows};
 use kilotouch_testkit as common;
-use std::path::Path;
-use std::process::Command;
 
-use kilotouch_study::export::{TRIALS_FILE, TrialRow, UtcTime, read_session, read_trials};
+use kilotouch_study::export::{TRIALS_FILE, read_session};
 use kilotouch_study::fidelity::Fidelity;
 
 #[test]

@@ -7,7 +7,6 @@ use common::kilotouch as run;
 use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
 
 /// A pilot: 6 simulated participants × V/P/D × 3 test trials, no raw files.
 fn pilot(dir: &Path) -> String {
