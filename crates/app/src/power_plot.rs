@@ -13,19 +13,22 @@ use kilotouch_study::power::PowerReport;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::paper::style::{FONT, ensure_font};
+use crate::paper::style::{Frame, GREY, ensure_font, err, legend_line};
 /// Size of the plot, px (PNG) or user units (SVG).
 const SIZE: (u32, u32) = (900, 600);
 /// Curve colour.
-const CURVE: RGBColor = RGBColor(31, 119, 180);
-/// Reference lines.
-const GREY: RGBColor = RGBColor(120, 120, 120);
+const CURVE: RGBColor = crate::paper::style::LOW;
 /// The n reaching the target.
-const HIT: RGBColor = RGBColor(214, 39, 40);
-
-fn err<E: std::fmt::Debug>(e: E) -> String {
-    format!("drawing failed: {e:?}")
-}
+const HIT: RGBColor = crate::paper::style::HIGH;
+/// The chart's set-up: one chart with a smaller title and tick labels than
+/// the paper's figures.
+const FRAME: Frame = Frame {
+    caption_px: 24.0,
+    x_label_area: 50,
+    y_label_area: 64,
+    tick_px: 16.0,
+    ..Frame::FIGURE
+};
 
 /// Draws the curve on any backend.
 fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
@@ -43,20 +46,9 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
     } else {
         format!("{}: RM-ANOVA (GG), range {:.3}", m.dv, r.effect)
     };
-    let mut chart = ChartBuilder::on(root)
-        .caption(title, (FONT, 24).into_font())
-        .margin(16)
-        .x_label_area_size(50)
-        .y_label_area_size(64)
-        .build_cartesian_2d(x_lo..x_hi, 0.0..1.0)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .x_desc("participants (n)")
-        .y_desc("power")
-        .axis_desc_style((FONT, 20).into_font())
-        .label_style((FONT, 16).into_font())
-        .light_line_style(RGBColor(235, 235, 235))
+    let mut chart = FRAME.chart(root, title, x_lo..x_hi, 0.0..1.0)?;
+    FRAME
+        .mesh(&mut chart, "participants (n)", "power")
         .draw()
         .map_err(err)?;
     let target = r.target;
@@ -67,7 +59,7 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
         ))
         .map_err(err)?
         .label(format!("target {target}"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], GREY.stroke_width(2)));
+        .legend(legend_line(GREY, 2));
     chart
         .draw_series(LineSeries::new(
             [(x_lo, r.alpha), (x_hi, r.alpha)],
@@ -94,7 +86,7 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
             "simulated power ({} studies per n, 95 % CI)",
             r.replications
         ))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], CURVE.stroke_width(3)));
+        .legend(legend_line(CURVE, 3));
     chart
         .draw_series(
             r.points
@@ -113,16 +105,9 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
             ))
             .map_err(err)?
             .label(format!("n for target: {n}"))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], HIT.stroke_width(2)));
+            .legend(legend_line(HIT, 2));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerRight)
-        .label_font((FONT, 16).into_font())
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err)?;
+    FRAME.legend(&mut chart, SeriesLabelPosition::LowerRight)?;
     root.present().map_err(err)
 }
 

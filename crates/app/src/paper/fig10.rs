@@ -6,7 +6,7 @@
 //! ([`read_trajectory`]); each trial's obstacle is its scene, drawn again
 //! from the trial's key ([`TrialEngine::setup`]).
 
-use super::style::{self, Figure, err, text};
+use super::style::{self, Figure, Frame, err};
 use super::{Claim, PaperError, PaperOptions, write_csv};
 use crate::results::{StudyResults, read_trajectory};
 use kilotouch_rig::coupling::LoopChain;
@@ -329,20 +329,10 @@ pub fn draw_trajectories<DB: DrawingBackend>(
         m = m.max((p[0] - cx).abs()).max((p[1] - cy).abs());
     }
     let m = m * 1.08 + 0.5;
-    let mut chart = ChartBuilder::on(root)
-        .caption(title, text(style::TITLE_PX))
-        .margin(16)
-        .x_label_area_size(56)
-        .y_label_area_size(72)
-        .build_cartesian_2d(cx - m..cx + m, cy - m..cy + m)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (µm)")
-        .y_desc("y (µm)")
-        .axis_desc_style(text(style::LABEL_PX))
-        .label_style(text(style::TICK_PX))
-        .light_line_style(RGBColor(235, 235, 235))
+    let frame = Frame::FIGURE;
+    let mut chart = frame.chart(root, title, cx - m..cx + m, cy - m..cy + m)?;
+    frame
+        .mesh(&mut chart, "x (µm)", "y (µm)")
         .draw()
         .map_err(err)?;
     let circle = |rad: f64| -> Vec<(f64, f64)> {

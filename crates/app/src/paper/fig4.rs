@@ -4,7 +4,7 @@
 //! [`kilotouch_rig::coupling::model_chain_design`]), evaluated exactly on
 //! the unit circle ([`LinkwitzRiley::response`]).
 
-use super::style::{self, Figure, err, legend, legend_line, log_grid, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line, log_grid};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_rig::config::RigConfig;
@@ -176,30 +176,18 @@ impl Figure for Fig4 {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                format!(
-                    "Fig. 4 — LR{} crossover, f_c = {} Hz, f_s = {} kHz",
-                    self.order,
-                    self.fc_hz,
-                    self.fs_hz / 1e3
-                ),
-                text(style::TITLE_PX),
-            )
-            .margin(16)
-            .x_label_area_size(56)
-            .y_label_area_size(72)
-            .build_cartesian_2d((F_LO..F_HI).log_scale(), -80.0_f64..6.0)
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("Frequency (Hz)")
-            .y_desc("Magnitude (dB)")
-            .axis_desc_style(text(style::LABEL_PX))
-            .label_style(text(style::TICK_PX))
+        let title = format!(
+            "Fig. 4 — LR{} crossover, f_c = {} Hz, f_s = {} kHz",
+            self.order,
+            self.fc_hz,
+            self.fs_hz / 1e3
+        );
+        let frame = Frame::FIGURE;
+        let mut chart = frame.chart(root, title, (F_LO..F_HI).log_scale(), -80.0_f64..6.0)?;
+        frame
+            .mesh(&mut chart, "Frequency (Hz)", "Magnitude (dB)")
             .x_label_formatter(&style::log_label)
             .y_labels(10)
-            .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
         let clip = |v: f64| v.max(-80.0);

@@ -5,7 +5,7 @@
 //! prints), the fitted Ĝ_H and the paper's eq. 2 scaled to the rig's drive
 //! unit.
 
-use super::style::{self, Figure, err, legend, legend_line, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line, text};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_dsp::C64;
 use kilotouch_dsp::compensator::paper_g_h;
@@ -27,6 +27,15 @@ pub const F_LO: f64 = 10.0;
 pub const F_HI: f64 = 2000.0;
 /// Smoothing of the estimate for the claims about its shape, octaves.
 const SMOOTH_OCT: f64 = 1.0 / 12.0;
+/// The set-up of each of the four panels: a little more room than
+/// [`Frame::PANEL`] for the dB labels.
+const PANEL: Frame = Frame {
+    margin: 14,
+    margin_right: 14,
+    x_label_area: 52,
+    y_label_area: 80,
+    ..Frame::PANEL
+};
 
 /// Run the calibration procedure (`kilotouch calibrate`'s, default
 /// settings) on `rig`, reporting each step's progress as a fraction of the
@@ -344,21 +353,14 @@ impl Fig5 {
         } else {
             "(a) low channel: Pantograph force → tip acceleration"
         };
-        let mut chart = ChartBuilder::on(area)
-            .caption(title, text(style::LABEL_PX + 2.0))
-            .margin(14)
-            .x_label_area_size(52)
-            .y_label_area_size(80)
-            .build_cartesian_2d((F_LO..F_HI).log_scale(), lo..hi)
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("Frequency (Hz)")
-            .y_desc(format!("Magnitude (dB re 1 {unit})"))
-            .axis_desc_style(text(style::LABEL_PX))
-            .label_style(text(style::TICK_PX))
+        let mut chart = PANEL.chart(area, title, (F_LO..F_HI).log_scale(), lo..hi)?;
+        PANEL
+            .mesh(
+                &mut chart,
+                "Frequency (Hz)",
+                format!("Magnitude (dB re 1 {unit})"),
+            )
             .x_label_formatter(&style::log_label)
-            .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
         let c = if high { style::HIGH } else { style::LOW };

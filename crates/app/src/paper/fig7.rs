@@ -5,7 +5,7 @@
 //! ([`measure_band_paths`]), on the same simulated rig right after the
 //! calibration. Magnitudes in dB re the target K_sys·A.
 
-use super::style::{self, Figure, err, legend, legend_line, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_rig::calibration::verify::{Paths, measure_band_paths, sensor_gain};
 use kilotouch_rig::calibration::{CalibrationConfig, CalibrationOutcome, CalibrationRig};
@@ -183,27 +183,19 @@ impl Figure for Fig7 {
         let (lo, _) = style::bounds(all, 0.05).unwrap_or((-40.0, 5.0));
         // Room under the curves for the legend.
         let lo = (lo - 18.0).max(-75.0);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                format!(
-                    "Fig. 7 — Magnitude response of the combined interface (f_c = {:.0} Hz)",
-                    self.fc_hz
-                ),
-                text(style::TITLE_PX),
+        let title = format!(
+            "Fig. 7 — Magnitude response of the combined interface (f_c = {:.0} Hz)",
+            self.fc_hz
+        );
+        let frame = Frame::FIGURE;
+        let mut chart = frame.chart(root, title, (50.0_f64..1250.0).log_scale(), lo..8.0)?;
+        frame
+            .mesh(
+                &mut chart,
+                "Third-octave centre frequency (Hz)",
+                "Tip acceleration (dB re K_sys·A)",
             )
-            .margin(16)
-            .x_label_area_size(56)
-            .y_label_area_size(72)
-            .build_cartesian_2d((50.0_f64..1250.0).log_scale(), lo..8.0)
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("Third-octave centre frequency (Hz)")
-            .y_desc("Tip acceleration (dB re K_sys·A)")
-            .axis_desc_style(text(style::LABEL_PX))
-            .label_style(text(style::TICK_PX))
             .x_label_formatter(&style::log_label)
-            .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
         let tol = self.tolerance_db.max(1.0);

@@ -13,7 +13,7 @@
 //! adds its noise floor, which is above the simulated agitation: through the
 //! sensor the narrowing almost vanishes (`docs/PAPER.md`).
 
-use super::style::{self, Figure, err, legend, legend_line, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line, text};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
 use kilotouch_dsp::filter::Sos;
@@ -34,6 +34,12 @@ pub const FELT_HI_HZ: f64 = 1000.0;
 const BINS: usize = 60;
 /// Samples skipped at the start of the rest (filter and loop warm-up), s.
 const WARMUP_S: f64 = 0.1;
+/// The set-up of each of the four panels: [`Frame::PANEL`] with room on
+/// the right for the last time label.
+const PANEL: Frame = Frame {
+    margin_right: 30,
+    ..Frame::PANEL
+};
 
 /// Summary statistics of one window.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -321,27 +327,17 @@ impl Fig9 {
         } else {
             "(a) rest (free) → approach → pressed"
         };
-        let mut chart = ChartBuilder::on(area)
-            .caption(title, text(style::LABEL_PX + 2.0))
-            .margin(12)
-            .margin_right(30)
-            .x_label_area_size(50)
-            .y_label_area_size(78)
-            .build_cartesian_2d((t0 - origin) * scale..(t1 - origin) * scale, -m..m)
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc(if zoom {
-                "Time from contact (ms)".to_owned()
-            } else {
-                format!("Time ({unit})")
-            })
-            .y_desc("Felt acceleration (m/s²)")
-            .axis_desc_style(text(style::LABEL_PX))
-            .label_style(text(style::TICK_PX))
+        let x_desc = if zoom {
+            "Time from contact (ms)".to_owned()
+        } else {
+            format!("Time ({unit})")
+        };
+        let x = (t0 - origin) * scale..(t1 - origin) * scale;
+        let mut chart = PANEL.chart(area, title, x, -m..m)?;
+        PANEL
+            .mesh(&mut chart, x_desc, "Felt acceleration (m/s²)")
             .x_label_formatter(&style::lin_label)
             .y_label_formatter(&style::lin_label)
-            .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
         // Decimate the long view to at most ~4000 points per series.
@@ -426,23 +422,15 @@ impl Fig9 {
         } else {
             "(c) distribution, true tip acceleration"
         };
-        let mut chart = ChartBuilder::on(area)
-            .caption(title, text(style::LABEL_PX + 2.0))
-            .margin(12)
-            .margin_right(30)
-            .x_label_area_size(50)
-            .y_label_area_size(78)
-            .build_cartesian_2d(-half..half, 0.0..top.max(1e-12))
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("Felt acceleration (m/s²)")
-            .y_desc("Probability density (s²/m)")
-            .axis_desc_style(text(style::LABEL_PX))
-            .label_style(text(style::TICK_PX))
+        let mut chart = PANEL.chart(area, title, -half..half, 0.0..top.max(1e-12))?;
+        PANEL
+            .mesh(
+                &mut chart,
+                "Felt acceleration (m/s²)",
+                "Probability density (s²/m)",
+            )
             .x_label_formatter(&style::lin_label)
             .y_label_formatter(&style::lin_label)
-            .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(err)?;
         for (d, c, name, m) in [

@@ -9,7 +9,7 @@
 //! The bar-chart drawing here is also what the Results page's **Export
 //! figures** writes ([`export_results_figures`]).
 
-use super::style::{self, Figure, err, text};
+use super::style::{self, Figure, Frame, err, text};
 use super::{Claim, PaperError, PaperOptions};
 use crate::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, read_trajectory,
@@ -251,22 +251,12 @@ pub fn draw_participant_bars<DB: DrawingBackend>(
         .map(|(m, sd)| m + sd.unwrap_or(0.0))
         .fold(0.0_f64, f64::max);
     let top = if top > 0.0 { top * 1.45 } else { 1.0 };
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, text(style::LABEL_PX + 2.0))
-        .margin(12)
-        .x_label_area_size(50)
-        .y_label_area_size(78)
-        .build_cartesian_2d(0.0..np as f64, 0.0..top)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
+    let frame = Frame::PANEL;
+    let mut chart = frame.chart(area, title, 0.0..np as f64, 0.0..top)?;
+    frame
+        .mesh(&mut chart, "Participant", y_desc)
         .disable_x_mesh()
         .x_labels(0)
-        .x_desc("Participant")
-        .y_desc(y_desc)
-        .axis_desc_style(text(style::LABEL_PX))
-        .label_style(text(style::TICK_PX))
-        .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(err)?;
     // Bars at the group centres (x = i + 0.5).
@@ -342,26 +332,17 @@ pub fn draw_condition_bars<DB: DrawingBackend>(
         .map(|(m, sd)| m + sd.unwrap_or(0.0))
         .fold(0.0_f64, f64::max);
     let top = if top > 0.0 { top * 1.25 } else { 1.0 };
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, text(style::LABEL_PX + 2.0))
-        .margin(12)
-        .x_label_area_size(50)
-        .y_label_area_size(78)
-        .build_cartesian_2d(0.0..nc as f64, 0.0..top)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
+    let x_desc = if annotation.is_empty() {
+        "Condition".to_owned()
+    } else {
+        format!("Condition — {annotation}")
+    };
+    let frame = Frame::PANEL;
+    let mut chart = frame.chart(area, title, 0.0..nc as f64, 0.0..top)?;
+    frame
+        .mesh(&mut chart, x_desc, y_desc)
         .disable_x_mesh()
         .x_labels(0)
-        .x_desc(if annotation.is_empty() {
-            "Condition".to_owned()
-        } else {
-            format!("Condition — {annotation}")
-        })
-        .y_desc(y_desc)
-        .axis_desc_style(text(style::LABEL_PX))
-        .label_style(text(style::TICK_PX))
-        .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(err)?;
     for (i, c) in bars.conditions.iter().enumerate() {

@@ -7,7 +7,9 @@
 //! figures render identically on a machine without fontconfig. The SVG
 //! names the family "sans-serif"; viewers substitute their own sans font.
 
+use plotters::chart::MeshStyle;
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 use std::path::Path;
 use std::sync::OnceLock;
@@ -161,19 +163,133 @@ pub fn bounds(v: impl IntoIterator<Item = f64>, pad: f64) -> Option<(f64, f64)> 
     Some((lo - pad * span, hi + pad * span))
 }
 
-/// Legend box style shared by the figures.
+/// The set-up of one chart, shared by every figure: the caption's size, the
+/// margins and label areas around the plotting area, the text sizes of the
+/// axis descriptions and tick labels, px; the light grid and the legend box.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame {
+    /// Caption size, px.
+    pub caption_px: f64,
+    /// Margin on every side but the right, px.
+    pub margin: u32,
+    /// Margin on the right (room for the last tick label), px.
+    pub margin_right: u32,
+    /// Height of the x-axis label area, px.
+    pub x_label_area: u32,
+    /// Width of the y-axis label area, px.
+    pub y_label_area: u32,
+    /// Axis descriptions, px.
+    pub label_px: f64,
+    /// Tick labels and legend entries, px.
+    pub tick_px: f64,
+}
+
+/// A chart of [`Frame::chart`]: on a `DB` backend over the coordinates `X` × `Y`.
+pub type Chart<'a, DB, X, Y> = ChartContext<
+    'a,
+    DB,
+    Cartesian2d<<X as AsRangedCoord>::CoordDescType, <Y as AsRangedCoord>::CoordDescType>,
+>;
+
+/// Colour of the minor grid lines.
+const LIGHT_GRID: RGBColor = RGBColor(235, 235, 235);
+
+impl Frame {
+    /// A single chart filling a figure, under the figure's title.
+    pub const FIGURE: Self = Self {
+        caption_px: TITLE_PX,
+        margin: 16,
+        margin_right: 16,
+        x_label_area: 56,
+        y_label_area: 72,
+        label_px: LABEL_PX,
+        tick_px: TICK_PX,
+    };
+
+    /// One panel of a grid of panels, under the panel's title.
+    pub const PANEL: Self = Self {
+        caption_px: LABEL_PX + 2.0,
+        margin: 12,
+        margin_right: 12,
+        x_label_area: 50,
+        y_label_area: 78,
+        label_px: LABEL_PX,
+        tick_px: TICK_PX,
+    };
+
+    /// A chart on `area` titled `title` over the coordinates `x` × `y`.
+    ///
+    /// # Errors
+    /// Backend errors, as text.
+    pub fn chart<'a, DB: DrawingBackend, X: AsRangedCoord, Y: AsRangedCoord>(
+        &self,
+        area: &'a DrawingArea<DB, Shift>,
+        title: impl AsRef<str>,
+        x: X,
+        y: Y,
+    ) -> Result<Chart<'a, DB, X, Y>, String> {
+        ChartBuilder::on(area)
+            .caption(title, text(self.caption_px))
+            .margin(self.margin)
+            .margin_right(self.margin_right)
+            .x_label_area_size(self.x_label_area)
+            .y_label_area_size(self.y_label_area)
+            .build_cartesian_2d(x, y)
+            .map_err(err)
+    }
+
+    /// The mesh of `chart` with the axis descriptions `x_desc` and
+    /// `y_desc`, this frame's text sizes and the light grid; the caller
+    /// adds what differs (tick formatters, counts) and draws it.
+    pub fn mesh<'a, 'b, DB, X, Y>(
+        &self,
+        chart: &'b mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+        x_desc: impl Into<String>,
+        y_desc: impl Into<String>,
+    ) -> MeshStyle<'a, 'b, X, Y, DB>
+    where
+        DB: DrawingBackend,
+        X: Ranged + ValueFormatter<X::ValueType>,
+        Y: Ranged + ValueFormatter<Y::ValueType>,
+    {
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc(x_desc)
+            .y_desc(y_desc)
+            .axis_desc_style(text(self.label_px))
+            .label_style(text(self.tick_px))
+            .light_line_style(LIGHT_GRID);
+        mesh
+    }
+
+    /// Draws the legend box of `chart` at `pos`, entries at the tick size.
+    ///
+    /// # Errors
+    /// Backend errors, as text.
+    pub fn legend<'a, 'b, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+        &self,
+        chart: &'b mut ChartContext<'a, DB, CT>,
+        pos: SeriesLabelPosition,
+    ) -> Result<(), String> {
+        chart
+            .configure_series_labels()
+            .position(pos)
+            .label_font(text(self.tick_px))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(err)
+    }
+}
+
+/// Legend box style shared by the figures ([`Frame::legend`]).
+///
+/// # Errors
+/// Backend errors, as text.
 pub fn legend<'a, 'b, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
     chart: &'b mut ChartContext<'a, DB, CT>,
     pos: SeriesLabelPosition,
 ) -> Result<(), String> {
-    chart
-        .configure_series_labels()
-        .position(pos)
-        .label_font(text(TICK_PX))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err)
+    Frame::FIGURE.legend(chart, pos)
 }
 
 /// Short line segment for a legend entry.
