@@ -68,21 +68,23 @@ def anchors(path, cache={}):
 
 def check(page, root):
     problems = []
-    for number, line in lines_outside_code(page.read_text(encoding="utf-8")):
-        targets = INLINE.findall(line)
-        ref = REFDEF.match(line)
-        if ref:
-            targets.append(ref.group(1))
-        for target in targets:
-            if EXTERNAL.match(target):
-                continue
-            file_part, _, anchor = target.partition("#")
-            dest = (page.parent / file_part).resolve() if file_part else page
-            where = f"{page.relative_to(root)}:{number}: {target}"
-            if not dest.exists():
-                problems.append(f"{where}: no such file")
-            elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
-                problems.append(f"{where}: no heading with anchor #{anchor}")
+    lines = dict(lines_outside_code(page.read_text(encoding="utf-8")))
+    found = [(n, ref.group(1)) for n, line in lines.items() if (ref := REFDEF.match(line))]
+    # A link's text may wrap: search the prose with code blanked, line by line
+    # number kept (code lines become empty).
+    prose = "\n".join(lines.get(n, "") for n in range(1, max(lines, default=0) + 1))
+    for match in INLINE.finditer(prose):
+        found.append((prose.count("\n", 0, match.start(1)) + 1, match.group(1)))
+    for number, target in sorted(found):
+        if EXTERNAL.match(target):
+            continue
+        file_part, _, anchor = target.partition("#")
+        dest = (page.parent / file_part).resolve() if file_part else page
+        where = f"{page.relative_to(root)}:{number}: {target}"
+        if not dest.exists():
+            problems.append(f"{where}: no such file")
+        elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+            problems.append(f"{where}: no heading with anchor #{anchor}")
     return problems
 
 
