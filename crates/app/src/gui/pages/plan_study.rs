@@ -10,9 +10,10 @@ use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use egui_plot::{HLine, Legend, Line, Plot, PlotPoints, Points};
-use kilotouch_study::power::{EffectSpec, PowerOptions, PowerReport, PowerTest, power_from_path};
+use kilotouch_study::power::{
+    EffectSpec, PowerOptions, PowerReport, PowerTest, parse_sample_sizes, power_from_path,
+};
 
-use crate::commands::study_power::{parse_ns, pilot_warning};
 use crate::gui::charts::FAIL_COLOR;
 
 /// DV columns offered (trials.csv metrics and the outcome itself).
@@ -96,7 +97,7 @@ impl PlanState {
                 b: self.b.trim().to_owned(),
             }
         };
-        let ns = parse_ns(&self.ns).map_err(|e| e.to_string())?;
+        let ns = parse_sample_sizes(&self.ns).map_err(|e| e.to_string())?;
         let mut o = PowerOptions::new(&self.dv, test, ns);
         o.trials = (self.trials > 0).then_some(self.trials);
         o.effect = match self.effect_mode {
@@ -316,7 +317,7 @@ pub fn plan_panel(ui: &mut egui::Ui, dir: &Path) {
                     "assumed effect {:.4}; SD of the participants' differences {:.4} (pilot), {:.4} (model, {} trials per condition)",
                     r.effect, r.sd_diff, r.sd_diff_model, r.trials_per_condition
                 ));
-                ui.label(pilot_warning(r));
+                ui.label(r.pilot_warning());
                 egui::Grid::new("plan-table").striped(true).show(ui, |ui| {
                     ui.strong("n");
                     ui.strong("power");

@@ -19,11 +19,11 @@
 use crate::gui::charts::{self, BarSeries, FAIL_COLOR, Trace, condition_color};
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::path_field::{PathField, PathKind};
-use crate::results::{
+use kilotouch_study::export::regenerate_summaries;
+use kilotouch_study::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, Trajectory,
     read_trajectory,
 };
-use kilotouch_study::export::regenerate_summaries;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 
@@ -190,7 +190,7 @@ impl ResultsPage {
                 self.refresh_view();
             }
             Err(e) => {
-                self.error = Some(e);
+                self.error = Some(e.to_string());
                 self.data = None;
                 self.view = None;
             }
@@ -219,7 +219,9 @@ impl ResultsPage {
             .spawn(move || {
                 let r: Result<Vec<Trajectory>, String> = files
                     .iter()
-                    .map(|(t, ok, p)| read_trajectory(p, *t, *ok, TRAJECTORY_POINTS))
+                    .map(|(t, ok, p)| {
+                        read_trajectory(p, *t, *ok, TRAJECTORY_POINTS).map_err(|e| e.to_string())
+                    })
                     .collect();
                 let _ = tx.send(r);
             });
@@ -483,7 +485,7 @@ impl ResultsPage {
                         env.requests.push(ShellRequest::Notify(m.clone()));
                         self.info = Some(m);
                     }
-                    Err(e) => self.error = Some(e),
+                    Err(e) => self.error = Some(e.to_string()),
                 }
             }
             if ui.button("Regenerate summaries").clicked() {
