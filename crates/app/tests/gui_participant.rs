@@ -444,7 +444,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
         let a = h.state_mut();
         // A fixed lead of one block (hil_sitting.rs: a loaded machine
         // stretches the round trips the automatic lead measures).
-        a.rig_page_mut().rig_text = format!("{},lead=1", emu.rig());
+        a.rig_page_mut().rig_text = format!("{},lead=1{}", emu.rig(), common::TEST_HOST_TIMEOUT);
         a.connect();
     }
     assert!(

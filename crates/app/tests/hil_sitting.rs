@@ -47,7 +47,7 @@ fn device(extra: &[&str]) -> Emulator {
 /// can stretch past what a USB link has; a fixed lead keeps the loop delay
 /// (and so the clearance) the same on every run.
 fn rig_of(dev: &Emulator) -> String {
-    format!("{},lead=1", dev.rig())
+    format!("{},lead=1{}", dev.rig(), common::TEST_HOST_TIMEOUT)
 }
 
 fn study_run(rig: &str, out: &Path, resume: bool) -> std::process::Output {
@@ -162,7 +162,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     let out = dir.path().join("study");
     let rig = RigConfig::default();
     let mut engine =
-        EngineHandle::spawn_spec(&rig, &dev.spec(",lead=1"), EngineOptions::default()).unwrap();
+        EngineHandle::spawn_spec(&rig, &dev.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)), EngineOptions::default()).unwrap();
     let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
     opts.participant = ParticipantKind::Handle;
     opts.only_participant = Some(0);

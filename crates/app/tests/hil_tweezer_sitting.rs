@@ -70,7 +70,7 @@ fn study_run_with(
     resume: bool,
     extra: &[&str],
 ) -> std::process::Output {
-    let rig = format!("{},lead=1", daq.rig());
+    let rig = format!("{},lead=1{}", daq.rig(), common::TEST_HOST_TIMEOUT);
     let tweezer = format!("{}{tweezer_opts}", tw.rig());
     let out_s = out.to_str().unwrap();
     let mut args = vec![
@@ -284,7 +284,7 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
     let rig = RigConfig::default();
     let tspec: TweezerSpec = format!("{},lead=0", t.rig()).parse().unwrap();
     let mut engine =
-        EngineHandle::spawn_devices(&rig, &d.spec(",lead=1"), &tspec, EngineOptions::default())
+        EngineHandle::spawn_devices(&rig, &d.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)), &tspec, EngineOptions::default())
             .unwrap();
     let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
     opts.participant = ParticipantKind::Handle;

@@ -32,6 +32,13 @@ pub const WAIT_S: f64 = 120.0;
 /// ([`Emulator::spawn`]); the watchdog's own tests set theirs.
 pub const TEST_WATCHDOG_MS: u64 = 1000;
 
+/// The host's stall timeout for a serial rig in the tests that run whole
+/// trials on an emulator (a `--rig` option, appended to `serial:PATH`): the
+/// default 100 ms is a USB link's bound, and a loaded 2-core machine may
+/// deschedule the emulator process for longer. The tests of stall detection
+/// set their own.
+pub const TEST_HOST_TIMEOUT: &str = ",timeout-ms=1000";
+
 /// The executable under test: the path cargo gives the tests in
 /// `CARGO_BIN_EXE_kilotouch` at run time, else `kilotouch` beside the
 /// directory of the running test binary (`target/<profile>/deps/…`).
