@@ -412,7 +412,7 @@ impl StudyPage {
             {
                 self.participant_text = first.id.clone();
             }
-            self.open_session(env, engine.as_deref_mut(), resume, true);
+            self.open_session(env, engine, resume, true);
         }
     }
 
