@@ -12,7 +12,6 @@ pub mod gui;
 pub mod output;
 pub mod paper;
 pub mod power_plot;
-pub mod results;
 pub mod session;
 pub mod tweezer_cal;
 pub mod tweezer_sim;

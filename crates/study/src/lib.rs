@@ -15,11 +15,13 @@
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
-//! * the statistics used to compare the V / P / D conditions ([`stats`]);
+//! * the statistics used to compare the V / P / D conditions ([`stats`])
+//!   and the results model of a study folder: per-participant and
+//!   per-condition values, the statistics table ([`results`]);
 //! * simulation-based power analysis from a pilot ([`power`]).
 //!
 //! Equations, references and the protocol format are documented in
-//! `docs/THEORY.md`; the output folder and its formats in
+//! `docs/theory/` (index: `docs/THEORY.md`); the output folder and its formats in
 //! `docs/STUDY.md`.
 
 pub mod at_device;
@@ -33,6 +35,7 @@ pub mod participant;
 pub mod power;
 pub mod protocol;
 pub mod rawsig;
+pub mod results;
 pub mod runner;
 mod screen_texts;
 pub mod screens;

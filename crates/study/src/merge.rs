@@ -250,23 +250,7 @@ fn check_same_study(first: &Input, other: &Input) -> Result<(), RunError> {
 /// study, changed row, torn tail, missing raw file, a trial in two inputs),
 /// or when `out` already holds a study; storage errors.
 pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
-    if inputs.is_empty() {
-        return Err(RunError::State(
-            "nothing to merge: name the shard folders".into(),
-        ));
-    }
-    if inputs.len() > MAX_INPUTS {
-        return Err(RunError::State(format!(
-            "{} folders to merge; at most {MAX_INPUTS}",
-            inputs.len()
-        )));
-    }
-    if out.join(SESSION_FILE).exists() {
-        return Err(RunError::State(format!(
-            "{} already holds a study; merge into a new folder",
-            out.display()
-        )));
-    }
+    check_request(inputs, out)?;
     let read: Vec<Input> = inputs
         .iter()
         .map(|d| read_input(d))
@@ -277,45 +261,9 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
     for other in &read[1..] {
         check_same_study(first, other)?;
     }
-    // Every trial once.
-    let mut by_key: BTreeMap<TrialKey, (usize, &TrialRow)> = BTreeMap::new();
-    for (i, input) in read.iter().enumerate() {
-        let index: HashMap<&str, u32> = input
-            .session
-            .order_table
-            .iter()
-            .map(|o| (o.participant.as_str(), o.index))
-            .collect();
-        for (row, _) in &input.rows {
-            let key = row.key(
-                index
-                    .get(row.participant.as_str())
-                    .copied()
-                    .unwrap_or(u32::MAX),
-            );
-            if let Some((j, _)) = by_key.insert(key, (i, row)) {
-                return Err(bad(
-                    &input.dir,
-                    format!(
-                        "trial {key} is also in {}: the folders overlap (merge each shard once)",
-                        read[j].dir.display()
-                    ),
-                ));
-            }
-        }
-    }
+    let by_key = index_trials(&read)?;
     let s = &first.session;
-    let meta = StudyMeta {
-        software_name: s.software.name.clone(),
-        software_version: s.software.version.clone(),
-        rig: s.rig.clone(),
-        calibration: s.calibration.clone(),
-        rig_hash: s.rig_hash.clone(),
-        raw_signals: s.raw_signals,
-        trap_calibration: s.trap_calibration.clone(),
-        recorded_change: None,
-        device: None,
-    };
+    let meta = merged_meta(s);
     let mut store = StudyStore::open(out, &s.protocol, &meta)?;
     if let Some(sim) = s.simulation {
         store.set_simulation(SimulationInfo {
@@ -375,6 +323,77 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, RunError> {
         raw_files,
         complete: rows == planned,
     })
+}
+
+/// Refuses a merge request before reading anything: no input, more than
+/// [`MAX_INPUTS`], or an output folder that already holds a study.
+fn check_request(inputs: &[PathBuf], out: &Path) -> Result<(), RunError> {
+    if inputs.is_empty() {
+        return Err(RunError::State(
+            "nothing to merge: name the shard folders".into(),
+        ));
+    }
+    if inputs.len() > MAX_INPUTS {
+        return Err(RunError::State(format!(
+            "{} folders to merge; at most {MAX_INPUTS}",
+            inputs.len()
+        )));
+    }
+    if out.join(SESSION_FILE).exists() {
+        return Err(RunError::State(format!(
+            "{} already holds a study; merge into a new folder",
+            out.display()
+        )));
+    }
+    Ok(())
+}
+
+/// The inputs' rows by trial key, each with the index of its input; a
+/// trial found in two inputs is refused (the folders overlap).
+fn index_trials(read: &[Input]) -> Result<BTreeMap<TrialKey, (usize, &TrialRow)>, RunError> {
+    let mut by_key: BTreeMap<TrialKey, (usize, &TrialRow)> = BTreeMap::new();
+    for (i, input) in read.iter().enumerate() {
+        let index: HashMap<&str, u32> = input
+            .session
+            .order_table
+            .iter()
+            .map(|o| (o.participant.as_str(), o.index))
+            .collect();
+        for (row, _) in &input.rows {
+            let key = row.key(
+                index
+                    .get(row.participant.as_str())
+                    .copied()
+                    .unwrap_or(u32::MAX),
+            );
+            if let Some((j, _)) = by_key.insert(key, (i, row)) {
+                return Err(bad(
+                    &input.dir,
+                    format!(
+                        "trial {key} is also in {}: the folders overlap (merge each shard once)",
+                        read[j].dir.display()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(by_key)
+}
+
+/// The settings of the merged folder: those the inputs share (their first
+/// `session.json`), no recorded change, no device.
+fn merged_meta(s: &SessionInfo) -> StudyMeta {
+    StudyMeta {
+        software_name: s.software.name.clone(),
+        software_version: s.software.version.clone(),
+        rig: s.rig.clone(),
+        calibration: s.calibration.clone(),
+        rig_hash: s.rig_hash.clone(),
+        raw_signals: s.raw_signals,
+        trap_calibration: s.trap_calibration.clone(),
+        recorded_change: None,
+        device: None,
+    }
 }
 
 /// Copies a raw file and its sidecar from folder `from` to folder `to`

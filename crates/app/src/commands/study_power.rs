@@ -8,8 +8,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kilotouch_study::power::{
-    EffectSpec, PowerOptions, PowerReport, PowerTest, conditions_of, parse_contrast, power,
-    read_pilot,
+    EffectSpec, PowerOptions, PowerReport, PowerTest, conditions_of, parse_contrast,
+    parse_sample_sizes, power, read_pilot,
 };
 
 use super::progress::Progress;
@@ -74,50 +74,6 @@ pub struct PowerArgs {
     pub plot: Option<PathBuf>,
 }
 
-/// Parses `--n`: comma-separated integers and `FROM:TO:STEP` ranges,
-/// sorted and deduplicated.
-///
-/// # Errors
-/// A malformed item, a zero step, or more than 100 values.
-pub fn parse_ns(spec: &str) -> anyhow::Result<Vec<u32>> {
-    let mut out = Vec::new();
-    for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let bad = || anyhow::anyhow!("--n: `{item}` is not a number or FROM:TO:STEP");
-        let parts: Vec<&str> = item.split(':').collect();
-        match parts.as_slice() {
-            [one] => out.push(one.parse().map_err(|_| bad())?),
-            [a, b, s] => {
-                let (a, b, s): (u32, u32, u32) = (
-                    a.parse().map_err(|_| bad())?,
-                    b.parse().map_err(|_| bad())?,
-                    s.parse().map_err(|_| bad())?,
-                );
-                if s == 0 {
-                    anyhow::bail!("--n: `{item}` has a zero step");
-                }
-                let mut v = a;
-                while v <= b {
-                    out.push(v);
-                    if out.len() > 100 {
-                        anyhow::bail!("--n: more than 100 sample sizes");
-                    }
-                    v = v.saturating_add(s);
-                    if v == u32::MAX {
-                        break;
-                    }
-                }
-            }
-            _ => return Err(bad()),
-        }
-    }
-    out.sort_unstable();
-    out.dedup();
-    if out.is_empty() {
-        anyhow::bail!("--n: give at least one number of participants");
-    }
-    Ok(out)
-}
-
 /// The options of the study crate from the command line, given the pilot's
 /// condition labels.
 fn options(a: &PowerArgs, available: &[String]) -> anyhow::Result<PowerOptions> {
@@ -133,7 +89,7 @@ fn options(a: &PowerArgs, available: &[String]) -> anyhow::Result<PowerOptions> 
         Some(t) => t,
         None => std::thread::available_parallelism().map_or(1, |n| n.get()),
     };
-    let mut o = PowerOptions::new(&a.dv, test, parse_ns(&a.n)?);
+    let mut o = PowerOptions::new(&a.dv, test, parse_sample_sizes(&a.n)?);
     o.within.clone_from(&a.within);
     o.subject.clone_from(&a.subject);
     o.trials = a.trials_per_condition;
@@ -148,17 +104,6 @@ fn options(a: &PowerArgs, available: &[String]) -> anyhow::Result<PowerOptions> 
     o.seed = a.seed;
     o.threads = threads;
     Ok(o)
-}
-
-/// The warning every result carries: a pilot's effect is an estimate.
-pub fn pilot_warning(r: &PowerReport) -> String {
-    let e = &r.pilot_effect;
-    format!(
-        "note: the pilot's {}−{} effect is {:.4} with 95 % CI [{:.4}, {:.4}] from {} participants; \
-         a pilot's effect is noisy, so plan for the smallest effect worth detecting (--effect) \
-         rather than for the pilot's estimate",
-        e.contrast[0], e.contrast[1], e.estimate, e.ci[0], e.ci[1], e.n
-    )
 }
 
 /// The readable table.
@@ -202,7 +147,7 @@ pub fn human(r: &PowerReport) -> String {
         .map(|(c, p)| format!("{c} {:.2} (ICC {:.2})", p.p, p.icc))
         .collect();
     s += &format!("success rates: {}\n", succ.join(", "));
-    s += &pilot_warning(r);
+    s += &r.pilot_warning();
     s += "\n\n   n    power   95 % CI            dropped/study\n";
     for p in &r.points {
         s += &format!(
@@ -241,22 +186,7 @@ pub fn run(a: &PowerArgs) -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("--plot {}: {e}", path.display()))?;
     }
     if a.json {
-        eprintln!("{}", pilot_warning(&report));
+        eprintln!("{}", report.pilot_warning());
     }
     emit(a.json, &report, || human(&report))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sample_sizes_parse_lists_and_ranges() {
-        assert_eq!(parse_ns("4,8,12").ok(), Some(vec![4, 8, 12]));
-        assert_eq!(parse_ns("4:12:4, 6").ok(), Some(vec![4, 6, 8, 12]));
-        assert!(parse_ns("4:12:0").is_err());
-        assert!(parse_ns("x").is_err());
-        assert!(parse_ns("").is_err());
-        assert!(parse_ns("1:1000:1").is_err());
-    }
 }

@@ -8,9 +8,9 @@
 
 use super::style::{self, Figure, err, text};
 use super::{Claim, PaperError, PaperOptions, write_csv};
-use crate::results::{StudyResults, read_trajectory};
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_study::protocol::{Protocol, Task};
+use kilotouch_study::results::{StudyResults, read_trajectory};
 use kilotouch_study::runner::{RunnerConfig, TrialEngine};
 use kilotouch_study::seeds::Phase;
 use kilotouch_study::task::sim_station::SimStation;
@@ -100,7 +100,7 @@ pub(crate) fn simulate_study(
     kilotouch_study::simulate::simulate(&sim, &mut |d, t| {
         progress(d as f64 / t.max(1) as f64, &format!("{d}/{t} trials"))
     })?;
-    StudyResults::load(dir).map_err(PaperError::Results)
+    StudyResults::load(dir).map_err(|e| PaperError::Results(e.to_string()))
 }
 
 /// The participant index of an id `P01`, `P1`… (`protocol.rs` numbers
@@ -169,7 +169,7 @@ impl Fig10 {
             let setup = engine.setup(&protocol, r.key(pi));
             let c = setup.scene.geometry.obstacle_m;
             let t = read_trajectory(&dir.join(&r.raw_file), r.trial, r.success, POINTS)
-                .map_err(PaperError::Results)?;
+                .map_err(|e| PaperError::Results(e.to_string()))?;
             let xy_um: Vec<[f64; 2]> = t
                 .bead_um
                 .iter()

@@ -11,11 +11,11 @@
 
 use super::style::{self, Figure, err, text};
 use super::{Claim, PaperError, PaperOptions};
-use crate::results::{
-    ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, read_trajectory,
-};
 use kilotouch_study::export::Metric;
 use kilotouch_study::protocol::Protocol;
+use kilotouch_study::results::{
+    ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, read_trajectory,
+};
 use kilotouch_study::runner::RunnerConfig;
 use plotters::coord::Shift;
 use plotters::coord::types::RangedCoordf64;
@@ -131,7 +131,7 @@ pub const DISP_ERR_ANOVA_DISAGREEMENT: &str = "the simulated operator's V − P/
      seeds (docs/PAPER.md)";
 
 /// Mean of a bar, NaN when absent.
-fn mean_of(v: &crate::results::MeanSd) -> f64 {
+fn mean_of(v: &kilotouch_study::results::MeanSd) -> f64 {
     v.map_or(f64::NAN, |m| m.0)
 }
 
@@ -696,7 +696,7 @@ pub fn export_results_figures(
     if let Some((p, c)) = trajectories {
         let mut paths = Vec::new();
         for (trial, success, path) in results.raw_trials(p, c) {
-            let t = read_trajectory(&path, trial, success, 4000)?;
+            let t = read_trajectory(&path, trial, success, 4000).map_err(|e| e.to_string())?;
             paths.push((
                 format!("trial {trial}{}", if success { "" } else { " (rejected)" }),
                 t.bead_um,

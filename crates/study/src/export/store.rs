@@ -133,18 +133,8 @@ impl StudyStore {
         let session_path = dir.join(SESSION_FILE);
         let now = UtcTime::now();
         let resumed = entry_exists(&session_path);
-        let mut changes = Vec::new();
-        let mut info = if resumed {
-            let info = open::load_session(&session_path, protocol, &protocol_sha256)?;
-            changes = settings::changes(&info, meta);
-            if !changes.is_empty() && meta.recorded_change.is_none() {
-                let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
-                return Err(ExportError::SettingsChanged {
-                    path: session_path,
-                    changes: list.join("; "),
-                });
-            }
-            info
+        let (mut info, changes) = if resumed {
+            resumed_session(&session_path, protocol, &protocol_sha256, meta)?
         } else {
             let info = NewStudy {
                 protocol,
@@ -157,7 +147,7 @@ impl StudyStore {
             }
             .session_info();
             open::create_folder(dir, &info)?;
-            info
+            (info, Vec::new())
         };
         // Read and check everything before modifying anything: an error
         // leaves the folder exactly as it was.
@@ -180,18 +170,7 @@ impl StudyStore {
         // Checks passed: repair (cut torn tails, keeping copies) and open
         // for appending; damaged raw files are quarantined below.
         let (trials_file, mut journal) = read.repair(dir)?;
-        let mut damaged_raw = Vec::with_capacity(damaged.len());
-        let mut damaged_lines = Vec::with_capacity(damaged.len());
-        for (trial, line, file, reason) in damaged {
-            let quarantined_to = raw_check::quarantine_target(dir, &file, now.unix_millis());
-            damaged_lines.push(line);
-            damaged_raw.push(DamagedRaw {
-                trial,
-                file,
-                reason,
-                quarantined_to,
-            });
-        }
+        let (damaged_raw, damaged_lines) = quarantine_plan(dir, damaged, now);
         let recovery = Recovery {
             resumed,
             journal_torn: read.journal.torn.clone(),
@@ -204,17 +183,7 @@ impl StudyStore {
             stale_lock: lock.stale().cloned(),
             damaged_raw,
         };
-        let start = SessionStart {
-            protocol_name: protocol.name.clone(),
-            protocol_sha256: info.protocol_sha256.clone(),
-            software_version: meta.software_version.clone(),
-            study_seed: protocol.seeds.study,
-            rig: meta.rig.clone(),
-            calibration: meta.calibration.clone(),
-            orders: orders.clone(),
-            resumed,
-            device: meta.device.clone(),
-        };
+        let start = session_start(protocol, &info, meta, &orders, resumed);
         open::journal_opening(&mut journal, start, &recovery, &verdict.completed)?;
         let mut completed = verdict.completed;
         let quarantine = Quarantine {
@@ -690,6 +659,74 @@ pub fn refuse_links(dir: &Path) -> Result<()> {
         refuse_link(&dir.join(name))?;
     }
     refuse_link(&dir.join(RECOVERY_DIR).join(raw_check::QUARANTINE_DIR))
+}
+
+/// The `session.json` of a folder being resumed and the settings of `meta`
+/// that differ from it.
+///
+/// # Errors
+/// Those of [`open::load_session`]; [`ExportError::SettingsChanged`] naming
+/// each differing setting unless `meta` records the change.
+fn resumed_session(
+    session_path: &Path,
+    protocol: &Protocol,
+    protocol_sha256: &str,
+    meta: &StudyMeta,
+) -> Result<(SessionInfo, Vec<settings::SettingChange>)> {
+    let info = open::load_session(session_path, protocol, protocol_sha256)?;
+    let changes = settings::changes(&info, meta);
+    if !changes.is_empty() && meta.recorded_change.is_none() {
+        let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
+        return Err(ExportError::SettingsChanged {
+            path: session_path.to_path_buf(),
+            changes: list.join("; "),
+        });
+    }
+    Ok((info, changes))
+}
+
+/// The damaged raw files found by [`damaged_raw_files`] as recovery
+/// entries with the place each will be quarantined to (stamped `now`), and
+/// their `trials.csv` lines in the same order.
+fn quarantine_plan(
+    dir: &Path,
+    damaged: Vec<(TrialKey, u64, String, String)>,
+    now: UtcTime,
+) -> (Vec<DamagedRaw>, Vec<u64>) {
+    let mut damaged_raw = Vec::with_capacity(damaged.len());
+    let mut damaged_lines = Vec::with_capacity(damaged.len());
+    for (trial, line, file, reason) in damaged {
+        let quarantined_to = raw_check::quarantine_target(dir, &file, now.unix_millis());
+        damaged_lines.push(line);
+        damaged_raw.push(DamagedRaw {
+            trial,
+            file,
+            reason,
+            quarantined_to,
+        });
+    }
+    (damaged_raw, damaged_lines)
+}
+
+/// The journal's `session_started` record of a sitting.
+fn session_start(
+    protocol: &Protocol,
+    info: &SessionInfo,
+    meta: &StudyMeta,
+    orders: &[OrderRow],
+    resumed: bool,
+) -> SessionStart {
+    SessionStart {
+        protocol_name: protocol.name.clone(),
+        protocol_sha256: info.protocol_sha256.clone(),
+        software_version: meta.software_version.clone(),
+        study_seed: protocol.seeds.study,
+        rig: meta.rig.clone(),
+        calibration: meta.calibration.clone(),
+        orders: orders.to_vec(),
+        resumed,
+        device: meta.device.clone(),
+    }
 }
 
 /// The finished trials whose raw file fails its check, as (trial, line of

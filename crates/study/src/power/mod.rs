@@ -268,6 +268,69 @@ pub fn parse_contrast(spec: &str, available: &[String]) -> Result<(String, Strin
     }
 }
 
+/// Parses a list of sample sizes (`--n`): comma-separated integers and
+/// `FROM:TO:STEP` ranges, sorted and deduplicated; at most 100 values.
+///
+/// # Errors
+/// [`PowerError::InvalidOption`] for a malformed item, a zero step, an
+/// empty list or more than 100 values.
+pub fn parse_sample_sizes(spec: &str) -> Result<Vec<u32>, PowerError> {
+    let invalid = |m: String| PowerError::InvalidOption(m);
+    let mut out = Vec::new();
+    for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let bad = || invalid(format!("--n: `{item}` is not a number or FROM:TO:STEP"));
+        let parts: Vec<&str> = item.split(':').collect();
+        match parts.as_slice() {
+            [one] => out.push(one.parse().map_err(|_| bad())?),
+            [a, b, s] => {
+                let (a, b, s): (u32, u32, u32) = (
+                    a.parse().map_err(|_| bad())?,
+                    b.parse().map_err(|_| bad())?,
+                    s.parse().map_err(|_| bad())?,
+                );
+                if s == 0 {
+                    return Err(invalid(format!("--n: `{item}` has a zero step")));
+                }
+                let mut v = a;
+                while v <= b {
+                    out.push(v);
+                    if out.len() > 100 {
+                        return Err(invalid("--n: more than 100 sample sizes".into()));
+                    }
+                    v = v.saturating_add(s);
+                    if v == u32::MAX {
+                        break;
+                    }
+                }
+            }
+            _ => return Err(bad()),
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    if out.is_empty() {
+        return Err(invalid(
+            "--n: give at least one number of participants".into(),
+        ));
+    }
+    Ok(out)
+}
+
+impl PowerReport {
+    /// The caution printed with every report: the pilot's effect with its
+    /// 95 % CI, and the advice to plan for the smallest effect worth
+    /// detecting rather than for the pilot's noisy estimate.
+    pub fn pilot_warning(&self) -> String {
+        let e = &self.pilot_effect;
+        format!(
+            "note: the pilot's {}−{} effect is {:.4} with 95 % CI [{:.4}, {:.4}] from {} \
+             participants; a pilot's effect is noisy, so plan for the smallest effect worth \
+             detecting (--effect) rather than for the pilot's estimate",
+            e.contrast[0], e.contrast[1], e.estimate, e.ci[0], e.ci[1], e.n
+        )
+    }
+}
+
 /// Condition labels of a pilot's test rows, in order of first appearance.
 pub fn conditions_of(table: &PilotTable) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
@@ -327,76 +390,17 @@ pub fn power(
     progress: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> Result<PowerReport, PowerError> {
     opts.check()?;
-    let available = conditions_of(table);
-    let (conditions, analysis) = match &opts.test {
-        PowerTest::Contrast { a, b } => {
-            for l in [a, b] {
-                if !available.contains(l) {
-                    return Err(PowerError::UnknownCondition {
-                        label: l.clone(),
-                        available: available.clone(),
-                    });
-                }
-            }
-            (vec![a.clone(), b.clone()], Analysis::PairedT)
-        }
-        PowerTest::Rm => (available.clone(), Analysis::RmGg),
-    };
+    let (conditions, analysis) = analysed_conditions(&opts.test, conditions_of(table))?;
     let rows = pilot_rows(table, &conditions)?;
     let counts = trial_counts(table, &conditions);
     let model = PilotModel::fit(&opts.dv, &rows, &counts, table.dv_is_success())?;
-    let k = model.k();
     let pilot_means: Vec<f64> = if model.dv_is_success {
         model.success.iter().map(|s| s.p).collect()
     } else {
         model.means.clone()
     };
-    // The pair whose difference is reported: A, B or the extreme means.
-    let (ia, ib) = match analysis {
-        Analysis::PairedT => (0, 1),
-        Analysis::RmGg => {
-            let by = |f: fn(f64, f64) -> bool| {
-                (0..k).fold(0, |best, j| {
-                    if f(pilot_means[j], pilot_means[best]) {
-                        j
-                    } else {
-                        best
-                    }
-                })
-            };
-            (by(|x, y| x > y), by(|x, y| x < y))
-        }
-    };
-    let effect_now = pilot_means[ia] - pilot_means[ib];
-    let means: Vec<f64> = match analysis {
-        Analysis::PairedT => {
-            let d = match opts.effect {
-                EffectSpec::Pilot => effect_now,
-                EffectSpec::Absolute(x) => x,
-                EffectSpec::Scale(s) => s * effect_now,
-            };
-            let c = 0.5 * (pilot_means[0] + pilot_means[1]);
-            vec![c + 0.5 * d, c - 0.5 * d]
-        }
-        Analysis::RmGg => {
-            let grand = pilot_means.iter().sum::<f64>() / k as f64;
-            let f = match opts.effect {
-                EffectSpec::Pilot => 1.0,
-                EffectSpec::Scale(s) => s,
-                EffectSpec::Absolute(0.0) => 0.0,
-                EffectSpec::Absolute(x) => {
-                    if effect_now <= 0.0 {
-                        return Err(PowerError::NoPilotEffect);
-                    }
-                    x / effect_now
-                }
-            };
-            pilot_means
-                .iter()
-                .map(|m| grand + f * (m - grand))
-                .collect()
-        }
-    };
+    let (ia, ib) = reported_pair(analysis, &pilot_means);
+    let means = simulated_means(analysis, opts.effect, &pilot_means, ia, ib)?;
     let effect = means[ia] - means[ib];
     let (sim_means, success) = if model.dv_is_success {
         let s = model
@@ -427,20 +431,7 @@ pub fn power(
             progress,
         )
         .ok_or_else(|| PowerError::InvalidOption("cancelled".into()))?;
-    let points: Vec<PowerPoint> = opts
-        .ns
-        .iter()
-        .zip(&tallies)
-        .map(|(&n, t)| PowerPoint {
-            n,
-            power: t.rejected as f64 / t.replications.max(1) as f64,
-            ci: clopper_pearson(t.rejected, t.replications, 0.95),
-            rejected: t.rejected,
-            replications: t.replications,
-            analysed: t.analysed,
-            mean_dropped: t.dropped as f64 / t.replications.max(1) as f64,
-        })
-        .collect();
+    let points = power_points(&opts.ns, &tallies);
     let n_for_target = points
         .iter()
         .filter(|p| p.power >= opts.target)
@@ -474,6 +465,113 @@ pub fn power(
     })
 }
 
+/// The conditions a test compares, in order, and its analysis: the
+/// contrast's two labels (each must be among the pilot's `available`
+/// conditions) or all of them.
+fn analysed_conditions(
+    test: &PowerTest,
+    available: Vec<String>,
+) -> Result<(Vec<String>, Analysis), PowerError> {
+    match test {
+        PowerTest::Contrast { a, b } => {
+            for l in [a, b] {
+                if !available.contains(l) {
+                    return Err(PowerError::UnknownCondition {
+                        label: l.clone(),
+                        available: available.clone(),
+                    });
+                }
+            }
+            Ok((vec![a.clone(), b.clone()], Analysis::PairedT))
+        }
+        PowerTest::Rm => Ok((available, Analysis::RmGg)),
+    }
+}
+
+/// The pair of conditions whose difference is reported: A, B for a
+/// contrast, the largest and smallest pilot means for RM-ANOVA.
+fn reported_pair(analysis: Analysis, pilot_means: &[f64]) -> (usize, usize) {
+    match analysis {
+        Analysis::PairedT => (0, 1),
+        Analysis::RmGg => {
+            let by = |f: fn(f64, f64) -> bool| {
+                (0..pilot_means.len()).fold(0, |best, j| {
+                    if f(pilot_means[j], pilot_means[best]) {
+                        j
+                    } else {
+                        best
+                    }
+                })
+            };
+            (by(|x, y| x > y), by(|x, y| x < y))
+        }
+    }
+}
+
+/// The condition means simulated: for a contrast, the pilot's centre ± half
+/// the assumed difference; for RM-ANOVA, the pilot means scaled about their
+/// grand mean so that the reported pair (`ia`, `ib`) differs by the assumed
+/// effect.
+///
+/// # Errors
+/// [`PowerError::NoPilotEffect`] for an absolute RM-ANOVA effect when the
+/// pilot means do not differ.
+fn simulated_means(
+    analysis: Analysis,
+    effect: EffectSpec,
+    pilot_means: &[f64],
+    ia: usize,
+    ib: usize,
+) -> Result<Vec<f64>, PowerError> {
+    let effect_now = pilot_means[ia] - pilot_means[ib];
+    Ok(match analysis {
+        Analysis::PairedT => {
+            let d = match effect {
+                EffectSpec::Pilot => effect_now,
+                EffectSpec::Absolute(x) => x,
+                EffectSpec::Scale(s) => s * effect_now,
+            };
+            let c = 0.5 * (pilot_means[0] + pilot_means[1]);
+            vec![c + 0.5 * d, c - 0.5 * d]
+        }
+        Analysis::RmGg => {
+            let grand = pilot_means.iter().sum::<f64>() / pilot_means.len() as f64;
+            let f = match effect {
+                EffectSpec::Pilot => 1.0,
+                EffectSpec::Scale(s) => s,
+                EffectSpec::Absolute(0.0) => 0.0,
+                EffectSpec::Absolute(x) => {
+                    if effect_now <= 0.0 {
+                        return Err(PowerError::NoPilotEffect);
+                    }
+                    x / effect_now
+                }
+            };
+            pilot_means
+                .iter()
+                .map(|m| grand + f * (m - grand))
+                .collect()
+        }
+    })
+}
+
+/// The power curve: per sample size, the share of replications that
+/// rejected, with its Clopper–Pearson 95 % interval.
+fn power_points(ns: &[u32], tallies: &[Tally]) -> Vec<PowerPoint> {
+    ns.iter()
+        .zip(tallies)
+        .map(|(&n, t)| PowerPoint {
+            n,
+            power: t.rejected as f64 / t.replications.max(1) as f64,
+            ci: clopper_pearson(t.rejected, t.replications, 0.95),
+            rejected: t.rejected,
+            replications: t.replications,
+            analysed: t.analysed,
+            mean_dropped: t.dropped as f64 / t.replications.max(1) as f64,
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -487,6 +585,19 @@ mod tests {
         // x = 0: upper = 1 − (α/2)^(1/n) exactly.
         let hi = clopper_pearson(0, 10, 0.95)[1];
         assert!((hi - (1.0 - 0.025_f64.powf(0.1))).abs() < 1e-10);
+    }
+
+    #[test]
+    fn sample_sizes_parse_lists_and_ranges() {
+        assert_eq!(parse_sample_sizes("4,8,12").ok(), Some(vec![4, 8, 12]));
+        assert_eq!(
+            parse_sample_sizes("4:12:4, 6").ok(),
+            Some(vec![4, 6, 8, 12])
+        );
+        assert!(parse_sample_sizes("4:12:0").is_err());
+        assert!(parse_sample_sizes("x").is_err());
+        assert!(parse_sample_sizes("").is_err());
+        assert!(parse_sample_sizes("1:1000:1").is_err());
     }
 
     #[test]

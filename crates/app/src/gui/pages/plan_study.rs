@@ -10,9 +10,10 @@ use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use egui_plot::{HLine, Legend, Line, Plot, PlotPoints, Points};
-use kilotouch_study::power::{EffectSpec, PowerOptions, PowerReport, PowerTest, power_from_path};
+use kilotouch_study::power::{
+    EffectSpec, PowerOptions, PowerReport, PowerTest, parse_sample_sizes, power_from_path,
+};
 
-use crate::commands::study_power::{parse_ns, pilot_warning};
 use crate::gui::charts::FAIL_COLOR;
 
 /// DV columns offered (trials.csv metrics and the outcome itself).
@@ -96,7 +97,7 @@ impl PlanState {
                 b: self.b.trim().to_owned(),
             }
         };
-        let ns = parse_ns(&self.ns).map_err(|e| e.to_string())?;
+        let ns = parse_sample_sizes(&self.ns).map_err(|e| e.to_string())?;
         let mut o = PowerOptions::new(&self.dv, test, ns);
         o.trials = (self.trials > 0).then_some(self.trials);
         o.effect = match self.effect_mode {
@@ -170,6 +171,94 @@ impl PlanState {
             }
         }
     }
+
+    /// The panel's form: the options of the power analysis.
+    fn form_ui(&mut self, ui: &mut egui::Ui) {
+        egui::Grid::new("plan-grid").num_columns(2).show(ui, |ui| {
+            ui.label("Dependent variable");
+            egui::ComboBox::from_id_salt("plan-dv")
+                .selected_text(self.dv.clone())
+                .show_ui(ui, |ui| {
+                    for dv in DVS {
+                        ui.selectable_value(&mut self.dv, dv.to_owned(), dv);
+                    }
+                });
+            ui.end_row();
+            ui.label("Test");
+            ui.horizontal(|ui| {
+                ui.radio_value(&mut self.rm, false, "paired t of");
+                ui.add(egui::TextEdit::singleline(&mut self.a).desired_width(30.0));
+                ui.label("−");
+                ui.add(egui::TextEdit::singleline(&mut self.b).desired_width(30.0));
+                ui.radio_value(&mut self.rm, true, "RM-ANOVA (GG)");
+            });
+            ui.end_row();
+            let label = ui.label("Participants (n)");
+            ui.add(egui::TextEdit::singleline(&mut self.ns).desired_width(160.0))
+                .labelled_by(label.id)
+                .on_hover_text("comma list and/or FROM:TO:STEP, e.g. 4:40:4");
+            ui.end_row();
+            ui.label("Trials per condition");
+            ui.add(egui::DragValue::new(&mut self.trials).range(0..=1000))
+                .on_hover_text("0 = as in the pilot");
+            ui.end_row();
+            ui.label("Effect");
+            ui.horizontal(|ui| {
+                ui.radio_value(&mut self.effect_mode, EffectMode::Pilot, "pilot's");
+                ui.radio_value(&mut self.effect_mode, EffectMode::Absolute, "difference");
+                ui.radio_value(&mut self.effect_mode, EffectMode::Scale, "× pilot's");
+                if self.effect_mode != EffectMode::Pilot {
+                    ui.add(egui::DragValue::new(&mut self.effect).speed(0.01));
+                }
+            });
+            ui.end_row();
+            ui.label("α, target power");
+            ui.horizontal(|ui| {
+                ui.add(
+                    egui::DragValue::new(&mut self.alpha)
+                        .range(0.001..=0.5)
+                        .speed(0.001),
+                );
+                ui.add(
+                    egui::DragValue::new(&mut self.target)
+                        .range(0.05..=0.99)
+                        .speed(0.01),
+                );
+            });
+            ui.end_row();
+            ui.label("Simulated studies per n, seed");
+            ui.horizontal(|ui| {
+                ui.add(egui::DragValue::new(&mut self.replications).range(10..=100_000));
+                ui.add(egui::DragValue::new(&mut self.seed));
+            });
+            ui.end_row();
+        });
+    }
+
+    /// The progress bar and Cancel button of a running simulation, or the
+    /// button that starts one on the folder `dir`.
+    fn progress_ui(&mut self, ui: &mut egui::Ui, dir: &Path) {
+        if let Some(job) = &self.job {
+            let (d, t) = (
+                job.done.load(Ordering::Relaxed),
+                job.total.load(Ordering::Relaxed),
+            );
+            ui.horizontal(|ui| {
+                ui.add(
+                    egui::ProgressBar::new(d as f32 / t.max(1) as f32)
+                        .text(format!("{d}/{t} simulated studies"))
+                        .desired_width(300.0),
+                );
+                if ui.button("Cancel").clicked() {
+                    job.cancel.store(true, Ordering::Relaxed);
+                }
+            });
+            ui.ctx()
+                .request_repaint_after(std::time::Duration::from_millis(100));
+        } else if ui.button("Simulate power").clicked() {
+            self.start(dir);
+        }
+    }
 }
 
 /// The power curve with its 95 % intervals, the target and α.
@@ -211,6 +300,35 @@ fn curve(ui: &mut egui::Ui, r: &PowerReport) {
         });
 }
 
+/// The result of a power analysis: the curve, the n that reaches the
+/// target, the assumed effect, the pilot caution and the table.
+fn report_ui(ui: &mut egui::Ui, r: &PowerReport) {
+    curve(ui, r);
+    ui.label(match r.n_for_target {
+        Some(n) => format!("n for power ≥ {}: {n} participants", r.target),
+        None => format!("power {} is not reached at any n tried", r.target),
+    });
+    ui.label(format!(
+        "assumed effect {:.4}; SD of the participants' differences {:.4} (pilot), {:.4} (model, {} trials per condition)",
+        r.effect, r.sd_diff, r.sd_diff_model, r.trials_per_condition
+    ));
+    ui.label(r.pilot_warning());
+    egui::Grid::new("plan-table").striped(true).show(ui, |ui| {
+        ui.strong("n");
+        ui.strong("power");
+        ui.strong("95 % CI");
+        ui.strong("dropped / study");
+        ui.end_row();
+        for p in &r.points {
+            ui.label(p.n.to_string());
+            ui.label(format!("{:.3}", p.power));
+            ui.label(format!("[{:.3}, {:.3}]", p.ci[0], p.ci[1]));
+            ui.label(format!("{:.2}", p.mean_dropped));
+            ui.end_row();
+        }
+    });
+}
+
 /// The **Plan the next study** panel for the study folder `dir` (call it
 /// once per frame from the Results page).
 pub fn plan_panel(ui: &mut egui::Ui, dir: &Path) {
@@ -235,102 +353,13 @@ pub fn plan_panel(ui: &mut egui::Ui, dir: &Path) {
                  rates; many studies are simulated at each number of participants and analysed \
                  as the statistics above are.",
             );
-            egui::Grid::new("plan-grid").num_columns(2).show(ui, |ui| {
-                ui.label("Dependent variable");
-                egui::ComboBox::from_id_salt("plan-dv")
-                    .selected_text(s.dv.clone())
-                    .show_ui(ui, |ui| {
-                        for dv in DVS {
-                            ui.selectable_value(&mut s.dv, dv.to_owned(), dv);
-                        }
-                    });
-                ui.end_row();
-                ui.label("Test");
-                ui.horizontal(|ui| {
-                    ui.radio_value(&mut s.rm, false, "paired t of");
-                    ui.add(egui::TextEdit::singleline(&mut s.a).desired_width(30.0));
-                    ui.label("−");
-                    ui.add(egui::TextEdit::singleline(&mut s.b).desired_width(30.0));
-                    ui.radio_value(&mut s.rm, true, "RM-ANOVA (GG)");
-                });
-                ui.end_row();
-                let label = ui.label("Participants (n)");
-                ui.add(egui::TextEdit::singleline(&mut s.ns).desired_width(160.0))
-                    .labelled_by(label.id)
-                    .on_hover_text("comma list and/or FROM:TO:STEP, e.g. 4:40:4");
-                ui.end_row();
-                ui.label("Trials per condition");
-                ui.add(egui::DragValue::new(&mut s.trials).range(0..=1000))
-                    .on_hover_text("0 = as in the pilot");
-                ui.end_row();
-                ui.label("Effect");
-                ui.horizontal(|ui| {
-                    ui.radio_value(&mut s.effect_mode, EffectMode::Pilot, "pilot's");
-                    ui.radio_value(&mut s.effect_mode, EffectMode::Absolute, "difference");
-                    ui.radio_value(&mut s.effect_mode, EffectMode::Scale, "× pilot's");
-                    if s.effect_mode != EffectMode::Pilot {
-                        ui.add(egui::DragValue::new(&mut s.effect).speed(0.01));
-                    }
-                });
-                ui.end_row();
-                ui.label("α, target power");
-                ui.horizontal(|ui| {
-                    ui.add(egui::DragValue::new(&mut s.alpha).range(0.001..=0.5).speed(0.001));
-                    ui.add(egui::DragValue::new(&mut s.target).range(0.05..=0.99).speed(0.01));
-                });
-                ui.end_row();
-                ui.label("Simulated studies per n, seed");
-                ui.horizontal(|ui| {
-                    ui.add(egui::DragValue::new(&mut s.replications).range(10..=100_000));
-                    ui.add(egui::DragValue::new(&mut s.seed));
-                });
-                ui.end_row();
-            });
-            if let Some(job) = &s.job {
-                let (d, t) = (job.done.load(Ordering::Relaxed), job.total.load(Ordering::Relaxed));
-                ui.horizontal(|ui| {
-                    ui.add(
-                        egui::ProgressBar::new(d as f32 / t.max(1) as f32)
-                            .text(format!("{d}/{t} simulated studies"))
-                            .desired_width(300.0),
-                    );
-                    if ui.button("Cancel").clicked() {
-                        job.cancel.store(true, Ordering::Relaxed);
-                    }
-                });
-                ui.ctx()
-                    .request_repaint_after(std::time::Duration::from_millis(100));
-            } else if ui.button("Simulate power").clicked() {
-                s.start(dir);
-            }
+            s.form_ui(ui);
+            s.progress_ui(ui, dir);
             if let Some(e) = &s.error {
                 ui.colored_label(FAIL_COLOR, format!("Error: {e}"));
             }
             if let Some(r) = &s.result {
-                curve(ui, r);
-                ui.label(match r.n_for_target {
-                    Some(n) => format!("n for power ≥ {}: {n} participants", r.target),
-                    None => format!("power {} is not reached at any n tried", r.target),
-                });
-                ui.label(format!(
-                    "assumed effect {:.4}; SD of the participants' differences {:.4} (pilot), {:.4} (model, {} trials per condition)",
-                    r.effect, r.sd_diff, r.sd_diff_model, r.trials_per_condition
-                ));
-                ui.label(pilot_warning(r));
-                egui::Grid::new("plan-table").striped(true).show(ui, |ui| {
-                    ui.strong("n");
-                    ui.strong("power");
-                    ui.strong("95 % CI");
-                    ui.strong("dropped / study");
-                    ui.end_row();
-                    for p in &r.points {
-                        ui.label(p.n.to_string());
-                        ui.label(format!("{:.3}", p.power));
-                        ui.label(format!("[{:.3}, {:.3}]", p.ci[0], p.ci[1]));
-                        ui.label(format!("{:.2}", p.mean_dropped));
-                        ui.end_row();
-                    }
-                });
+                report_ui(ui, r);
             }
         });
 }
