@@ -456,20 +456,7 @@ impl SessionHandle {
         let restore_chain = use_chain(engine, &chain)?;
         let fs = engine.sample_rate_hz();
         let mapping = HandMapping::from_config(&engine.config().coupling);
-        let info = SessionInfo {
-            protocol: store.protocol().clone(),
-            recovery_text: store.recovery().to_string(),
-            recovery: store.recovery().clone(),
-            rows: read_trials(&opts.out.join(TRIALS_FILE))?.rows,
-            completed: store.completed_count(),
-            planned: store.plan().len(),
-            next: store.next_pending().cloned(),
-            mapping,
-            sample_rate_hz: fs,
-            runner: opts.runner,
-            rig: engine.spec().describe(),
-            device,
-        };
+        let info = session_info(&opts, engine, &store, mapping, device)?;
         let live_obstacle_m = live_obstacle(engine, &info.protocol)?;
         let timing_params = (
             engine.block_len() as u64,
@@ -765,6 +752,31 @@ fn live_obstacle(
         protocol.name,
         want * 1e6
     )))
+}
+
+/// What the page shows of a sitting about to start: the folder's protocol,
+/// recovery, rows and plan, and the rig it runs on.
+fn session_info(
+    opts: &SessionOptions,
+    engine: &EngineHandle,
+    store: &StudyStore,
+    mapping: HandMapping,
+    device: Option<DeviceRecord>,
+) -> Result<SessionInfo, SessionError> {
+    Ok(SessionInfo {
+        protocol: store.protocol().clone(),
+        recovery_text: store.recovery().to_string(),
+        recovery: store.recovery().clone(),
+        rows: read_trials(&opts.out.join(TRIALS_FILE))?.rows,
+        completed: store.completed_count(),
+        planned: store.plan().len(),
+        next: store.next_pending().cloned(),
+        mapping,
+        sample_rate_hz: engine.sample_rate_hz(),
+        runner: opts.runner,
+        rig: engine.spec().describe(),
+        device,
+    })
 }
 
 /// The live device's record for `session.json` (`None`: the simulated rig).

@@ -175,279 +175,314 @@ impl RigPage {
         let mut actions = Vec::new();
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading("Rig");
-            let spec = self.spec();
-            ui.group(|ui| {
-                ui.label(RichText::new("Device").strong());
-                ui.horizontal(|ui| {
-                    for (label, text) in [
-                        ("Simulated", "sim"),
-                        ("Serial DAQ", "serial:/dev/ttyACM0"),
-                        ("Audio interface", "audio"),
-                    ] {
-                        let on = matches!(
-                            (&spec, text),
-                            (Ok(RigSpec::Sim), "sim")
-                                | (Ok(RigSpec::Serial(_)), "serial:/dev/ttyACM0")
-                                | (Ok(RigSpec::Audio(_)), "audio")
-                        );
-                        let enabled = text != "audio" || Self::audio_built();
-                        let b = ui.add_enabled(enabled, egui::Button::selectable(on, label));
-                        let b = b.on_disabled_hover_text(
-                            "not in this build (cargo feature `audio`, needs libasound2-dev)",
-                        );
-                        if b.clicked() && !on {
-                            self.rig_text = text.to_owned();
-                        }
-                    }
-                });
-                ui.horizontal(|ui| {
-                    let label = ui.label("Rig:");
-                    let edit = ui
-                        .add(
-                            egui::TextEdit::singleline(&mut self.rig_text)
-                                .hint_text("sim")
-                                .desired_width(360.0),
-                        )
-                        .labelled_by(label.id);
-                    let enter = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
-                    let ok = self.spec().is_ok();
-                    let label = if engine.is_some() {
-                        "Connect (restart)"
-                    } else {
-                        "Connect"
-                    };
-                    if ui
-                        .add_enabled(
-                            ok,
-                            egui::Button::new(RichText::new(label).strong())
-                                .min_size(egui::vec2(110.0, 24.0)),
-                        )
-                        .clicked()
-                        || (enter && ok)
-                    {
-                        actions.push(RigAction::Connect);
-                    }
-                });
-                ui.weak(RIG_HINT);
-                match self.spec() {
-                    Err(e) => {
-                        ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_string());
-                    }
-                    Ok(RigSpec::Sim) => {
-                        ui.weak("Simulated rig: the hand follows the mouse on the Explore page.");
-                    }
-                    Ok(_) => {
-                        ui.label(
-                            "Live rig: the hand is the real handle (encoders); mouse input on the \
-                             Explore page is ignored. The engine exchanges blocks of frames with \
-                             the device (loop delay one block, 1 ms by default).",
-                        );
-                    }
-                }
-                ui.add_space(4.0);
-                self.tweezer_row(ui, engine, &mut actions);
-            });
+            self.device_ui(ui, engine, &mut actions);
             ui.add_space(6.0);
-            ui.group(|ui| {
-                ui.label(RichText::new("Rig file").strong());
-                ui.horizontal(|ui| {
-                    let r = self.rig_file_field.ui(
-                        ui,
-                        "Rig file:",
-                        &mut self.path_text,
-                        PathKind::Open(TOML.0, TOML.1),
-                        "built-in default (assets/rigs/default.toml)",
-                        420.0,
-                    );
-                    if ui.button("Load").clicked() || r.submitted || r.picked {
-                        if self.path_text.trim().is_empty() {
-                            actions.push(RigAction::UseDefault);
-                        } else {
-                            actions.push(RigAction::LoadConfig(self.path_text.trim().to_owned()));
-                        }
-                    }
-                    if ui.button("Use built-in default").clicked() {
-                        self.path_text.clear();
-                        actions.push(RigAction::UseDefault);
-                    }
-                });
-                match env.rig_config_path {
-                    Some(p) => ui.label(format!("In use: {}", p.display())),
-                    None => ui.label("In use: built-in default"),
-                };
-                if let Some(e) = config_error {
-                    ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_owned());
-                }
-            });
+            self.rig_file_ui(ui, env, config_error, &mut actions);
             ui.add_space(6.0);
             self.tweezer.engine_tweezer = engine
                 .and_then(|e| e.live_tweezer())
                 .map(|t| t.spec.describe());
             self.tweezer.ui(ui, env, engine.is_some());
             ui.add_space(6.0);
-            ui.horizontal(|ui| match engine {
-                None => {
-                    ui.label("Disconnected.");
-                }
-                Some(h) => {
-                    if ui
-                        .add(egui::Button::new("Disconnect").min_size(egui::vec2(110.0, 28.0)))
-                        .clicked()
-                    {
-                        actions.push(RigAction::Disconnect);
-                    }
-                    let running = h.health().is_none_or(|x| x.running);
-                    let faulted = h.last_error().is_some()
-                        || h.health().is_some_and(|x| x.safety == SafetyState::Fault);
-                    if faulted {
-                        if ui
-                            .add(
-                                egui::Button::new(RichText::new("Reconnect").strong())
-                                    .min_size(egui::vec2(110.0, 28.0)),
-                            )
-                            .on_hover_text(
-                                "reopen the device and resume (outputs ramp on again through \
-                                 the safety layer)",
-                            )
-                            .clicked()
-                        {
-                            actions.push(RigAction::Reconnect);
-                        }
-                    } else if running {
-                        if ui.button("Pause").clicked() {
-                            actions.push(RigAction::Stop);
-                        }
-                    } else if ui.button("Resume").clicked() {
-                        actions.push(RigAction::Start);
-                    }
-                }
-            });
+            run_controls_ui(ui, engine, &mut actions);
             ui.add_space(6.0);
-            let Some(h) = engine else {
-                return;
-            };
-            if let Some(e) = h.last_error() {
-                ui.group(|ui| {
-                    ui.colored_label(
-                        Color32::from_rgb(235, 80, 70),
-                        RichText::new(format!("Rig error: {e}")).strong(),
-                    );
-                    ui.label(
-                        "Outputs were commanded to zero and the loop stopped. Check the cable \
-                         or the device, then press Reconnect (or edit the rig field and \
-                         Connect).",
-                    );
-                });
-                ui.add_space(6.0);
+            if let Some(h) = engine {
+                error_ui(ui, h);
+                status_ui(ui, env, h);
             }
-            ui.columns(2, |cols| {
-                cols[0].group(|ui| {
-                    ui.label(RichText::new("Identity").strong());
-                    let id = h.identity();
-                    egui::Grid::new("rig-identity")
-                        .striped(true)
-                        .show(ui, |ui| {
-                            let rows = [
-                                ("name", id.name.clone()),
-                                ("kind", format!("{:?}", id.kind)),
-                                ("rig", h.spec().describe()),
-                                ("serial", id.serial.clone()),
-                                ("firmware", id.firmware.clone()),
-                                ("sample rate", format!("{:.0} Hz", id.sample_rate_hz)),
-                                ("Pantograph force limit", format!("±{} N", id.force_max_n)),
-                                (
-                                    "Haptuator drive limit",
-                                    format!("±{} V", id.haptuator_max_v),
-                                ),
-                                (
-                                    "accelerometer range",
-                                    format!("±{:.1} m/s²", id.accel_range_m_s2),
-                                ),
-                            ];
-                            for (k, v) in rows {
-                                ui.label(k);
-                                ui.label(v);
-                                ui.end_row();
-                            }
-                        });
-                });
-                cols[0].add_space(6.0);
-                cols[0].group(|ui| {
-                    ui.label(RichText::new("Closed-loop stability").strong());
-                    ui.label(format!("D chain: {}", h.chain_source().describe()));
-                    match h.stability() {
-                        Some(r) => margins_ui(
-                            ui,
-                            r,
-                            "rig-margins",
-                            env.trap_applied.map(|t| t.kappa_pn_um),
-                        ),
-                        None => {
-                            ui.label("not analysed (the loop was armed without the analysis)");
-                        }
-                    }
-                });
-                cols[1].group(|ui| {
-                    ui.label(RichText::new("Status").strong());
-                    match h.health() {
-                        None => {
-                            ui.label("waiting for the engine…");
-                        }
-                        Some(x) => {
-                            let col = match x.safety {
-                                SafetyState::EStop | SafetyState::Fault => Color32::RED,
-                                SafetyState::Enabled => Color32::from_rgb(60, 200, 90),
-                                _ => ui.visuals().text_color(),
-                            };
-                            ui.colored_label(col, format!("safety: {}", x.status_label()));
-                            egui::Grid::new("rig-status").striped(true).show(ui, |ui| {
-                                let r = &x.rig;
-                                let rows = [
-                                    ("state", format!("{:?}", r.state)),
-                                    ("loop rate", format!("{:.0} Hz", x.loop_rate_hz)),
-                                    ("load", format!("{:.2} %", 100.0 * x.load)),
-                                    ("deadline misses", x.deadline_misses.to_string()),
-                                    (
-                                        "worst lateness (window)",
-                                        format!("{:.2} ms", 1e3 * x.worst_lateness_s.max(0.0)),
-                                    ),
-                                    ("stalls (re-anchored)", x.overruns.to_string()),
-                                    ("frames", r.frames.to_string()),
-                                    ("lost frames", r.lost_frames.to_string()),
-                                    ("accelerometer clipped", r.clipped_frames.to_string()),
-                                    ("commands limited", r.limited_frames.to_string()),
-                                    ("Haptuator end stop", r.end_stop_frames.to_string()),
-                                    ("non-finite commands", r.nonfinite_commands.to_string()),
-                                    (
-                                        "passivity controller active",
-                                        x.coupling.passivity_active.to_string(),
-                                    ),
-                                    (
-                                        "trap at workspace edge",
-                                        x.coupling.workspace_clamped.to_string(),
-                                    ),
-                                    ("telemetry dropped", x.telemetry_dropped.to_string()),
-                                    (
-                                        "frames zeroed (e-stop, fault)",
-                                        x.estop_zeroed_frames.to_string(),
-                                    ),
-                                ];
-                                for (k, v) in rows {
-                                    ui.label(k);
-                                    ui.label(v);
-                                    ui.end_row();
-                                }
-                            });
-                            if let Some(o) = h.last_swap() {
-                                ui.label(crate::gui::app::swap_words(o));
-                            }
-                        }
-                    }
-                });
-            });
         });
         actions
     }
+
+    /// The device: kind, rig text, Connect, what the rig is, the tweezer row.
+    fn device_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        engine: Option<&EngineHandle>,
+        actions: &mut Vec<RigAction>,
+    ) {
+        let spec = self.spec();
+        ui.group(|ui| {
+            ui.label(RichText::new("Device").strong());
+            ui.horizontal(|ui| {
+                for (label, text) in [
+                    ("Simulated", "sim"),
+                    ("Serial DAQ", "serial:/dev/ttyACM0"),
+                    ("Audio interface", "audio"),
+                ] {
+                    let on = matches!(
+                        (&spec, text),
+                        (Ok(RigSpec::Sim), "sim")
+                            | (Ok(RigSpec::Serial(_)), "serial:/dev/ttyACM0")
+                            | (Ok(RigSpec::Audio(_)), "audio")
+                    );
+                    let enabled = text != "audio" || Self::audio_built();
+                    let b = ui.add_enabled(enabled, egui::Button::selectable(on, label));
+                    let b = b.on_disabled_hover_text(
+                        "not in this build (cargo feature `audio`, needs libasound2-dev)",
+                    );
+                    if b.clicked() && !on {
+                        self.rig_text = text.to_owned();
+                    }
+                }
+            });
+            ui.horizontal(|ui| {
+                let label = ui.label("Rig:");
+                let edit = ui
+                    .add(
+                        egui::TextEdit::singleline(&mut self.rig_text)
+                            .hint_text("sim")
+                            .desired_width(360.0),
+                    )
+                    .labelled_by(label.id);
+                let enter = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
+                let ok = self.spec().is_ok();
+                let label = if engine.is_some() {
+                    "Connect (restart)"
+                } else {
+                    "Connect"
+                };
+                if ui
+                    .add_enabled(
+                        ok,
+                        egui::Button::new(RichText::new(label).strong())
+                            .min_size(egui::vec2(110.0, 24.0)),
+                    )
+                    .clicked()
+                    || (enter && ok)
+                {
+                    actions.push(RigAction::Connect);
+                }
+            });
+            ui.weak(RIG_HINT);
+            match self.spec() {
+                Err(e) => {
+                    ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_string());
+                }
+                Ok(RigSpec::Sim) => {
+                    ui.weak("Simulated rig: the hand follows the mouse on the Explore page.");
+                }
+                Ok(_) => {
+                    ui.label(
+                        "Live rig: the hand is the real handle (encoders); mouse input on the \
+                         Explore page is ignored. The engine exchanges blocks of frames with \
+                         the device (loop delay one block, 1 ms by default).",
+                    );
+                }
+            }
+            ui.add_space(4.0);
+            self.tweezer_row(ui, engine, actions);
+        });
+    }
+
+    /// The rig file: load one, or the built-in default; the one in use.
+    fn rig_file_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        env: &PageEnv<'_>,
+        config_error: Option<&str>,
+        actions: &mut Vec<RigAction>,
+    ) {
+        ui.group(|ui| {
+            ui.label(RichText::new("Rig file").strong());
+            ui.horizontal(|ui| {
+                let r = self.rig_file_field.ui(
+                    ui,
+                    "Rig file:",
+                    &mut self.path_text,
+                    PathKind::Open(TOML.0, TOML.1),
+                    "built-in default (assets/rigs/default.toml)",
+                    420.0,
+                );
+                if ui.button("Load").clicked() || r.submitted || r.picked {
+                    if self.path_text.trim().is_empty() {
+                        actions.push(RigAction::UseDefault);
+                    } else {
+                        actions.push(RigAction::LoadConfig(self.path_text.trim().to_owned()));
+                    }
+                }
+                if ui.button("Use built-in default").clicked() {
+                    self.path_text.clear();
+                    actions.push(RigAction::UseDefault);
+                }
+            });
+            match env.rig_config_path {
+                Some(p) => ui.label(format!("In use: {}", p.display())),
+                None => ui.label("In use: built-in default"),
+            };
+            if let Some(e) = config_error {
+                ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_owned());
+            }
+        });
+    }
+}
+
+/// Disconnect, and Pause/Resume or Reconnect after a fault.
+fn run_controls_ui(ui: &mut egui::Ui, engine: Option<&EngineHandle>, actions: &mut Vec<RigAction>) {
+    ui.horizontal(|ui| match engine {
+        None => {
+            ui.label("Disconnected.");
+        }
+        Some(h) => {
+            if ui
+                .add(egui::Button::new("Disconnect").min_size(egui::vec2(110.0, 28.0)))
+                .clicked()
+            {
+                actions.push(RigAction::Disconnect);
+            }
+            let running = h.health().is_none_or(|x| x.running);
+            let faulted = h.last_error().is_some()
+                || h.health().is_some_and(|x| x.safety == SafetyState::Fault);
+            if faulted {
+                if ui
+                    .add(
+                        egui::Button::new(RichText::new("Reconnect").strong())
+                            .min_size(egui::vec2(110.0, 28.0)),
+                    )
+                    .on_hover_text(
+                        "reopen the device and resume (outputs ramp on again through \
+                         the safety layer)",
+                    )
+                    .clicked()
+                {
+                    actions.push(RigAction::Reconnect);
+                }
+            } else if running {
+                if ui.button("Pause").clicked() {
+                    actions.push(RigAction::Stop);
+                }
+            } else if ui.button("Resume").clicked() {
+                actions.push(RigAction::Start);
+            }
+        }
+    });
+}
+
+/// The connected rig's last error: outputs at zero, the loop stopped.
+fn error_ui(ui: &mut egui::Ui, h: &EngineHandle) {
+    if let Some(e) = h.last_error() {
+        ui.group(|ui| {
+            ui.colored_label(
+                Color32::from_rgb(235, 80, 70),
+                RichText::new(format!("Rig error: {e}")).strong(),
+            );
+            ui.label(
+                "Outputs were commanded to zero and the loop stopped. Check the cable \
+                 or the device, then press Reconnect (or edit the rig field and \
+                 Connect).",
+            );
+        });
+        ui.add_space(6.0);
+    }
+}
+
+/// The connected rig: its identity, health and loop margins.
+fn status_ui(ui: &mut egui::Ui, env: &PageEnv<'_>, h: &EngineHandle) {
+    ui.columns(2, |cols| {
+        cols[0].group(|ui| {
+            ui.label(RichText::new("Identity").strong());
+            let id = h.identity();
+            egui::Grid::new("rig-identity")
+                .striped(true)
+                .show(ui, |ui| {
+                    let rows = [
+                        ("name", id.name.clone()),
+                        ("kind", format!("{:?}", id.kind)),
+                        ("rig", h.spec().describe()),
+                        ("serial", id.serial.clone()),
+                        ("firmware", id.firmware.clone()),
+                        ("sample rate", format!("{:.0} Hz", id.sample_rate_hz)),
+                        ("Pantograph force limit", format!("±{} N", id.force_max_n)),
+                        (
+                            "Haptuator drive limit",
+                            format!("±{} V", id.haptuator_max_v),
+                        ),
+                        (
+                            "accelerometer range",
+                            format!("±{:.1} m/s²", id.accel_range_m_s2),
+                        ),
+                    ];
+                    for (k, v) in rows {
+                        ui.label(k);
+                        ui.label(v);
+                        ui.end_row();
+                    }
+                });
+        });
+        cols[0].add_space(6.0);
+        cols[0].group(|ui| {
+            ui.label(RichText::new("Closed-loop stability").strong());
+            ui.label(format!("D chain: {}", h.chain_source().describe()));
+            match h.stability() {
+                Some(r) => margins_ui(
+                    ui,
+                    r,
+                    "rig-margins",
+                    env.trap_applied.map(|t| t.kappa_pn_um),
+                ),
+                None => {
+                    ui.label("not analysed (the loop was armed without the analysis)");
+                }
+            }
+        });
+        cols[1].group(|ui| {
+            ui.label(RichText::new("Status").strong());
+            match h.health() {
+                None => {
+                    ui.label("waiting for the engine…");
+                }
+                Some(x) => {
+                    let col = match x.safety {
+                        SafetyState::EStop | SafetyState::Fault => Color32::RED,
+                        SafetyState::Enabled => Color32::from_rgb(60, 200, 90),
+                        _ => ui.visuals().text_color(),
+                    };
+                    ui.colored_label(col, format!("safety: {}", x.status_label()));
+                    egui::Grid::new("rig-status").striped(true).show(ui, |ui| {
+                        let r = &x.rig;
+                        let rows = [
+                            ("state", format!("{:?}", r.state)),
+                            ("loop rate", format!("{:.0} Hz", x.loop_rate_hz)),
+                            ("load", format!("{:.2} %", 100.0 * x.load)),
+                            ("deadline misses", x.deadline_misses.to_string()),
+                            (
+                                "worst lateness (window)",
+                                format!("{:.2} ms", 1e3 * x.worst_lateness_s.max(0.0)),
+                            ),
+                            ("stalls (re-anchored)", x.overruns.to_string()),
+                            ("frames", r.frames.to_string()),
+                            ("lost frames", r.lost_frames.to_string()),
+                            ("accelerometer clipped", r.clipped_frames.to_string()),
+                            ("commands limited", r.limited_frames.to_string()),
+                            ("Haptuator end stop", r.end_stop_frames.to_string()),
+                            ("non-finite commands", r.nonfinite_commands.to_string()),
+                            (
+                                "passivity controller active",
+                                x.coupling.passivity_active.to_string(),
+                            ),
+                            (
+                                "trap at workspace edge",
+                                x.coupling.workspace_clamped.to_string(),
+                            ),
+                            ("telemetry dropped", x.telemetry_dropped.to_string()),
+                            (
+                                "frames zeroed (e-stop, fault)",
+                                x.estop_zeroed_frames.to_string(),
+                            ),
+                        ];
+                        for (k, v) in rows {
+                            ui.label(k);
+                            ui.label(v);
+                            ui.end_row();
+                        }
+                    });
+                    if let Some(o) = h.last_swap() {
+                        ui.label(crate::gui::app::swap_words(o));
+                    }
+                }
+            }
+        });
+    });
 }
 
 /// A factor in scientific notation with a superscript exponent, e.g.

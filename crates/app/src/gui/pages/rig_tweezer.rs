@@ -488,46 +488,7 @@ fn result_ui(
         crate::tweezer_cal::model_name(&r.settings)
     ));
     ui.columns(2, |cols| {
-        let mut series = Vec::new();
-        let mut points = Vec::new();
-        for (k, fit) in d.fits.iter().enumerate() {
-            let axis = ["x", "y"][k];
-            let spec = &fit.spectrum;
-            let log_p: Vec<f64> = spec.p.iter().map(|p| p.log10()).collect();
-            points.push((
-                format!("{axis}: blocked periodogram"),
-                charts::log_points(&spec.f, &log_p),
-                AXIS_COLORS[k],
-            ));
-            let (f0, f1) = (
-                spec.f.first().copied().unwrap_or(1.0),
-                spec.f.last().copied().unwrap_or(10.0),
-            );
-            let model: Vec<[f64; 2]> = (0..=200)
-                .filter_map(|i| {
-                    let f = f0 * (f1 / f0).powf(f64::from(i) / 200.0);
-                    let m = fit.model_at(f);
-                    (f > 0.0 && m > 0.0 && m.is_finite()).then(|| [f.log10(), m.log10()])
-                })
-                .collect();
-            series.push(Series::solid(format!("{axis}: fit"), model, FIT_COLORS[k]));
-        }
-        charts::freq_chart(
-            &mut cols[0],
-            "tweezer-psd",
-            "log₁₀ PSD (V²/Hz)",
-            260.0,
-            &series,
-            |p| {
-                for (name, pts, color) in points {
-                    p.points(
-                        Points::new(name, PlotPoints::new(pts))
-                            .radius(1.8)
-                            .color(color.gamma_multiply(0.75)),
-                    );
-                }
-            },
-        );
+        psd_chart(&mut cols[0], d);
         let ui = &mut cols[1];
         egui::Grid::new("tweezer-cal-values")
             .striped(true)
@@ -596,6 +557,50 @@ fn result_ui(
                 ))));
         }
     });
+}
+
+/// The blocked periodogram of each axis with its fitted model (log–log).
+fn psd_chart(ui: &mut egui::Ui, d: &TrapCalibrationDone) {
+    let mut series = Vec::new();
+    let mut points = Vec::new();
+    for (k, fit) in d.fits.iter().enumerate() {
+        let axis = ["x", "y"][k];
+        let spec = &fit.spectrum;
+        let log_p: Vec<f64> = spec.p.iter().map(|p| p.log10()).collect();
+        points.push((
+            format!("{axis}: blocked periodogram"),
+            charts::log_points(&spec.f, &log_p),
+            AXIS_COLORS[k],
+        ));
+        let (f0, f1) = (
+            spec.f.first().copied().unwrap_or(1.0),
+            spec.f.last().copied().unwrap_or(10.0),
+        );
+        let model: Vec<[f64; 2]> = (0..=200)
+            .filter_map(|i| {
+                let f = f0 * (f1 / f0).powf(f64::from(i) / 200.0);
+                let m = fit.model_at(f);
+                (f > 0.0 && m > 0.0 && m.is_finite()).then(|| [f.log10(), m.log10()])
+            })
+            .collect();
+        series.push(Series::solid(format!("{axis}: fit"), model, FIT_COLORS[k]));
+    }
+    charts::freq_chart(
+        ui,
+        "tweezer-psd",
+        "log₁₀ PSD (V²/Hz)",
+        260.0,
+        &series,
+        |p| {
+            for (name, pts, color) in points {
+                p.points(
+                    Points::new(name, PlotPoints::new(pts))
+                        .radius(1.8)
+                        .color(color.gamma_multiply(0.75)),
+                );
+            }
+        },
+    );
 }
 
 /// The calibration in force and the button that removes it.

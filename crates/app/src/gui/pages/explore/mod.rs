@@ -9,15 +9,17 @@
 //! position scale); the simulated hand drags the finger and handle through
 //! the plant, and the coupling moves the trap from the measured handle.
 
-use crate::engine::{Condition, EngineHandle, TelemetrySample, flags};
-use crate::gui::env::PageEnv;
-use crate::gui::plot::{self, AxisReadout, AxisScale, LiveTraces, Ring, Trace};
-use crate::gui::scene::{self, Camera, CameraModel, SceneFrame, Snapshot, View};
-use crate::gui::scene_wgpu::SceneCallback;
-use egui::{Color32, RichText, Sense};
+use egui::Color32;
 use kilotouch_dsp::spectral::Spectrum;
 use kilotouch_rig::RigConfig;
 use kilotouch_rig::tweezer::Obstacle;
+
+use crate::engine::{Condition, EngineHandle, TelemetrySample, flags};
+use crate::gui::plot::{self, AxisReadout, AxisScale, LiveTraces, Ring, Trace};
+use crate::gui::scene::{self, Camera, CameraModel, Snapshot, View};
+
+mod controls;
+mod scene_view;
 
 /// What a primary click/drag in the scene does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -192,7 +194,7 @@ impl ExplorePage {
     /// them ([`clear_spot`]) and the reset follows when the telemetry shows
     /// the trap there ([`Self::poll_reset`]): a bead put back inside an
     /// obstacle would be pushed out of the trap at once.
-    fn reset_bead(&mut self, cfg: &RigConfig, e: &mut EngineHandle) {
+    pub(super) fn reset_bead(&mut self, cfg: &RigConfig, e: &mut EngineHandle) {
         let trap = self.last.map_or([0.0; 2], |s| s.trap_m);
         let clearance = cfg.tweezer.radius_m + 0.5e-6;
         match clear_spot(trap, &self.obstacles, clearance) {
@@ -211,7 +213,7 @@ impl ExplorePage {
 
     /// Send a deferred Reset bead once the trap has reached its clear spot
     /// (within 0.2 µm), or after 3 s of frames at most.
-    fn poll_reset(&mut self, e: &mut EngineHandle) {
+    pub(super) fn poll_reset(&mut self, e: &mut EngineHandle) {
         let Some((spot, frames)) = self.pending_reset else {
             return;
         };
@@ -282,7 +284,7 @@ impl ExplorePage {
         kilotouch_rig::coupling::HandMapping::from_config(&cfg.coupling).to_hand(trap_m)
     }
 
-    fn place_obstacle(&mut self, at: [f64; 2], cfg: &RigConfig) -> Result<(), String> {
+    pub(super) fn place_obstacle(&mut self, at: [f64; 2], cfg: &RigConfig) -> Result<(), String> {
         if self.obstacles.len() >= scene::MAX_BEADS - 1 {
             return Err(format!("at most {} obstacles", scene::MAX_BEADS - 1));
         }
@@ -313,7 +315,7 @@ impl ExplorePage {
         Ok(())
     }
 
-    fn remove_obstacle(&mut self, at: [f64; 2]) -> bool {
+    pub(super) fn remove_obstacle(&mut self, at: [f64; 2]) -> bool {
         let hit = self.obstacles.iter().position(|o| {
             ((at[0] - o.centre_m[0]).powi(2) + (at[1] - o.centre_m[1]).powi(2)).sqrt() <= o.radius_m
         });
@@ -323,7 +325,7 @@ impl ExplorePage {
         hit.is_some()
     }
 
-    fn push_obstacles(&mut self, engine: Option<&mut EngineHandle>) {
+    pub(super) fn push_obstacles(&mut self, engine: Option<&mut EngineHandle>) {
         if let Some(e) = engine
             && let Err(err) = e.set_obstacles(&self.obstacles)
         {
@@ -331,324 +333,7 @@ impl ExplorePage {
         }
     }
 
-    /// Draw the page.
-    pub fn ui(
-        &mut self,
-        ui: &mut egui::Ui,
-        env: &mut PageEnv<'_>,
-        mut engine: Option<&mut EngineHandle>,
-    ) {
-        let cfg = env.rig_config;
-        if let Some(e) = engine.as_deref_mut() {
-            self.poll_reset(e);
-        }
-        let condition = engine.as_ref().map(|e| e.condition());
-        if condition != self.free_condition {
-            // The free agitation belongs to one condition.
-            self.free_accel.clear();
-            self.free_condition = condition;
-        }
-        // ---------------------------------------------------------- controls
-        ui.horizontal_wrapped(|ui| {
-            ui.label(RichText::new("Condition").strong());
-            let current = engine.as_ref().map(|e| e.condition());
-            for c in Condition::ALL {
-                let b = ui
-                    .add(egui::Button::selectable(
-                        current == Some(c),
-                        RichText::new(c.code()).strong().size(16.0),
-                    ))
-                    .on_hover_text(c.description());
-                if b.clicked()
-                    && let Some(e) = engine.as_deref_mut()
-                {
-                    e.set_condition(c);
-                }
-            }
-            // Fixed width, that of the longest description: the toolbar wraps
-            // the same way in V, P and D, so the scene below does not jump
-            // when the condition changes, and no description is cut.
-            let desc = current.map(|c| c.description()).unwrap_or_default();
-            let font = egui::TextStyle::Body.resolve(ui.style());
-            let width = Condition::ALL
-                .iter()
-                .map(|c| {
-                    ui.painter()
-                        .layout_no_wrap(c.description().to_owned(), font.clone(), Color32::WHITE)
-                        .size()
-                        .x
-                })
-                .fold(0.0, f32::max)
-                + 4.0;
-            ui.add_sized([width, 18.0], egui::Label::new(desc));
-            ui.separator();
-            ui.label(RichText::new("Tool").strong());
-            ui.selectable_value(&mut self.tool, Tool::Drag, "drag trap");
-            if engine
-                .as_deref()
-                .is_some_and(|e| e.identity().kind != kilotouch_rig::device::RigKind::Simulated)
-            {
-                ui.colored_label(
-                    Color32::from_rgb(230, 150, 40),
-                    "live rig: the trap follows the real handle, dragging here does nothing",
-                );
-            }
-            ui.selectable_value(&mut self.tool, Tool::Place, "place obstacle")
-                .on_hover_text("or Shift+click in the scene");
-            ui.selectable_value(&mut self.tool, Tool::Remove, "remove obstacle")
-                .on_hover_text("or Ctrl+click / right-click an obstacle");
-            ui.add(
-                egui::DragValue::new(&mut self.obstacle_radius_um)
-                    .range(0.5..=10.0)
-                    .speed(0.1)
-                    .suffix(" µm"),
-            )
-            .on_hover_text("radius of new obstacles");
-            if ui.button("Clear obstacles").clicked() {
-                self.obstacles.clear();
-                self.push_obstacles(engine.as_deref_mut());
-            }
-            if ui.button("Rig-file obstacles").clicked() {
-                self.obstacles = config_obstacles(cfg);
-                self.push_obstacles(engine.as_deref_mut());
-            }
-            if ui
-                .button("Reset bead")
-                .on_hover_text(
-                    "put the bead back in the trap (the trap first moves off an obstacle it \
-                     sits over, else the bead would be pushed out at once)",
-                )
-                .clicked()
-                && let Some(e) = engine.as_deref_mut()
-            {
-                self.reset_bead(cfg, e);
-            }
-        });
-        ui.horizontal_wrapped(|ui| {
-            ui.label(RichText::new("Camera").strong());
-            ui.checkbox(&mut self.camera.model.enabled, "frame rate + latency");
-            ui.add(
-                egui::DragValue::new(&mut self.camera.model.fps)
-                    .range(1.0..=1000.0)
-                    .suffix(" fps"),
-            );
-            let mut lat_ms = self.camera.model.latency_s * 1e3;
-            if ui
-                .add(
-                    egui::DragValue::new(&mut lat_ms)
-                        .range(0.0..=500.0)
-                        .suffix(" ms latency"),
-                )
-                .changed()
-            {
-                self.camera.model.latency_s = lat_ms * 1e-3;
-            }
-            ui.add(
-                egui::DragValue::new(&mut self.blur_um)
-                    .range(0.0..=3.0)
-                    .speed(0.02)
-                    .suffix(" µm blur"),
-            );
-            ui.add(
-                egui::DragValue::new(&mut self.noise)
-                    .range(0.0..=0.5)
-                    .speed(0.005)
-                    .prefix("noise "),
-            );
-            ui.separator();
-            ui.add(
-                egui::DragValue::new(&mut self.trace_seconds)
-                    .range(0.1..=10.0)
-                    .speed(0.05)
-                    .suffix(" s traces"),
-            );
-            ui.label(format!(
-                "contacts {} · escapes {}",
-                self.contacts, self.escapes
-            ));
-            #[cfg(feature = "audio")]
-            {
-                ui.separator();
-                let mut on = self.sound.monitor.is_some();
-                if ui
-                    .checkbox(&mut on, "hear the high channel")
-                    .on_hover_text(
-                        "play the Haptuator drive (±2 V = full scale) on the default audio output",
-                    )
-                    .changed()
-                {
-                    self.sound.set(on, self.fs);
-                }
-                if let Some(e) = &self.sound.error {
-                    ui.colored_label(Color32::from_rgb(230, 150, 40), e);
-                }
-            }
-        });
-        if let Some(m) = &self.message {
-            let mut clear = false;
-            ui.horizontal(|ui| {
-                ui.colored_label(Color32::from_rgb(230, 150, 40), m);
-                clear = ui.small_button("dismiss").clicked();
-            });
-            if clear {
-                self.message = None;
-            }
-        }
-        ui.separator();
-        // ------------------------------------------------- scene + plots
-        let avail = ui.available_size();
-        let scene_side = (avail.x * 0.48).min(avail.y).max(120.0);
-        ui.horizontal_top(|ui| {
-            ui.vertical(|ui| {
-                self.scene_ui(ui, cfg, scene_side, engine);
-            });
-            ui.vertical(|ui| {
-                self.plots_ui(ui, avail.y);
-            });
-        });
-    }
-
-    fn scene_ui(
-        &mut self,
-        ui: &mut egui::Ui,
-        cfg: &RigConfig,
-        side: f32,
-        mut engine: Option<&mut EngineHandle>,
-    ) {
-        let (rect, resp) = ui.allocate_exact_size(egui::vec2(side, side), Sense::click_and_drag());
-        let view = View::fit(rect, [0.0, 0.0], VIEW_HALF_UM);
-        self.view = Some(view);
-        // Interaction.
-        let mods = ui.input(|i| i.modifiers);
-        if let Some(p) = resp.interact_pointer_pos() {
-            let at = view.to_specimen(p);
-            let place = resp.clicked() && (self.tool == Tool::Place || mods.shift);
-            let remove = (resp.clicked() && (self.tool == Tool::Remove || mods.command))
-                || resp.secondary_clicked();
-            if place {
-                match self.place_obstacle(at, cfg) {
-                    Ok(()) => self.push_obstacles(engine.as_deref_mut()),
-                    Err(e) => self.message = Some(e),
-                }
-            } else if remove {
-                if self.remove_obstacle(at) {
-                    self.push_obstacles(engine.as_deref_mut());
-                }
-            } else if self.tool == Tool::Drag
-                && !mods.shift
-                && !mods.command
-                && (resp.dragged() || resp.is_pointer_button_down_on())
-            {
-                let hand = Self::hand_for_trap(cfg, at);
-                self.hand_m = hand;
-                if let Some(e) = engine.as_deref_mut() {
-                    e.set_hand(hand);
-                }
-            }
-        }
-        // Picture.
-        let estop = engine
-            .as_ref()
-            .and_then(|e| e.health())
-            .is_some_and(|h| h.safety == crate::engine::SafetyState::EStop);
-        self.force_note = match engine.as_ref().and_then(|e| e.health()) {
-            None => Some("no rig: no force"),
-            Some(h) if h.safety != crate::engine::SafetyState::Enabled || !h.running => {
-                Some("outputs held at zero: no force is sent")
-            }
-            Some(h) if !h.condition.haptic() => Some("V (vision only): no force is sent"),
-            Some(_) => None,
-        };
-        let shown = self.camera.visible();
-        let painter = ui.painter_at(rect);
-        let Some(snap) = shown else {
-            painter.rect_filled(rect, 0.0, Color32::from_gray(40));
-            painter.text(
-                rect.center(),
-                egui::Align2::CENTER_CENTER,
-                if engine.is_some() {
-                    "waiting for the camera…"
-                } else {
-                    "rig disconnected"
-                },
-                egui::FontId::proportional(16.0),
-                Color32::LIGHT_GRAY,
-            );
-            return;
-        };
-        let frame = SceneFrame {
-            view,
-            bead_m: snap.bead_m,
-            bead_radius_m: cfg.tweezer.radius_m,
-            trap_m: snap.trap_m,
-            obstacles: self.obstacles.clone(),
-            blur_um: self.blur_um,
-            noise: self.noise,
-            frame: self.camera.frame_index(),
-            estop,
-        };
-        if self.gpu {
-            painter.add(SceneCallback::paint_callback(&frame));
-        } else {
-            scene::paint_fallback(&painter, &frame);
-        }
-        // Overlays: scale bar, state.
-        let bar_um = 10.0;
-        let y = rect.bottom() - 14.0;
-        let x0 = rect.left() + 14.0;
-        let x1 = x0 + view.len_pt(bar_um * 1e-6);
-        painter.line_segment(
-            [egui::pos2(x0, y), egui::pos2(x1, y)],
-            egui::Stroke::new(3.0, Color32::BLACK),
-        );
-        painter.text(
-            egui::pos2(x0, y - 4.0),
-            egui::Align2::LEFT_BOTTOM,
-            "10 µm",
-            egui::FontId::proportional(12.0),
-            Color32::BLACK,
-        );
-        let mut status = Vec::new();
-        if !snap.trapped {
-            status.push("BEAD LOST — move the trap back over it or Reset bead");
-        }
-        if snap.in_contact {
-            status.push("contact");
-        }
-        if estop {
-            status.push("EMERGENCY STOP");
-        }
-        if !status.is_empty() {
-            painter.text(
-                rect.left_top() + egui::vec2(8.0, 8.0),
-                egui::Align2::LEFT_TOP,
-                status.join(" · "),
-                egui::FontId::proportional(14.0),
-                Color32::from_rgb(200, 30, 30),
-            );
-        }
-        let cam = if self.camera.model.enabled {
-            format!(
-                "camera {:.0} fps, {:.0} ms",
-                self.camera.model.fps,
-                1e3 * self.camera.model.latency_s
-            )
-        } else {
-            "ideal camera".to_owned()
-        };
-        painter.text(
-            rect.right_bottom() - egui::vec2(8.0, 6.0),
-            egui::Align2::RIGHT_BOTTOM,
-            cam,
-            egui::FontId::proportional(11.0),
-            Color32::from_gray(30),
-        );
-        resp.on_hover_text(
-            "drag: move the trap · Shift+click: place obstacle · Ctrl+click or right-click: remove",
-        );
-    }
-
-    fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
+    pub(super) fn plots_ui(&mut self, ui: &mut egui::Ui, height: f32) {
         let fs = self.traces.fs();
         let secs = self.trace_seconds;
         let h = ((height - 70.0) / 3.0).max(100.0);

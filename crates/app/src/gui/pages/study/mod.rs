@@ -1,0 +1,547 @@
+//! Study page: load a protocol, enter a pseudonymous participant ID, see the
+//! counterbalanced order, run the training block and the sessions on the
+//! real-time engine ([`crate::session`]: the engine the Rig page connected,
+//! simulated or live), with an experimenter view (state,
+//! trial controls, live metrics, finished rows) and a participant view (the
+//! microscope scene through the simulated camera, or a dark screen for the
+//! blind task) in a separate viewport or inline.
+//!
+//! The page never blocks: commands go to the sitting's worker, the hand
+//! position to the engine, through queues; events come back the same way
+//! and are drained every frame by [`StudyPage::background`] (called by the
+//! shell whatever page is shown, so the participant window keeps running).
+
+use std::path::PathBuf;
+
+use egui::Color32;
+use kilotouch_study::export::TrialRow;
+use kilotouch_study::protocol::{AssignmentTable, Protocol};
+use kilotouch_study::runner::RunnerState;
+use kilotouch_study::seeds::TrialKey;
+use kilotouch_study::task::Scene;
+use kilotouch_study::task::station::HandMapping;
+
+use crate::engine::EngineHandle;
+use crate::gui::pages::study_size::SizeGate;
+use crate::gui::participant_screen::ParticipantScreen;
+use crate::gui::path_field::PathField;
+use crate::session::{
+    FinishReason, FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionEvent,
+    SessionHandle, SessionHealth, Speed, Telemetry, inspect_folder,
+};
+
+mod open;
+mod running;
+mod setup;
+
+/// Where the protocol comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProtocolSource {
+    /// Built-in `paper` (circling, V/P/D).
+    Paper,
+    /// Built-in `blind` (blind navigation).
+    Blind,
+    /// A TOML file.
+    File,
+}
+
+/// Which chain D runs in a sitting (recorded in `session.json` and the
+/// journal with the file's SHA-256).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CalibrationChoice {
+    /// The calibration applied to the engine on the Calibration page (its
+    /// file); the as-designed chain when none is applied.
+    #[default]
+    Applied,
+    /// The model's as-designed chain, recorded as uncalibrated.
+    AsDesigned,
+    /// A calibration file typed in.
+    File,
+}
+
+/// Where the participant's window opens.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Monitor {
+    /// The experimenter's monitor (the window opens over this one).
+    #[default]
+    Same,
+    /// The monitor to the right of the experimenter's (the window is placed
+    /// one screen width to the right; full screen then fills that monitor).
+    Right,
+    /// The monitor to the left.
+    Left,
+}
+
+/// Study sessions.
+#[derive(Debug)]
+pub struct StudyPage {
+    /// Protocol source.
+    pub source: ProtocolSource,
+    /// Protocol file path (for [`ProtocolSource::File`]).
+    pub protocol_file: String,
+    /// Participant ID as typed.
+    pub participant_text: String,
+    /// Output folder as typed (initialised from the settings).
+    pub out_text: String,
+    /// Person at the mouse or simulated participant.
+    pub kind: ParticipantKind,
+    /// Pacing (as fast as possible: simulated participant only).
+    pub speed: Speed,
+    /// Participant view in a separate window (else inline on this page;
+    /// inline is what the UI tests use).
+    pub separate_window: bool,
+    /// Which chain D runs.
+    pub calibration: CalibrationChoice,
+    /// Calibration file (for [`CalibrationChoice::File`]).
+    pub calibration_file: String,
+    /// Draw the scene with wgpu (set by the shell when installed).
+    pub gpu: bool,
+    /// Monitor of the participant's window.
+    pub monitor: Monitor,
+    /// Participant's window full screen.
+    pub fullscreen: bool,
+    screen: Option<ParticipantScreen>,
+    estop_latched: bool,
+    run_all: bool,
+    shown_for: Option<(String, String)>,
+    autostart: bool,
+    protocol: Option<Protocol>,
+    table: Option<AssignmentTable>,
+    protocol_error: Option<String>,
+    loaded_source: Option<(ProtocolSource, String)>,
+    out_seeded: bool,
+    folder: Option<(PathBuf, FolderStatus)>,
+    session: Option<SessionHandle>,
+    sitting_id: Option<ParticipantId>,
+    mapping: HandMapping,
+    state: Option<RunnerState>,
+    current: Option<(TrialKey, Scene)>,
+    telemetry: Option<Telemetry>,
+    health: SessionHealth,
+    /// The running sitting's timing verdict so far.
+    timing: Option<kilotouch_study::export::SittingTiming>,
+    rows: Vec<TrialRow>,
+    committed: usize,
+    planned: usize,
+    note_text: String,
+    log: Vec<String>,
+    error: Option<String>,
+    finished: Option<FinishReason>,
+    recovery_text: Option<String>,
+    trap_target_m: [f64; 2],
+    /// The participant's hand to send to the engine (mouse drags).
+    pending_hand: Option<[f64; 2]>,
+    /// The rig of the sitting (`sim`, `serial:PATH`), its loop delay.
+    rig_used: Option<String>,
+    /// What the last emergency stop did to the sitting.
+    estop_what: Option<String>,
+    /// Esc in the participant's window, for the shell.
+    estop_request: bool,
+    /// Where the participant's window opened (screen points).
+    participant_at: Option<[f32; 2]>,
+    /// The size check before a sitting opens.
+    pub size_gate: SizeGate,
+    protocol_field: PathField,
+    out_field: PathField,
+    calibration_field: PathField,
+}
+
+impl Default for StudyPage {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl StudyPage {
+    /// New page.
+    pub fn new() -> Self {
+        Self {
+            source: ProtocolSource::Paper,
+            protocol_file: String::new(),
+            participant_text: String::new(),
+            out_text: String::new(),
+            kind: ParticipantKind::Mouse,
+            speed: Speed::RealTime,
+            separate_window: true,
+            calibration: CalibrationChoice::default(),
+            calibration_file: String::new(),
+            gpu: false,
+            monitor: Monitor::Same,
+            fullscreen: false,
+            screen: None,
+            estop_latched: false,
+            run_all: false,
+            shown_for: None,
+            autostart: false,
+            protocol: None,
+            table: None,
+            protocol_error: None,
+            loaded_source: None,
+            out_seeded: false,
+            folder: None,
+            session: None,
+            sitting_id: None,
+            mapping: HandMapping::from_config(&kilotouch_rig::RigConfig::default().coupling),
+            state: None,
+            current: None,
+            telemetry: None,
+            health: SessionHealth::default(),
+            timing: None,
+            rows: Vec::new(),
+            committed: 0,
+            planned: 0,
+            note_text: String::new(),
+            log: Vec::new(),
+            error: None,
+            finished: None,
+            recovery_text: None,
+            trap_target_m: [0.0; 2],
+            pending_hand: None,
+            rig_used: None,
+            estop_what: None,
+            estop_request: false,
+            participant_at: None,
+            size_gate: SizeGate::default(),
+            protocol_field: PathField::default(),
+            out_field: PathField::default(),
+            calibration_field: PathField::default(),
+        }
+    }
+
+    /// New page drawing the scene with wgpu when `gpu` (the shell installed
+    /// the scene renderer).
+    pub fn with_gpu(gpu: bool) -> Self {
+        Self { gpu, ..Self::new() }
+    }
+
+    /// A session is open (the rig belongs to it).
+    pub fn is_running(&self) -> bool {
+        self.session.is_some()
+    }
+
+    /// The trial the engine has begun (its `TrialStarted` arrived), if any.
+    /// The participant's screen shows a trial as soon as the runner is in
+    /// it, a block or so before the engine begins it.
+    pub fn trial_started(&self) -> Option<TrialKey> {
+        self.current.map(|(k, _)| k)
+    }
+
+    /// Trials in the study's plan as the sitting last reported it (it grows
+    /// when an unsuccessful practice trial earns an extra one).
+    pub fn planned(&self) -> usize {
+        self.planned
+    }
+
+    /// Rows shown in the table (this participant's, from `trials.csv` and
+    /// the rows committed in this sitting).
+    pub fn rows(&self) -> &[TrialRow] {
+        &self.rows
+    }
+
+    /// The runner state last reported.
+    pub fn runner_state(&self) -> Option<RunnerState> {
+        self.state
+    }
+
+    /// How the last sitting ended.
+    pub fn finished(&self) -> Option<&FinishReason> {
+        self.finished.as_ref()
+    }
+
+    /// The last error shown.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// The shell pressed the engine's emergency stop: a running sitting
+    /// aborts its trial and pauses (the engine's driver reports it); it
+    /// cannot resume until the stop is reset through the shell's
+    /// confirmation ([`StudyPage::release_emergency_stop`]).
+    ///
+    /// Returns what the stop did to the sitting, in one sentence for the
+    /// shell's notice (`None`: no sitting runs): which trial was aborted,
+    /// or that none was (an instructions, ready or break screen, the
+    /// inter-trial interval).
+    pub fn emergency_stop(&mut self) -> Option<String> {
+        self.session.as_ref()?;
+        self.estop_latched = true;
+        let what = match self.state {
+            Some(
+                RunnerState::Training(k) | RunnerState::Trial(k) | RunnerState::Paused(Some(k)),
+            ) => {
+                format!("trial {k} was aborted (its row is kept as `aborted`)")
+            }
+            _ => "no trial was running, none was aborted".to_owned(),
+        };
+        self.estop_what = Some(what.clone());
+        Some(what)
+    }
+
+    /// Esc was pressed in the participant's window since the last call
+    /// (the shell then stops as from its own window).
+    pub fn take_estop_request(&mut self) -> bool {
+        std::mem::take(&mut self.estop_request)
+    }
+
+    /// On the first draw, open a sitting of the folder's next pending
+    /// participant (or P01 of a new folder) with the simulated participant
+    /// in real time, participant view inline, and start it.
+    pub fn simulate_sitting(&mut self) {
+        self.kind = ParticipantKind::Simulated;
+        self.speed = Speed::RealTime;
+        self.separate_window = false;
+        self.autostart = true;
+    }
+
+    /// An emergency stop of this sitting waits for its reset.
+    pub fn estop_latched(&self) -> bool {
+        self.estop_latched
+    }
+
+    /// The experimenter confirmed that the rig is safe (the shell's reset
+    /// dialog): Resume is possible again (it is not pressed for them).
+    pub fn release_emergency_stop(&mut self) {
+        self.estop_latched = false;
+        self.estop_what = None;
+    }
+
+    /// One line for the shell's status bar while a sitting owns the rig:
+    /// participant and runner state.
+    pub fn status_line(&self) -> Option<String> {
+        self.session.as_ref()?;
+        Some(format!("study sitting: {}", self.heading()))
+    }
+
+    /// "P01 · trial P01/V/test/3": whose sitting it is and where the runner
+    /// is (a run of every remaining participant says so: the trial's key
+    /// names its participant).
+    fn heading(&self) -> String {
+        let state = self.state.unwrap_or(RunnerState::Idle);
+        if self.run_all {
+            return format!("all remaining participants · {state}");
+        }
+        let id = self
+            .sitting_id
+            .as_ref()
+            .map(|p| p.id.clone())
+            .unwrap_or_default();
+        format!("{id} · {state}")
+    }
+
+    /// The participant's screen (while a sitting runs, and its end screen
+    /// until closed).
+    pub fn participant_screen(&self) -> Option<&ParticipantScreen> {
+        self.screen.as_ref()
+    }
+
+    /// The participant's key press or click (what the participant window
+    /// does on Space, Enter or a click).
+    pub fn participant_input(&mut self) {
+        if let Some(sc) = &mut self.screen
+            && sc.input()
+        {
+            self.send(SessionCommand::Proceed);
+        }
+    }
+
+    /// Forget what the last sitting showed (after switching participant or
+    /// folder): rows, metrics, messages, the end screen.
+    fn clear_sitting_state(&mut self) {
+        self.rows.clear();
+        self.telemetry = None;
+        self.current = None;
+        self.state = None;
+        self.finished = None;
+        self.error = None;
+        self.recovery_text = None;
+        self.log.clear();
+        self.health = SessionHealth::default();
+        self.committed = 0;
+        self.planned = 0;
+        self.screen = None;
+    }
+
+    /// Drains the session's events and shows the participant window (when
+    /// separate). Call every frame, whatever page is shown.
+    pub fn background(&mut self, ctx: &egui::Context, mut engine: Option<&mut EngineHandle>) {
+        self.poll(engine.as_deref_mut());
+        if self.session.is_some() {
+            ctx.request_repaint();
+        }
+        if (self.session.is_some() || self.screen.is_some()) && self.separate_window {
+            let id = egui::ViewportId::from_hash_of("kilotouch-participant");
+            let mut builder = egui::ViewportBuilder::default()
+                .with_title("kilotouch — participant")
+                .with_inner_size([720.0, 720.0])
+                .with_fullscreen(self.fullscreen);
+            let monitor_w = ctx.input(|i| i.viewport().monitor_size.map_or(1920.0, |m| m.x));
+            match self.monitor {
+                // Beside the experimenter's window when it fits on the
+                // monitor, else over it offset from its corner (never at
+                // the screen's origin over the console); where the window
+                // was when it opened, so that moving the console does not
+                // move the participant's window.
+                Monitor::Same => {
+                    let main = ctx.input(|i| i.viewport().outer_rect);
+                    if self.participant_at.is_none()
+                        && let Some(r) = main
+                    {
+                        let beside = r.max.x + 8.0;
+                        self.participant_at = Some(if beside + 720.0 <= monitor_w {
+                            [beside, r.min.y]
+                        } else {
+                            [r.min.x + 40.0, r.min.y + 40.0]
+                        });
+                    }
+                    if let Some(at) = self.participant_at {
+                        builder = builder.with_position(at);
+                    }
+                }
+                Monitor::Right => builder = builder.with_position([monitor_w + 40.0, 40.0]),
+                Monitor::Left => builder = builder.with_position([-monitor_w + 40.0, 40.0]),
+            }
+            ctx.show_viewport_immediate(id, builder, |ui, _class| {
+                egui::CentralPanel::default()
+                    .frame(egui::Frame::NONE.fill(Color32::BLACK))
+                    .show(ui, |ui| self.participant_view(ui, true));
+            });
+        } else {
+            self.participant_at = None;
+        }
+        self.flush_hand(engine);
+    }
+
+    /// The participant's hand (mouse) to the engine.
+    fn flush_hand(&mut self, engine: Option<&mut EngineHandle>) {
+        if let (Some(h), Some(e)) = (self.pending_hand, engine)
+            && e.set_hand(h)
+        {
+            self.pending_hand = None;
+        }
+    }
+
+    fn poll(&mut self, engine: Option<&mut EngineHandle>) {
+        let Some(s) = &mut self.session else {
+            return;
+        };
+        let events = s.poll();
+        if let Some(e) = engine.as_deref() {
+            self.health = s.health(e);
+        }
+        self.timing = Some(s.timing());
+        let mut end = None;
+        for e in events {
+            match e {
+                SessionEvent::State(st) => {
+                    self.state = Some(st);
+                    if let Some(sc) = &mut self.screen {
+                        sc.on_state(st);
+                    }
+                }
+                SessionEvent::TrialStarted { key, scene } => {
+                    self.current = Some((key, scene));
+                    self.telemetry = None;
+                    self.trap_target_m = scene.start_m;
+                    self.pending_hand = Some(self.mapping.to_hand(scene.start_m));
+                    self.log.push(format!("started {key}"));
+                }
+                SessionEvent::TrialEnded(k, e) => {
+                    if let Some(sc) = &mut self.screen {
+                        sc.on_trial_ended(k);
+                    }
+                    self.log.push(format!("ended {k}: {e:?}"));
+                }
+                SessionEvent::Committed(row) => {
+                    self.committed += 1;
+                    self.rows.push(*row);
+                }
+                SessionEvent::Replanned(n) => {
+                    self.planned = n;
+                    self.log.push(format!(
+                        "an unsuccessful practice trial earned an extra one ({n} trials planned)"
+                    ));
+                }
+                SessionEvent::Telemetry(t) => self.telemetry = Some(t),
+                SessionEvent::Noted(n) => self.log.push(format!("note: {n}")),
+                SessionEvent::Error(m) => {
+                    self.log.push(format!("error: {m}"));
+                    self.error = Some(m);
+                }
+                SessionEvent::Finished(r) => end = Some(r),
+            }
+        }
+        if self.log.len() > 200 {
+            let cut = self.log.len() - 200;
+            self.log.drain(..cut);
+        }
+        if let Some(r) = end {
+            if let FinishReason::Failed(m) = &r {
+                self.error = Some(m.clone());
+            }
+            // The end screen stays (participant done, study done); a
+            // stopped or failed sitting closes the participant's window.
+            match (&r, &mut self.screen) {
+                (FinishReason::StudyDone | FinishReason::ParticipantDone(_), Some(sc)) => {
+                    sc.on_finished();
+                }
+                _ => self.screen = None,
+            }
+            self.finished = Some(r);
+            // The engine goes back to free exploration (its driver, pacing
+            // and chain as before the sitting).
+            if let Some(s) = self.session.take() {
+                match engine {
+                    Some(e) => drop(s.close(e)),
+                    None => drop(s),
+                }
+            }
+            self.current = None;
+            self.folder = None;
+            self.run_all = false;
+        }
+    }
+
+    fn load_protocol(&mut self) {
+        let key = (self.source, self.protocol_file.trim().to_owned());
+        if self.loaded_source.as_ref() == Some(&key) {
+            return;
+        }
+        self.loaded_source = Some(key.clone());
+        let r = match self.source {
+            ProtocolSource::Paper => Protocol::builtin("paper"),
+            ProtocolSource::Blind => Protocol::builtin("blind"),
+            ProtocolSource::File if key.1.is_empty() => {
+                self.protocol = None;
+                self.table = None;
+                self.protocol_error = Some("enter the path of a protocol file (TOML)".into());
+                return;
+            }
+            ProtocolSource::File => Protocol::load(std::path::Path::new(&key.1)),
+        };
+        match r.and_then(|p| p.assignment().map(|t| (p, t))) {
+            Ok((p, t)) => {
+                self.protocol = Some(p);
+                self.table = Some(t);
+                self.protocol_error = None;
+            }
+            Err(e) => {
+                self.protocol = None;
+                self.table = None;
+                self.protocol_error = Some(e.to_string());
+            }
+        }
+    }
+
+    fn folder_status(&mut self) -> Option<&FolderStatus> {
+        let t = self.out_text.trim();
+        if t.is_empty() {
+            return None;
+        }
+        let p = PathBuf::from(t);
+        if self.folder.as_ref().is_none_or(|(q, _)| *q != p) {
+            let st = inspect_folder(&p);
+            self.folder = Some((p, st));
+        }
+        self.folder.as_ref().map(|(_, s)| s)
+    }
+}
