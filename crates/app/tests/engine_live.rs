@@ -328,7 +328,7 @@ fn stalled_device_times_out_and_the_same_port_reconnects() {
 
 /// The loop delay of a live rig (its block plus the link's command lead)
 /// is in the stability clearance: the engine arms the loop only when the
-/// margins hold with that delay (THEORY.md, loop delay), re-analyses a
+/// margins hold with that delay (docs/theory/coupling-and-stability.md, loop delay), re-analyses a
 /// chain cleared for less delay before swapping it in, and refuses a lead
 /// long enough to break D's phase margin, naming the delay.
 #[test]

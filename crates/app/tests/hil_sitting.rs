@@ -238,7 +238,8 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
 fn a_link_too_slow_for_the_margins_is_refused_with_the_numbers() {
     // 1 ms each way: a round trip of at least 2 ms, an automatic lead of at
     // least 4 blocks, a loop delay of at least 5 ms: D's phase margin is
-    // below the rig file's 30° (THEORY.md, loop delay: 24° at 5 ms). A
+    // below the rig file's 30° (docs/theory/coupling-and-stability.md, loop
+    // delay: 24° at 5 ms). A
     // round trip stretched by a loaded machine only lengthens the delay.
     let dev = device(&["--link-delay-ms", "1"]);
     let dir = tempfile::tempdir().unwrap();

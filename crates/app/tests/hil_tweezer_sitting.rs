@@ -355,7 +355,7 @@ fn both_links_leads_enter_the_stability_check() {
     // DAQ: 10-sample blocks + one block of lead; the tweezer another block
     // of lead: 30 samples of loop delay, 2.9 ms beyond the simulated
     // loop's one sample: D's phase margin is below the rig file's 30°
-    // (THEORY.md, loop delay: below 30° from 28 samples).
+    // (docs/theory/coupling-and-stability.md, loop delay: below 30° from 28 samples).
     let (d, t) = (daq(), tweezer());
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");

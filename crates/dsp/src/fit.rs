@@ -11,7 +11,7 @@
 //! weights w_i, minimising approximately Σ w_i |B(jω_i)/A(jω_i) − H_i|²,
 //! ω_i = 2π f_i (rad/s).
 //!
-//! Algorithm (see `docs/THEORY.md`):
+//! Algorithm (see `docs/theory/model-fitting.md`):
 //!
 //! 1. **Levy (1959)** linearisation: multiply the error by A, giving the linear
 //!    least-squares problem Σ w_i |B(jω_i) − H_i A(jω_i)|² in the unknown

@@ -12,7 +12,8 @@
 //! Frequencies are in hertz unless a name says otherwise (`_rad_s` = rad/s);
 //! sample rates `fs` are in hertz.
 //!
-//! The equations implemented are listed, with references, in `docs/THEORY.md`.
+//! The equations implemented are listed, with references, in
+//! `docs/theory/` (index: `docs/THEORY.md`).
 
 pub mod error;
 pub mod poly;

@@ -1,4 +1,4 @@
-//! The loop-delay table of docs/THEORY.md (closed-loop stability, loop
+//! The loop-delay table of docs/theory/coupling-and-stability.md (closed-loop stability, loop
 //! delay): P's and D's worst-case margins, the critical values and the
 //! largest safe force scale of the default rig at extra loop delays from
 //! 0 to 14 ms, and the delays at which D's phase margin falls below the

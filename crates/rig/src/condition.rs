@@ -94,7 +94,7 @@ impl std::str::FromStr for Condition {
 /// it is and its own mechanics limit the band (≈ 200 Hz in the dual-stage
 /// arrangement, §3.2). That is [`PMode::FullBand`], the default. The two
 /// alternatives are kept for protocols that want a stricter contrast; their
-/// effect on the P-vs-D contrast is documented in `docs/THEORY.md`
+/// effect on the P-vs-D contrast is documented in `docs/theory/coupling-and-stability.md`
 /// (bilateral coupling).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields)]

@@ -288,7 +288,7 @@ pub struct CouplingConfig {
     /// Damping rendered along the contact normal while the bead touches an
     /// obstacle, N·s/m at the handle: the virtual wall's damper (Colgate &
     /// Brown 1994). It gives the pressed loop its phase margin
-    /// (`docs/THEORY.md`, closed-loop stability). 0 = none.
+    /// (`docs/theory/coupling-and-stability.md`, closed-loop stability). 0 = none.
     #[serde(default = "default_contact_damping")]
     pub contact_damping_n_s_per_m: f64,
     /// Corner of the 2nd-order Butterworth low-pass on the handle-velocity
@@ -357,7 +357,7 @@ pub const MAX_VELOCITY_SPAN: u32 = 250;
 pub const MAX_WATCHDOG_WINDOW: usize = 1 << 20;
 
 /// `[safety]`: the safety layer every closed-loop run passes through
-/// (`crate::safety`, `docs/THEORY.md` (safety layer and audio rig)). Per-axis force and drive limits
+/// (`crate::safety`, `docs/theory/safety-and-audio.md`). Per-axis force and drive limits
 /// are `[limits]`; this section adds the rest. Every key has a default, so a
 /// rig file may omit the section or any key of it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

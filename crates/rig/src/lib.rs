@@ -9,7 +9,7 @@
 //! loop ([`HapticLoop`]) and its stability analysis ([`stability`]).
 //!
 //! Units are SI unless a name says otherwise. Theory and references:
-//! `docs/THEORY.md`; speed and accuracy tables: `docs/PERFORMANCE.md`.
+//! `docs/theory/` (index: `docs/THEORY.md`); speed and accuracy tables: `docs/PERFORMANCE.md`.
 
 pub mod accel;
 #[cfg(feature = "audio")]

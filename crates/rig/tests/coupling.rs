@@ -203,7 +203,7 @@ fn felt_band_power(condition: Condition, p_mode: PMode, press: bool) -> (f64, u6
 
 /// Closed loop (paper §4.1): in free space the Brownian agitation reaches
 /// the finger at 400–1000 Hz mostly through the Haptuator (D > P, by how much
-/// depends on what P is: `docs/THEORY.md`); pressing the bead against an
+/// depends on what P is: `docs/theory/coupling-and-stability.md`); pressing the bead against an
 /// obstacle makes it collapse (Fig. 9f–g).
 #[test]
 fn closed_loop_brownian_agitation_and_pressing() {

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Search for plant parameters that reproduce the paper's Fig. 5 (provenance of
-assets/rigs/default.toml; see docs/THEORY.md, "Tuning").
+assets/rigs/default.toml; see docs/theory/plant.md, "Tuning").
 
 Not part of the build. Needs numpy + scipy. Runs in ~10 min per seed:
 

@@ -19,7 +19,7 @@
 //! * simulation-based power analysis from a pilot ([`power`]).
 //!
 //! Equations, references and the protocol format are documented in
-//! `docs/THEORY.md`; the output folder and its formats in
+//! `docs/theory/` (index: `docs/THEORY.md`); the output folder and its formats in
 //! `docs/STUDY.md`.
 
 pub mod at_device;

@@ -6,7 +6,7 @@
 //! are parsed with serde (`deny_unknown_fields` everywhere) and validated on
 //! load; every error names the file, the line and column (from toml's spans)
 //! and the field. The format, with every key, unit and default, is documented
-//! in `docs/THEORY.md`.
+//! in `docs/theory/statistics.md` (protocol files).
 //!
 //! Built-in protocols are embedded with `include_str!` so the binary needs no
 //! files: [`PAPER_TOML`] (the paper's validation experiment, §4.3) and

@@ -8,8 +8,9 @@
 //! Butterworth high- and low-pass, applied forward once): the hand's slow
 //! movement and the loop's low-frequency modes are left out, and what
 //! remains is the Brownian agitation the Haptuator carries in D (the band of
-//! `docs/THEORY.md`'s closed-loop test). Both the true tip acceleration (the
-//! plant's output) and the accelerometer's reading are analysed. The sensor
+//! `docs/theory/coupling-and-stability.md`'s closed-loop test). Both the true
+//! tip acceleration (the plant's output) and the accelerometer's reading are
+//! analysed. The sensor
 //! adds its noise floor, which is above the simulated agitation: through the
 //! sensor the narrowing almost vanishes (`docs/PAPER.md`).
 

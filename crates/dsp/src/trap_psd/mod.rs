@@ -1,7 +1,7 @@
 //! Passive power-spectral calibration of an optical trap (Berg-Sørensen &
 //! Flyvbjerg 2004, "BSF"; with the refinements of LUMICKS' pylake,
 //! `lumicks.pylake.force_calibration`, whose formulation this follows so
-//! that the numbers agree; docs/THEORY.md, "Trap calibration").
+//! that the numbers agree; docs/theory/tweezer.md, "Trap calibration").
 //!
 //! * [`periodogram`]: the one-sided periodogram of a whole record (no
 //!   window, mean removed, V²/Hz) and its blocking: the bins in

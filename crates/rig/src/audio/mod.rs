@@ -20,7 +20,7 @@
 //! The cpal callbacks allocate nothing and lock nothing: they exchange
 //! frames with the host side through `rtrb` single-producer single-consumer
 //! ring buffers and count events in atomics. Theory and operation:
-//! `docs/THEORY.md` (safety layer and audio rig).
+//! `docs/theory/safety-and-audio.md`.
 
 mod monitor;
 mod rig;

@@ -148,7 +148,7 @@ pub struct HighFitConfig {
     /// Numbers of zeros at s = 0 to impose, tried in this order for each
     /// order pair (an inertial actuator's acceleration response has a
     /// double zero at DC, below the band a fit sees; see
-    /// `docs/THEORY.md`).
+    /// `docs/theory/calibration.md`).
     pub origin_zeros: Vec<usize>,
 }
 
@@ -175,7 +175,7 @@ pub struct CrossoverConfig {
     /// Use this crossover frequency (Hz) instead of the automatic choice.
     pub fc_hz: Option<f64>,
     /// Largest predicted deviation accepted for the automatic choice, dB
-    /// (see `docs/THEORY.md`).
+    /// (see `docs/theory/calibration.md`).
     pub budget_db: f64,
     /// Never choose a crossover above this (Hz).
     pub max_hz: Option<f64>,

@@ -98,7 +98,7 @@ impl CompensatorDesign {
     /// The chain the closed loop runs, whose input is a force in newtons:
     /// the same crossover, Ĝ_H and F with K_sys = G0_L, so C_L = 1 N/N and
     /// C_H = G0_L·F/Ĝ_H V/N. The rendered force at low frequency is then the
-    /// force asked for whatever the calibration (`docs/THEORY.md`, what K_sys
+    /// force asked for whatever the calibration (`docs/theory/calibration.md`, what K_sys
     /// means for a force input).
     pub fn force_chain_design(&self) -> ChainDesign {
         ChainDesign {

@@ -19,7 +19,7 @@
 //!
 //! Every step reports progress ([`Progress`]), checks the cancel flag before
 //! each rig run, and keeps its raw records (`raw` fields). Theory, units and
-//! the crossover rule: `docs/THEORY.md`.
+//! the crossover rule: `docs/theory/calibration.md`.
 
 pub mod bands;
 pub mod check;

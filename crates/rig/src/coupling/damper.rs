@@ -5,7 +5,7 @@
 //! defaults) on the device's mass held by the finger; with only the finger's
 //! damping that mode has a few degrees of phase margin, and the crossover's
 //! delay in D (2√2/ω_c ≈ 2.25 ms at 200 Hz) takes the rest. The damper gives
-//! the loop its margin back (`docs/THEORY.md`, closed-loop stability).
+//! the loop its margin back (`docs/theory/coupling-and-stability.md`, closed-loop stability).
 //!
 //! Velocity: v̂ = LP(fs·(x[n] − x[n−1])) per axis, LP a 2nd-order
 //! Butterworth low-pass at `velocity_filter_hz` (bilinear, prewarped): the

@@ -9,7 +9,7 @@
 //! ([`model_chain_design`]); a calibration replaces them by the identified
 //! ones ([`crate::calibration::CompensatorDesign::force_chain_design`]),
 //! which moves the crossover's compensation but not the rendered force
-//! (`docs/THEORY.md`, bilateral coupling).
+//! (`docs/theory/coupling-and-stability.md`, bilateral coupling).
 
 use crate::calibration::CalibrationFile;
 use crate::config::RigConfig;

@@ -8,7 +8,7 @@
 //! (and velocity) is an input: it adds k_f x_hand + b_f ẋ_hand to h's force.
 //! (The paper prints m_l twice on the mass diagonal; the fourth mass is m_2.)
 //!
-//! Two optional side branches extend eq. 1 (see `docs/THEORY.md` for
+//! Two optional side branches extend eq. 1 (see `docs/theory/plant.md` for
 //! why the chain alone cannot show two antiresonances in the force channel):
 //! a mass `e` on node 1 (motor shaft torsion, the sharp pair near 800 Hz)
 //! and a mass `l` on node 2 (link bending, the damped antiresonance just

@@ -489,7 +489,7 @@ impl LoopAnalysis {
     /// whole samples, rounded up (conservative). The delay enters the
     /// eigenvalue verdict as d shift-register states appended to the open
     /// loop ([`Dss::delay`]) and the margins as the factor e^{−j2πfd/f_s}
-    /// on L (THEORY.md, loop delay). 0 s: the loop of [`Self::new`].
+    /// on L (docs/theory/coupling-and-stability.md, loop delay). 0 s: the loop of [`Self::new`].
     ///
     /// # Errors
     /// A latency that is not finite, negative or above [`MAX_LATENCY_S`]

@@ -1,6 +1,6 @@
 //! Position detector of the simulated tweezer: what a calibration meets in
 //! a real instrument between the bead and the reported signal
-//! (docs/THEORY.md, "Position detector").
+//! (docs/theory/tweezer.md, "Position detector").
 //!
 //! Per axis the output is V = S·(α x + (1 − α) y) + σ_n ξ, with x the
 //! bead's displacement from the trap centre (m), S the sensitivity (V/m),

@@ -4,7 +4,7 @@
 //! Data*, ch. 3 (one-way) and ch. 11 (one within factor); sphericity:
 //! Mauchly (1940), Greenhouse & Geisser (1959), Huynh & Feldt (1976),
 //! Lecoutre (1991); effect sizes: Olejnik & Algina (2003). See
-//! `docs/THEORY.md` for the equations.
+//! `docs/theory/statistics.md` for the equations.
 
 use nalgebra::{DMatrix, SymmetricEigen};
 use serde::Serialize;

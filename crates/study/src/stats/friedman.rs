@@ -2,7 +2,7 @@
 //!
 //! Friedman (1937); tie correction as in `scipy.stats.friedmanchisquare`
 //! (Hollander & Wolfe); Kendall & Babington Smith (1939); Iman & Davenport
-//! (1980). Equations in `docs/THEORY.md`.
+//! (1980). Equations in `docs/theory/statistics.md`.
 
 use serde::Serialize;
 

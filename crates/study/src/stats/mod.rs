@@ -30,7 +30,7 @@
 //!
 //! Degenerate designs (one subject, one condition, zero variance, missing
 //! cells, non-finite values) give a [`StatsError`], never a silent NaN.
-//! Equations and references: `docs/THEORY.md`.
+//! Equations and references: `docs/theory/statistics.md`.
 
 pub mod agreement;
 mod anova;

@@ -3,7 +3,7 @@
 //!
 //! Wilcoxon (1945); Holm (1979); the Wilcoxon method selection reproduces
 //! `scipy.stats.wilcoxon` (scipy 1.17, defaults `zero_method="wilcox"`,
-//! `correction=False`, `method="auto"`). Equations in `docs/THEORY.md`.
+//! `correction=False`, `method="auto"`). Equations in `docs/theory/statistics.md`.
 
 use serde::Serialize;
 

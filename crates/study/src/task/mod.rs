@@ -13,7 +13,7 @@
 //! through it ([`circling::circling_metrics`], [`blind::blind_metrics`]). The
 //! session runner feeds the accumulator online, so nothing is stored per
 //! sample; the unit tests feed hand-built trajectories. Definitions and
-//! equations: `docs/STUDY.md` §11 and `docs/THEORY.md` (study tasks).
+//! equations: `docs/STUDY.md` §11 and `docs/theory/simulated-participant.md`.
 //!
 //! Files: `scene.rs` (obstacle, bead sizes, start and heading), `end.rs`
 //! (how a trial ends, shared by both tasks), `vec2.rs` (plane-vector
