@@ -516,7 +516,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     let rc = RigConfig::default();
     let mut free = rc.clone();
     free.tweezer.obstacles.clear();
-    let rec = kilotouch::tweezer_cal::record(
+    let rec = kilotouch_rig::tweezer::record::record(
         &kilotouch_rig::device::RigSpec::Sim,
         &free,
         10.0,
@@ -525,7 +525,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     )
     .unwrap();
     let gui = kilotouch::gui::pages::rig_tweezer::TweezerSection::new();
-    let (cal, _) = kilotouch::tweezer_cal::calibrate_axes(&rec, &gui.settings()).unwrap();
+    let (cal, _) = kilotouch_rig::tweezer::record::calibrate_axes(&rec, &gui.settings()).unwrap();
     cal.check().unwrap();
     let truth = rc.tweezer.stiffness_n_per_m * 1e6;
     assert!((cal.kappa_pn_um / truth - 1.0).abs() < 0.04, "{cal:?}");

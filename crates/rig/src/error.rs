@@ -66,6 +66,16 @@ pub enum RigError {
     /// The device reported an unrecoverable fault.
     #[error("rig fault: {0}")]
     Device(String),
+    /// An error of one part of a larger operation, with what that part was
+    /// (which axis of a record; what a failing link reported).
+    #[error("{context}: {source}")]
+    In {
+        /// The part, or the error the part saw first.
+        context: String,
+        /// The error underneath.
+        #[source]
+        source: Box<RigError>,
+    },
 }
 
 fn fmt_pos(line: Option<usize>, column: Option<usize>) -> String {

@@ -63,7 +63,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::export::TaskKind;
 use crate::participant::{Observation, Participant, TrialBrief, VisualFrame};
-use crate::seeds::{SplitMix64, splitmix64_mix};
+use crate::seeds::{STREAM_LAPSE, SplitMix64, TRAIT_DOMAIN, splitmix64_mix};
 use crate::task::{angle_between, norm, unit_uniform};
 use kilotouch_rig::coupling::HandMapping;
 
@@ -172,12 +172,6 @@ impl Default for OperatorParams {
         }
     }
 }
-
-/// ChaCha stream of a trial's attention lapses ("kt-lapse").
-const LAPSE_STREAM: u64 = 0x6b74_2d6c_6170_7365;
-
-/// Domain tag of the participant-trait generator ("kt-pers").
-const TRAIT_DOMAIN: u64 = 0x6b74_2d70_6572_7300;
 
 /// Between-participant spread of the operator's traits: each trait of
 /// participant i is its default times a factor drawn once from (study seed,
@@ -730,7 +724,7 @@ impl Participant for SimOperator {
         // Lapses come from their own stream of the trial's generator, so
         // the rest of the trial draws the same numbers with or without them.
         self.lapse_rng = brief.rng.clone();
-        self.lapse_rng.set_stream(LAPSE_STREAM);
+        self.lapse_rng.set_stream(STREAM_LAPSE);
         self.task = brief.task;
         self.mapping = brief.mapping;
         self.force_lp = [0.0; 2];

@@ -78,6 +78,13 @@ pub const STREAM_TASK: u64 = 1;
 pub const STREAM_RIG: u64 = 2;
 /// Stream id for the simulated participant.
 pub const STREAM_PARTICIPANT: u64 = 3;
+/// Stream id of a trial's attention lapses in the simulated operator, ASCII
+/// `kt-lapse` read big-endian.
+pub const STREAM_LAPSE: u64 = 0x6b74_2d6c_6170_7365;
+
+/// Domain tag of the simulated operator's participant-trait generator, ASCII
+/// `kt-pers` read big-endian with a zero low byte.
+pub const TRAIT_DOMAIN: u64 = 0x6b74_2d70_6572_7300;
 
 /// The SplitMix64 output function (finaliser): a bijection of `u64` with full
 /// avalanche (Stafford's "Mix13" variant used by `splitmix64.c`).

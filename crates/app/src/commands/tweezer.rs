@@ -201,7 +201,7 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
             a.column,
             cols.data[0].len(),
             a.fs,
-            crate::tweezer_cal::model_name(&s),
+            kilotouch_rig::tweezer::record::model_name(&s),
             cal.n_points,
             a.points_per_block
         );
@@ -243,7 +243,7 @@ struct RecordReport {
     fs_hz: f64,
     n_samples: usize,
     /// A live tweezer's link: round trip at connection, command lead.
-    link: Option<crate::tweezer_cal::LinkTiming>,
+    link: Option<kilotouch_rig::tweezer::record::LinkTiming>,
     /// `free` or `scene`.
     spot: &'static str,
     trap_um: [f64; 2],
@@ -282,7 +282,7 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
         TrapSpot::At(x, y) => ("scene", [x, y]),
     };
     let trap = trap_um.map(|v| v * 1e-6);
-    let rec = crate::tweezer_cal::record(&spec, &rc, a.duration_s, trap, &mut |_| {})?;
+    let rec = kilotouch_rig::tweezer::record::record(&spec, &rc, a.duration_s, trap, &mut |_| {})?;
     let (fs, n, [x, y]) = (rec.fs_hz, rec.volts[0].len(), &rec.volts);
     let mut warnings = Vec::new();
     if let Some(d) = rec.surface.filter(|d| d.biased()) {
@@ -307,7 +307,11 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
         }
     )?;
     if let Some(d) = &rec.surface {
-        writeln!(w, "{}", crate::tweezer_cal::surface_drag_line(d))?;
+        writeln!(
+            w,
+            "{}",
+            kilotouch_rig::tweezer::record::surface_drag_line(d)
+        )?;
     }
     writeln!(w, "t_s,x_v,y_v")?;
     for (i, (xv, yv)) in x.iter().zip(y).enumerate() {
@@ -357,18 +361,18 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
 }
 
 /// Calibrate both axes of `rec` with the settings the rig file `rc`
-/// implies ([`crate::tweezer_cal::default_settings`]) and write the record
+/// implies ([`kilotouch_rig::tweezer::record::default_settings`]) and write the record
 /// to `path` (JSON, [`TrapCalibrationRecord`]) when it passes the checks of
 /// an applicable calibration; `csv` (the record's file, kept) is named in
 /// the refusal.
 fn write_calibration(
-    rec: &crate::tweezer_cal::DetectorRecord,
+    rec: &kilotouch_rig::tweezer::record::DetectorRecord,
     rc: &RigConfig,
     path: &std::path::Path,
     csv: &std::path::Path,
 ) -> anyhow::Result<(RecordCalibration, TrapCalibrationRecord)> {
-    let settings = crate::tweezer_cal::default_settings(rc);
-    let (cal, _) = crate::tweezer_cal::calibrate_axes(rec, &settings)
+    let settings = kilotouch_rig::tweezer::record::default_settings(rc);
+    let (cal, _) = kilotouch_rig::tweezer::record::calibrate_axes(rec, &settings)
         .with_context(|| format!("calibrating the record {}", csv.display()))?;
     if let Err(why) = cal.check() {
         anyhow::bail!(
@@ -422,7 +426,7 @@ fn record_surface_warning(file: &std::path::Path, column: &str) -> Option<String
         .lines()
         .map_while(Result::ok)
         .take_while(|l| l.starts_with('#'))
-        .find_map(|l| crate::tweezer_cal::parse_surface_drag_line(&l))?;
+        .find_map(|l| kilotouch_rig::tweezer::record::parse_surface_drag_line(&l))?;
     let axes: &[usize] = match column {
         "x_v" => &[0],
         "y_v" => &[1],

@@ -36,6 +36,7 @@ pub mod prediction;
 pub mod progress;
 pub mod report;
 pub mod sim;
+#[cfg(feature = "testing")]
 pub mod standin;
 pub mod step;
 pub mod verify;
@@ -51,6 +52,7 @@ pub use interface::{ActuatorLimits, CalibrationRig, Channel, CheckReport, RigRec
 pub use progress::{NoProgress, Progress, Step, StepContext};
 pub use report::CalibrationReport;
 pub use sim::{RigAdapter, calibrate_sim, rig_config_hash};
+#[cfg(feature = "testing")]
 pub use standin::{StandInConfig, StandInRig};
 pub use verify::Verification;
 

@@ -1,5 +1,7 @@
 //! A small linear stand-in rig with one nonlinearity, for testing the
-//! procedure independently of the full simulated plant.
+//! procedure independently of the full simulated plant. A test double: it
+//! is compiled only with the crate's `testing` feature (the crate's own
+//! tests turn it on through a dev-dependency on itself).
 //!
 //! * Low channel (Pantograph force → tip acceleration):
 //!   G_L(s) = G0_L · s²/(s² + 2ζ_f ω_f s + ω_f²) · Π_k (ω_rk²/ω_ak²)·

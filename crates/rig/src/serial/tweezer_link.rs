@@ -485,6 +485,11 @@ impl LinkTweezer {
         self.failure.as_ref()
     }
 
+    /// The last failure, taken out (for an error that wraps it).
+    pub fn take_failure(&mut self) -> Option<RigError> {
+        self.failure.take()
+    }
+
     /// Link counters.
     pub fn link_stats(&self) -> LinkStats {
         self.link.stats()

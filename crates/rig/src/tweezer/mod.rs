@@ -48,6 +48,7 @@ pub mod applied;
 pub mod calibration;
 pub mod detector;
 pub mod drag;
+pub mod record;
 pub mod sim;
 pub mod spot;
 pub mod table;

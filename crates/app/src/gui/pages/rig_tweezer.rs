@@ -9,7 +9,7 @@
 //! (default: the rig file's simulated tweezer behind its simulated
 //! detector) or `serial:PATH` (a live tweezer, or `kilotouch emulate
 //! tweezer --pty`) — through the recording path of `kilotouch tweezer
-//! record` ([`crate::tweezer_cal::record`]), on a background thread
+//! record` ([`kilotouch_rig::tweezer::record::record`]), on a background thread
 //! ([`crate::gui::work::trap_calibration`]). The simulated trap is recorded
 //! in free solution, away from the scene's obstacles, whose drag the
 //! calibration does not model (as one calibrates a real trap away from
@@ -99,7 +99,7 @@ impl TweezerSection {
             viscosity_mpa_s: 0.0,
             temperature_k: 0.0,
             fit_range_hz: [0.0; 2],
-            points_per_block: crate::tweezer_cal::DEFAULT_POINTS_PER_BLOCK,
+            points_per_block: kilotouch_rig::tweezer::record::DEFAULT_POINTS_PER_BLOCK,
             aliased: true,
             hydro: false,
             diode: false,
@@ -116,9 +116,9 @@ impl TweezerSection {
     }
 
     /// Settings from a rig file's tweezer
-    /// ([`crate::tweezer_cal::default_settings`]).
+    /// ([`kilotouch_rig::tweezer::record::default_settings`]).
     pub fn seed_from(&mut self, rc: &RigConfig) {
-        let s = crate::tweezer_cal::default_settings(rc);
+        let s = kilotouch_rig::tweezer::record::default_settings(rc);
         self.radius_um = s.radius_m * 1e6;
         self.viscosity_mpa_s = s.viscosity_pa_s * 1e3;
         self.temperature_k = s.temperature_k;
@@ -485,7 +485,7 @@ fn result_ui(
         "{} samples per axis from {}; {}",
         r.n_samples,
         r.source,
-        crate::tweezer_cal::model_name(&r.settings)
+        kilotouch_rig::tweezer::record::model_name(&r.settings)
     ));
     ui.columns(2, |cols| {
         psd_chart(&mut cols[0], d);

@@ -3,8 +3,8 @@
 //!
 //! [`TrapCalibrationRun::start`] records the detector signals of the
 //! tweezer a `--rig` spec names through the one recording path of
-//! `kilotouch tweezer record` ([`crate::tweezer_cal::record`]) and
-//! calibrates both axes ([`crate::tweezer_cal::calibrate_axes`]) on a
+//! `kilotouch tweezer record` ([`kilotouch_rig::tweezer::record::record`]) and
+//! calibrates both axes ([`kilotouch_rig::tweezer::record::calibrate_axes`]) on a
 //! thread of its own. Progress (the fraction of the record taken) travels
 //! to the UI thread through an `mpsc` channel; the UI drains it with the
 //! non-blocking [`TrapCalibrationRun::poll`] once per frame and never waits
@@ -67,14 +67,20 @@ impl TrapCalibrationRun {
                 let ptx = tx.clone();
                 let work = move || -> anyhow::Result<TrapCalibrationDone> {
                     let mut last = 0.0;
-                    let rec =
-                        crate::tweezer_cal::record(&spec, &rc, duration_s, trap_m, &mut |f| {
+                    let rec = kilotouch_rig::tweezer::record::record(
+                        &spec,
+                        &rc,
+                        duration_s,
+                        trap_m,
+                        &mut |f| {
                             if f - last >= 0.01 {
                                 last = f;
                                 let _ = ptx.send(Msg::Progress(f));
                             }
-                        })?;
-                    let (record, fits) = crate::tweezer_cal::calibrate_axes(&rec, &settings)?;
+                        },
+                    )?;
+                    let (record, fits) =
+                        kilotouch_rig::tweezer::record::calibrate_axes(&rec, &settings)?;
                     Ok(TrapCalibrationDone { record, fits })
                 };
                 let r = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)) {
