@@ -161,8 +161,12 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
     let rig = RigConfig::default();
-    let mut engine =
-        EngineHandle::spawn_spec(&rig, &dev.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)), EngineOptions::default()).unwrap();
+    let mut engine = EngineHandle::spawn_spec(
+        &rig,
+        &dev.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)),
+        EngineOptions::default(),
+    )
+    .unwrap();
     let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
     opts.participant = ParticipantKind::Handle;
     opts.only_participant = Some(0);

@@ -283,9 +283,13 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
     let out = dir.path().join("study");
     let rig = RigConfig::default();
     let tspec: TweezerSpec = format!("{},lead=0", t.rig()).parse().unwrap();
-    let mut engine =
-        EngineHandle::spawn_devices(&rig, &d.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)), &tspec, EngineOptions::default())
-            .unwrap();
+    let mut engine = EngineHandle::spawn_devices(
+        &rig,
+        &d.spec(&format!(",lead=1{}", common::TEST_HOST_TIMEOUT)),
+        &tspec,
+        EngineOptions::default(),
+    )
+    .unwrap();
     let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
     opts.participant = ParticipantKind::Handle;
     opts.only_participant = Some(0);
