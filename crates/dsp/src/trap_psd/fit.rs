@@ -188,128 +188,16 @@ pub fn fit_power_spectrum(
     let (alo, ahi) = opts.analytical_range_hz;
     let an_spec = pg.blocked(f_lo.max(alo), f_hi.min(ahi), points_per_block)?;
     let analytical = fit_analytical_lorentzian(&an_spec.f, &an_spec.p, spec.duration_s)?;
-    let nyq = 0.5 * pg.fs_hz;
-    let mut scale = vec![analytical.fc_hz, analytical.d];
-    let mut lower = vec![0.0, 0.0];
-    let mut upper = vec![f64::INFINITY, f64::INFINITY];
-    if model.diode {
-        scale.extend([DIODE_START_HZ.min(0.999 * nyq), ALPHA_START]);
-        lower.extend([1.0, 0.0]);
-        upper.extend([nyq, 1.0]);
-    }
-    if scale.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-        return Err(DspError::Numerical(format!(
-            "the analytical Lorentzian start is unusable (f_c = {} Hz, D = {})",
-            analytical.fc_hz, analytical.d
-        )));
-    }
-    let lo_u: Vec<f64> = lower.iter().zip(&scale).map(|(l, s)| l / s).collect();
-    let hi_u: Vec<f64> = upper.iter().zip(&scale).map(|(h, s)| h / s).collect();
-    let pm = model.prepare(&spec.f);
-    let m = spec.f.len();
-    let sqrt_n = (points_per_block as f64).sqrt();
-    let theta_of = |u: &[f64]| -> Vec<f64> { u.iter().zip(&scale).map(|(a, s)| a * s).collect() };
-    let chi2_of = |u: &[f64], r: &mut [f64]| -> f64 {
-        residuals(&pm, &spec.p, sqrt_n, &theta_of(u), r);
-        let c: f64 = r.iter().map(|v| v * v).sum();
-        if c.is_finite() { c } else { f64::INFINITY }
-    };
-    let jacobian = |u: &[f64], jac: &mut DMatrix<f64>| {
-        let mut rp = vec![0.0; m];
-        let mut rm = vec![0.0; m];
-        for j in 0..np {
-            let h = 1e-6 * u[j].abs().max(1e-3);
-            let mut up = u.to_vec();
-            let mut um = u.to_vec();
-            up[j] += h;
-            um[j] -= h;
-            residuals(&pm, &spec.p, sqrt_n, &theta_of(&up), &mut rp);
-            residuals(&pm, &spec.p, sqrt_n, &theta_of(&um), &mut rm);
-            for i in 0..m {
-                jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * h);
-            }
-        }
-    };
-    let mut u: Vec<f64> = (0..np).map(|j| 1.0f64.clamp(lo_u[j], hi_u[j])).collect();
-    let mut r = vec![0.0; m];
-    let mut chi2 = chi2_of(&u, &mut r);
-    if !chi2.is_finite() {
-        return Err(DspError::Numerical(
-            "the model is not finite at the analytical start".into(),
-        ));
-    }
-    let mut jac = DMatrix::<f64>::zeros(m, np);
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    let mut r_try = vec![0.0; m];
-    'outer: while iterations < MAX_ITERATIONS {
-        iterations += 1;
-        jacobian(&u, &mut jac);
-        let jtj = jac.transpose() * &jac;
-        loop {
-            // Damped step by least squares on [J; √λ·diag(JᵀJ)^½] δ = [−r; 0]
-            // (SVD: no normal equations are formed).
-            let mut aug = DMatrix::<f64>::zeros(m + np, np);
-            aug.view_mut((0, 0), (m, np)).copy_from(&jac);
-            for j in 0..np {
-                aug[(m + j, j)] = (lambda * jtj[(j, j)].max(1e-30)).sqrt();
-            }
-            let mut rhs = DVector::<f64>::zeros(m + np);
-            for i in 0..m {
-                rhs[i] = -r[i];
-            }
-            let delta = aug
-                .svd(true, true)
-                .solve(&rhs, 1e-14)
-                .map_err(|e| DspError::Numerical(format!("fit step: {e}")))?;
-            let u_try: Vec<f64> = (0..np)
-                .map(|j| (u[j] + delta[j]).clamp(lo_u[j], hi_u[j]))
-                .collect();
-            let c = chi2_of(&u_try, &mut r_try);
-            if c < chi2 {
-                let gain = chi2 - c;
-                let step: f64 = (0..np).map(|j| (u_try[j] - u[j]).abs()).fold(0.0, f64::max);
-                u = u_try;
-                std::mem::swap(&mut r, &mut r_try);
-                chi2 = c;
-                lambda = (lambda * 0.1).max(1e-12);
-                if gain <= 1e-12 * chi2 || step <= 1e-12 {
-                    break 'outer;
-                }
-                break;
-            }
-            lambda *= 10.0;
-            if lambda > 1e12 {
-                break 'outer;
-            }
-        }
-    }
-    jacobian(&u, &mut jac);
-    let svd = jac.clone().svd(false, true);
-    let v_t = svd
-        .v_t
-        .ok_or_else(|| DspError::Numerical("SVD of the Jacobian failed".into()))?;
-    let smax = svd.singular_values.max();
-    let mut se = vec![0.0; np];
-    for (j, se_j) in se.iter_mut().enumerate() {
-        let mut var = 0.0;
-        for k in 0..np {
-            let sk = svd.singular_values[k];
-            if sk > 1e-13 * smax {
-                var += (v_t[(k, j)] / sk).powi(2);
-            } else {
-                var = f64::INFINITY;
-            }
-        }
-        *se_j = var.sqrt() * scale[j];
-    }
-    let mut theta: Vec<f64> = theta_of(&u).iter().map(|v| v.abs()).collect();
+    let problem = Problem::new(model, &analytical, pg.fs_hz, &spec)?;
+    let (u, chi2, iterations) = problem.levenberg_marquardt()?;
+    let mut se = problem.standard_errors(&u)?;
+    let mut theta: Vec<f64> = problem.theta_of(&u).iter().map(|v| v.abs()).collect();
     if opts.bias_correction {
         let c = points_per_block as f64 / (points_per_block as f64 + 1.0);
         theta[1] *= c;
         se[1] *= c;
     }
-    let dof = m - np;
+    let dof = spec.f.len() - np;
     let backing_pct = chi2_sf(chi2, dof as f64) * 100.0;
     if theta.iter().any(|v| !v.is_finite()) {
         return Err(DspError::Numerical("the fit did not converge".into()));
@@ -325,6 +213,192 @@ pub fn fit_power_spectrum(
         iterations,
         spectrum: spec,
     })
+}
+
+/// The weighted least-squares problem of [`fit_power_spectrum`] in scaled
+/// parameters u (θ = u ⊙ scale, the start at u = 1), with their bounds.
+struct Problem<'a> {
+    pm: PreparedModel,
+    p: &'a [f64],
+    sqrt_n: f64,
+    scale: Vec<f64>,
+    lo_u: Vec<f64>,
+    hi_u: Vec<f64>,
+}
+
+impl<'a> Problem<'a> {
+    /// Scales from the analytical start (f_c, D) and, with the diode, the
+    /// pylake starts of f_diode (below Nyquist) and α; bounds as documented
+    /// on [`fit_power_spectrum`].
+    fn new(
+        model: &PsdModel,
+        analytical: &AnalyticalFit,
+        fs_hz: f64,
+        spec: &'a BlockedSpectrum,
+    ) -> Result<Self, DspError> {
+        let nyq = 0.5 * fs_hz;
+        let mut scale = vec![analytical.fc_hz, analytical.d];
+        let mut lower = vec![0.0, 0.0];
+        let mut upper = vec![f64::INFINITY, f64::INFINITY];
+        if model.diode {
+            scale.extend([DIODE_START_HZ.min(0.999 * nyq), ALPHA_START]);
+            lower.extend([1.0, 0.0]);
+            upper.extend([nyq, 1.0]);
+        }
+        if scale.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(DspError::Numerical(format!(
+                "the analytical Lorentzian start is unusable (f_c = {} Hz, D = {})",
+                analytical.fc_hz, analytical.d
+            )));
+        }
+        let lo_u: Vec<f64> = lower.iter().zip(&scale).map(|(l, s)| l / s).collect();
+        let hi_u: Vec<f64> = upper.iter().zip(&scale).map(|(h, s)| h / s).collect();
+        Ok(Self {
+            pm: model.prepare(&spec.f),
+            p: &spec.p,
+            sqrt_n: (spec.points_per_block as f64).sqrt(),
+            scale,
+            lo_u,
+            hi_u,
+        })
+    }
+
+    fn np(&self) -> usize {
+        self.scale.len()
+    }
+
+    fn m(&self) -> usize {
+        self.p.len()
+    }
+
+    fn theta_of(&self, u: &[f64]) -> Vec<f64> {
+        u.iter().zip(&self.scale).map(|(a, s)| a * s).collect()
+    }
+
+    /// χ² at `u` (∞ when not finite), leaving the residuals in `r`.
+    fn chi2_of(&self, u: &[f64], r: &mut [f64]) -> f64 {
+        residuals(&self.pm, self.p, self.sqrt_n, &self.theta_of(u), r);
+        let c: f64 = r.iter().map(|v| v * v).sum();
+        if c.is_finite() { c } else { f64::INFINITY }
+    }
+
+    /// Central-difference Jacobian of the residuals in u.
+    fn jacobian(&self, u: &[f64], jac: &mut DMatrix<f64>) {
+        let m = self.m();
+        let mut rp = vec![0.0; m];
+        let mut rm = vec![0.0; m];
+        for j in 0..self.np() {
+            let h = 1e-6 * u[j].abs().max(1e-3);
+            let mut up = u.to_vec();
+            let mut um = u.to_vec();
+            up[j] += h;
+            um[j] -= h;
+            residuals(&self.pm, self.p, self.sqrt_n, &self.theta_of(&up), &mut rp);
+            residuals(&self.pm, self.p, self.sqrt_n, &self.theta_of(&um), &mut rm);
+            for i in 0..m {
+                jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * h);
+            }
+        }
+    }
+
+    /// Levenberg–Marquardt from u = 1 (clamped to the bounds), at most
+    /// [`MAX_ITERATIONS`]: the optimum u, its χ² and the iterations used.
+    fn levenberg_marquardt(&self) -> Result<(Vec<f64>, f64, usize), DspError> {
+        let (m, np) = (self.m(), self.np());
+        let mut u: Vec<f64> = (0..np)
+            .map(|j| 1.0f64.clamp(self.lo_u[j], self.hi_u[j]))
+            .collect();
+        let mut r = vec![0.0; m];
+        let mut chi2 = self.chi2_of(&u, &mut r);
+        if !chi2.is_finite() {
+            return Err(DspError::Numerical(
+                "the model is not finite at the analytical start".into(),
+            ));
+        }
+        let mut jac = DMatrix::<f64>::zeros(m, np);
+        let mut lambda = 1e-3;
+        let mut iterations = 0;
+        let mut r_try = vec![0.0; m];
+        'outer: while iterations < MAX_ITERATIONS {
+            iterations += 1;
+            self.jacobian(&u, &mut jac);
+            let jtj = jac.transpose() * &jac;
+            loop {
+                let delta = damped_step(&jac, &jtj, &r, lambda)?;
+                let u_try: Vec<f64> = (0..np)
+                    .map(|j| (u[j] + delta[j]).clamp(self.lo_u[j], self.hi_u[j]))
+                    .collect();
+                let c = self.chi2_of(&u_try, &mut r_try);
+                if c < chi2 {
+                    let gain = chi2 - c;
+                    let step: f64 = (0..np).map(|j| (u_try[j] - u[j]).abs()).fold(0.0, f64::max);
+                    u = u_try;
+                    std::mem::swap(&mut r, &mut r_try);
+                    chi2 = c;
+                    lambda = (lambda * 0.1).max(1e-12);
+                    if gain <= 1e-12 * chi2 || step <= 1e-12 {
+                        break 'outer;
+                    }
+                    break;
+                }
+                lambda *= 10.0;
+                if lambda > 1e12 {
+                    break 'outer;
+                }
+            }
+        }
+        Ok((u, chi2, iterations))
+    }
+
+    /// Standard errors of θ at `u` from (JᵀJ)⁻¹ by the SVD of J (∞ for a
+    /// direction J does not resolve), in θ's units.
+    fn standard_errors(&self, u: &[f64]) -> Result<Vec<f64>, DspError> {
+        let np = self.np();
+        let mut jac = DMatrix::<f64>::zeros(self.m(), np);
+        self.jacobian(u, &mut jac);
+        let svd = jac.svd(false, true);
+        let v_t = svd
+            .v_t
+            .ok_or_else(|| DspError::Numerical("SVD of the Jacobian failed".into()))?;
+        let smax = svd.singular_values.max();
+        let mut se = vec![0.0; np];
+        for (j, se_j) in se.iter_mut().enumerate() {
+            let mut var = 0.0;
+            for k in 0..np {
+                let sk = svd.singular_values[k];
+                if sk > 1e-13 * smax {
+                    var += (v_t[(k, j)] / sk).powi(2);
+                } else {
+                    var = f64::INFINITY;
+                }
+            }
+            *se_j = var.sqrt() * self.scale[j];
+        }
+        Ok(se)
+    }
+}
+
+/// Damped step by least squares on [J; √λ·diag(JᵀJ)^½] δ = [−r; 0] (SVD: no
+/// normal equations are formed).
+fn damped_step(
+    jac: &DMatrix<f64>,
+    jtj: &DMatrix<f64>,
+    r: &[f64],
+    lambda: f64,
+) -> Result<DVector<f64>, DspError> {
+    let (m, np) = jac.shape();
+    let mut aug = DMatrix::<f64>::zeros(m + np, np);
+    aug.view_mut((0, 0), (m, np)).copy_from(jac);
+    for j in 0..np {
+        aug[(m + j, j)] = (lambda * jtj[(j, j)].max(1e-30)).sqrt();
+    }
+    let mut rhs = DVector::<f64>::zeros(m + np);
+    for i in 0..m {
+        rhs[i] = -r[i];
+    }
+    aug.svd(true, true)
+        .solve(&rhs, 1e-14)
+        .map_err(|e| DspError::Numerical(format!("fit step: {e}")))
 }
 
 /// Survival function of χ² with `k` degrees of freedom, Q(k/2, x/2).
