@@ -152,7 +152,7 @@ fn obstacles_reset_bead_and_chain_swaps() {
     // stability analysis, cross-fades in.
     let cfg = RigConfig::default();
     let c = ChainCoefficients::design(&ChainDesign {
-        crossover_fc: 250.0,
+        crossover_hz: 250.0,
         ..model_chain_design(&cfg).unwrap()
     })
     .unwrap();

@@ -85,7 +85,7 @@ fn group_delay_is_the_lr4_dc_delay() {
         &mut StandInRig::new(StandInConfig::default()).unwrap(),
         &CalibrationConfig::default(),
     );
-    let wc = 2.0 * PI * out.crossover.fc_hz;
+    let wc = 2.0 * PI * out.crossover.crossover_hz;
     let want_ms = 1e3 * 2.0 * 2f64.sqrt() / wc;
     let got = out.verification.group_delay_ms;
     assert!(
@@ -268,7 +268,7 @@ fn tip_amplitude(out: &CalibrationOutcome, rig_cfg: &StandInConfig, f: f64, a: f
         measure_time: 0.1,
     };
     let (x, steps) = stepped_sine(&sc, 10_000.0).unwrap();
-    let mut chain = Chain::new(&out.design.chain_coefficients().unwrap());
+    let mut chain = Chain::new(&out.design.chain_coefficients(&out.crossover).unwrap());
     let (mut lo, mut hi) = (vec![0.0; x.len()], vec![0.0; x.len()]);
     chain.process_block(&x, &mut lo, &mut hi);
     let mut acc = vec![0.0; x.len()];
@@ -344,11 +344,10 @@ fn k_sys_fits_the_actuator_limits() {
 #[test]
 fn crossover_can_be_overridden() {
     let mut cfg = CalibrationConfig::default();
-    cfg.crossover.fc_hz = Some(150.0);
+    cfg.crossover.crossover_hz = Some(150.0);
     let out = calibrate_quietly(&mut sim(&RigConfig::default()), &cfg);
-    assert_eq!(out.crossover.fc_hz, 150.0);
+    assert_eq!(out.crossover.crossover_hz, 150.0);
     assert_eq!(out.crossover.rule, CrossoverRule::Override);
-    assert_eq!(out.design.crossover_hz, 150.0);
     assert!(out.report().crossover_overridden);
 }
 
@@ -506,7 +505,7 @@ fn calibration_file_round_trips_and_is_validated() {
     assert_eq!(loaded.settings, out.config);
     assert_eq!(
         loaded.chain_coefficients().unwrap(),
-        out.design.chain_coefficients().unwrap()
+        out.design.chain_coefficients(&out.crossover).unwrap()
     );
     let text = std::fs::read_to_string(&path).unwrap();
     assert_eq!(
@@ -552,10 +551,13 @@ fn calibration_file_round_trips_and_is_validated() {
     assert!(loaded.check_rig(&faster, "cal.toml").is_err());
 
     // Missing field.
-    let fc_line = text.lines().find(|l| l.starts_with("fc_hz = ")).unwrap();
+    let fc_line = text
+        .lines()
+        .find(|l| l.starts_with("crossover_hz = "))
+        .unwrap();
     let e = CalibrationFile::from_toml_str(&text.replacen(fc_line, "", 1), "m.toml").unwrap_err();
     assert!(matches!(e, CalibrationError::File { .. }), "{e}");
-    assert!(e.to_string().contains("fc_hz"), "{e}");
+    assert!(e.to_string().contains("crossover_hz"), "{e}");
 
     // Unstable compensator: a model with a right-half-plane zero, sealed so
     // that the checksum is right.

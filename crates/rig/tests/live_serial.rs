@@ -524,7 +524,7 @@ impl kilotouch_rig::device::HandAgent for Recorder {
 
 #[test]
 fn the_host_information_reaches_the_participant_at_the_handle() {
-    use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+    use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, VisualFrame};
     let infos = Arc::new(std::sync::Mutex::new(Vec::new()));
     let agent = Recorder {
         infos: infos.clone(),
@@ -554,7 +554,7 @@ fn the_host_information_reaches_the_participant_at_the_handle() {
         retreat_distance_m: 2e-6,
         first_seq: 12,
     });
-    let view = HostInfo::View(ViewInfo {
+    let view = HostInfo::View(VisualFrame {
         seq: 5,
         captured_s: 0.2,
         bead_m: [1e-6, 2e-6],

@@ -108,15 +108,7 @@ impl HandAgent for DeviceParticipant {
             HostInfo::TrialBegin(t) => self.begin(t),
             HostInfo::TrialEnd => self.active = false,
             HostInfo::View(v) => {
-                self.frame = Some(VisualFrame {
-                    seq: v.seq,
-                    captured_s: v.captured_s,
-                    bead_m: v.bead_m,
-                    trap_m: v.trap_m,
-                    obstacle_m: v.obstacle_m,
-                    obstacle_radius_m: v.obstacle_radius_m,
-                    bead_radius_m: v.bead_radius_m,
-                });
+                self.frame = Some(*v);
             }
         }
     }

@@ -25,24 +25,9 @@ use rand_chacha::ChaCha20Rng;
 use crate::export::TaskKind;
 use kilotouch_rig::coupling::HandMapping;
 
-/// One camera frame as displayed to the participant (sample plane, m).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct VisualFrame {
-    /// Frame number within the trial (0, 1, …).
-    pub seq: u64,
-    /// Capture time, s since the trial start.
-    pub captured_s: f64,
-    /// Manipulated bead centre, m.
-    pub bead_m: [f64; 2],
-    /// Trap centre (cross-hair), m.
-    pub trap_m: [f64; 2],
-    /// Obstacle centre, m.
-    pub obstacle_m: [f64; 2],
-    /// Obstacle radius, m.
-    pub obstacle_radius_m: f64,
-    /// Bead radius, m.
-    pub bead_radius_m: f64,
-}
+/// One camera frame as displayed to the participant: the rig crate's type,
+/// which the host also sends to a device with a participant at its handle.
+pub use kilotouch_rig::device::VisualFrame;
 
 /// What a participant observes at one `act` call.
 #[derive(Debug, Clone, Copy)]

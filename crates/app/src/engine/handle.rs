@@ -228,17 +228,8 @@ impl EngineHandle {
                 kilotouch_rig::Rig::identity(&rig).sample_rate_hz,
             )?),
         };
-        let (mut core, mut handle) =
-            engine_pair_with_devices(cfg, rig, tw, opts, SystemClock::default())?;
-        let t = std::thread::Builder::new()
-            .name("kilotouch-engine".into())
-            .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
-            .spawn(move || {
-                core.thread_started();
-                while core.run_block() {}
-            })?;
-        handle.thread = Some(t);
-        Ok(handle)
+        let (core, handle) = engine_pair_with_devices(cfg, rig, tw, opts, SystemClock::default())?;
+        handle.run(core)
     }
 
     /// Start the engine on its own thread with a given clock.
@@ -247,7 +238,13 @@ impl EngineHandle {
         opts: EngineOptions,
         clock: C,
     ) -> Result<Self, EngineError> {
-        let (mut core, mut handle) = engine_pair(cfg, opts, clock)?;
+        let (core, handle) = engine_pair(cfg, opts, clock)?;
+        handle.run(core)
+    }
+
+    /// Run `core` on the engine thread ("kilotouch-engine", the real-time
+    /// stack size) until it stops; `self` is its handle.
+    fn run<C: Clock + 'static>(mut self, mut core: EngineCore<C>) -> Result<Self, EngineError> {
         let t = std::thread::Builder::new()
             .name("kilotouch-engine".into())
             .stack_size(kilotouch_rig::realtime::THREAD_STACK_BYTES)
@@ -255,8 +252,8 @@ impl EngineHandle {
                 core.thread_started();
                 while core.run_block() {}
             })?;
-        handle.thread = Some(t);
-        Ok(handle)
+        self.thread = Some(t);
+        Ok(self)
     }
 
     /// Identity of the rig.

@@ -147,7 +147,7 @@ mod tests {
     fn swap_fades_to_the_new_design_and_returns_the_box() {
         let a = ChainCoefficients::paper().unwrap();
         let b = ChainCoefficients::design(&ChainDesign {
-            crossover_fc: 300.0,
+            crossover_hz: 300.0,
             ..ChainDesign::paper()
         })
         .unwrap();

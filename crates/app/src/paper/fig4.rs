@@ -23,7 +23,7 @@ pub const N_POINTS: usize = 401;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Fig4 {
     /// Crossover frequency, Hz.
-    pub fc_hz: f64,
+    pub crossover_hz: f64,
     /// Sample rate, Hz.
     pub fs_hz: f64,
     /// Linkwitz–Riley order.
@@ -49,15 +49,15 @@ impl Fig4 {
     /// An invalid rig file or crossover.
     pub fn compute(cfg: &RigConfig) -> Result<Self, PaperError> {
         let design = kilotouch_rig::coupling::model_chain_design(cfg)?;
-        Self::for_crossover(design.crossover_order, design.crossover_fc, design.fs)
+        Self::for_crossover(design.crossover_order, design.crossover_hz, design.fs)
     }
 
-    /// An LR crossover of `order` at `fc_hz`, sampled at `fs_hz`.
+    /// An LR crossover of `order` at `crossover_hz`, sampled at `fs_hz`.
     ///
     /// # Errors
     /// An invalid crossover.
-    pub fn for_crossover(order: usize, fc_hz: f64, fs_hz: f64) -> Result<Self, PaperError> {
-        let xo = LinkwitzRiley::new(order, fc_hz, fs_hz)?;
+    pub fn for_crossover(order: usize, crossover_hz: f64, fs_hz: f64) -> Result<Self, PaperError> {
+        let xo = LinkwitzRiley::new(order, crossover_hz, fs_hz)?;
         let f_hz = log_grid(F_LO, F_HI, N_POINTS);
         let (mut low_db, mut high_db, mut sum_db) = (Vec::new(), Vec::new(), Vec::new());
         for &f in &f_hz {
@@ -67,7 +67,7 @@ impl Fig4 {
             sum_db.push(db((l + h).norm()));
         }
         Ok(Self {
-            fc_hz,
+            crossover_hz,
             fs_hz,
             order,
             f_hz,
@@ -79,7 +79,7 @@ impl Fig4 {
 
     /// Magnitudes at one frequency (dB): low, high, sum.
     fn at(&self, f: f64) -> Result<(f64, f64, f64), PaperError> {
-        let xo = LinkwitzRiley::new(self.order, self.fc_hz, self.fs_hz)?;
+        let xo = LinkwitzRiley::new(self.order, self.crossover_hz, self.fs_hz)?;
         let (l, h) = xo.response(f);
         Ok((db(l.norm()), db(h.norm()), db((l + h).norm())))
     }
@@ -89,7 +89,7 @@ impl Fig4 {
     /// # Errors
     /// An invalid crossover.
     pub fn claims(&self) -> Result<Vec<Claim>, PaperError> {
-        let fc = self.fc_hz;
+        let fc = self.crossover_hz;
         let (l_fc, h_fc, _) = self.at(fc)?;
         let expected = db(0.5);
         let sum_dev = self.sum_db.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
@@ -179,7 +179,7 @@ impl Figure for Fig4 {
         let title = format!(
             "Fig. 4 — LR{} crossover, f_c = {} Hz, f_s = {} kHz",
             self.order,
-            self.fc_hz,
+            self.crossover_hz,
             self.fs_hz / 1e3
         );
         let frame = Frame::FIGURE;
@@ -219,7 +219,7 @@ impl Figure for Fig4 {
             .legend(legend_line(style::GREY, 1));
         chart
             .draw_series(DashedLineSeries::new(
-                vec![(self.fc_hz, -80.0), (self.fc_hz, 6.0)],
+                vec![(self.crossover_hz, -80.0), (self.crossover_hz, 6.0)],
                 6,
                 4,
                 style::GREY.stroke_width(1),

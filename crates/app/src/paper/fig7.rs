@@ -29,7 +29,7 @@ pub struct Fig7 {
     /// Crossover alone (no compensation), dB re target.
     pub uncompensated_db: Vec<f64>,
     /// Crossover frequency of the calibrated chain, Hz.
-    pub fc_hz: f64,
+    pub crossover_hz: f64,
     /// Verification tolerance, dB.
     pub tolerance_db: f64,
 }
@@ -47,7 +47,7 @@ impl Fig7 {
     ) -> Result<Self, PaperError> {
         let v = &o.verification;
         let cfg: &CalibrationConfig = &o.config;
-        let coeffs = o.design.chain_coefficients()?;
+        let coeffs = o.design.chain_coefficients(&o.crossover)?;
         let target = v.target_m_s2;
         let bands: Vec<_> = v.bands.iter().filter(|b| !b.extended).collect();
         let mut out = Self {
@@ -57,7 +57,7 @@ impl Fig7 {
             high_db: Vec::new(),
             sum_db: Vec::new(),
             uncompensated_db: Vec::new(),
-            fc_hz: o.crossover.fc_hz,
+            crossover_hz: o.crossover.crossover_hz,
             tolerance_db: v.tolerance_db,
         };
         for (k, b) in bands.iter().enumerate() {
@@ -185,7 +185,7 @@ impl Figure for Fig7 {
         let lo = (lo - 18.0).max(-75.0);
         let title = format!(
             "Fig. 7 — Magnitude response of the combined interface (f_c = {:.0} Hz)",
-            self.fc_hz
+            self.crossover_hz
         );
         let frame = Frame::FIGURE;
         let mut chart = frame.chart(root, title, (50.0_f64..1250.0).log_scale(), lo..8.0)?;

@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use kilotouch_rig::AnyTweezer;
 use kilotouch_rig::Rig;
 use kilotouch_rig::coupling::{ChainSource, HandMapping};
-use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+use kilotouch_rig::device::{HostInfo, PhaseCode, TaskCode, TrialInfo};
 use kilotouch_rig::error::RigError;
 use kilotouch_rig::haptic_loop::TrialStart;
 use kilotouch_rig::safety::SafetyLayer;
@@ -471,15 +471,7 @@ impl SittingDriver {
             return;
         }
         self.last_view = Some(f.seq);
-        let _ = ctx.lp.rig.send_info(&HostInfo::View(ViewInfo {
-            seq: f.seq,
-            captured_s: f.captured_s,
-            bead_m: f.bead_m,
-            trap_m: f.trap_m,
-            obstacle_m: f.obstacle_m,
-            obstacle_radius_m: f.obstacle_radius_m,
-            bead_radius_m: f.bead_radius_m,
-        }));
+        let _ = ctx.lp.rig.send_info(&HostInfo::View(f));
     }
 
     fn run_trial(&mut self, ctx: &mut BlockCtx<'_>) -> Result<usize, RigError> {

@@ -88,7 +88,7 @@ pub struct ChainDesign {
     /// Linkwitz–Riley order: 2, 4 or 8.
     pub crossover_order: usize,
     /// Crossover frequency in hertz.
-    pub crossover_fc: f64,
+    pub crossover_hz: f64,
     /// Desired overall gain K_sys.
     pub k_sys: f64,
     /// Static gain of the low channel G0_L.
@@ -110,7 +110,7 @@ impl ChainDesign {
         Self {
             fs: 10_000.0,
             crossover_order: 4,
-            crossover_fc: 200.0,
+            crossover_hz: 200.0,
             k_sys: 1.0,
             g0_l: 1.0,
             g_h: compensator::paper_g_h(),
@@ -159,14 +159,14 @@ impl ChainCoefficients {
 
     /// Design from a [`ChainDesign`] (paper §3.1 and §3.3).
     pub fn design(d: &ChainDesign) -> Result<Self> {
-        let xo = LinkwitzRiley::new(d.crossover_order, d.crossover_fc, d.fs)?;
+        let xo = LinkwitzRiley::new(d.crossover_order, d.crossover_hz, d.fs)?;
         let c_l = compensator::low_gain(d.k_sys, d.g0_l)?;
         let mut low = xo.low_sections().to_vec();
         low[0] = low[0].scaled(c_l);
         let c_h = compensator::high_zpk(d.k_sys, &d.g_h, d.high.f_corner_hz, d.high.zeta)?;
         let prewarp = match d.c_h_prewarp {
             Prewarp::None => None,
-            Prewarp::AtCutoff => Some(d.crossover_fc),
+            Prewarp::AtCutoff => Some(d.crossover_hz),
             Prewarp::AtHz(f) => Some(f),
         };
         let mut high = xo.high_sections().to_vec();
@@ -675,7 +675,7 @@ mod tests {
             ChainDesign::paper(),
             ChainDesign {
                 crossover_order: 8,
-                crossover_fc: 150.0,
+                crossover_hz: 150.0,
                 k_sys: 3.0,
                 g0_l: 0.7,
                 ..ChainDesign::paper()
@@ -685,7 +685,7 @@ mod tests {
                 ..ChainDesign::paper()
             },
             ChainDesign {
-                crossover_fc: 10.0,
+                crossover_hz: 10.0,
                 ..ChainDesign::paper()
             },
         ];
@@ -764,7 +764,7 @@ mod tests {
             };
             let coeffs = ChainCoefficients::design(&d).unwrap();
             let chain = Chain::new(&coeffs);
-            let (fs, fc) = (d.fs, d.crossover_fc);
+            let (fs, fc) = (d.fs, d.crossover_hz);
             let wc = 2.0 * PI * fc;
             let wf = 2.0 * PI * d.high.f_corner_hz;
             let kw = design::bilinear_constant(fs, Some(fc)).unwrap();
@@ -887,7 +887,7 @@ mod tests {
         let fs = 10_000.0;
         let a = ChainCoefficients::paper().unwrap();
         let b = ChainCoefficients::design(&ChainDesign {
-            crossover_fc: 210.0,
+            crossover_hz: 210.0,
             high: HighCompensatorConfig {
                 f_corner_hz: 950.0,
                 ..HighCompensatorConfig::default()
@@ -1022,7 +1022,7 @@ mod tests {
     fn swaps_are_identical_across_apis() {
         let a = ChainCoefficients::paper().unwrap();
         let b = ChainCoefficients::design(&ChainDesign {
-            crossover_fc: 230.0,
+            crossover_hz: 230.0,
             ..ChainDesign::paper()
         })
         .unwrap();

@@ -172,8 +172,10 @@ impl Default for HighFitConfig {
 pub struct CrossoverConfig {
     /// Linkwitz–Riley order (2, 4 or 8; the paper uses 4).
     pub order: usize,
-    /// Use this crossover frequency (Hz) instead of the automatic choice.
-    pub fc_hz: Option<f64>,
+    /// Use this crossover frequency (Hz) instead of the automatic choice
+    /// (`fc_hz` in files written before it was named `crossover_hz`).
+    #[serde(alias = "fc_hz")]
+    pub crossover_hz: Option<f64>,
     /// Largest predicted deviation accepted for the automatic choice, dB
     /// (see `docs/theory/calibration.md`).
     pub budget_db: f64,
@@ -187,7 +189,7 @@ impl Default for CrossoverConfig {
     fn default() -> Self {
         Self {
             order: 4,
-            fc_hz: None,
+            crossover_hz: None,
             budget_db: 0.5,
             max_hz: None,
             min_hz: 20.0,
@@ -472,11 +474,11 @@ impl CalibrationConfig {
                 "must be 2, 4 or 8",
             ));
         }
-        if let Some(fc) = c.fc_hz
+        if let Some(fc) = c.crossover_hz
             && !(fc.is_finite() && fc > 0.0 && fc < fs / 2.0)
         {
             return Err(CalibrationError::config(
-                "crossover.fc_hz",
+                "crossover.crossover_hz",
                 fc,
                 "must be in (0, fs/2)",
             ));

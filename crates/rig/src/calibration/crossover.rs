@@ -52,7 +52,7 @@ use serde::{Deserialize, Serialize};
 pub enum CrossoverRule {
     /// The algorithm of the module documentation.
     Automatic,
-    /// `crossover.fc_hz` of the configuration.
+    /// `crossover.crossover_hz` of the configuration.
     Override,
 }
 
@@ -60,23 +60,25 @@ pub enum CrossoverRule {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CrossoverChoice {
-    /// Crossover frequency, Hz.
-    pub fc_hz: f64,
+    /// Crossover frequency, Hz (`fc_hz` in calibration files of
+    /// `format_version` 1).
+    #[serde(alias = "fc_hz")]
+    pub crossover_hz: f64,
     /// Linkwitz–Riley order.
     pub order: usize,
-    /// How `fc_hz` was set.
+    /// How `crossover_hz` was set.
     pub rule: CrossoverRule,
-    /// Low-channel static gain over the flat band at or below `fc_hz`,
+    /// Low-channel static gain over the flat band at or below `crossover_hz`,
     /// (m/s²)/N: the G0_L of C_L = K_sys/G0_L.
     pub g0_l: f64,
     /// Highest candidate (upper edge of the low channel's flat band, or
     /// `max_hz`), Hz.
     pub fc_max_hz: f64,
-    /// Predicted max |deviation| over the verification bands at `fc_hz`, dB.
+    /// Predicted max |deviation| over the verification bands at `crossover_hz`, dB.
     pub predicted_max_abs_dev_db: f64,
-    /// Leakage bound of the low channel at `fc_hz`, 20·log10(1 + e_L), dB.
+    /// Leakage bound of the low channel at `crossover_hz`, 20·log10(1 + e_L), dB.
     pub low_leak_db: f64,
-    /// Leakage bound of the high channel at `fc_hz`, 20·log10(1 + e_H), dB.
+    /// Leakage bound of the high channel at `crossover_hz`, 20·log10(1 + e_H), dB.
     pub high_leak_db: f64,
     /// True when no candidate met the budget (the channels do not overlap
     /// enough for it; the smallest predicted deviation was taken).
@@ -170,7 +172,7 @@ pub fn choose_crossover(
         let chain = unit_chain(fs, fc, c.order, gain_below(low, fc, cfg), high, cfg)?;
         Ok(predicted_max_abs_dev_db(&chain, 1.0, low, high, &centres))
     };
-    let (fc, predicted, rule, over_budget, note) = if let Some(fc) = c.fc_hz {
+    let (fc, predicted, rule, over_budget, note) = if let Some(fc) = c.crossover_hz {
         let p = predict(fc)?;
         (
             fc,
@@ -229,7 +231,7 @@ pub fn choose_crossover(
     };
     let (el, eh) = leakage(fc, fs, low, high, cfg)?;
     let out = CrossoverChoice {
-        fc_hz: fc,
+        crossover_hz: fc,
         order: c.order,
         rule,
         g0_l: gain_below(low, fc, cfg),
@@ -245,7 +247,7 @@ pub fn choose_crossover(
         1.0,
         &format!(
             "crossover at {:.1} Hz (predicted {:.2} dB)",
-            out.fc_hz, predicted
+            out.crossover_hz, predicted
         ),
     );
     Ok(out)

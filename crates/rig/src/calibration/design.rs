@@ -36,16 +36,14 @@ use kilotouch_dsp::crossover::LinkwitzRiley;
 use kilotouch_dsp::design::Prewarp;
 use serde::{Deserialize, Serialize};
 
-/// Result of step 5: everything needed to build the chain.
+/// Result of step 5: with the crossover of step 4 ([`CrossoverChoice`],
+/// which holds its frequency and order), everything needed to build the
+/// chain.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CompensatorDesign {
     /// Sample rate, Hz.
     pub fs: f64,
-    /// Crossover frequency, Hz.
-    pub crossover_hz: f64,
-    /// Linkwitz–Riley order.
-    pub crossover_order: usize,
     /// Overall gain, (m/s²) per unit haptic signal.
     pub k_sys: f64,
     /// Largest admissible K_sys (before headroom), (m/s²) per unit.
@@ -78,12 +76,12 @@ pub struct CompensatorDesign {
 }
 
 impl CompensatorDesign {
-    /// The dsp chain design (crossover + C_L + C_H).
-    pub fn chain_design(&self) -> ChainDesign {
+    /// The dsp chain design (the crossover `xo` + C_L + C_H).
+    pub fn chain_design(&self, xo: &CrossoverChoice) -> ChainDesign {
         ChainDesign {
             fs: self.fs,
-            crossover_order: self.crossover_order,
-            crossover_fc: self.crossover_hz,
+            crossover_order: xo.order,
+            crossover_hz: xo.crossover_hz,
             k_sys: self.k_sys,
             g0_l: self.g0_l,
             g_h: self.g_h.clone(),
@@ -100,24 +98,24 @@ impl CompensatorDesign {
     /// C_H = G0_L·F/Ĝ_H V/N. The rendered force at low frequency is then the
     /// force asked for whatever the calibration (`docs/theory/calibration.md`, what K_sys
     /// means for a force input).
-    pub fn force_chain_design(&self) -> ChainDesign {
+    pub fn force_chain_design(&self, xo: &CrossoverChoice) -> ChainDesign {
         ChainDesign {
             k_sys: self.g0_l,
-            ..self.chain_design()
+            ..self.chain_design(xo)
         }
     }
 
     /// Digital coefficients of [`Self::force_chain_design`].
-    pub fn force_chain_coefficients(&self) -> Result<ChainCoefficients> {
-        ChainCoefficients::design(&self.force_chain_design())
+    pub fn force_chain_coefficients(&self, xo: &CrossoverChoice) -> Result<ChainCoefficients> {
+        ChainCoefficients::design(&self.force_chain_design(xo))
             .map_err(|e| CalibrationError::dsp("force chain", e))
     }
 
     /// Digital coefficients of the compensated chain for a unit haptic
     /// signal (K_sys as designed; errors when a compensator would be
     /// unstable).
-    pub fn chain_coefficients(&self) -> Result<ChainCoefficients> {
-        ChainCoefficients::design(&self.chain_design())
+    pub fn chain_coefficients(&self, xo: &CrossoverChoice) -> Result<ChainCoefficients> {
+        ChainCoefficients::design(&self.chain_design(xo))
             .map_err(|e| CalibrationError::dsp("compensated chain", e))
     }
 
@@ -125,11 +123,10 @@ impl CompensatorDesign {
     /// C_L = K_sys/G0_L and K_sys/|Ĝ_H(j2πf_c)| (signed by Re Ĝ_H(j2πf_c)) on
     /// the high path — what the chain does without the frequency-dependent
     /// compensation.
-    pub fn uncompensated_coefficients(&self) -> Result<ChainCoefficients> {
+    pub fn uncompensated_coefficients(&self, xo: &CrossoverChoice) -> Result<ChainCoefficients> {
         let err = |e| CalibrationError::dsp("uncompensated chain", e);
-        let xo =
-            LinkwitzRiley::new(self.crossover_order, self.crossover_hz, self.fs).map_err(err)?;
-        let gh = self.g_h.response_hz(self.crossover_hz);
+        let gh = self.g_h.response_hz(xo.crossover_hz);
+        let xo = LinkwitzRiley::new(xo.order, xo.crossover_hz, self.fs).map_err(err)?;
         let c_h = self.k_sys / gh.norm() * if gh.re < 0.0 { -1.0 } else { 1.0 };
         if !c_h.is_finite() {
             return Err(CalibrationError::measurement(
@@ -168,8 +165,6 @@ pub fn design(
     let d = &cfg.design;
     let mut out = CompensatorDesign {
         fs,
-        crossover_hz: xo.fc_hz,
-        crossover_order: xo.order,
         k_sys: 1.0,
         k_sys_max: 1.0,
         k_sys_limited_by: String::new(),
@@ -185,7 +180,7 @@ pub fn design(
         predicted_max_abs_dev_db: 0.0,
     };
     // Paths with K_sys = 1.
-    let unit = out.chain_coefficients()?;
+    let unit = out.chain_coefficients(xo)?;
     let (mut lmax, mut hmax) = (0.0_f64, 0.0_f64);
     for f in log_grid(fs) {
         let (l, h) = unit.response(f);
@@ -220,7 +215,7 @@ pub fn design(
     out.low_drive_per_unit = lmax * out.k_sys;
     out.high_drive_per_unit = hmax * out.k_sys;
     // Prediction from the measured responses at the verification bands.
-    let chain = out.chain_coefficients()?;
+    let chain = out.chain_coefficients(xo)?;
     let centres = super::bands::band_centres(low, cfg)?;
     let worst = predicted_max_abs_dev_db(&chain, out.k_sys, low, high, &centres);
     out.predicted_max_abs_dev_db = worst;

@@ -6,6 +6,11 @@
 //! fit diagnostics, the crossover choice, the compensators and the
 //! verification table, and a checksum of all of it ([`super::hash`]).
 //!
+//! The crossover (frequency `crossover_hz` and order) is stored once, in
+//! `[crossover]`. Files of `format_version` 1 also held copies of both in
+//! `[compensators]` (`crossover_hz`, `crossover_order`) and named the
+//! frequency `fc_hz`; they still load ([`CalibrationFile::from_toml_str`]).
+//!
 //! Loading validates, each failure a distinct [`CalibrationError`]:
 //! TOML syntax, missing or unknown fields and a wrong format version
 //! ([`CalibrationError::File`], with line and column), a checksum that does
@@ -33,7 +38,11 @@ use std::path::Path;
 /// Value of the `format` key.
 pub const FORMAT: &str = "kilotouch-calibration";
 /// Current `format_version`.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
+/// The `format_version` whose `[compensators]` table also held the
+/// crossover (`crossover_hz`, `crossover_order`), copies of `[crossover]`'s
+/// `fc_hz` and `order`.
+const FORMAT_VERSION_CROSSOVER_TWICE: i64 = 1;
 
 /// A calibration file. Build one with [`CalibrationFile::new`], write it
 /// with [`CalibrationFile::save`], read it with [`CalibrationFile::load_for`].
@@ -78,6 +87,18 @@ fn invalid(origin: &str, message: impl Into<String>) -> CalibrationError {
         origin: origin.to_owned(),
         message: message.into(),
     }
+}
+
+/// Error unless the checksum `found` in a file is the `computed` one.
+fn check_checksum(found: &str, computed: &str, origin: &str) -> Result<()> {
+    if computed != found {
+        return Err(CalibrationError::Corrupted {
+            origin: origin.to_owned(),
+            found: found.to_owned(),
+            computed: computed.to_owned(),
+        });
+    }
+    Ok(())
 }
 
 impl CalibrationFile {
@@ -137,35 +158,94 @@ impl CalibrationFile {
 
     /// Parse and validate (format, checksum, contents) without checking the
     /// rig; `origin` names the text in error messages.
+    ///
+    /// A file of `format_version` 1 ([`FORMAT_VERSION_CROSSOVER_TWICE`]) is
+    /// checked against the checksum it was written with, its two copies of
+    /// the crossover must agree (an error names both otherwise), and it is
+    /// returned in the current layout, resealed: its `checksum` is that of
+    /// the current layout, the one saving it again writes.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Self> {
-        let f: Self = toml::from_str(text).map_err(|e| CalibrationError::File {
+        let syntax = |e: toml::de::Error| CalibrationError::File {
             origin: origin.to_owned(),
             message: e.to_string().trim_end().to_owned(),
-        })?;
-        if f.format != FORMAT {
-            return Err(CalibrationError::File {
-                origin: origin.to_owned(),
-                message: format!("`format` is {:?}, expected {FORMAT:?}", f.format),
-            });
-        }
-        if f.format_version != FORMAT_VERSION {
-            return Err(CalibrationError::File {
-                origin: origin.to_owned(),
-                message: format!(
-                    "`format_version` {} is not supported (this software reads {FORMAT_VERSION})",
-                    f.format_version
-                ),
-            });
-        }
-        let computed = f.compute_checksum()?;
-        if computed != f.checksum {
-            return Err(CalibrationError::Corrupted {
-                origin: origin.to_owned(),
-                found: f.checksum.clone(),
-                computed,
-            });
-        }
+        };
+        let table: toml::Table = toml::from_str(text).map_err(syntax)?;
+        let f = if table
+            .get("format_version")
+            .and_then(toml::Value::as_integer)
+            == Some(FORMAT_VERSION_CROSSOVER_TWICE)
+        {
+            Self::from_crossover_twice(table, origin)?
+        } else {
+            // Parsed again from the text for errors with line and column.
+            let f: Self = toml::from_str(text).map_err(syntax)?;
+            f.check_format(origin)?;
+            check_checksum(&f.checksum, &f.compute_checksum()?, origin)?;
+            f
+        };
         f.validate_contents(origin)?;
+        Ok(f)
+    }
+
+    /// `format` is [`FORMAT`] and `format_version` [`FORMAT_VERSION`].
+    fn check_format(&self, origin: &str) -> Result<()> {
+        let message = if self.format != FORMAT {
+            format!("`format` is {:?}, expected {FORMAT:?}", self.format)
+        } else if self.format_version != FORMAT_VERSION {
+            format!(
+                "`format_version` {} is not supported (this software reads {FORMAT_VERSION} \
+                 and {FORMAT_VERSION_CROSSOVER_TWICE})",
+                self.format_version
+            )
+        } else {
+            return Ok(());
+        };
+        Err(CalibrationError::File {
+            origin: origin.to_owned(),
+            message,
+        })
+    }
+
+    /// A parsed file of `format_version` 1 in the current layout (see
+    /// [`Self::from_toml_str`]).
+    fn from_crossover_twice(mut table: toml::Table, origin: &str) -> Result<Self> {
+        let mut unsealed = table.clone();
+        unsealed.insert("checksum".into(), toml::Value::String(String::new()));
+        let computed = content_hash(&unsealed)?;
+        let copies = table
+            .get_mut("compensators")
+            .and_then(toml::Value::as_table_mut)
+            .map(|c| (c.remove("crossover_hz"), c.remove("crossover_order")));
+        let mut f: Self = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| CalibrationError::File {
+                origin: origin.to_owned(),
+                message: e.to_string().trim_end().to_owned(),
+            })?;
+        f.format_version = FORMAT_VERSION;
+        f.check_format(origin)?;
+        check_checksum(&f.checksum, &computed, origin)?;
+        let (hz, order) = copies.unwrap_or_default();
+        let hz = hz.as_ref().and_then(toml::Value::as_float);
+        let order = order.as_ref().and_then(toml::Value::as_integer);
+        let xo = &f.crossover;
+        if hz != Some(xo.crossover_hz) || order != i64::try_from(xo.order).ok() {
+            let show = |v: Option<String>| v.unwrap_or_else(|| "missing".into());
+            return Err(invalid(
+                origin,
+                format!(
+                    "this format_version {FORMAT_VERSION_CROSSOVER_TWICE} file stores the crossover \
+                     twice and the copies disagree: `crossover.fc_hz` = {} Hz, \
+                     `compensators.crossover_hz` = {} Hz; `crossover.order` = {}, \
+                     `compensators.crossover_order` = {}",
+                    xo.crossover_hz,
+                    show(hz.map(|v| v.to_string())),
+                    xo.order,
+                    show(order.map(|v| v.to_string())),
+                ),
+            ));
+        }
+        f.seal()?;
         Ok(f)
     }
 
@@ -203,7 +283,7 @@ impl CalibrationFile {
 
     /// The compensated chain stored in the file.
     pub fn chain_coefficients(&self) -> Result<ChainCoefficients> {
-        self.compensators.chain_coefficients()
+        self.compensators.chain_coefficients(&self.crossover)
     }
 
     fn validate_contents(&self, origin: &str) -> Result<()> {
@@ -222,9 +302,6 @@ impl CalibrationFile {
                     format!("`compensators.{name}` = {v} is unusable"),
                 ));
             }
-        }
-        if d.crossover_hz != self.crossover.fc_hz || d.crossover_order != self.crossover.order {
-            return Err(invalid(origin, "compensators and crossover disagree"));
         }
         if d.g_h != self.high.model || d.g0_l != self.crossover.g0_l {
             return Err(invalid(

@@ -212,14 +212,14 @@ pub fn flat_band(frf: &ChannelFrf, cfg: &CalibrationConfig) -> Option<(usize, us
 }
 
 /// The low channel's static gain over the part of its flat band at or below
-/// `fc_hz` — where, with a crossover at `fc_hz`, the low channel carries the
+/// `crossover_hz` — where, with a crossover at `crossover_hz`, the low channel carries the
 /// signal: the minimax midpoint of the smoothed magnitude over those bins,
-/// with the sign of G0_L. Equal to |G0_L|'s band when `fc_hz` is at or above
+/// with the sign of G0_L. Equal to |G0_L|'s band when `crossover_hz` is at or above
 /// the flat band's upper edge; G0_L itself when no bin qualifies.
-pub fn gain_below(low: &LowChannelId, fc_hz: f64, cfg: &CalibrationConfig) -> f64 {
+pub fn gain_below(low: &LowChannelId, crossover_hz: f64, cfg: &CalibrationConfig) -> f64 {
     let (db, _) = smoothed(&low.frf, cfg.analysis.smoothing_octaves);
     let [lo, hi] = low.flat_band_hz;
-    let r = low.frf.range(lo, hi.min(fc_hz));
+    let r = low.frf.range(lo, hi.min(crossover_hz));
     if r.is_empty() {
         return low.g0;
     }

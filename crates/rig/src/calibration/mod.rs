@@ -125,7 +125,7 @@ pub fn calibrate<R: CalibrationRig + ?Sized>(
     let crossover = crossover::choose_crossover(fs, &low, &high, cfg, &mut ctx)?;
     let limits = rig.limits();
     let design = design::design(fs, &limits, &low, &high, &crossover, cfg, &mut ctx)?;
-    let verification = verify::verify(rig, &design, &low, cfg, &mut ctx)?;
+    let verification = verify::verify(rig, &design, &crossover, &low, cfg, &mut ctx)?;
     let outcome = CalibrationOutcome {
         rig: rig.record(),
         fs,

@@ -38,7 +38,7 @@ pub fn unit_chain(
     let design = ChainDesign {
         fs,
         crossover_order: order,
-        crossover_fc: fc,
+        crossover_hz: fc,
         k_sys: 1.0,
         g0_l,
         g_h: high.model.clone(),

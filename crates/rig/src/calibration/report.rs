@@ -81,7 +81,7 @@ impl CalibrationReport {
     pub fn from_outcome(o: &CalibrationOutcome) -> Self {
         let v = &o.verification;
         Self {
-            crossover_hz: o.crossover.fc_hz,
+            crossover_hz: o.crossover.crossover_hz,
             low_gain: o.design.g0_l,
             low_gain_flat_band: o.low.g0,
             high_model: ModelReport {

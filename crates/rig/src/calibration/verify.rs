@@ -16,6 +16,7 @@
 
 use super::bands::bands;
 use super::config::CalibrationConfig;
+use super::crossover::CrossoverChoice;
 use super::design::CompensatorDesign;
 use super::error::{CalibrationError, Result};
 use super::identify::LowChannelId;
@@ -160,6 +161,7 @@ pub fn sensor_gain<R: CalibrationRig + ?Sized>(rig: &R, f: f64) -> Option<f64> {
 pub fn verify<R: CalibrationRig + ?Sized>(
     rig: &mut R,
     design: &CompensatorDesign,
+    xo: &CrossoverChoice,
     low: &LowChannelId,
     cfg: &CalibrationConfig,
     ctx: &mut StepContext<'_>,
@@ -167,8 +169,8 @@ pub fn verify<R: CalibrationRig + ?Sized>(
     let step = Step::Verify;
     ctx.check_cancel(step)?;
     ctx.report(step, 0.0, "stepped sines through the chain");
-    let comp = design.chain_coefficients()?;
-    let uncomp = design.uncompensated_coefficients()?;
+    let comp = design.chain_coefficients(xo)?;
+    let uncomp = design.uncompensated_coefficients(xo)?;
     let list = bands(low, cfg)?;
     // Correct only when the sensor response is known at every band.
     let corrected = cfg.correct_sensor

@@ -118,7 +118,7 @@ impl LoopChain {
         }
         let coefficients = file
             .compensators
-            .force_chain_coefficients()
+            .force_chain_coefficients(&file.crossover)
             .map_err(|e| RigError::InvalidInput(format!("calibration {path}: {e}")))?;
         Ok(Self {
             coefficients,

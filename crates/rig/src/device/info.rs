@@ -54,10 +54,12 @@ pub struct TrialInfo {
     pub first_seq: u64,
 }
 
-/// One camera frame as the participant's screen shows it (sample plane, m).
+/// One camera frame as the participant's screen shows it (sample plane, m):
+/// what a participant sees (`kilotouch_study::participant`) and what the host
+/// tells a device with a participant at its handle.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ViewInfo {
-    /// Frame number within the trial.
+pub struct VisualFrame {
+    /// Frame number within the trial (0, 1, …).
     pub seq: u64,
     /// Capture time, s since the trial start.
     pub captured_s: f64,
@@ -81,7 +83,7 @@ pub enum HostInfo {
     /// The trial ended (the participant stops acting until the next one).
     TrialEnd,
     /// The participant's screen now shows this frame.
-    View(ViewInfo),
+    View(VisualFrame),
 }
 
 /// A participant at a device's handle: what an emulated device hosts for

@@ -45,7 +45,7 @@ pub use frame::{ActuatorFrame, BlockReport, FrameFlags, SensorFrame};
 pub use identity::{
     ANNOUNCED_BOUNDS, AnnouncedBound, RigIdentity, RigKind, RigState, RigStatus, validate_announced,
 };
-pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+pub use info::{HandAgent, HostInfo, PhaseCode, TaskCode, TrialInfo, VisualFrame};
 pub use spec::{RigSpec, TweezerSpec};
 
 use crate::error::RigError;

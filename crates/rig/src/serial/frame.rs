@@ -6,7 +6,7 @@
 
 use crate::condition::Condition;
 use crate::coupling::mapping::HandMapping;
-use crate::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, ViewInfo};
+use crate::device::{HostInfo, PhaseCode, TaskCode, TrialInfo, VisualFrame};
 use kilotouch_proto::info::{Info, TrialBegin, View};
 
 pub use kilotouch_proto::{
@@ -187,7 +187,7 @@ pub fn write_info(out: &mut Vec<u8>, info: &HostInfo) {
 pub fn parse_info(payload: &[u8]) -> Option<HostInfo> {
     match Info::parse(payload)? {
         Info::TrialEnd => Some(HostInfo::TrialEnd),
-        Info::View(v) => Some(HostInfo::View(ViewInfo {
+        Info::View(v) => Some(HostInfo::View(VisualFrame {
             seq: u64::from(v.seq),
             captured_s: v.captured_s,
             bead_m: v.bead_m,

@@ -660,18 +660,10 @@ impl Link {
         sample_ty: u8,
         first: u64,
         n: usize,
-        mut sink: impl FnMut(usize, Option<&S>),
+        sink: impl FnMut(usize, Option<&S>),
     ) -> Result<Exchange, LinkErr> {
-        let end = first + n as u64;
-        let mut expected = first;
-        let mut ex = Exchange::default();
-        let mut last_progress = Instant::now();
-        let mut last_tick = last_progress;
-        let mut grace_used = false;
-        // What the device sent in this exchange, and the same counters at
-        // the last progress and at the last rate tick.
-        let mut seen = Activity::default();
-        let (mut at_progress, mut at_tick) = (seen, seen);
+        let mut block = Block::new(first, n, sink);
+        let mut clock = StallClock::new();
         let crc_base = self.decoder.stats().crc_errors;
         let rate_hz = self.hello.sample_rate_hz;
         let Self {
@@ -685,76 +677,10 @@ impl Link {
             carry,
             ..
         } = self;
-        let fill_lost = |from: u64,
-                         to: u64,
-                         ex: &mut Exchange,
-                         stats: &mut LinkStats,
-                         sink: &mut dyn FnMut(usize, Option<&S>)| {
-            for q in from..to {
-                sink((q - first) as usize, None);
-            }
-            if to > from {
-                ex.lost += (to - from) as u32;
-                ex.first_lost.get_or_insert(from);
-                stats.lost += to - from;
-            }
-        };
-        // The items of a sample frame from index `from` on: those of this
-        // block go to the sink (gaps before them lost); returns the index
-        // of the first item past the block, if any (kept for the next
-        // exchange).
-        let take = |payload: &[u8],
-                    from: usize,
-                    expected: &mut u64,
-                    ex: &mut Exchange,
-                    stats: &mut LinkStats,
-                    seen: &mut Activity,
-                    sink: &mut dyn FnMut(usize, Option<&S>)|
-         -> Option<usize> {
-            let (seq32, cnt) = frame::block_header::<S>(payload)?;
-            let base = frame::unwrap_seq(seq32, *expected);
-            for i in from..cnt {
-                let q = base + i as u64;
-                if q < *expected {
-                    seen.stray_samples += 1;
-                    continue;
-                }
-                if q >= end + MAX_AHEAD_SAMPLES {
-                    // Further ahead than any command lead lets a device
-                    // run: not a sample of this stream.
-                    seen.stray_samples += 1;
-                    stats.stray_samples += 1;
-                    continue;
-                }
-                if q >= end {
-                    // Frames arrive in order: what this block still lacks
-                    // was lost.
-                    fill_lost(*expected, end, ex, stats, sink);
-                    *expected = end;
-                    return Some(i);
-                }
-                fill_lost(*expected, q, ex, stats, sink);
-                let s = frame::block_item::<S>(payload, i);
-                sink((q - first) as usize, Some(&s));
-                stats.samples += 1;
-                seen.new_samples += 1;
-                *expected = q + 1;
-            }
-            None
-        };
         // What the previous exchange kept: samples of this block first.
         if !carry.payload.is_empty() {
             if carry.ty == sample_ty {
-                let rest = take(
-                    &carry.payload,
-                    carry.from,
-                    &mut expected,
-                    &mut ex,
-                    stats,
-                    &mut seen,
-                    &mut sink,
-                );
-                match rest {
+                match block.take(&carry.payload, carry.from, stats) {
                     Some(i) => carry.from = i,
                     None => carry.clear(),
                 }
@@ -763,116 +689,238 @@ impl Link {
             }
         }
         loop {
-            let before = expected;
-            while expected < end {
+            let before = block.expected;
+            while block.expected < block.end {
                 let Some(f) = decoder.next_frame() else {
                     break;
                 };
-                seen.frames += 1;
-                match f.ty {
-                    t if t == sample_ty => {
-                        if frame::block_header::<S>(f.payload).is_none() {
-                            seen.unknown += 1;
-                            continue;
-                        }
-                        if let Some(i) = take(
-                            f.payload,
-                            0,
-                            &mut expected,
-                            &mut ex,
-                            stats,
-                            &mut seen,
-                            &mut sink,
-                        ) {
-                            // The frame's tail belongs to later blocks.
-                            carry.keep(t, f.payload, i);
-                        }
-                    }
-                    frame::ty::STATUS => {
-                        seen.status += 1;
-                        let Some(st) = frame::parse_status(f.payload) else {
-                            continue;
-                        };
-                        let next = frame::unwrap_seq(st.next_seq, expected);
-                        match st.state {
-                            DeviceState::Running if next > expected => {
-                                let to = next.min(end);
-                                fill_lost(expected, to, &mut ex, stats, &mut sink);
-                                expected = to;
-                            }
-                            DeviceState::Tripped if next >= expected => {
-                                return Err(LinkErr::Tripped {
-                                    seq: next,
-                                    received: expected > first,
-                                    cause: Trip::Unknown,
-                                });
-                            }
-                            _ => {}
-                        }
-                    }
-                    frame::ty::FAULT => {
-                        seen.faults += 1;
-                        stats.device_faults += 1;
-                        if let Some((seq, cause)) = trip_fault(f.payload, expected) {
-                            return Err(LinkErr::Tripped {
-                                seq,
-                                received: expected > first,
-                                cause,
-                            });
-                        }
-                    }
-                    _ => seen.unknown += 1,
-                }
+                block.on_frame(f.ty, f.payload, sample_ty, stats, carry)?;
             }
-            let now = Instant::now();
-            seen.crc_errors = decoder.stats().crc_errors - crc_base;
-            if expected > before {
-                last_progress = now;
-                at_progress = seen;
-            }
-            // The rate check on the time spent waiting for the device.
-            rate.add(
-                now - last_tick,
-                &seen.since(&at_tick),
-                rate_hz,
-                cfg.min_rate_fraction,
-            )
-            .map_err(LinkErr::Stalled)?;
-            (last_tick, at_tick) = (now, seen);
-            if expected >= end {
-                return Ok(ex);
-            }
-            if deadline.is_some_and(|d| now >= d) {
-                return Err(LinkErr::Stalled(Stall::Deadline {
-                    activity: seen.since(&at_progress),
-                }));
-            }
-            // Past the timeout, look once more without waiting before
-            // declaring a stall: the host itself may have been descheduled
-            // while the device's frames were arriving.
-            let idle = now - last_progress;
-            let wait = if idle >= cfg.timeout {
-                if grace_used {
-                    return Err(LinkErr::Stalled(Stall::NoProgress {
-                        waited_ms: u64::try_from(idle.as_millis()).unwrap_or(u64::MAX),
-                        expected_seq: expected,
-                        activity: seen.since(&at_progress),
-                    }));
-                }
-                grace_used = true;
-                Duration::from_millis(1)
-            } else {
-                grace_used = false;
-                (cfg.timeout - idle).min(Duration::from_millis(20))
-            };
-            let wait = match deadline {
-                Some(d) => wait
-                    .min(d.saturating_duration_since(now))
-                    .max(Duration::from_millis(1)),
-                None => wait,
+            block.seen.crc_errors = decoder.stats().crc_errors - crc_base;
+            let progressed = block.expected > before;
+            let Some(wait) = clock.next_wait(&block, progressed, rate, cfg, rate_hz, *deadline)?
+            else {
+                return Ok(block.ex);
             };
             read_into(port, rx, decoder, stats, wait)?;
         }
+    }
+}
+
+/// The block one [`Link::exchange`] fills: samples `first .. end`, those
+/// accounted for so far (below `expected`, received or lost, each passed to
+/// the sink once, in order), and what the device sent meanwhile.
+struct Block<S, F> {
+    first: u64,
+    end: u64,
+    expected: u64,
+    ex: Exchange,
+    seen: Activity,
+    sink: F,
+    item: std::marker::PhantomData<fn(&S)>,
+}
+
+impl<S: WireItem, F: FnMut(usize, Option<&S>)> Block<S, F> {
+    fn new(first: u64, n: usize, sink: F) -> Self {
+        Self {
+            first,
+            end: first + n as u64,
+            expected: first,
+            ex: Exchange::default(),
+            seen: Activity::default(),
+            sink,
+            item: std::marker::PhantomData,
+        }
+    }
+
+    /// Samples `expected .. to` lost (none when `to` ≤ `expected`).
+    fn lose_until(&mut self, to: u64, stats: &mut LinkStats) {
+        let from = self.expected;
+        for q in from..to {
+            (self.sink)((q - self.first) as usize, None);
+        }
+        if to > from {
+            self.ex.lost += (to - from) as u32;
+            self.ex.first_lost.get_or_insert(from);
+            stats.lost += to - from;
+            self.expected = to;
+        }
+    }
+
+    /// The items of a sample frame from index `from` on: those of this
+    /// block go to the sink (gaps before them lost); returns the index of
+    /// the first item past the block, if any (kept for the next exchange).
+    fn take(&mut self, payload: &[u8], from: usize, stats: &mut LinkStats) -> Option<usize> {
+        let (seq32, cnt) = frame::block_header::<S>(payload)?;
+        let base = frame::unwrap_seq(seq32, self.expected);
+        for i in from..cnt {
+            let q = base + i as u64;
+            if q < self.expected {
+                self.seen.stray_samples += 1;
+                continue;
+            }
+            if q >= self.end + MAX_AHEAD_SAMPLES {
+                // Further ahead than any command lead lets a device run:
+                // not a sample of this stream.
+                self.seen.stray_samples += 1;
+                stats.stray_samples += 1;
+                continue;
+            }
+            if q >= self.end {
+                // Frames arrive in order: what this block still lacks was
+                // lost.
+                self.lose_until(self.end, stats);
+                return Some(i);
+            }
+            self.lose_until(q, stats);
+            let s = frame::block_item::<S>(payload, i);
+            (self.sink)((q - self.first) as usize, Some(&s));
+            stats.samples += 1;
+            self.seen.new_samples += 1;
+            self.expected = q + 1;
+        }
+        None
+    }
+
+    /// One decoded frame: samples, a STATUS (samples the device reports
+    /// sent but the host never saw are lost; a tripped device ends the
+    /// exchange), a FAULT (a trip ends it), or a frame not expected here.
+    fn on_frame(
+        &mut self,
+        ty: u8,
+        payload: &[u8],
+        sample_ty: u8,
+        stats: &mut LinkStats,
+        carry: &mut Carry,
+    ) -> Result<(), LinkErr> {
+        self.seen.frames += 1;
+        match ty {
+            t if t == sample_ty => {
+                if frame::block_header::<S>(payload).is_none() {
+                    self.seen.unknown += 1;
+                } else if let Some(i) = self.take(payload, 0, stats) {
+                    // The frame's tail belongs to later blocks.
+                    carry.keep(t, payload, i);
+                }
+            }
+            frame::ty::STATUS => {
+                self.seen.status += 1;
+                let Some(st) = frame::parse_status(payload) else {
+                    return Ok(());
+                };
+                let next = frame::unwrap_seq(st.next_seq, self.expected);
+                match st.state {
+                    DeviceState::Running if next > self.expected => {
+                        self.lose_until(next.min(self.end), stats);
+                    }
+                    DeviceState::Tripped if next >= self.expected => {
+                        return Err(LinkErr::Tripped {
+                            seq: next,
+                            received: self.expected > self.first,
+                            cause: Trip::Unknown,
+                        });
+                    }
+                    _ => {}
+                }
+            }
+            frame::ty::FAULT => {
+                self.seen.faults += 1;
+                stats.device_faults += 1;
+                if let Some((seq, cause)) = trip_fault(payload, self.expected) {
+                    return Err(LinkErr::Tripped {
+                        seq,
+                        received: self.expected > self.first,
+                        cause,
+                    });
+                }
+            }
+            _ => self.seen.unknown += 1,
+        }
+        Ok(())
+    }
+}
+
+/// The time side of one exchange: when the stream last advanced, the rate
+/// window's last tick, and whether the one grace look past the timeout
+/// was used; the device's activity at the last progress and tick.
+struct StallClock {
+    last_progress: Instant,
+    last_tick: Instant,
+    grace_used: bool,
+    at_progress: Activity,
+    at_tick: Activity,
+}
+
+impl StallClock {
+    fn new() -> Self {
+        let now = Instant::now();
+        Self {
+            last_progress: now,
+            last_tick: now,
+            grace_used: false,
+            at_progress: Activity::default(),
+            at_tick: Activity::default(),
+        }
+    }
+
+    /// After draining the decoder: `None` when the block is complete,
+    /// otherwise how long to wait for the device, or the stall (too slow
+    /// over the rate window, past `deadline`, or no progress for the
+    /// timeout plus one grace look: the host itself may have been
+    /// descheduled while the device's frames were arriving).
+    fn next_wait<S, F>(
+        &mut self,
+        block: &Block<S, F>,
+        progressed: bool,
+        rate: &mut RateWindow,
+        cfg: &SerialConfig,
+        rate_hz: u32,
+        deadline: Option<Instant>,
+    ) -> Result<Option<Duration>, LinkErr> {
+        let now = Instant::now();
+        let seen = block.seen;
+        if progressed {
+            self.last_progress = now;
+            self.at_progress = seen;
+        }
+        // The rate check on the time spent waiting for the device.
+        rate.add(
+            now - self.last_tick,
+            &seen.since(&self.at_tick),
+            rate_hz,
+            cfg.min_rate_fraction,
+        )
+        .map_err(LinkErr::Stalled)?;
+        (self.last_tick, self.at_tick) = (now, seen);
+        if block.expected >= block.end {
+            return Ok(None);
+        }
+        if deadline.is_some_and(|d| now >= d) {
+            return Err(LinkErr::Stalled(Stall::Deadline {
+                activity: seen.since(&self.at_progress),
+            }));
+        }
+        let idle = now - self.last_progress;
+        let wait = if idle >= cfg.timeout {
+            if self.grace_used {
+                return Err(LinkErr::Stalled(Stall::NoProgress {
+                    waited_ms: u64::try_from(idle.as_millis()).unwrap_or(u64::MAX),
+                    expected_seq: block.expected,
+                    activity: seen.since(&self.at_progress),
+                }));
+            }
+            self.grace_used = true;
+            Duration::from_millis(1)
+        } else {
+            self.grace_used = false;
+            (cfg.timeout - idle).min(Duration::from_millis(20))
+        };
+        Ok(Some(match deadline {
+            Some(d) => wait
+                .min(d.saturating_duration_since(now))
+                .max(Duration::from_millis(1)),
+            None => wait,
+        }))
     }
 }
 
@@ -989,6 +1037,79 @@ pub struct SerialRig {
 const CMD_FLAG_RING: usize = 4096;
 
 impl SerialRig {
+    /// Exchange block `s .. s + n`: each received sample decoded into
+    /// `sensors` (encoder counts → m, accelerometer codes → m/s², the
+    /// host's flags with the command's own), each lost one as the last
+    /// received frame flagged LOST; late commands counted as overruns.
+    fn exchange_block(
+        &mut self,
+        s: u64,
+        n: usize,
+        sensors: &mut [SensorFrame],
+    ) -> Result<Exchange, LinkErr> {
+        let caps = self.caps;
+        let last = &mut self.last;
+        let cmd_flags = &self.cmd_flags;
+        let mut late = 0u64;
+        let mut watchdog = 0u64;
+        let r = self
+            .link
+            .exchange::<DaqSample>(frame::ty::SAMPLES, s, n, |i, smp| {
+                let seq = s + i as u64;
+                let local = cmd_flags[(seq % CMD_FLAG_RING as u64) as usize];
+                sensors[i] = match smp {
+                    Some(d) => {
+                        if d.flags & flag::CMD_LATE != 0 {
+                            late += 1;
+                        }
+                        if d.flags & flag::WATCHDOG != 0 {
+                            watchdog += 1;
+                        }
+                        let f = SensorFrame {
+                            seq,
+                            handle_m: d.enc.map(|e| f64::from(e) / caps.encoder_counts_per_m),
+                            accel_m_s2: d.acc.map(|a| f64::from(a) * caps.accel_m_s2_per_code),
+                            flags: FrameFlags((d.flags & flag::HOST_MASK) | local),
+                        };
+                        *last = f;
+                        f
+                    }
+                    None => SensorFrame {
+                        seq,
+                        flags: FrameFlags(FrameFlags::LOST | local),
+                        ..*last
+                    },
+                };
+            });
+        self.link.stats.late_commands += late;
+        self.link.stats.watchdog_samples += watchdog;
+        self.counters.counts.late_commands += late;
+        if late > 0 {
+            self.counters.push(RigFault::Overrun {
+                seq: s,
+                skipped: late,
+            });
+        }
+        r
+    }
+
+    /// Refuses a block on a disconnected or tripped device (an idle one is
+    /// refused by `open_block`).
+    fn ready(&self) -> Result<(), RigError> {
+        match self.state {
+            RigState::Disconnected => Err(RigError::Disconnected(format!(
+                "{}: call reconnect() first",
+                self.link.config().path
+            ))),
+            RigState::Faulted => Err(RigError::NotReady(
+                "the device tripped (its watchdog or its emergency stop): call start() to resume"
+                    .into(),
+            )),
+            // Idle refuses in `open_block`.
+            RigState::Idle | RigState::Running => Ok(()),
+        }
+    }
+
     /// Commands per COMMANDS frame.
     pub const FRAME_COMMANDS: usize = 32;
 
@@ -1182,21 +1303,7 @@ impl Rig for SerialRig {
         commands: &[ActuatorFrame],
         sensors: &mut [SensorFrame],
     ) -> Result<BlockReport, RigError> {
-        match self.state {
-            RigState::Disconnected => {
-                return Err(RigError::Disconnected(format!(
-                    "{}: call reconnect() first",
-                    self.link.config().path
-                )));
-            }
-            RigState::Faulted => {
-                return Err(RigError::NotReady(
-                    "the device tripped (its watchdog or its emergency stop): call start() to resume".into(),
-                ));
-            }
-            // Idle refuses in `open_block`.
-            RigState::Idle | RigState::Running => {}
-        }
+        self.ready()?;
         let mut report = open_block(self.state, commands, sensors, self.pipe.next_seq)?;
         let n = report.frames;
         if n == 0 {
@@ -1220,49 +1327,7 @@ impl Rig for SerialRig {
             }
             let s = self.pipe.next_seq;
             report.first_seq = s;
-            let caps = self.caps;
-            let last = &mut self.last;
-            let cmd_flags = &self.cmd_flags;
-            let mut late = 0u64;
-            let mut watchdog = 0u64;
-            let r = self
-                .link
-                .exchange::<DaqSample>(frame::ty::SAMPLES, s, n, |i, smp| {
-                    let seq = s + i as u64;
-                    let local = cmd_flags[(seq % CMD_FLAG_RING as u64) as usize];
-                    sensors[i] = match smp {
-                        Some(d) => {
-                            if d.flags & flag::CMD_LATE != 0 {
-                                late += 1;
-                            }
-                            if d.flags & flag::WATCHDOG != 0 {
-                                watchdog += 1;
-                            }
-                            let f = SensorFrame {
-                                seq,
-                                handle_m: d.enc.map(|e| f64::from(e) / caps.encoder_counts_per_m),
-                                accel_m_s2: d.acc.map(|a| f64::from(a) * caps.accel_m_s2_per_code),
-                                flags: FrameFlags((d.flags & flag::HOST_MASK) | local),
-                            };
-                            *last = f;
-                            f
-                        }
-                        None => SensorFrame {
-                            seq,
-                            flags: FrameFlags(FrameFlags::LOST | local),
-                            ..*last
-                        },
-                    };
-                });
-            self.link.stats.late_commands += late;
-            self.link.stats.watchdog_samples += watchdog;
-            self.counters.counts.late_commands += late;
-            if late > 0 {
-                self.counters.push(RigFault::Overrun {
-                    seq: s,
-                    skipped: late,
-                });
-            }
+            let r = self.exchange_block(s, n, sensors);
             match r {
                 Ok(ex) => break ex,
                 Err(LinkErr::Tripped {

@@ -16,9 +16,9 @@ impl CalibrationPage {
             )
         })?;
         let mut cfg = self.config.clone();
-        cfg.crossover.fc_hz = match self.rule {
+        cfg.crossover.crossover_hz = match self.rule {
             CrossoverRuleChoice::Automatic => None,
-            CrossoverRuleChoice::Fixed => Some(self.fixed_fc_hz),
+            CrossoverRuleChoice::Fixed => Some(self.fixed_crossover_hz),
         };
         Ok((cfg, seed))
     }
@@ -99,7 +99,7 @@ impl CalibrationPage {
                             let l = ui.label("Crossover frequency (Hz)");
                             ui.add_enabled(
                                 self.rule == CrossoverRuleChoice::Fixed,
-                                egui::DragValue::new(&mut self.fixed_fc_hz)
+                                egui::DragValue::new(&mut self.fixed_crossover_hz)
                                     .range(10.0..=(0.45 * fs).max(20.0))
                                     .speed(1.0),
                             )
@@ -136,7 +136,7 @@ impl CalibrationPage {
                         self.config = CalibrationConfig::default();
                         self.seed_text = "1".into();
                         self.rule = CrossoverRuleChoice::Automatic;
-                        self.fixed_fc_hz = 200.0;
+                        self.fixed_crossover_hz = 200.0;
                     }
                 });
             });

@@ -121,7 +121,7 @@ pub struct CalibrationPage {
     config: CalibrationConfig,
     seed_text: String,
     rule: CrossoverRuleChoice,
-    fixed_fc_hz: f64,
+    fixed_crossover_hz: f64,
     run: Option<CalibrationRun>,
     progress: StepProgress,
     last_elapsed: Option<Duration>,
@@ -160,7 +160,7 @@ impl CalibrationPage {
             config: CalibrationConfig::default(),
             seed_text: "1".into(),
             rule: CrossoverRuleChoice::Automatic,
-            fixed_fc_hz: 200.0,
+            fixed_crossover_hz: 200.0,
             run: None,
             progress: StepProgress::default(),
             last_elapsed: None,
@@ -603,7 +603,10 @@ mod tests {
         p.seed_text = " 18446744073709551615 ".into();
         assert_eq!(p.effective_config().unwrap().1, u64::MAX);
         p.rule = CrossoverRuleChoice::Fixed;
-        p.fixed_fc_hz = 180.0;
-        assert_eq!(p.effective_config().unwrap().0.crossover.fc_hz, Some(180.0));
+        p.fixed_crossover_hz = 180.0;
+        assert_eq!(
+            p.effective_config().unwrap().0.crossover.crossover_hz,
+            Some(180.0)
+        );
     }
 }

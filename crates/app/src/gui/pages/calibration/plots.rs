@@ -219,7 +219,7 @@ fn high_model_series(
 fn crossover_series(f: &CalibrationFile, xo_grid: &[f64]) -> Vec<Series> {
     let fs = f.rig.sample_rate_hz;
     let mut crossover = Vec::new();
-    if let Ok(xo) = LinkwitzRiley::new(f.crossover.order, f.crossover.fc_hz, fs) {
+    if let Ok(xo) = LinkwitzRiley::new(f.crossover.order, f.crossover.crossover_hz, fs) {
         let (mut l, mut h, mut s) = (Vec::new(), Vec::new(), Vec::new());
         for &fr in xo_grid {
             let (lz, hz) = xo.response(fr);
@@ -270,7 +270,7 @@ impl Plots {
         egui::CollapsingHeader::new("Crossover")
             .default_open(true)
             .show(ui, |ui| {
-                let fc = log_f(f.crossover.fc_hz);
+                let fc = log_f(f.crossover.crossover_hz);
                 charts::freq_chart(ui, "cal-xo", "dB", 180.0, &p.crossover, |pl| {
                     if let Some(x) = fc {
                         pl.vline(egui_plot::VLine::new("f_c", x).color(SUM_COLOR));

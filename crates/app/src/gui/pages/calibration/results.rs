@@ -143,7 +143,7 @@ fn crossover_words(f: &CalibrationFile) -> String {
     );
     format!(
         "LR{} at {:.1} Hz, {how}; {prediction}; {verdict}",
-        c.order, c.fc_hz
+        c.order, c.crossover_hz
     )
 }
 
