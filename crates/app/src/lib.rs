@@ -6,7 +6,6 @@
 
 pub mod cli;
 pub mod commands;
-pub mod csvio;
 pub mod engine;
 pub mod gui;
 pub mod output;

@@ -278,7 +278,7 @@ fn malformed_csv_gets_a_clear_error() {
             "--nperseg",
             "2",
         ],
-        "bad.csv:3",
+        "bad.csv, line 3",
     );
     let empty = write_csv(&dir, "empty.csv", "");
     fails_with(
@@ -297,7 +297,7 @@ fn malformed_csv_gets_a_clear_error() {
     let ragged = write_csv(&dir, "ragged.csv", "f,re,im\n1,2,3\n4,5\n");
     fails_with(
         &["tfest", &ragged, "--nb", "0", "--na", "1"],
-        "ragged.csv:3",
+        "ragged.csv, line 3",
     );
     fails_with(
         &[

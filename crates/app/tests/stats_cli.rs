@@ -158,11 +158,11 @@ fn malformed_inputs_name_the_problem() {
             "nonnum.csv",
             "participant,condition,score\ns1,A,1\ns1,B,zz\n",
         ),
-        "nonnum.csv:3",
+        "nonnum.csv, line 3, column `score`",
     );
     check(
         &write("ragged.csv", "participant,condition,score\ns1,A,1\ns1,B\n"),
-        "ragged.csv:3",
+        "ragged.csv, line 3",
     );
     // Nobody has every condition: the missing cells are named.
     check(
@@ -177,7 +177,7 @@ fn malformed_inputs_name_the_problem() {
             "badphase.csv",
             "participant,condition,score,phase\ns1,A,1,test\ns1,B,2,warmup\n",
         ),
-        "badphase.csv:3: column `phase`",
+        "badphase.csv, line 3, column `phase`",
     );
 }
 

@@ -18,7 +18,8 @@
 //! * the statistics used to compare the V / P / D conditions ([`stats`])
 //!   and the results model of a study folder: per-participant and
 //!   per-condition values, the statistics table ([`results`]);
-//! * simulation-based power analysis from a pilot ([`power`]).
+//! * simulation-based power analysis from a pilot ([`power`]);
+//! * the bounded CSV reader of the files a researcher hands in ([`csvio`]).
 //!
 //! Equations, references and the protocol format are documented in
 //! `docs/theory/` (index: `docs/THEORY.md`); the output folder and its formats in
@@ -26,6 +27,7 @@
 
 pub mod at_device;
 pub mod counterbalance;
+pub mod csvio;
 mod error;
 pub mod export;
 pub mod fidelity;

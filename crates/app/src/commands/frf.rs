@@ -4,9 +4,9 @@
 //! reported as `null` (JSON) or `undefined` (table), never as the 0 or ∞ of
 //! a 0/0, and an input without power at any frequency is an error.
 
-use crate::csvio::read_columns;
 use crate::output::{WelchArgs, db, emit};
 use kilotouch_dsp::spectral::frf;
+use kilotouch_study::csvio::read_columns;
 use serde::Serialize;
 use std::path::PathBuf;
 

@@ -1,8 +1,8 @@
 //! `kilotouch psd`: Welch power spectral density of one CSV column.
 
-use crate::csvio::read_columns;
 use crate::output::{WelchArgs, emit};
 use kilotouch_dsp::spectral::welch;
+use kilotouch_study::csvio::read_columns;
 use serde::Serialize;
 use std::path::PathBuf;
 

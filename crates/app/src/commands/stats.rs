@@ -12,9 +12,9 @@
 //! deletion) and name them. The output reports `rows_used`,
 //! `rows_excluded` (by reason) and `participants_dropped`.
 
-use crate::csvio::{read_header, read_table};
 use crate::output::emit;
-use anyhow::Context as _;
+use kilotouch_study::csvio::{CsvError, CsvReader, Limits};
+use kilotouch_study::seeds::Phase;
 use kilotouch_study::stats::rows::{parse_phase, parse_success};
 use kilotouch_study::stats::{
     Design, LongRow, RowCounts, RowRule, Test, TestReport, analyse, select_rows,
@@ -73,65 +73,14 @@ struct Output {
 pub fn run(a: &Args) -> anyhow::Result<()> {
     let test: Test = a.test.parse()?;
     let path = a.file.display().to_string();
-    let header = read_header(&a.file)?;
-    let has = |c: &str| header.iter().any(|h| h == c);
-    let mut text = vec![a.subject.as_str(), a.within.as_str(), a.dv.as_str()];
-    let phase_col = has("phase") && ![&a.subject, &a.within, &a.dv].contains(&&"phase".to_owned());
-    let success_col =
-        has("success") && ![&a.subject, &a.within, &a.dv].contains(&&"success".to_owned());
-    if phase_col {
-        text.push("phase");
-    }
-    if success_col {
-        text.push("success");
-    }
-    let t = read_table(&a.file, &text, &[], &[])?;
-    let n = t.lines.len();
-    let mut long = Vec::with_capacity(n);
-    for i in 0..n {
-        let line = t.lines[i];
-        let cell = |k: usize| t.text[k][i].as_str();
-        let value = match cell(2) {
-            "" | "NA" | "NaN" | "nan" => None,
-            s => Some(
-                s.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .with_context(|| {
-                        format!(
-                            "{path}:{line}: column `{}`: `{s}` is not a finite number \
-                             (leave the cell empty for a missing value)",
-                            a.dv
-                        )
-                    })?,
-            ),
-        };
-        let mut k = 3;
-        let phase = if phase_col {
-            k += 1;
-            Some(
-                parse_phase(cell(k - 1))
-                    .map_err(|e| anyhow::anyhow!("{path}:{line}: column `phase`: {e}"))?,
-            )
-        } else {
-            None
-        };
-        let success = if success_col {
-            Some(
-                parse_success(cell(k))
-                    .map_err(|e| anyhow::anyhow!("{path}:{line}: column `success`: {e}"))?,
-            )
-        } else {
-            None
-        };
-        long.push(LongRow {
-            subject: cell(0),
-            condition: cell(1),
-            value,
-            phase,
-            success,
-        });
-    }
+    let rows = read_long(a)?;
+    let long = rows.iter().map(|r| LongRow {
+        subject: &r.subject,
+        condition: &r.condition,
+        value: r.value,
+        phase: r.phase,
+        success: r.success,
+    });
     let rule = RowRule {
         include_practice: a.include_practice,
         include_rejected: a.include_rejected,
@@ -161,6 +110,51 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
         row_rule: rule,
     };
     emit(a.json, &out, || human(&out, a))
+}
+
+/// One row of the long table, as the row rule reads it.
+struct Owned {
+    subject: String,
+    condition: String,
+    value: Option<f64>,
+    phase: Option<Phase>,
+    success: Option<bool>,
+}
+
+/// The file's rows: subject, condition and DV (empty, NA or NaN: missing),
+/// and `phase` / `success` when the file has them (and they are not one of
+/// those three).
+fn read_long(a: &Args) -> Result<Vec<Owned>, CsvError> {
+    let mut reader = CsvReader::open(&a.file, Limits::default())?;
+    let header = reader.header();
+    let i_subject = header.require(&a.subject)?;
+    let i_within = header.require(&a.within)?;
+    let i_dv = header.require(&a.dv)?;
+    let named = [&a.subject, &a.within, &a.dv];
+    let optional = |name: &str| {
+        header
+            .position(name)
+            .filter(|_| !named.iter().any(|n| n.as_str() == name))
+    };
+    let i_phase = optional("phase");
+    let i_success = optional("success");
+    let mut rows = Vec::new();
+    while let Some(row) = reader.next_row()? {
+        let phase = i_phase
+            .map(|i| parse_phase(row.text(i)).map_err(|e| row.error(i, e)))
+            .transpose()?;
+        let success = i_success
+            .map(|i| parse_success(row.text(i)).map_err(|e| row.error(i, e)))
+            .transpose()?;
+        rows.push(Owned {
+            subject: row.text(i_subject).to_owned(),
+            condition: row.text(i_within).to_owned(),
+            value: row.value(i_dv)?,
+            phase,
+            success,
+        });
+    }
+    Ok(rows)
 }
 
 fn ci(c: Option<[f64; 2]>) -> String {

@@ -1,9 +1,9 @@
 //! `kilotouch tfest`: fit a continuous-time transfer function to FRF data.
 
-use crate::csvio::read_columns;
 use crate::output::emit;
 use kilotouch_dsp::C64;
 use kilotouch_dsp::fit::{FitOptions, fit_tf};
+use kilotouch_study::csvio::read_columns;
 use serde::Serialize;
 use std::path::PathBuf;
 

@@ -3,7 +3,6 @@
 //! formulation) from a CSV detector record, and the recording of such a
 //! record from a live (or emulated, or simulated) tweezer.
 
-use crate::csvio::read_columns;
 use crate::output::emit;
 use anyhow::Context;
 use clap::Subcommand;
@@ -14,6 +13,7 @@ use kilotouch_rig::tweezer::calibration::{
     DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, TrapCalibrationSettings,
     calibrate_trap,
 };
+use kilotouch_study::csvio::read_columns;
 use std::io::Write;
 use std::path::PathBuf;
 

@@ -4,21 +4,16 @@ use std::path::PathBuf;
 
 use thiserror::Error;
 
+use crate::csvio::CsvError;
 use crate::stats::StatsError;
 
 /// Why a power analysis could not run.
 #[derive(Debug, Error)]
 pub enum PowerError {
-    /// The pilot file could not be read, or a cell is malformed.
-    #[error("{}{}: {detail}", path.display(), line.map(|l| format!(", line {l}")).unwrap_or_default())]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// 1-based line (the header is line 1), when known.
-        line: Option<u64>,
-        /// What is wrong.
-        detail: String,
-    },
+    /// The pilot file could not be read, or a cell is malformed (file,
+    /// line and column named).
+    #[error(transparent)]
+    Csv(#[from] CsvError),
     /// A column the analysis needs is not in the header.
     #[error("{}: no {what} column `{column}` (the file has: {})", path.display(), available.join(", "))]
     MissingColumn {

@@ -1,13 +1,15 @@
 //! Reading a pilot: a study folder's `trials.csv` or any long-format CSV
 //! with a header row, and the rows a power analysis models.
 //!
-//! Bounds: at most [`MAX_PILOT_ROWS`] data rows are read; a larger file is
-//! refused with a clear error rather than truncated.
+//! Bounds: at most [`MAX_PILOT_ROWS`] data rows and [`crate::csvio::MAX_BYTES`]
+//! bytes are read; a larger file is refused with a clear error rather than
+//! truncated.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::error::PowerError;
+use crate::csvio::{CsvReader, Limits};
 use crate::export::TRIALS_FILE;
 use crate::seeds::Phase;
 use crate::stats::Design;
@@ -71,7 +73,7 @@ pub fn pilot_file(path: &Path) -> PathBuf {
 /// A `success` cell: empty (no outcome recorded) or the flag read by the
 /// row rule's [`crate::stats::rows::parse_success`]; `None` when malformed.
 fn parse_success(cell: &str) -> Option<Option<bool>> {
-    if cell.trim().is_empty() {
+    if cell.is_empty() {
         Some(None)
     } else {
         crate::stats::rows::parse_success(cell).ok().map(Some)
@@ -79,10 +81,12 @@ fn parse_success(cell: &str) -> Option<Option<bool>> {
 }
 
 /// Reads a pilot (folder or CSV file) with columns `subject`, `within` and
-/// `dv` (required) and `phase`, `success` (used when present).
+/// `dv` (required) and `phase`, `success` (used when present), with the
+/// bounded reader of [`crate::csvio`] (at most [`MAX_PILOT_ROWS`] rows).
+/// A DV cell that is empty, `NA` or `NaN` is a missing value.
 ///
 /// # Errors
-/// [`PowerError::Read`] for an unreadable file or a malformed cell (naming
+/// [`PowerError::Csv`] for an unreadable file or a malformed cell (naming
 /// the line and column), [`PowerError::MissingColumn`] naming the columns
 /// the file has.
 pub fn read_pilot(
@@ -92,108 +96,62 @@ pub fn read_pilot(
     subject: &str,
 ) -> Result<PilotTable, PowerError> {
     let file = pilot_file(path);
-    let read_err = |line: Option<u64>, detail: String| PowerError::Read {
-        path: file.clone(),
-        line,
-        detail,
+    let limits = Limits {
+        rows: MAX_PILOT_ROWS,
+        ..Limits::default()
     };
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .flexible(false)
-        .from_path(&file)
-        .map_err(|e| read_err(None, e.to_string()))?;
-    let headers = reader
-        .headers()
-        .map_err(|e| read_err(Some(1), e.to_string()))?
-        .clone();
-    let find = |name: &str| headers.iter().position(|h| h.trim() == name);
+    let mut reader = CsvReader::open(&file, limits)?;
+    let header = reader.header();
     let need = |name: &str, what: &'static str| {
-        find(name).ok_or_else(|| PowerError::MissingColumn {
-            path: file.clone(),
-            what,
-            column: name.to_owned(),
-            available: headers.iter().map(str::to_owned).collect(),
-        })
+        header
+            .position(name)
+            .ok_or_else(|| PowerError::MissingColumn {
+                path: file.clone(),
+                what,
+                column: name.to_owned(),
+                available: header.names().to_vec(),
+            })
     };
     let i_subject = need(subject, "participant (--subject)")?;
     let i_within = need(within, "condition (--within)")?;
     let i_dv = need(dv, "dependent variable (--dv)")?;
-    let i_phase = find(PHASE_COLUMN);
-    let i_success = find(SUCCESS_COLUMN);
+    let i_phase = header.position(PHASE_COLUMN);
+    let i_success = header.position(SUCCESS_COLUMN);
     let mut rows = Vec::new();
-    for (k, rec) in reader.records().enumerate() {
-        let line = k as u64 + 2;
-        let rec = rec.map_err(|e| read_err(Some(line), e.to_string()))?;
-        if rows.len() >= MAX_PILOT_ROWS {
-            return Err(read_err(
-                Some(line),
-                format!("more than {MAX_PILOT_ROWS} rows; a pilot this large is not supported"),
-            ));
-        }
-        let cell = |i: usize| rec.get(i).unwrap_or("");
-        let test = match i_phase.map(cell).map(str::trim) {
-            None | Some("test") => true,
-            Some("practice") => false,
-            Some(other) => {
-                return Err(read_err(
-                    Some(line),
-                    format!("column `{PHASE_COLUMN}`: `{other}` is neither `test` nor `practice`"),
-                ));
+    while let Some(row) = reader.next_row()? {
+        let test = match i_phase.map(|i| (i, row.text(i))) {
+            None | Some((_, "test")) => true,
+            Some((_, "practice")) => false,
+            Some((i, other)) => {
+                return Err(row
+                    .error(i, format!("`{other}` is neither `test` nor `practice`"))
+                    .into());
             }
         };
         let success = match i_success {
             None => None,
-            Some(i) => parse_success(cell(i)).ok_or_else(|| {
-                read_err(
-                    Some(line),
-                    format!(
-                        "column `{SUCCESS_COLUMN}`: `{}` is not 1, 0 or empty",
-                        cell(i)
-                    ),
-                )
-            })?,
+            Some(i) => parse_success(row.text(i))
+                .ok_or_else(|| row.error(i, format!("`{}` is not 1, 0 or empty", row.text(i))))?,
         };
-        let raw = cell(i_dv).trim();
-        let value = if raw.is_empty() || raw.eq_ignore_ascii_case("na") {
-            None
-        } else {
-            let v: f64 = raw.parse().map_err(|_| {
-                read_err(
-                    Some(line),
-                    format!("column `{dv}`: `{raw}` is not a number"),
-                )
-            })?;
-            if !v.is_finite() {
-                return Err(read_err(
-                    Some(line),
-                    format!("column `{dv}`: `{raw}` is not a finite number"),
-                ));
+        let value = row.value(i_dv)?;
+        for i in [i_subject, i_within] {
+            if row.text(i).is_empty() {
+                return Err(row
+                    .error(
+                        i,
+                        "empty cell (every row needs a participant and a condition)",
+                    )
+                    .into());
             }
-            Some(v)
-        };
-        let subject = cell(i_subject).trim();
-        let condition = cell(i_within).trim();
-        if subject.is_empty() || condition.is_empty() {
-            return Err(read_err(
-                Some(line),
-                format!(
-                    "empty `{}` or `{}` cell",
-                    headers[i_subject].trim(),
-                    headers[i_within].trim()
-                ),
-            ));
         }
         rows.push(PilotRow {
-            line,
-            subject: subject.to_owned(),
-            condition: condition.to_owned(),
+            line: row.line(),
+            subject: row.text(i_subject).to_owned(),
+            condition: row.text(i_within).to_owned(),
             test,
             success,
             value,
         });
-    }
-    if rows.is_empty() {
-        return Err(read_err(None, "no data rows".into()));
     }
     Ok(PilotTable {
         path: file,

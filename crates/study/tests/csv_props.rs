@@ -1,5 +1,5 @@
 //! Property test of the CSV reader of the headless commands
-//! (`kilotouch::csvio`): for tables with repeated column names, missing
+//! (`kilotouch_study::csvio`): for tables with repeated column names, missing
 //! columns, ragged rows and cells that are not finite numbers, the reader
 //! returns exactly what an independent oracle — built from the table's own
 //! description, not from the CSV text — says: the right error, or the
@@ -12,7 +12,7 @@
 
 use std::path::Path;
 
-use kilotouch::csvio::{CsvError, read_table_from};
+use kilotouch_study::csvio::{CsvError, read_table_from};
 use proptest::prelude::*;
 
 fn config() -> ProptestConfig {
