@@ -9,8 +9,8 @@
 //! /tmp/rec.f64` times pylake on it. Figures in docs/PERFORMANCE.md.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use kilotouch_dsp::lorentzian::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::diode_filter;
+use kilotouch_dsp::trap_psd::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::synth::synthesize_record;
 use kilotouch_rig::normal::NormalStream;
 use kilotouch_rig::tweezer::calibration::{TrapCalibrationSettings, calibrate_trap};

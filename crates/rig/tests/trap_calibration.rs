@@ -6,7 +6,7 @@
 //! `tests/pylake_reference.py` (lumicks.pylake 1.8.0).
 #![allow(clippy::unwrap_used)]
 
-use kilotouch_dsp::lorentzian::lorentzian_one_sided;
+use kilotouch_dsp::trap_psd::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::synth::synthesize_record;
 use kilotouch_dsp::trap_psd::{Hydrodynamics, PsdModel, SpectrumShape, diode_filter};
 use kilotouch_rig::normal::NormalStream;

@@ -4,9 +4,33 @@
 //! last two only with the diode filter.
 
 use crate::error::DspError;
-use crate::lorentzian::{aliased_lorentzian_one_sided, lorentzian_one_sided};
 use num_complex::Complex64;
 use std::f64::consts::PI;
+
+/// One-sided aliased Lorentzian (Berg-Sørensen & Flyvbjerg 2004, eq. 4) at
+/// `f` (Hz) for corner `fc` (Hz), diffusion coefficient `d` (u²/s) and sample
+/// rate `fs` (Hz), u²/Hz: the exact spectrum of the point-sampled
+/// Ornstein–Uhlenbeck process x\[n+1\] = c x\[n\] + σ ξ, c = e^{−x},
+/// x = 2π f_c/f_s, whose two-sided density is
+/// P₂(f) = (D/(2π f_c f_s)) · sinh x / (cosh x − cos(2π f/f_s)), so that
+/// ∫P₂ = D/(2π f_c) = k_BT/κ; the one-sided density is twice that
+/// (docs/theory/tweezer.md, "Aliased Lorentzian").
+pub fn aliased_lorentzian_one_sided(f: f64, fc: f64, d: f64, fs: f64) -> f64 {
+    let x = 2.0 * PI * fc / fs;
+    // sinh x/(cosh x − cos θ) written to stay accurate for small x and θ.
+    let th = 2.0 * PI * f / fs;
+    let num = x.sinh();
+    // cosh x − cos θ = 2 sinh²(x/2) + 2 sin²(θ/2)
+    let den = 2.0 * (0.5 * x).sinh().powi(2) + 2.0 * (0.5 * th).sin().powi(2);
+    2.0 * d / (2.0 * PI * fc * fs) * num / den
+}
+
+/// One-sided plain (continuous) Lorentzian D/(π²(f_c² + f²)) (BSF eq. 10)
+/// at `f` (Hz) for corner `fc` (Hz) and diffusion coefficient `d` (u²/s),
+/// u²/Hz.
+pub fn lorentzian_one_sided(f: f64, fc: f64, d: f64) -> f64 {
+    d / (PI * PI * (fc * fc + f * f))
+}
 
 /// Slow-photodiode filter (Berg-Sørensen et al. 2003, eq. 11; pylake
 /// `g_diode`): the fraction α of the signal passes at once, the rest
@@ -284,5 +308,36 @@ mod tests {
             .validate()
             .is_err()
         );
+    }
+
+    #[test]
+    fn aliased_lorentzian_reference_ratios() {
+        // REFERENCE-VALUES.md: fs = 10 kHz, fc = 281 Hz → aliased/plain ratio
+        // 1.036 at 1 kHz and 2.47 at 5 kHz.
+        let (fs, fc, d) = (10e3, 281.0, 1.0);
+        let r1 =
+            aliased_lorentzian_one_sided(1000.0, fc, d, fs) / lorentzian_one_sided(1000.0, fc, d);
+        let r5 =
+            aliased_lorentzian_one_sided(5000.0, fc, d, fs) / lorentzian_one_sided(5000.0, fc, d);
+        assert!((r1 - 1.036).abs() < 1e-3, "{r1}");
+        assert!((r5 - 2.47).abs() < 5e-3, "{r5}");
+    }
+
+    #[test]
+    fn aliased_lorentzian_integrates_to_equipartition() {
+        // ∫₀^{fs/2} P₁ df = D/(2π fc) = kT/κ, for any fc (even above Nyquist).
+        for (fc, fs) in [(50.0, 1e4), (281.0, 1e4), (8000.0, 1e4)] {
+            let d = 2.0;
+            let n = 200_000;
+            let h = 0.5 * fs / n as f64;
+            let mut s = 0.0;
+            for i in 0..=n {
+                let w = if i == 0 || i == n { 0.5 } else { 1.0 };
+                s += w * aliased_lorentzian_one_sided(i as f64 * h, fc, d, fs);
+            }
+            s *= h;
+            let expect = d / (2.0 * PI * fc);
+            assert!((s / expect - 1.0).abs() < 1e-6, "fc {fc}: {s} vs {expect}");
+        }
     }
 }
