@@ -159,7 +159,7 @@ pub fn simulate_tweezer(args: &TweezerSimArgs) -> anyhow::Result<TweezerSimRepor
         let pg = Periodogram::new(v, args.fs_hz)?;
         let opts = PsdFitOptions::default();
         let fit = fit_power_spectrum(&pg, f_lo, f_hi, points_per_block, &model, &opts)?;
-        Ok((fit.fc_hz(), fit.d()))
+        Ok((fit.corner_hz(), fit.d()))
     };
     let ((fc_x, d_x), (fc_y, d_y)) = (fit(&xs)?, fit(&ys)?);
     Ok(TweezerSimReport {

@@ -61,7 +61,7 @@ fn bench(c: &mut Criterion) {
         let (c, _) = calibrate_trap(&x, &s).expect("calibration");
         eprintln!(
             "{name}: f_c {:.2} ± {:.2} Hz, κ {:.3} pN/µm, χ²/dof {:.3}, {} points, {} iterations",
-            c.fc_hz, c.fc_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
+            c.corner_hz, c.corner_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
         );
         g.bench_function(name, |b| {
             b.iter(|| calibrate_trap(black_box(&x), &s).expect("calibration"))
