@@ -10,7 +10,7 @@
 use super::env::AppliedCalibration;
 use super::env::{PageEnv, ShellRequest};
 use super::pages::study::ProtocolSource;
-use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
+use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigPage, StudyPage};
 use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
 use egui::{Color32, RichText};
@@ -465,49 +465,45 @@ impl KilotouchApp {
         }
     }
 
-    fn rig_action(&mut self, a: RigAction) {
-        match a {
-            RigAction::LoadConfig(p) => {
-                let path = PathBuf::from(&p);
-                match RigConfig::load(&path) {
-                    Ok(c) => {
-                        self.use_rig_file(c, Some(path));
-                        self.notify(format!("rig file loaded: {p}"), false);
-                    }
-                    Err(e) => self.config_error = Some(e.to_string()),
-                }
-            }
-            RigAction::UseDefault => self.use_rig_file(RigConfig::default(), None),
-            RigAction::Connect => self.connect(),
-            RigAction::Reconnect => {
-                if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {
-                    let other = (spec != *e.spec()).then_some(spec);
-                    e.reconnect(other);
-                }
-            }
-            RigAction::Disconnect => {
-                if let Some(e) = self.engine.take() {
-                    e.shutdown();
-                }
-            }
-            RigAction::Start => {
-                if let Some(e) = &mut self.engine {
-                    let _ = e.send(crate::engine::Command::Start);
-                }
-            }
-            RigAction::Stop => {
-                if let Some(e) = &mut self.engine {
-                    let _ = e.send(crate::engine::Command::Stop);
-                }
-            }
-        }
-    }
-
     fn handle_requests(&mut self) {
         for r in std::mem::take(&mut self.requests) {
             match r {
                 ShellRequest::Notify(s) => self.notify(s, false),
                 ShellRequest::ShowRigPage => self.page = Page::Rig,
+                ShellRequest::EmergencyStop => self.emergency_stop(),
+                ShellRequest::LoadRigFile(p) => {
+                    let path = PathBuf::from(&p);
+                    match RigConfig::load(&path) {
+                        Ok(c) => {
+                            self.use_rig_file(c, Some(path));
+                            self.notify(format!("rig file loaded: {p}"), false);
+                        }
+                        Err(e) => self.config_error = Some(e.to_string()),
+                    }
+                }
+                ShellRequest::UseDefaultRig => self.use_rig_file(RigConfig::default(), None),
+                ShellRequest::Connect => self.connect(),
+                ShellRequest::Reconnect => {
+                    if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {
+                        let other = (spec != *e.spec()).then_some(spec);
+                        e.reconnect(other);
+                    }
+                }
+                ShellRequest::Disconnect => {
+                    if let Some(e) = self.engine.take() {
+                        e.shutdown();
+                    }
+                }
+                ShellRequest::StartEngine => {
+                    if let Some(e) = &mut self.engine {
+                        let _ = e.send(crate::engine::Command::Start);
+                    }
+                }
+                ShellRequest::StopEngine => {
+                    if let Some(e) = &mut self.engine {
+                        let _ = e.send(crate::engine::Command::Stop);
+                    }
+                }
                 ShellRequest::ConnectRig(spec) => {
                     if self.study.is_running() {
                         self.notify("the rig cannot change while a sitting runs", true);
@@ -799,15 +795,12 @@ impl KilotouchApp {
             };
             match self.page {
                 Page::Rig => {
-                    let actions = self.rig_page.ui(
+                    self.rig_page.ui(
                         ui,
                         &mut env,
                         self.engine.as_ref(),
                         self.config_error.as_deref(),
                     );
-                    for a in actions {
-                        self.rig_action(a);
-                    }
                 }
                 Page::Calibration => self.calibration.ui(ui, &mut env),
                 Page::Explore => self.explore.ui(ui, &mut env, self.engine.as_mut()),
@@ -817,10 +810,9 @@ impl KilotouchApp {
         });
         self.handle_requests();
         // Study sittings: drain events, the participant window.
-        self.study.background(&ctx, self.engine.as_mut());
-        if self.study.take_estop_request() {
-            self.emergency_stop();
-        }
+        self.study
+            .background(&ctx, self.engine.as_mut(), &mut self.requests);
+        self.handle_requests();
         self.reset_dialog_ui(&ctx);
         self.settings.page = self.page;
         self.settings.camera = self.explore.camera.model;

@@ -50,4 +50,23 @@ pub enum ShellRequest {
     ConnectRig(kilotouch_rig::device::RigSpec),
     /// Show the Rig page (to choose and connect a live rig).
     ShowRigPage,
+    /// Parse this rig file and use it (a running engine restarts on it).
+    LoadRigFile(String),
+    /// Go back to the built-in default rig.
+    UseDefaultRig,
+    /// Start the engine on the rig of the Rig page's rig field
+    /// ([`crate::gui::pages::RigPage::spec`]); restarts it when one runs.
+    Connect,
+    /// Reopen the device after a fault and resume, without restarting the
+    /// engine (the rig field's device when it names another port).
+    Reconnect,
+    /// Stop the engine thread.
+    Disconnect,
+    /// Resume exchanging frames.
+    StartEngine,
+    /// Pause exchanging frames (outputs zero).
+    StopEngine,
+    /// THE emergency stop (the participant's window has the keyboard
+    /// during a trial, so its Esc comes through here).
+    EmergencyStop,
 }

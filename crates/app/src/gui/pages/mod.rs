@@ -14,5 +14,5 @@ pub mod study_size;
 pub use calibration::CalibrationPage;
 pub use explore::ExplorePage;
 pub use results::ResultsPage;
-pub use rig::{RigAction, RigPage};
+pub use rig::RigPage;
 pub use study::StudyPage;
