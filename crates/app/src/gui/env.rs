@@ -19,6 +19,10 @@ pub struct PageEnv<'a> {
     /// The trap calibration the engine's tweezer uses, if one was applied
     /// (Rig page; recorded in a study's `session.json`).
     pub trap_applied: Option<&'a kilotouch_rig::tweezer::TrapCalibrationRecord>,
+    /// The real-time engine, when one runs (the Rig page connects it).
+    pub engine: Option<&'a mut crate::engine::EngineHandle>,
+    /// Why the rig file last chosen could not be used, if it could not.
+    pub config_error: Option<&'a str>,
 }
 
 /// A calibration cleared for the closed loop: its force-normalised chain,

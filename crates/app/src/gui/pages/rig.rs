@@ -143,20 +143,16 @@ impl RigPage {
         cfg!(feature = "audio")
     }
 
-    /// Draw the page; what the user asks of the shell goes to `env.requests`.
-    pub fn ui(
-        &mut self,
-        ui: &mut egui::Ui,
-        env: &mut PageEnv<'_>,
-        engine: Option<&EngineHandle>,
-        config_error: Option<&str>,
-    ) {
+    /// Draw the page with the engine taken out of `env` (so that `env`
+    /// stays free for the sections); what the user asks of the shell goes
+    /// to `env.requests`.
+    fn draw(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>, engine: Option<&EngineHandle>) {
         let mut requests = Vec::new();
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading("Rig");
             self.device_ui(ui, engine, &mut requests);
             ui.add_space(6.0);
-            self.rig_file_ui(ui, env, config_error, &mut requests);
+            self.rig_file_ui(ui, env, &mut requests);
             ui.add_space(6.0);
             self.tweezer.engine_tweezer = engine
                 .and_then(|e| e.live_tweezer())
@@ -259,7 +255,6 @@ impl RigPage {
         &mut self,
         ui: &mut egui::Ui,
         env: &PageEnv<'_>,
-        config_error: Option<&str>,
         requests: &mut Vec<ShellRequest>,
     ) {
         ui.group(|ui| {
@@ -289,10 +284,18 @@ impl RigPage {
                 Some(p) => ui.label(format!("In use: {}", p.display())),
                 None => ui.label("In use: built-in default"),
             };
-            if let Some(e) = config_error {
+            if let Some(e) = env.config_error {
                 ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_owned());
             }
         });
+    }
+}
+
+impl super::Page for RigPage {
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        let engine = env.engine.take();
+        self.draw(ui, env, engine.as_deref());
+        env.engine = engine;
     }
 }
 

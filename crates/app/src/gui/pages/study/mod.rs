@@ -22,7 +22,8 @@ use kilotouch_study::task::Scene;
 use kilotouch_study::task::station::HandMapping;
 
 use crate::engine::EngineHandle;
-use crate::gui::env::ShellRequest;
+use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::pages::Page;
 use crate::gui::pages::study_size::SizeGate;
 use crate::gui::participant_screen::ParticipantScreen;
 use crate::gui::path_field::PathField;
@@ -354,8 +355,9 @@ impl StudyPage {
     }
 
     /// Drains the session's events and shows the participant window (when
-    /// separate). Call every frame, whatever page is shown.
-    pub fn background(
+    /// separate): the page's [`Page::background`], with the engine taken
+    /// out of the shell's `PageEnv`.
+    fn drain_and_show(
         &mut self,
         ctx: &egui::Context,
         mut engine: Option<&mut EngineHandle>,
@@ -540,5 +542,19 @@ impl StudyPage {
             self.folder = Some((p, st));
         }
         self.folder.as_ref().map(|(_, s)| s)
+    }
+}
+
+impl Page for StudyPage {
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        let mut engine = env.engine.take();
+        self.draw(ui, env, engine.as_deref_mut());
+        env.engine = engine;
+    }
+
+    fn background(&mut self, ctx: &egui::Context, env: &mut PageEnv<'_>) {
+        let mut engine = env.engine.take();
+        self.drain_and_show(ctx, engine.as_deref_mut(), env.requests);
+        env.engine = engine;
     }
 }

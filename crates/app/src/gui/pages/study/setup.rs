@@ -14,8 +14,8 @@ use crate::session::{FinishReason, FolderStatus, ParticipantKind, Speed, validat
 use super::{CalibrationChoice, Monitor, ProtocolSource, StudyPage};
 
 impl StudyPage {
-    /// Draw the page.
-    pub fn ui(
+    /// Draw the page with the engine taken out of `env`.
+    pub(super) fn draw(
         &mut self,
         ui: &mut egui::Ui,
         env: &mut PageEnv<'_>,
