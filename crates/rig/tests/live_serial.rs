@@ -18,7 +18,7 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-mod common;
+use crate::common;
 use common::Device;
 
 fn daq(cfg: EmulatorConfig) -> Device<DaqInstrument> {

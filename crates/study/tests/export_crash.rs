@@ -3,7 +3,7 @@
 //! writes; the study is then resumed (several times) and must end with
 //! exactly the files of an uninterrupted run.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -47,7 +47,15 @@ fn completed_rows(dir: &Path) -> usize {
 fn run_and_kill(dir: &Path, rows: usize, extra: Duration) {
     let exe = std::env::current_exe().expect("test setup");
     let mut child = Command::new(exe)
-        .args(["--exact", "crash_child", "--nocapture", "--test-threads=1"])
+        // The test's path in the one test binary: `module::name`.
+        .args([
+            "--exact",
+            concat!(module_path!(), "::crash_child")
+                .split_once("::")
+                .map_or("crash_child", |(_, path)| path),
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env(CHILD_ENV, dir)
         .stdout(Stdio::null())
         .stderr(Stdio::null())

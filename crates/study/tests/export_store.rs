@@ -3,7 +3,7 @@
 //! the commit order (simulated by stopping mid-trial and by cutting files
 //! exactly as a crash would leave them).
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::fs;

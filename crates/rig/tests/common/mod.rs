@@ -1,7 +1,7 @@
 //! Test helpers shared by the live-link tests: an emulated device served on
 //! a real pseudo-terminal by a thread of the test.
 
-#![allow(dead_code, clippy::unwrap_used)]
+#![allow(clippy::unwrap_used)]
 
 use kilotouch_rig::device::{Clock, SystemClock};
 use kilotouch_rig::serial::emulator::{Emulator, EmulatorConfig, Instrument};

@@ -1,7 +1,6 @@
 //! A deterministic fake session runner for the storage tests: each trial's
 //! results and raw signals derive only from its seeds, as the real tasks'
 //! will.
-#![allow(dead_code)]
 
 use kilotouch_study::export::{StudyMeta, StudyStore, TaskKind, TrialRow, TrialTicket, UtcTime};
 use kilotouch_study::protocol::{Condition, Protocol};
