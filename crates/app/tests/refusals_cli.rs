@@ -46,18 +46,7 @@ fn statistics_refuse_cell_means_that_overflow() {
     let path = write(&dir, "huge.csv", &text);
     for test in ["friedman", "rm", "pairwise", "oneway", "describe"] {
         refused(
-            &[
-                "stats",
-                &path,
-                "--dv",
-                "time_s",
-                "--within",
-                "condition",
-                "--subject",
-                "participant",
-                "--test",
-                test,
-            ],
+            &common::stats_args(&path, "time_s", test),
             &[
                 "cell (subject `P1`, condition `V`) over 2 row(s)",
                 "overflow",
@@ -76,18 +65,7 @@ fn a_csv_naming_a_column_twice_is_refused() {
         "participant,condition,time_s,time_s\nP1,V,1,9\nP2,V,2,9\n",
     );
     refused(
-        &[
-            "stats",
-            &path,
-            "--dv",
-            "time_s",
-            "--within",
-            "condition",
-            "--subject",
-            "participant",
-            "--test",
-            "describe",
-        ],
+        &common::stats_args(&path, "time_s", "describe"),
         &["dup.csv", "column `time_s` twice (columns 3 and 4)"],
     );
 }

@@ -21,18 +21,7 @@ fn long_csv(dir: &tempfile::TempDir, name: &str, conds: &[(&str, &[f64])]) -> St
 /// `kilotouch stats PATH --dv score --within condition --subject
 /// participant --test TEST`, then `extra`.
 fn stats<'a>(path: &'a str, test: &'a str, extra: &[&'a str]) -> std::process::Output {
-    let mut args = vec![
-        "stats",
-        path,
-        "--dv",
-        "score",
-        "--within",
-        "condition",
-        "--subject",
-        "participant",
-        "--test",
-        test,
-    ];
+    let mut args = common::stats_args(path, "score", test);
     args.extend_from_slice(extra);
     run(&args)
 }
@@ -198,19 +187,8 @@ fn study_reference() -> (String, Value) {
 }
 
 fn study_stats(path: &str, test: &str, extra: &[&str]) -> Value {
-    let mut args = vec![
-        "stats",
-        path,
-        "--dv",
-        "time_s",
-        "--within",
-        "condition",
-        "--subject",
-        "participant",
-        "--test",
-        test,
-        "--json",
-    ];
+    let mut args = common::stats_args(path, "time_s", test);
+    args.push("--json");
     args.extend_from_slice(extra);
     let out = run(&args);
     assert!(
@@ -260,18 +238,7 @@ fn study_trials_use_successful_test_rows_like_pingouin() {
     let f = study_stats(&path, "friedman", &[]);
     rel(&f, "chi2", &r["friedman_q"]);
     // The human output says what was used.
-    let out = run(&[
-        "stats",
-        &path,
-        "--dv",
-        "time_s",
-        "--within",
-        "condition",
-        "--subject",
-        "participant",
-        "--test",
-        "rm",
-    ]);
+    let out = run(&common::stats_args(&path, "time_s", "rm"));
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         text.contains(&format!("used {used} of")) && text.contains("practice trials"),
@@ -339,18 +306,7 @@ fn participant_without_a_cell_is_dropped_and_named() {
         );
         rel(g, "p_holm", &w["p_holm"]);
     }
-    let human = run(&[
-        "stats",
-        &p,
-        "--dv",
-        "time_s",
-        "--within",
-        "condition",
-        "--subject",
-        "participant",
-        "--test",
-        "rm",
-    ]);
+    let human = run(&common::stats_args(&p, "time_s", "rm"));
     let text = String::from_utf8_lossy(&human.stdout);
     assert!(
         text.contains(&format!(

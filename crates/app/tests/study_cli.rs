@@ -14,17 +14,7 @@ use kilotouch_study::seeds::Phase;
 use serde_json::Value;
 
 fn write_protocol(dir: &Path, trials: u32, practice: u32) -> String {
-    let p = dir.join("proto.toml");
-    std::fs::write(
-        &p,
-        format!(
-            "name = \"cli-test\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
-             trials_per_session = {trials}\n[training]\npractice_trials = {practice}\n\
-             [task.circling]\ntimeout_s = 20.0\n[seeds]\nstudy = 1\n"
-        ),
-    )
-    .unwrap();
-    p.to_string_lossy().into_owned()
+    common::write_circling_protocol(dir, "cli-test", trials, practice, 1)
 }
 
 #[test]

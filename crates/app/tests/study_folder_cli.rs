@@ -37,17 +37,7 @@ fn simulate(dir: &Path, protocol: &str, participants: &str, seed: &str) -> std::
 }
 
 fn write_protocol(dir: &Path, trials: u32) -> String {
-    let p = dir.join("proto.toml");
-    std::fs::write(
-        &p,
-        format!(
-            "name = \"folder-test\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
-             trials_per_session = {trials}\n[training]\npractice_trials = 1\n\
-             [task.circling]\ntimeout_s = 20.0\n[seeds]\nstudy = 1\n"
-        ),
-    )
-    .unwrap();
-    p.to_string_lossy().into_owned()
+    kilotouch_testkit::write_circling_protocol(dir, "folder-test", trials, 1, 1)
 }
 
 /// Reads a CSV as header + text records.

@@ -19,21 +19,11 @@ use kilotouch_study::export::{QUARANTINE_DIR, RECOVERY_DIR, TRIALS_FILE, read_tr
 use serde_json::Value;
 
 fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    common::stderr_text(o)
 }
 
 fn write_protocol(dir: &Path, trials: u32) -> String {
-    let p = dir.join("proto.toml");
-    std::fs::write(
-        &p,
-        format!(
-            "name = \"guard-test\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
-             trials_per_session = {trials}\n[training]\npractice_trials = 0\n\
-             [task.circling]\ntimeout_s = 20.0\n[seeds]\nstudy = 7\n"
-        ),
-    )
-    .unwrap();
-    p.to_string_lossy().into_owned()
+    common::write_circling_protocol(dir, "guard-test", trials, 0, 7)
 }
 
 fn simulate(proto: &str, out: &Path, extra: &[&str]) -> Vec<String> {

@@ -419,3 +419,48 @@ pub fn until_finished(
     };
     (reason, since.elapsed().as_secs_f64())
 }
+
+/// Writes a circling protocol of one participant over V, P and D
+/// (`trials` test and `practice` practice trials per session, 20 s timeout,
+/// study seed `seed`) to `dir/proto.toml`; returns its path.
+pub fn write_circling_protocol(
+    dir: &Path,
+    name: &str,
+    trials: u32,
+    practice: u32,
+    seed: u64,
+) -> String {
+    let p = dir.join("proto.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "name = \"{name}\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
+             trials_per_session = {trials}\n[training]\npractice_trials = {practice}\n\
+             [task.circling]\ntimeout_s = 20.0\n[seeds]\nstudy = {seed}\n"
+        ),
+    )
+    .expect("test setup: write the protocol");
+    p.to_string_lossy().into_owned()
+}
+
+/// A process's standard error as text.
+pub fn stderr_text(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// `kilotouch stats FILE --dv DV --within condition --subject participant
+/// --test TEST`, as arguments (the layout of a study's `trials.csv`).
+pub fn stats_args<'a>(path: &'a str, dv: &'a str, test: &'a str) -> Vec<&'a str> {
+    vec![
+        "stats",
+        path,
+        "--dv",
+        dv,
+        "--within",
+        "condition",
+        "--subject",
+        "participant",
+        "--test",
+        test,
+    ]
+}
