@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 type State = common::PageState<CalibrationPage>;
 
 fn harness(state: State) -> Harness<'static, State> {
-    common::page_harness(state, 5000.0, CalibrationPage::ui)
+    common::page_harness(state, 5000.0)
 }
 
 fn new_state() -> State {

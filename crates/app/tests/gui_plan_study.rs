@@ -75,7 +75,7 @@ fn write_pilot(dir: &Path) {
 type State = common::PageState<ResultsPage>;
 
 fn harness() -> Harness<'static, State> {
-    common::page_harness(State::new(ResultsPage::new()), 6000.0, ResultsPage::ui)
+    common::page_harness(State::new(ResultsPage::new()), 6000.0)
 }
 
 #[test]

@@ -178,7 +178,7 @@ fn textbook_friedman(y: &[Vec<f64>]) -> f64 {
 type State = common::PageState<ResultsPage>;
 
 fn harness(state: State) -> Harness<'static, State> {
-    common::page_harness(state, 6000.0, ResultsPage::ui)
+    common::page_harness(state, 6000.0)
 }
 
 fn state(output_dir: Option<PathBuf>) -> State {

@@ -13,17 +13,10 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::plant::{DualStagePlant, PlantInput};
+use kilotouch_rig::realtime::thread_cpu_ns;
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
 use kilotouch_rig::{Integrator, Rig};
 use std::hint::black_box;
-
-/// CPU time of this thread (ns), from /proc/thread-self/schedstat.
-fn thread_cpu_ns() -> u64 {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse().ok())
-        .unwrap_or(0)
-}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -33,12 +26,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fs = cfg.rig.sample_rate_hz;
     let table: Vec<f64> = (0..4096).map(|k| 0.3 * (k as f64 * 0.0731).sin()).collect();
     let drive = |k: usize| table[k & 4095];
-    let t0 = thread_cpu_ns();
+    let t0 = thread_cpu_ns().unwrap_or(0);
     let mut acc = 0.0;
     match part {
         "plant" => {
             let mut p = DualStagePlant::new(&cfg, Integrator::Zoh)?;
-            let t0 = thread_cpu_ns();
+            let t0 = thread_cpu_ns().unwrap_or(0);
             for k in 0..n {
                 acc += p
                     .step(&PlantInput {
@@ -56,7 +49,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 t.set_drag_table(false);
             }
             eprintln!("drag table error: {:?}", t.drag_table_error());
-            let t0 = thread_cpu_ns();
+            let t0 = thread_cpu_ns().unwrap_or(0);
             for k in 0..n {
                 acc += t.step([1e-9 * drive(k), 0.0]).force_n[0];
             }
@@ -64,7 +57,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         "accel" => {
             let mut a = Accelerometer::new(&cfg.accelerometer, fs)?;
-            let t0 = thread_cpu_ns();
+            let t0 = thread_cpu_ns().unwrap_or(0);
             for k in 0..n {
                 acc += a.sample([drive(k), 0.0, 0.0]).m_s2[0];
             }
@@ -85,7 +78,7 @@ fn run_loop(cfg: &RigConfig, n: usize) -> Result<f64, Box<dyn std::error::Error>
     let clearance = Clearance::check(cfg, &chain)?;
     let mut cl = SimLoop::simulated(cfg, &chain, clearance)?;
     let mut acc = 0.0;
-    let t0 = thread_cpu_ns();
+    let t0 = thread_cpu_ns().unwrap_or(0);
     for _ in 0..n {
         acc += cl.step()?.command.force_n[0];
     }
@@ -95,7 +88,7 @@ fn run_loop(cfg: &RigConfig, n: usize) -> Result<f64, Box<dyn std::error::Error>
 }
 
 fn report(part: &str, n: usize, t0: u64) {
-    let t = thread_cpu_ns() - t0;
+    let t = thread_cpu_ns().unwrap_or(0) - t0;
     if n > 0 {
         println!("{part}: {:.2} ns/sample (thread CPU)", t as f64 / n as f64);
     }

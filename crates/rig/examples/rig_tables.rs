@@ -13,6 +13,7 @@ use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::lti::{self, Integrator};
 use kilotouch_rig::plant::{Axis, AxisModel, Channel, IN_DRIVE, IN_FORCE, OUT_ACCEL, OUT_MOTOR};
 use kilotouch_rig::plant::{AxisSim, DualStagePlant, NU, NX, PlantInput};
+use kilotouch_rig::realtime::thread_cpu_ns;
 use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer};
 use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams};
 use nalgebra::SVector;
@@ -22,17 +23,6 @@ fn grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (0..n)
         .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
         .collect()
-}
-
-/// CPU time of this thread (ns) from /proc/thread-self/schedstat: immune
-/// to time spent descheduled on a loaded machine.
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
 }
 
 /// Best of 5 runs of `n` calls: CPU ns per call.

@@ -76,3 +76,26 @@ pub fn demote_current_thread() {
         ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other),
     );
 }
+
+/// CPU time the calling thread has run, ns: the first field of Linux
+/// `/proc/thread-self/schedstat`, which leaves out time spent descheduled
+/// (so a loaded machine does not inflate it). `None` where the file is
+/// missing (other systems) or unreadable. For benchmarks and reports, not
+/// for the real-time path (it reads a file).
+pub fn thread_cpu_ns() -> Option<u64> {
+    first_number("/proc/thread-self/schedstat")
+}
+
+/// The 1-minute load average (Linux `/proc/loadavg`); `None` elsewhere.
+pub fn load_average() -> Option<f64> {
+    first_number("/proc/loadavg")
+}
+
+fn first_number<T: std::str::FromStr>(path: &str) -> Option<T> {
+    std::fs::read_to_string(path)
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}

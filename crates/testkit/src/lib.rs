@@ -336,11 +336,11 @@ impl<P> PageState<P> {
 }
 
 /// A harness 1400 px wide and `height` px tall drawing the page of `state`
-/// with `show` (the page's `ui` method) every frame.
-pub fn page_harness<P: 'static>(
+/// (its [`Page::ui`](kilotouch::gui::pages::Page::ui)) every frame, with no
+/// engine.
+pub fn page_harness<P: kilotouch::gui::pages::Page + 'static>(
     state: PageState<P>,
     height: f32,
-    show: fn(&mut P, &mut egui::Ui, &mut kilotouch::gui::env::PageEnv<'_>),
 ) -> Harness<'static, PageState<P>> {
     Harness::builder()
         .with_size(egui::vec2(1400.0, height))
@@ -353,8 +353,10 @@ pub fn page_harness<P: 'static>(
                     requests: &mut s.requests,
                     applied: None,
                     trap_applied: None,
+                    engine: None,
+                    config_error: None,
                 };
-                show(&mut s.page, ui, &mut env);
+                s.page.ui(ui, &mut env);
             },
             state,
         )

@@ -10,6 +10,7 @@ use kilotouch_dsp::spectral::{WelchConfig, welch};
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::{Clearance, SimLoop};
 use kilotouch_rig::plant::PlantInput;
+use kilotouch_rig::realtime::{load_average, thread_cpu_ns};
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerParams};
 use kilotouch_rig::{DualStagePlant, Integrator, RigConfig};
 use rand::SeedableRng;
@@ -101,26 +102,6 @@ pub struct Report {
     pub n_samples: usize,
     /// Repetitions per figure.
     pub reps: usize,
-}
-
-/// CPU time of the calling thread, ns (Linux `/proc/thread-self/schedstat`).
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
-/// 1-minute load average (Linux `/proc/loadavg`).
-fn load_average() -> Option<f64> {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
 }
 
 fn best_of<F: FnMut()>(reps: usize, mut f: F) -> f64 {

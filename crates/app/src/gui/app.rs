@@ -10,7 +10,7 @@
 use super::env::AppliedCalibration;
 use super::env::{PageEnv, ShellRequest};
 use super::pages::study::ProtocolSource;
-use super::pages::{CalibrationPage, ExplorePage, ResultsPage, RigAction, RigPage, StudyPage};
+use super::pages::{self, CalibrationPage, ExplorePage, ResultsPage, RigPage, StudyPage};
 use super::settings::{Page, Settings};
 use crate::engine::{EngineEvent, EngineHandle, EngineOptions, SafetyState};
 use egui::{Color32, RichText};
@@ -153,6 +153,23 @@ pub struct KilotouchApp {
 struct PendingConnect {
     label: String,
     rx: mpsc::Receiver<Result<EngineHandle, crate::engine::EngineError>>,
+}
+
+/// The [`PageEnv`] of a frame, from the shell's fields (a macro, not a
+/// method, so that the pages stay borrowable beside it).
+macro_rules! page_env {
+    ($app:ident) => {
+        PageEnv {
+            rig_config: &$app.rig_config,
+            rig_config_path: $app.rig_config_path.as_deref(),
+            output_dir: $app.settings.output_dir.as_deref(),
+            requests: &mut $app.requests,
+            applied: $app.applied.as_ref(),
+            trap_applied: $app.trap_applied.as_ref(),
+            engine: $app.engine.as_mut(),
+            config_error: $app.config_error.as_deref(),
+        }
+    };
 }
 
 impl KilotouchApp {
@@ -465,49 +482,45 @@ impl KilotouchApp {
         }
     }
 
-    fn rig_action(&mut self, a: RigAction) {
-        match a {
-            RigAction::LoadConfig(p) => {
-                let path = PathBuf::from(&p);
-                match RigConfig::load(&path) {
-                    Ok(c) => {
-                        self.use_rig_file(c, Some(path));
-                        self.notify(format!("rig file loaded: {p}"), false);
-                    }
-                    Err(e) => self.config_error = Some(e.to_string()),
-                }
-            }
-            RigAction::UseDefault => self.use_rig_file(RigConfig::default(), None),
-            RigAction::Connect => self.connect(),
-            RigAction::Reconnect => {
-                if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {
-                    let other = (spec != *e.spec()).then_some(spec);
-                    e.reconnect(other);
-                }
-            }
-            RigAction::Disconnect => {
-                if let Some(e) = self.engine.take() {
-                    e.shutdown();
-                }
-            }
-            RigAction::Start => {
-                if let Some(e) = &mut self.engine {
-                    let _ = e.send(crate::engine::Command::Start);
-                }
-            }
-            RigAction::Stop => {
-                if let Some(e) = &mut self.engine {
-                    let _ = e.send(crate::engine::Command::Stop);
-                }
-            }
-        }
-    }
-
     fn handle_requests(&mut self) {
         for r in std::mem::take(&mut self.requests) {
             match r {
                 ShellRequest::Notify(s) => self.notify(s, false),
                 ShellRequest::ShowRigPage => self.page = Page::Rig,
+                ShellRequest::EmergencyStop => self.emergency_stop(),
+                ShellRequest::LoadRigFile(p) => {
+                    let path = PathBuf::from(&p);
+                    match RigConfig::load(&path) {
+                        Ok(c) => {
+                            self.use_rig_file(c, Some(path));
+                            self.notify(format!("rig file loaded: {p}"), false);
+                        }
+                        Err(e) => self.config_error = Some(e.to_string()),
+                    }
+                }
+                ShellRequest::UseDefaultRig => self.use_rig_file(RigConfig::default(), None),
+                ShellRequest::Connect => self.connect(),
+                ShellRequest::Reconnect => {
+                    if let (Some(e), Ok(spec)) = (&mut self.engine, self.rig_page.spec()) {
+                        let other = (spec != *e.spec()).then_some(spec);
+                        e.reconnect(other);
+                    }
+                }
+                ShellRequest::Disconnect => {
+                    if let Some(e) = self.engine.take() {
+                        e.shutdown();
+                    }
+                }
+                ShellRequest::StartEngine => {
+                    if let Some(e) = &mut self.engine {
+                        let _ = e.send(crate::engine::Command::Start);
+                    }
+                }
+                ShellRequest::StopEngine => {
+                    if let Some(e) = &mut self.engine {
+                        let _ = e.send(crate::engine::Command::Stop);
+                    }
+                }
                 ShellRequest::ConnectRig(spec) => {
                     if self.study.is_running() {
                         self.notify("the rig cannot change while a sitting runs", true);
@@ -789,38 +802,33 @@ impl KilotouchApp {
         egui::Panel::top("kilotouch-top").show(ui, |ui| self.top_bar(ui));
         egui::Panel::bottom("kilotouch-status").show(ui, |ui| self.status_bar(ui));
         egui::CentralPanel::default().show(ui, |ui| {
-            let mut env = PageEnv {
-                rig_config: &self.rig_config,
-                rig_config_path: self.rig_config_path.as_deref(),
-                output_dir: self.settings.output_dir.as_deref(),
-                requests: &mut self.requests,
-                applied: self.applied.as_ref(),
-                trap_applied: self.trap_applied.as_ref(),
+            let mut env = page_env!(self);
+            let page: &mut dyn pages::Page = match self.page {
+                Page::Rig => &mut self.rig_page,
+                Page::Calibration => &mut self.calibration,
+                Page::Explore => &mut self.explore,
+                Page::Study => &mut self.study,
+                Page::Results => &mut self.results,
             };
-            match self.page {
-                Page::Rig => {
-                    let actions = self.rig_page.ui(
-                        ui,
-                        &mut env,
-                        self.engine.as_ref(),
-                        self.config_error.as_deref(),
-                    );
-                    for a in actions {
-                        self.rig_action(a);
-                    }
-                }
-                Page::Calibration => self.calibration.ui(ui, &mut env),
-                Page::Explore => self.explore.ui(ui, &mut env, self.engine.as_mut()),
-                Page::Study => self.study.ui(ui, &mut env, self.engine.as_mut()),
-                Page::Results => self.results.ui(ui, &mut env),
-            }
+            page.ui(ui, &mut env);
         });
         self.handle_requests();
-        // Study sittings: drain events, the participant window.
-        self.study.background(&ctx, self.engine.as_mut());
-        if self.study.take_estop_request() {
-            self.emergency_stop();
+        // Every page's background work (Study sittings: drain events, the
+        // participant window).
+        {
+            let mut env = page_env!(self);
+            let all: [&mut dyn pages::Page; 5] = [
+                &mut self.rig_page,
+                &mut self.calibration,
+                &mut self.explore,
+                &mut self.study,
+                &mut self.results,
+            ];
+            for page in all {
+                page.background(&ctx, &mut env);
+            }
         }
+        self.handle_requests();
         self.reset_dialog_ui(&ctx);
         self.settings.page = self.page;
         self.settings.camera = self.explore.camera.model;

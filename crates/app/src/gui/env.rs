@@ -19,6 +19,10 @@ pub struct PageEnv<'a> {
     /// The trap calibration the engine's tweezer uses, if one was applied
     /// (Rig page; recorded in a study's `session.json`).
     pub trap_applied: Option<&'a kilotouch_rig::tweezer::TrapCalibrationRecord>,
+    /// The real-time engine, when one runs (the Rig page connects it).
+    pub engine: Option<&'a mut crate::engine::EngineHandle>,
+    /// Why the rig file last chosen could not be used, if it could not.
+    pub config_error: Option<&'a str>,
 }
 
 /// A calibration cleared for the closed loop: its force-normalised chain,
@@ -50,4 +54,23 @@ pub enum ShellRequest {
     ConnectRig(kilotouch_rig::device::RigSpec),
     /// Show the Rig page (to choose and connect a live rig).
     ShowRigPage,
+    /// Parse this rig file and use it (a running engine restarts on it).
+    LoadRigFile(String),
+    /// Go back to the built-in default rig.
+    UseDefaultRig,
+    /// Start the engine on the rig of the Rig page's rig field
+    /// ([`crate::gui::pages::RigPage::spec`]); restarts it when one runs.
+    Connect,
+    /// Reopen the device after a fault and resume, without restarting the
+    /// engine (the rig field's device when it names another port).
+    Reconnect,
+    /// Stop the engine thread.
+    Disconnect,
+    /// Resume exchanging frames.
+    StartEngine,
+    /// Pause exchanging frames (outputs zero).
+    StopEngine,
+    /// THE emergency stop (the participant's window has the keyboard
+    /// during a trial, so its Esc comes through here).
+    EmergencyStop,
 }

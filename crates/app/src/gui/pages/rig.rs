@@ -6,7 +6,7 @@
 
 use super::rig_tweezer::TweezerSection;
 use crate::engine::{EngineHandle, SafetyState};
-use crate::gui::env::PageEnv;
+use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::path_field::{PathField, PathKind, TOML};
 use crate::gui::plot::format_si;
 use egui::{Color32, RichText};
@@ -16,27 +16,6 @@ use kilotouch_rig::stability::StabilityReport;
 /// Hint shown under the rig field.
 pub const RIG_HINT: &str = "sim  ·  serial:/dev/ttyACM0[,baud=N][,timeout-ms=N]  ·  audio[:DEVICE]  \
      (a device emulator: `kilotouch emulate daq --pty` prints its port)";
-
-/// What the user asked the shell to do.
-#[derive(Debug, Clone, PartialEq)]
-pub enum RigAction {
-    /// Parse this rig file and (re)connect with it.
-    LoadConfig(String),
-    /// Go back to the built-in default rig.
-    UseDefault,
-    /// Start the engine on the rig of the rig field ([`RigPage::spec`]);
-    /// restarts it when one runs.
-    Connect,
-    /// Reopen the device after a fault and resume, without restarting the
-    /// engine (the rig field's device when it names another port).
-    Reconnect,
-    /// Stop the engine thread.
-    Disconnect,
-    /// Resume exchanging frames.
-    Start,
-    /// Pause exchanging frames (outputs zero).
-    Stop,
-}
 
 /// The Rig page.
 #[derive(Debug)]
@@ -96,7 +75,7 @@ impl RigPage {
         &mut self,
         ui: &mut egui::Ui,
         engine: Option<&EngineHandle>,
-        actions: &mut Vec<RigAction>,
+        requests: &mut Vec<ShellRequest>,
     ) {
         let spec = self.tweezer_spec();
         ui.horizontal(|ui| {
@@ -127,7 +106,7 @@ impl RigPage {
                 && ui.input(|i| i.key_pressed(egui::Key::Enter))
                 && self.tweezer_spec().is_ok()
             {
-                actions.push(RigAction::Connect);
+                requests.push(ShellRequest::Connect);
             }
         });
         match spec {
@@ -164,34 +143,30 @@ impl RigPage {
         cfg!(feature = "audio")
     }
 
-    /// Draw the page; returns the actions requested.
-    pub fn ui(
-        &mut self,
-        ui: &mut egui::Ui,
-        env: &mut PageEnv<'_>,
-        engine: Option<&EngineHandle>,
-        config_error: Option<&str>,
-    ) -> Vec<RigAction> {
-        let mut actions = Vec::new();
+    /// Draw the page with the engine taken out of `env` (so that `env`
+    /// stays free for the sections); what the user asks of the shell goes
+    /// to `env.requests`.
+    fn draw(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>, engine: Option<&EngineHandle>) {
+        let mut requests = Vec::new();
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading("Rig");
-            self.device_ui(ui, engine, &mut actions);
+            self.device_ui(ui, engine, &mut requests);
             ui.add_space(6.0);
-            self.rig_file_ui(ui, env, config_error, &mut actions);
+            self.rig_file_ui(ui, env, &mut requests);
             ui.add_space(6.0);
             self.tweezer.engine_tweezer = engine
                 .and_then(|e| e.live_tweezer())
                 .map(|t| t.spec.describe());
             self.tweezer.ui(ui, env, engine.is_some());
             ui.add_space(6.0);
-            run_controls_ui(ui, engine, &mut actions);
+            run_controls_ui(ui, engine, &mut requests);
             ui.add_space(6.0);
             if let Some(h) = engine {
                 error_ui(ui, h);
                 status_ui(ui, env, h);
             }
         });
-        actions
+        env.requests.extend(requests);
     }
 
     /// The device: kind, rig text, Connect, what the rig is, the tweezer row.
@@ -199,7 +174,7 @@ impl RigPage {
         &mut self,
         ui: &mut egui::Ui,
         engine: Option<&EngineHandle>,
-        actions: &mut Vec<RigAction>,
+        requests: &mut Vec<ShellRequest>,
     ) {
         let spec = self.spec();
         ui.group(|ui| {
@@ -251,7 +226,7 @@ impl RigPage {
                     .clicked()
                     || (enter && ok)
                 {
-                    actions.push(RigAction::Connect);
+                    requests.push(ShellRequest::Connect);
                 }
             });
             ui.weak(RIG_HINT);
@@ -271,7 +246,7 @@ impl RigPage {
                 }
             }
             ui.add_space(4.0);
-            self.tweezer_row(ui, engine, actions);
+            self.tweezer_row(ui, engine, requests);
         });
     }
 
@@ -280,8 +255,7 @@ impl RigPage {
         &mut self,
         ui: &mut egui::Ui,
         env: &PageEnv<'_>,
-        config_error: Option<&str>,
-        actions: &mut Vec<RigAction>,
+        requests: &mut Vec<ShellRequest>,
     ) {
         ui.group(|ui| {
             ui.label(RichText::new("Rig file").strong());
@@ -296,29 +270,41 @@ impl RigPage {
                 );
                 if ui.button("Load").clicked() || r.submitted || r.picked {
                     if self.path_text.trim().is_empty() {
-                        actions.push(RigAction::UseDefault);
+                        requests.push(ShellRequest::UseDefaultRig);
                     } else {
-                        actions.push(RigAction::LoadConfig(self.path_text.trim().to_owned()));
+                        requests.push(ShellRequest::LoadRigFile(self.path_text.trim().to_owned()));
                     }
                 }
                 if ui.button("Use built-in default").clicked() {
                     self.path_text.clear();
-                    actions.push(RigAction::UseDefault);
+                    requests.push(ShellRequest::UseDefaultRig);
                 }
             });
             match env.rig_config_path {
                 Some(p) => ui.label(format!("In use: {}", p.display())),
                 None => ui.label("In use: built-in default"),
             };
-            if let Some(e) = config_error {
+            if let Some(e) = env.config_error {
                 ui.colored_label(Color32::from_rgb(230, 70, 60), e.to_owned());
             }
         });
     }
 }
 
+impl super::Page for RigPage {
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        let engine = env.engine.take();
+        self.draw(ui, env, engine.as_deref());
+        env.engine = engine;
+    }
+}
+
 /// Disconnect, and Pause/Resume or Reconnect after a fault.
-fn run_controls_ui(ui: &mut egui::Ui, engine: Option<&EngineHandle>, actions: &mut Vec<RigAction>) {
+fn run_controls_ui(
+    ui: &mut egui::Ui,
+    engine: Option<&EngineHandle>,
+    requests: &mut Vec<ShellRequest>,
+) {
     ui.horizontal(|ui| match engine {
         None => {
             ui.label("Disconnected.");
@@ -328,7 +314,7 @@ fn run_controls_ui(ui: &mut egui::Ui, engine: Option<&EngineHandle>, actions: &m
                 .add(egui::Button::new("Disconnect").min_size(egui::vec2(110.0, 28.0)))
                 .clicked()
             {
-                actions.push(RigAction::Disconnect);
+                requests.push(ShellRequest::Disconnect);
             }
             let running = h.health().is_none_or(|x| x.running);
             let faulted = h.last_error().is_some()
@@ -345,14 +331,14 @@ fn run_controls_ui(ui: &mut egui::Ui, engine: Option<&EngineHandle>, actions: &m
                     )
                     .clicked()
                 {
-                    actions.push(RigAction::Reconnect);
+                    requests.push(ShellRequest::Reconnect);
                 }
             } else if running {
                 if ui.button("Pause").clicked() {
-                    actions.push(RigAction::Stop);
+                    requests.push(ShellRequest::StopEngine);
                 }
             } else if ui.button("Resume").clicked() {
-                actions.push(RigAction::Start);
+                requests.push(ShellRequest::StartEngine);
             }
         }
     });

@@ -415,44 +415,6 @@ impl CalibrationPage {
         ));
     }
 
-    /// Draw the page.
-    pub fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
-        self.poll(env.rig_config);
-        if self.is_running() {
-            // The worker repaints on progress; this keeps the clock moving.
-            ui.ctx().request_repaint_after(Duration::from_millis(250));
-        }
-        egui::ScrollArea::vertical()
-            .auto_shrink([false, false])
-            .show(ui, |ui| {
-                ui.heading("Calibration wizard");
-                let rig_name = match env.rig_config_path {
-                    Some(p) => p.display().to_string(),
-                    None => "built-in default rig".into(),
-                };
-                ui.label(format!(
-                    "Simulated rig `{}` ({rig_name}), fs = {} Hz",
-                    env.rig_config.rig.name, env.rig_config.rig.sample_rate_hz
-                ));
-                self.settings_ui(ui, env.rig_config.rig.sample_rate_hz);
-                self.controls_ui(ui, env);
-                self.progress_ui(ui);
-                match &self.status {
-                    Some(Status::Info(m)) => {
-                        ui.label(m.as_str());
-                    }
-                    Some(Status::Error(m)) => {
-                        ui.colored_label(FAIL_COLOR, format!("Error: {m}"));
-                    }
-                    None => {}
-                }
-                ui.separator();
-                self.files_ui(ui, env);
-                ui.separator();
-                self.results_ui(ui);
-            });
-    }
-
     fn controls_ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
         ui.horizontal(|ui| {
             let running = self.is_running();
@@ -587,6 +549,46 @@ pub fn step_title(step: Step) -> &'static str {
         Step::Design => "Design the compensators",
         Step::Verify => "Verify (third-octave bands)",
         Step::Save => "Save",
+    }
+}
+
+impl super::Page for CalibrationPage {
+    /// Draw the page.
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        self.poll(env.rig_config);
+        if self.is_running() {
+            // The worker repaints on progress; this keeps the clock moving.
+            ui.ctx().request_repaint_after(Duration::from_millis(250));
+        }
+        egui::ScrollArea::vertical()
+            .auto_shrink([false, false])
+            .show(ui, |ui| {
+                ui.heading("Calibration wizard");
+                let rig_name = match env.rig_config_path {
+                    Some(p) => p.display().to_string(),
+                    None => "built-in default rig".into(),
+                };
+                ui.label(format!(
+                    "Simulated rig `{}` ({rig_name}), fs = {} Hz",
+                    env.rig_config.rig.name, env.rig_config.rig.sample_rate_hz
+                ));
+                self.settings_ui(ui, env.rig_config.rig.sample_rate_hz);
+                self.controls_ui(ui, env);
+                self.progress_ui(ui);
+                match &self.status {
+                    Some(Status::Info(m)) => {
+                        ui.label(m.as_str());
+                    }
+                    Some(Status::Error(m)) => {
+                        ui.colored_label(FAIL_COLOR, format!("Error: {m}"));
+                    }
+                    None => {}
+                }
+                ui.separator();
+                self.files_ui(ui, env);
+                ui.separator();
+                self.results_ui(ui);
+            });
     }
 }
 

@@ -9,9 +9,17 @@ use crate::gui::env::PageEnv;
 
 use super::{ExplorePage, Tool, config_obstacles};
 
+impl super::super::Page for ExplorePage {
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        let mut engine = env.engine.take();
+        self.draw(ui, env, engine.as_deref_mut());
+        env.engine = engine;
+    }
+}
+
 impl ExplorePage {
-    /// Draw the page.
-    pub fn ui(
+    /// Draw the page with the engine taken out of `env`.
+    fn draw(
         &mut self,
         ui: &mut egui::Ui,
         env: &mut PageEnv<'_>,

@@ -246,59 +246,6 @@ impl ResultsPage {
         }
     }
 
-    /// Draw the page.
-    pub fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
-        if !self.initialised {
-            self.initialised = true;
-            if let Some(d) = env.output_dir {
-                self.dir_text = d.display().to_string();
-                if d.join(kilotouch_study::export::TRIALS_FILE).is_file() {
-                    self.open(env);
-                }
-            }
-        }
-        self.poll_trajectories();
-        if matches!(self.traj, Traj::Loading(_)) {
-            ui.ctx()
-                .request_repaint_after(std::time::Duration::from_millis(100));
-        }
-        egui::ScrollArea::vertical()
-            .auto_shrink([false, false])
-            .show(ui, |ui| {
-                ui.heading("Results");
-                ui.horizontal(|ui| {
-                    let r = self.folder_field.ui(
-                        ui,
-                        "Study folder",
-                        &mut self.dir_text,
-                        PathKind::Folder,
-                        "study output folder",
-                        380.0,
-                    );
-                    if ui.button("Open").clicked() || r.submitted || r.picked {
-                        self.open(env);
-                    }
-                    if ui
-                        .add_enabled(self.data.is_some(), egui::Button::new("Reload"))
-                        .clicked()
-                    {
-                        self.open(env);
-                    }
-                });
-                if let Some(e) = &self.error {
-                    ui.colored_label(FAIL_COLOR, format!("Error: {e}"));
-                }
-                if let Some(i) = &self.info {
-                    ui.label(i.as_str());
-                }
-                if self.data.is_some() {
-                    self.data_ui(ui, env);
-                } else {
-                    ui.label("Open a study output folder (with trials.csv) to see its results.");
-                }
-            });
-    }
-
     /// **Export figures**: the selected metric's bar charts (and the
     /// selected cell's trajectories), PNG and SVG, drawn by the code of
     /// `kilotouch paper` ([`crate::paper::study_figs::export_results_figures`]).
@@ -473,4 +420,59 @@ fn trace_color(i: usize) -> egui::Color32 {
         egui::Color32::from_rgb(0xef, 0x53, 0x50),
     ];
     C[i % C.len()]
+}
+
+impl super::Page for ResultsPage {
+    /// Draw the page.
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        if !self.initialised {
+            self.initialised = true;
+            if let Some(d) = env.output_dir {
+                self.dir_text = d.display().to_string();
+                if d.join(kilotouch_study::export::TRIALS_FILE).is_file() {
+                    self.open(env);
+                }
+            }
+        }
+        self.poll_trajectories();
+        if matches!(self.traj, Traj::Loading(_)) {
+            ui.ctx()
+                .request_repaint_after(std::time::Duration::from_millis(100));
+        }
+        egui::ScrollArea::vertical()
+            .auto_shrink([false, false])
+            .show(ui, |ui| {
+                ui.heading("Results");
+                ui.horizontal(|ui| {
+                    let r = self.folder_field.ui(
+                        ui,
+                        "Study folder",
+                        &mut self.dir_text,
+                        PathKind::Folder,
+                        "study output folder",
+                        380.0,
+                    );
+                    if ui.button("Open").clicked() || r.submitted || r.picked {
+                        self.open(env);
+                    }
+                    if ui
+                        .add_enabled(self.data.is_some(), egui::Button::new("Reload"))
+                        .clicked()
+                    {
+                        self.open(env);
+                    }
+                });
+                if let Some(e) = &self.error {
+                    ui.colored_label(FAIL_COLOR, format!("Error: {e}"));
+                }
+                if let Some(i) = &self.info {
+                    ui.label(i.as_str());
+                }
+                if self.data.is_some() {
+                    self.data_ui(ui, env);
+                } else {
+                    ui.label("Open a study output folder (with trials.csv) to see its results.");
+                }
+            });
+    }
 }

@@ -22,6 +22,8 @@ use kilotouch_study::task::Scene;
 use kilotouch_study::task::station::HandMapping;
 
 use crate::engine::EngineHandle;
+use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::pages::Page;
 use crate::gui::pages::study_size::SizeGate;
 use crate::gui::participant_screen::ParticipantScreen;
 use crate::gui::path_field::PathField;
@@ -135,8 +137,6 @@ pub struct StudyPage {
     rig_used: Option<String>,
     /// What the last emergency stop did to the sitting.
     estop_what: Option<String>,
-    /// Esc in the participant's window, for the shell.
-    estop_request: bool,
     /// Where the participant's window opened (screen points).
     participant_at: Option<[f32; 2]>,
     /// The size check before a sitting opens.
@@ -199,7 +199,6 @@ impl StudyPage {
             pending_hand: None,
             rig_used: None,
             estop_what: None,
-            estop_request: false,
             participant_at: None,
             size_gate: SizeGate::default(),
             protocol_field: PathField::default(),
@@ -275,12 +274,6 @@ impl StudyPage {
         };
         self.estop_what = Some(what.clone());
         Some(what)
-    }
-
-    /// Esc was pressed in the participant's window since the last call
-    /// (the shell then stops as from its own window).
-    pub fn take_estop_request(&mut self) -> bool {
-        std::mem::take(&mut self.estop_request)
     }
 
     /// On the first draw, open a sitting of the folder's next pending
@@ -362,8 +355,14 @@ impl StudyPage {
     }
 
     /// Drains the session's events and shows the participant window (when
-    /// separate). Call every frame, whatever page is shown.
-    pub fn background(&mut self, ctx: &egui::Context, mut engine: Option<&mut EngineHandle>) {
+    /// separate): the page's [`Page::background`], with the engine taken
+    /// out of the shell's `PageEnv`.
+    fn drain_and_show(
+        &mut self,
+        ctx: &egui::Context,
+        mut engine: Option<&mut EngineHandle>,
+        requests: &mut Vec<ShellRequest>,
+    ) {
         self.poll(engine.as_deref_mut());
         if self.session.is_some() {
             ctx.request_repaint();
@@ -403,7 +402,7 @@ impl StudyPage {
             ctx.show_viewport_immediate(id, builder, |ui, _class| {
                 egui::CentralPanel::default()
                     .frame(egui::Frame::NONE.fill(Color32::BLACK))
-                    .show(ui, |ui| self.participant_view(ui, true));
+                    .show(ui, |ui| self.participant_view(ui, true, requests));
             });
         } else {
             self.participant_at = None;
@@ -543,5 +542,19 @@ impl StudyPage {
             self.folder = Some((p, st));
         }
         self.folder.as_ref().map(|(_, s)| s)
+    }
+}
+
+impl Page for StudyPage {
+    fn ui(&mut self, ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
+        let mut engine = env.engine.take();
+        self.draw(ui, env, engine.as_deref_mut());
+        env.engine = engine;
+    }
+
+    fn background(&mut self, ctx: &egui::Context, env: &mut PageEnv<'_>) {
+        let mut engine = env.engine.take();
+        self.drain_and_show(ctx, engine.as_deref_mut(), env.requests);
+        env.engine = engine;
     }
 }

@@ -5,6 +5,7 @@ use egui::{Color32, RichText, Sense};
 use kilotouch_rig::tweezer::Obstacle;
 use kilotouch_study::runner::RunnerState;
 
+use crate::gui::env::ShellRequest;
 use crate::gui::participant_screen::Routine;
 use crate::gui::scene::{self, SceneFrame, View};
 use crate::gui::scene_wgpu::SceneCallback;
@@ -224,7 +225,12 @@ impl StudyPage {
 
     /// The participant's view: the scene as the camera shows it (vision
     /// conditions) or a dark screen (blind task); dragging moves the hand.
-    pub(super) fn participant_view(&mut self, ui: &mut egui::Ui, interactive: bool) {
+    pub(super) fn participant_view(
+        &mut self,
+        ui: &mut egui::Ui,
+        interactive: bool,
+        requests: &mut Vec<ShellRequest>,
+    ) {
         let rect = ui.available_rect_before_wrap();
         let sense = if interactive {
             Sense::drag()
@@ -251,7 +257,7 @@ impl StudyPage {
         // (it has the keyboard during a trial); the shell stops.
         if interactive && ui.input_mut(|i| i.consume_key(egui::Modifiers::NONE, egui::Key::Escape))
         {
-            self.estop_request = true;
+            requests.push(ShellRequest::EmergencyStop);
         }
         if let Some(sc) = &self.screen {
             // The participant's routines: text screens advance on Space,

@@ -14,8 +14,8 @@ use crate::session::{FinishReason, FolderStatus, ParticipantKind, Speed, validat
 use super::{CalibrationChoice, Monitor, ProtocolSource, StudyPage};
 
 impl StudyPage {
-    /// Draw the page.
-    pub fn ui(
+    /// Draw the page with the engine taken out of `env`.
+    pub(super) fn draw(
         &mut self,
         ui: &mut egui::Ui,
         env: &mut PageEnv<'_>,
@@ -68,13 +68,13 @@ impl StudyPage {
                         );
                         let side = ui.available_width().min(300.0);
                         ui.allocate_ui(egui::vec2(side, side), |ui| {
-                            self.participant_view(ui, false)
+                            self.participant_view(ui, false, env.requests)
                         });
                     } else {
                         ui.label(RichText::new("Participant view (inline)").strong());
                         let side = ui.available_width().min(420.0);
                         ui.allocate_ui(egui::vec2(side, side), |ui| {
-                            self.participant_view(ui, true)
+                            self.participant_view(ui, true, env.requests)
                         });
                     }
                 }
