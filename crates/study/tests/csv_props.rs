@@ -15,16 +15,7 @@ use std::path::Path;
 use kilotouch_study::csvio::{CsvError, read_table_from};
 use proptest::prelude::*;
 
-fn config() -> ProptestConfig {
-    let cases = std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(256);
-    ProptestConfig {
-        cases,
-        ..ProptestConfig::default()
-    }
-}
+use crate::common::proptest_config as config;
 
 /// A cell as written, and its value when it is a finite number.
 fn cell() -> impl Strategy<Value = (String, Option<f64>)> {

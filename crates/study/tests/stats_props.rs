@@ -17,16 +17,7 @@ use kilotouch_study::stats::{
 };
 use proptest::prelude::*;
 
-fn config() -> ProptestConfig {
-    let cases = std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(256);
-    ProptestConfig {
-        cases,
-        ..ProptestConfig::default()
-    }
-}
+use crate::common::proptest_config as config;
 
 /// A value of a hostile matrix.
 fn value() -> impl Strategy<Value = f64> {

@@ -215,3 +215,15 @@ pub fn data_files(dir: &std::path::Path) -> std::collections::BTreeMap<String, V
     }
     out
 }
+
+/// Property-test settings: `PROPTEST_CASES` cases (256 by default).
+pub fn proptest_config() -> proptest::prelude::ProptestConfig {
+    let cases = std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(256);
+    proptest::prelude::ProptestConfig {
+        cases,
+        ..proptest::prelude::ProptestConfig::default()
+    }
+}
