@@ -74,7 +74,7 @@ fn draw_fit(
     root.fill(&WHITE)?;
     let title = format!(
         "κ = {:.3} ± {:.3} pN/µm   f_c = {:.1} ± {:.1} Hz   R_d = {:.4} µm/V",
-        cal.kappa_pn_um, cal.kappa_se_pn_um, cal.fc_hz, cal.fc_se_hz, cal.rd_um_per_v
+        cal.kappa_pn_um, cal.kappa_se_pn_um, cal.corner_hz, cal.corner_se_hz, cal.rd_um_per_v
     );
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT, 22).into_font())

@@ -1,8 +1,12 @@
 //! `kilotouch sim tweezer`: simulate a bead in a fixed trap and check it the
 //! way the tweezer community checks a trap — stationary variance against
 //! equipartition, and the aliased Lorentzian fitted to the power spectrum
-//! (Berg-Sørensen & Flyvbjerg 2004; `kilotouch_dsp::lorentzian`).
+//! the way a trap is calibrated (Berg-Sørensen & Flyvbjerg 2004;
+//! `kilotouch_dsp::trap_psd`).
 
+use kilotouch_dsp::trap_psd::{
+    Periodogram, PsdFitOptions, PsdModel, SpectrumShape, fit_power_spectrum,
+};
 use kilotouch_rig::tweezer::{SimTweezer, Tweezer, TweezerIntegrator, TweezerParams};
 use serde::{Deserialize, Serialize};
 
@@ -52,9 +56,9 @@ pub struct TweezerSimReport {
     pub var_x_m2: f64,
     /// Sample variance of y about its mean, m².
     pub var_y_m2: f64,
-    /// Fitted corner frequency (aliased Lorentzian, x and y PSDs averaged), Hz.
+    /// Fitted corner frequency (aliased Lorentzian, mean of the x and y fits), Hz.
     pub fc_fit_hz: f64,
-    /// Fitted diffusion coefficient, m²/s.
+    /// Fitted diffusion coefficient (mean of the x and y fits), m²/s.
     pub d_fit_m2_s: f64,
     /// κ/(2πγ) with γ including the wall factor, Hz.
     pub fc_theory_hz: f64,
@@ -70,9 +74,9 @@ pub struct TweezerSimReport {
     pub dt_over_tau: f64,
     /// Samples simulated per axis.
     pub n_samples: usize,
-    /// Welch segment length used for the PSD.
-    pub nperseg: usize,
-    /// Fit band, Hz.
+    /// Periodogram bins averaged per block of the fitted spectrum.
+    pub points_per_block: usize,
+    /// Fit band (f_lo, f_hi], Hz.
     pub fit_band_hz: [f64; 2],
     /// Integrator used.
     pub integrator: TweezerIntegrator,
@@ -80,9 +84,19 @@ pub struct TweezerSimReport {
     pub seed: u64,
 }
 
+/// The fitted spectrum's n/2 bins are averaged `n / BLOCKS` per block
+/// (about 2048 blocks), but never fewer than [`MIN_POINTS_PER_BLOCK`]: the
+/// least-squares fit of a blocked spectrum is the maximum-likelihood fit
+/// only when each block averages many bins (BSF §IV).
+const BLOCKS: usize = 4096;
+/// Fewest periodogram bins per block.
+const MIN_POINTS_PER_BLOCK: usize = 16;
+
 /// Library entry point of `kilotouch sim tweezer`: simulate a bead in a
-/// fixed trap, report variances and an aliased-Lorentzian fit of the PSD
-/// (Welch, Hann, 50 % overlap, from `kilotouch_dsp::spectral::welch`).
+/// fixed trap, report variances and the aliased Lorentzian fitted to each
+/// axis' blocked periodogram by `kilotouch_dsp::trap_psd::fit_power_spectrum`
+/// (the trap calibration's least-squares fit, pylake's method, with its
+/// n/(n + 1) bias correction of D), averaged over x and y.
 pub fn simulate_tweezer(args: &TweezerSimArgs) -> anyhow::Result<TweezerSimReport> {
     let bad = |name: &'static str, value: f64, reason: &str| {
         anyhow::anyhow!("invalid `{name}` = {value}: {reason}")
@@ -134,20 +148,25 @@ pub fn simulate_tweezer(args: &TweezerSimArgs) -> anyhow::Result<TweezerSimRepor
         let m = v.iter().sum::<f64>() / v.len() as f64;
         v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() - 1) as f64
     };
-    let nperseg = (n / 16).clamp(256, 8192).next_power_of_two().min(n);
-    let cfg = kilotouch_dsp::spectral::WelchConfig::new(nperseg);
-    let px = kilotouch_dsp::spectral::welch(&xs, args.fs_hz, &cfg)?;
-    let py = kilotouch_dsp::spectral::welch(&ys, args.fs_hz, &cfg)?;
-    let psd: Vec<f64> = px.p.iter().zip(&py.p).map(|(a, b)| 0.5 * (a + b)).collect();
-    let f_lo = 3.0 * args.fs_hz / nperseg as f64;
-    let f_hi = 0.5 * args.fs_hz * (1.0 - 4.0 / nperseg as f64);
-    let fit =
-        kilotouch_dsp::lorentzian::fit_aliased_lorentzian(&px.f, &psd, args.fs_hz, f_lo, f_hi)?;
+    let points_per_block = (n / BLOCKS).max(MIN_POINTS_PER_BLOCK);
+    let f_lo = 0.0;
+    let f_hi = 0.5 * args.fs_hz * (1.0 - 2.0 / n as f64);
+    let model = PsdModel {
+        shape: SpectrumShape::AliasedLorentzian { fs_hz: args.fs_hz },
+        diode: false,
+    };
+    let fit = |v: &[f64]| -> anyhow::Result<(f64, f64)> {
+        let pg = Periodogram::new(v, args.fs_hz)?;
+        let opts = PsdFitOptions::default();
+        let fit = fit_power_spectrum(&pg, f_lo, f_hi, points_per_block, &model, &opts)?;
+        Ok((fit.corner_hz(), fit.d()))
+    };
+    let ((fc_x, d_x), (fc_y, d_y)) = (fit(&xs)?, fit(&ys)?);
     Ok(TweezerSimReport {
         var_x_m2: var(&xs),
         var_y_m2: var(&ys),
-        fc_fit_hz: fit.fc_hz,
-        d_fit_m2_s: fit.d_m2_s,
+        fc_fit_hz: 0.5 * (fc_x + fc_y),
+        d_fit_m2_s: 0.5 * (d_x + d_y),
         fc_theory_hz: params.corner_hz(),
         var_theory_m2: params.variance_theory(),
         d_theory_m2_s: params.diffusion(),
@@ -155,7 +174,7 @@ pub fn simulate_tweezer(args: &TweezerSimArgs) -> anyhow::Result<TweezerSimRepor
         wall_factor: params.wall_factor(),
         dt_over_tau,
         n_samples: n,
-        nperseg,
+        points_per_block,
         fit_band_hz: [f_lo, f_hi],
         integrator: args.integrator,
         seed: args.seed,

@@ -136,9 +136,9 @@ fn sim_tweezer_obeys_equipartition_and_the_corner_frequency() {
     let kappa = 20e-12 / 1e-6;
     let var = 1.380649e-23 * 293.15 / kappa;
     let gamma = 6.0 * std::f64::consts::PI * 1.0016e-3 * 1.5e-6;
-    let fc = kappa / (2.0 * std::f64::consts::PI * gamma);
+    let corner_hz = kappa / (2.0 * std::f64::consts::PI * gamma);
     assert!((v["var_theory_m2"].as_f64().unwrap() / var - 1.0).abs() < 1e-9);
-    assert!((v["fc_theory_hz"].as_f64().unwrap() / fc - 1.0).abs() < 1e-9);
+    assert!((v["fc_theory_hz"].as_f64().unwrap() / corner_hz - 1.0).abs() < 1e-9);
     for k in ["var_x_m2", "var_y_m2"] {
         assert!(
             (v[k].as_f64().unwrap() / var - 1.0).abs() < 0.05,
@@ -146,7 +146,7 @@ fn sim_tweezer_obeys_equipartition_and_the_corner_frequency() {
         );
     }
     assert!(
-        (v["fc_fit_hz"].as_f64().unwrap() / fc - 1.0).abs() < 0.05,
+        (v["fc_fit_hz"].as_f64().unwrap() / corner_hz - 1.0).abs() < 0.05,
         "{v}"
     );
 }

@@ -557,8 +557,8 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     }
     for (g, c) in [(&got.x, &cal.x), (&got.y, &cal.y)] {
         for (a, b) in [
-            (g.fc_hz, c.fc_hz),
-            (g.fc_se_hz, c.fc_se_hz),
+            (g.corner_hz, c.corner_hz),
+            (g.corner_se_hz, c.corner_se_hz),
             (g.diffusion_v2_s, c.diffusion_v2_s),
             (g.kappa_pn_um, c.kappa_pn_um),
             (g.rd_um_per_v, c.rd_um_per_v),

@@ -30,12 +30,12 @@ fn equipartition_and_lorentzian_fit() {
         assert!((v / var - 1.0).abs() < 0.03, "var {v:e} vs {var:e}");
     }
     let gamma = 6.0 * PI * 1.0016e-3 * 1.5e-6;
-    let fc = 2e-5 / (2.0 * PI * gamma);
+    let corner_hz = 2e-5 / (2.0 * PI * gamma);
     let d = kt / gamma;
-    assert!((r.fc_theory_hz / fc - 1.0).abs() < 1e-12);
+    assert!((r.fc_theory_hz / corner_hz - 1.0).abs() < 1e-12);
     assert!(
-        (r.fc_fit_hz / fc - 1.0).abs() < 0.05,
-        "fc {} vs {fc}",
+        (r.fc_fit_hz / corner_hz - 1.0).abs() < 0.05,
+        "corner_hz {} vs {corner_hz}",
         r.fc_fit_hz
     );
     assert!(

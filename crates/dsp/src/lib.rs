@@ -30,7 +30,6 @@ pub mod excitation;
 pub mod spectral;
 
 pub mod fit;
-pub mod lorentzian;
 pub mod thirdoctave;
 pub mod trap_psd;
 

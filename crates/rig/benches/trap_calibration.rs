@@ -9,8 +9,8 @@
 //! /tmp/rec.f64` times pylake on it. Figures in docs/PERFORMANCE.md.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use kilotouch_dsp::lorentzian::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::diode_filter;
+use kilotouch_dsp::trap_psd::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::synth::synthesize_record;
 use kilotouch_rig::normal::NormalStream;
 use kilotouch_rig::tweezer::calibration::{TrapCalibrationSettings, calibrate_trap};
@@ -61,7 +61,7 @@ fn bench(c: &mut Criterion) {
         let (c, _) = calibrate_trap(&x, &s).expect("calibration");
         eprintln!(
             "{name}: f_c {:.2} ± {:.2} Hz, κ {:.3} pN/µm, χ²/dof {:.3}, {} points, {} iterations",
-            c.fc_hz, c.fc_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
+            c.corner_hz, c.corner_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
         );
         g.bench_function(name, |b| {
             b.iter(|| calibrate_trap(black_box(&x), &s).expect("calibration"))

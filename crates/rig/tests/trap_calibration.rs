@@ -6,7 +6,7 @@
 //! `tests/pylake_reference.py` (lumicks.pylake 1.8.0).
 #![allow(clippy::unwrap_used)]
 
-use kilotouch_dsp::lorentzian::lorentzian_one_sided;
+use kilotouch_dsp::trap_psd::lorentzian_one_sided;
 use kilotouch_dsp::trap_psd::synth::synthesize_record;
 use kilotouch_dsp::trap_psd::{Hydrodynamics, PsdModel, SpectrumShape, diode_filter};
 use kilotouch_rig::normal::NormalStream;
@@ -73,7 +73,7 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
         let py = &c["pylake"];
         let msg = format!("{name}: {cal:?}\npylake {py}");
         // The acceptance bound is 1 %; the same formulation agrees far closer.
-        assert!(rel(cal.fc_hz, num(py, "fc")) < 1e-3, "f_c {msg}");
+        assert!(rel(cal.corner_hz, num(py, "fc")) < 1e-3, "f_c {msg}");
         assert!(
             rel(cal.kappa_pn_um, num(py, "kappa_pn_um")) < 1e-3,
             "κ {msg}"
@@ -82,7 +82,10 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
         assert!(rel(cal.rf_pn_per_v, num(py, "Rf")) < 1e-3, "R_f {msg}");
         assert!(rel(cal.diffusion_v2_s, num(py, "D")) < 1e-3, "D {msg}");
         // Standard errors, goodness of fit.
-        assert!(rel(cal.fc_se_hz, num(py, "err_fc")) < 1e-2, "σ f_c {msg}");
+        assert!(
+            rel(cal.corner_se_hz, num(py, "err_fc")) < 1e-2,
+            "σ f_c {msg}"
+        );
         assert!(
             rel(cal.kappa_se_pn_um, num(py, "err_kappa_pn_um")) < 1e-2,
             "σ κ {msg}"
@@ -109,7 +112,7 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
         // And the truth the records were made with, within 3.5 SE.
         let t = &c["truth"];
         assert!(
-            (cal.fc_hz - num(t, "fc_hz")).abs() < 3.5 * cal.fc_se_hz,
+            (cal.corner_hz - num(t, "fc_hz")).abs() < 3.5 * cal.corner_se_hz,
             "truth {msg}"
         );
         assert!(
@@ -164,7 +167,7 @@ fn record(kind: Kind, t: &Truth, seed: u64) -> (Vec<f64>, TrapCalibrationSetting
     let fs = 40_000.0;
     let n = 1 << 16;
     let hydro = kind == Kind::Hydro;
-    let (fc, d) = t.fc_d(hydro);
+    let (corner_hz, d) = t.fc_d(hydro);
     let mut rng = NormalStream::new(seed);
     let mut normal = || rng.sample();
     let s = TrapCalibrationSettings {
@@ -182,21 +185,26 @@ fn record(kind: Kind, t: &Truth, seed: u64) -> (Vec<f64>, TrapCalibrationSetting
         distance_to_surface_m: t.distance_m,
     };
     let x = match kind {
-        Kind::Plain => synthesize_record(|f| lorentzian_one_sided(f, fc, d), n, fs, &mut normal),
+        Kind::Plain => synthesize_record(
+            |f| lorentzian_one_sided(f, corner_hz, d),
+            n,
+            fs,
+            &mut normal,
+        ),
         Kind::Diode => synthesize_record(
-            |f| lorentzian_one_sided(f, fc, d) * diode_filter(f, F_DIODE, ALPHA),
+            |f| lorentzian_one_sided(f, corner_hz, d) * diode_filter(f, F_DIODE, ALPHA),
             n,
             fs,
             &mut normal,
         ),
         Kind::Hydro => {
             let m = s.model();
-            synthesize_record(|f| m.eval(f, &[fc, d]), n, fs, &mut normal)
+            synthesize_record(|f| m.eval(f, &[corner_hz, d]), n, fs, &mut normal)
         }
         Kind::Aliased => {
             // Point sampling of the exact Ornstein–Uhlenbeck process, in volts.
-            let c = (-2.0 * PI * fc / fs).exp();
-            let sd = (d / (2.0 * PI * fc)).sqrt();
+            let c = (-2.0 * PI * corner_hz / fs).exp();
+            let sd = (d / (2.0 * PI * corner_hz)).sqrt();
             let mut v = sd * normal();
             Ok((0..n)
                 .map(|_| {
@@ -231,14 +239,14 @@ fn truth_for(kind: Kind) -> Truth {
 /// and the number of records whose f_c is 3.5 SE or more from the truth.
 fn coverage(kind: Kind, seeds: u64) -> ([[f64; 2]; 3], u32) {
     let t = truth_for(kind);
-    let (fc, _) = t.fc_d(kind == Kind::Hydro);
+    let (corner_hz, _) = t.fc_d(kind == Kind::Hydro);
     let mut hits = [[0u32; 2]; 3];
     let mut far = 0;
     for seed in 0..seeds {
         let (x, s) = record(kind, &t, 1000 + seed);
         let (c, _): (TrapCalibration, _) = calibrate_trap(&x, &s).unwrap();
         let z = [
-            (c.fc_hz - fc) / c.fc_se_hz,
+            (c.corner_hz - corner_hz) / c.corner_se_hz,
             (c.kappa_pn_um - t.kappa_n_m * 1e6) / c.kappa_se_pn_um,
             (c.rd_um_per_v - t.rd_m_per_v * 1e6) / c.rd_se_um_per_v,
         ];

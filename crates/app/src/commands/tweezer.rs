@@ -205,7 +205,10 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
             cal.n_points,
             a.points_per_block
         );
-        t += &format!("  f_c   = {:.3} ± {:.3} Hz\n", cal.fc_hz, cal.fc_se_hz);
+        t += &format!(
+            "  f_c   = {:.3} ± {:.3} Hz\n",
+            cal.corner_hz, cal.corner_se_hz
+        );
         t += &format!(
             "  D     = {:.5e} ± {:.2e} V²/s\n",
             cal.diffusion_v2_s, cal.diffusion_se_v2_s
@@ -267,8 +270,9 @@ struct RecordCalibration {
     kappa_se_pn_um: f64,
     /// R_d per axis (x, y), µm/V.
     rd_um_per_v: [f64; 2],
-    /// Corner frequency per axis (x, y), Hz.
-    fc_hz: [f64; 2],
+    /// Corner frequency per axis (x, y), Hz (JSON key `fc_hz`).
+    #[serde(rename = "fc_hz")]
+    corner_hz: [f64; 2],
 }
 
 fn record(a: &RecordArgs) -> anyhow::Result<()> {
@@ -350,8 +354,8 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
                     c.kappa_se_pn_um,
                     c.rd_um_per_v[0],
                     c.rd_um_per_v[1],
-                    c.fc_hz[0],
-                    c.fc_hz[1],
+                    c.corner_hz[0],
+                    c.corner_hz[1],
                     c.file
                 );
             }
@@ -390,7 +394,7 @@ fn write_calibration(
             kappa_pn_um: cal.kappa_pn_um,
             kappa_se_pn_um: cal.kappa_se_pn_um,
             rd_um_per_v: cal.rd_um_per_v,
-            fc_hz: [cal.x.fc_hz, cal.y.fc_hz],
+            corner_hz: [cal.x.corner_hz, cal.y.corner_hz],
         },
         cal,
     ))

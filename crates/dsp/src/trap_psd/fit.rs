@@ -19,11 +19,11 @@ pub const MAX_ITERATIONS: usize = 500;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AnalyticalFit {
     /// Corner frequency, Hz.
-    pub fc_hz: f64,
+    pub corner_hz: f64,
     /// Diffusion coefficient, u²/s.
     pub d: f64,
     /// Standard error of f_c (BSF eqs. 25–28), Hz.
-    pub fc_se_hz: f64,
+    pub corner_se_hz: f64,
     /// Standard error of D, u²/s.
     pub d_se: f64,
 }
@@ -73,7 +73,7 @@ pub struct PsdFit {
 
 impl PsdFit {
     /// Corner frequency, Hz.
-    pub fn fc_hz(&self) -> f64 {
+    pub fn corner_hz(&self) -> f64 {
         self.theta[0]
     }
     /// Diffusion coefficient, u²/s.
@@ -121,7 +121,7 @@ pub fn fit_analytical_lorentzian(
     let den = s[0][2] * s[2][2] - s[1][2] * s[1][2];
     let a = (s[0][1] * s[2][2] - s[1][1] * s[1][2]) / den;
     let b = (s[1][1] * s[0][2] - s[0][1] * s[1][2]) / den;
-    let fc = if a / b > 0.0 {
+    let corner_hz = if a / b > 0.0 {
         (a / b).sqrt()
     } else if f[0] > 0.0 {
         0.5 * f[0]
@@ -131,22 +131,22 @@ pub fn fit_analytical_lorentzian(
     let d = if b > 0.0 {
         PI * PI / b
     } else {
-        PI * PI * fc * fc * p[0]
+        PI * PI * corner_hz * corner_hz * p[0]
     };
     let fmin = f.iter().copied().fold(f64::INFINITY, f64::min);
     let fmax = f.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let (x0, x1) = (fmin / fc, fmax / fc);
+    let (x0, x1) = (fmin / corner_hz, fmax / corner_hz);
     let at = ((x1 - x0) / (1.0 + x0 * x1)).atan();
     let u = 2.0 * x1 / (1.0 + x1 * x1) - 2.0 * x0 / (1.0 + x0 * x0) + 2.0 * at;
     let v = 4.0 / (x1 - x0) * at * at;
     let s_fc = (PI / (u - v)).sqrt();
-    let fc_se = fc * s_fc / (PI * fc * duration_s).sqrt();
+    let corner_se_hz = corner_hz * s_fc / (PI * corner_hz * duration_s).sqrt();
     let s_d = (u / ((1.0 + PI / 2.0) * (x1 - x0))).sqrt() * s_fc;
-    let d_se = d * ((1.0 + PI / 2.0) / (PI * fc * duration_s)).sqrt() * s_d;
+    let d_se = d * ((1.0 + PI / 2.0) / (PI * corner_hz * duration_s)).sqrt() * s_d;
     Ok(AnalyticalFit {
-        fc_hz: fc,
+        corner_hz,
         d,
-        fc_se_hz: fc_se,
+        corner_se_hz,
         d_se,
     })
 }
@@ -237,7 +237,7 @@ impl<'a> Problem<'a> {
         spec: &'a BlockedSpectrum,
     ) -> Result<Self, DspError> {
         let nyq = 0.5 * fs_hz;
-        let mut scale = vec![analytical.fc_hz, analytical.d];
+        let mut scale = vec![analytical.corner_hz, analytical.d];
         let mut lower = vec![0.0, 0.0];
         let mut upper = vec![f64::INFINITY, f64::INFINITY];
         if model.diode {
@@ -248,7 +248,7 @@ impl<'a> Problem<'a> {
         if scale.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(DspError::Numerical(format!(
                 "the analytical Lorentzian start is unusable (f_c = {} Hz, D = {})",
-                analytical.fc_hz, analytical.d
+                analytical.corner_hz, analytical.d
             )));
         }
         let lo_u: Vec<f64> = lower.iter().zip(&scale).map(|(l, s)| l / s).collect();
@@ -414,16 +414,16 @@ mod tests {
 
     #[test]
     fn analytical_fit_is_exact_on_a_lorentzian() {
-        let (fc, d) = (437.0, 0.0123);
+        let (corner_hz, d) = (437.0, 0.0123);
         let f: Vec<f64> = (1..400).map(|k| k as f64 * 25.0).collect();
         let p: Vec<f64> = f
             .iter()
-            .map(|&f| d / (PI * PI * (fc * fc + f * f)))
+            .map(|&f| d / (PI * PI * (corner_hz * corner_hz + f * f)))
             .collect();
         let a = fit_analytical_lorentzian(&f, &p, 10.0).unwrap();
-        assert!((a.fc_hz / fc - 1.0).abs() < 1e-9, "{a:?}");
+        assert!((a.corner_hz / corner_hz - 1.0).abs() < 1e-9, "{a:?}");
         assert!((a.d / d - 1.0).abs() < 1e-9, "{a:?}");
-        assert!(a.fc_se_hz > 0.0 && a.d_se > 0.0);
+        assert!(a.corner_se_hz > 0.0 && a.d_se > 0.0);
         assert!(fit_analytical_lorentzian(&[], &[], 1.0).is_err());
     }
 

@@ -9,7 +9,7 @@
 //!   `calculate_power_spectrum`).
 //! * [`model`]: the spectra fitted — the Lorentzian D/(π²(f_c² + f²)) (BSF
 //!   eq. 10), the aliased Lorentzian of a point-sampled record
-//!   ([`crate::lorentzian::aliased_lorentzian_one_sided`], BSF eq. 4), the
+//!   ([`model::aliased_lorentzian_one_sided`], BSF eq. 4), the
 //!   hydrodynamically correct spectrum with the frequency-dependent drag of
 //!   a sphere near a wall (Tolić-Nørrelykke et al. 2006, eqs. D2–D6), each
 //!   optionally times the slow-photodiode filter
@@ -33,5 +33,8 @@ pub mod synth;
 pub use fit::{
     AnalyticalFit, PsdFit, PsdFitOptions, fit_analytical_lorentzian, fit_power_spectrum,
 };
-pub use model::{Hydrodynamics, PsdModel, SpectrumShape, diode_filter};
+pub use model::{
+    Hydrodynamics, PsdModel, SpectrumShape, aliased_lorentzian_one_sided, diode_filter,
+    lorentzian_one_sided,
+};
 pub use periodogram::{BlockedSpectrum, Periodogram};

@@ -4,9 +4,33 @@
 //! last two only with the diode filter.
 
 use crate::error::DspError;
-use crate::lorentzian::{aliased_lorentzian_one_sided, lorentzian_one_sided};
 use num_complex::Complex64;
 use std::f64::consts::PI;
+
+/// One-sided aliased Lorentzian (Berg-Sørensen & Flyvbjerg 2004, eq. 4) at
+/// `f` (Hz) for corner `corner_hz` (Hz), diffusion coefficient `d` (u²/s) and sample
+/// rate `fs` (Hz), u²/Hz: the exact spectrum of the point-sampled
+/// Ornstein–Uhlenbeck process x\[n+1\] = c x\[n\] + σ ξ, c = e^{−x},
+/// x = 2π f_c/f_s, whose two-sided density is
+/// P₂(f) = (D/(2π f_c f_s)) · sinh x / (cosh x − cos(2π f/f_s)), so that
+/// ∫P₂ = D/(2π f_c) = k_BT/κ; the one-sided density is twice that
+/// (docs/theory/tweezer.md, "Aliased Lorentzian").
+pub fn aliased_lorentzian_one_sided(f: f64, corner_hz: f64, d: f64, fs: f64) -> f64 {
+    let x = 2.0 * PI * corner_hz / fs;
+    // sinh x/(cosh x − cos θ) written to stay accurate for small x and θ.
+    let th = 2.0 * PI * f / fs;
+    let num = x.sinh();
+    // cosh x − cos θ = 2 sinh²(x/2) + 2 sin²(θ/2)
+    let den = 2.0 * (0.5 * x).sinh().powi(2) + 2.0 * (0.5 * th).sin().powi(2);
+    2.0 * d / (2.0 * PI * corner_hz * fs) * num / den
+}
+
+/// One-sided plain (continuous) Lorentzian D/(π²(f_c² + f²)) (BSF eq. 10)
+/// at `f` (Hz) for corner `corner_hz` (Hz) and diffusion coefficient `d` (u²/s),
+/// u²/Hz.
+pub fn lorentzian_one_sided(f: f64, corner_hz: f64, d: f64) -> f64 {
+    d / (PI * PI * (corner_hz * corner_hz + f * f))
+}
 
 /// Slow-photodiode filter (Berg-Sørensen et al. 2003, eq. 11; pylake
 /// `g_diode`): the fraction α of the signal passes at once, the rest
@@ -205,15 +229,15 @@ impl PreparedModel {
     #[inline]
     pub fn eval_at(&self, i: usize, theta: &[f64]) -> f64 {
         let f = self.f[i];
-        let (fc, d) = (theta[0], theta[1]);
+        let (corner_hz, d) = (theta[0], theta[1]);
         let phys = match self.model.shape {
-            SpectrumShape::Lorentzian => lorentzian_one_sided(f, fc, d),
+            SpectrumShape::Lorentzian => lorentzian_one_sided(f, corner_hz, d),
             SpectrumShape::AliasedLorentzian { fs_hz } => {
-                aliased_lorentzian_one_sided(f, fc, d, fs_hz)
+                aliased_lorentzian_one_sided(f, corner_hz, d, fs_hz)
             }
             SpectrumShape::Hydrodynamic(_) => {
                 let g = self.drag[i];
-                let a = fc + f * (g.im - f / self.f_m);
+                let a = corner_hz + f * (g.im - f / self.f_m);
                 let b = f * g.re;
                 d / (PI * PI) * g.re / (a * a + b * b)
             }
@@ -256,13 +280,13 @@ mod tests {
             shape: SpectrumShape::Hydrodynamic(h),
             diode: false,
         };
-        let (fc, d) = (300.0, 0.5);
+        let (corner_hz, d) = (300.0, 0.5);
         // The leading correction is √(f/f_ν) (f_ν = 63 kHz here): 4e-5 at 0.1 mHz.
-        let r = m.eval(1e-4, &[fc, d]) / lorentzian_one_sided(1e-4, fc, d);
+        let r = m.eval(1e-4, &[corner_hz, d]) / lorentzian_one_sided(1e-4, corner_hz, d);
         assert!((r - 1.0).abs() < 1e-4, "{r}");
         // At high frequency the bead's inertia and the fluid's reduce the power
         // below the Lorentzian (BSF Fig. 4).
-        let r = m.eval(20e3, &[fc, d]) / lorentzian_one_sided(20e3, fc, d);
+        let r = m.eval(20e3, &[corner_hz, d]) / lorentzian_one_sided(20e3, corner_hz, d);
         assert!(r < 0.95, "{r}");
     }
 
@@ -284,5 +308,39 @@ mod tests {
             .validate()
             .is_err()
         );
+    }
+
+    #[test]
+    fn aliased_lorentzian_reference_ratios() {
+        // REFERENCE-VALUES.md: fs = 10 kHz, corner_hz = 281 Hz → aliased/plain ratio
+        // 1.036 at 1 kHz and 2.47 at 5 kHz.
+        let (fs, corner_hz, d) = (10e3, 281.0, 1.0);
+        let r1 = aliased_lorentzian_one_sided(1000.0, corner_hz, d, fs)
+            / lorentzian_one_sided(1000.0, corner_hz, d);
+        let r5 = aliased_lorentzian_one_sided(5000.0, corner_hz, d, fs)
+            / lorentzian_one_sided(5000.0, corner_hz, d);
+        assert!((r1 - 1.036).abs() < 1e-3, "{r1}");
+        assert!((r5 - 2.47).abs() < 5e-3, "{r5}");
+    }
+
+    #[test]
+    fn aliased_lorentzian_integrates_to_equipartition() {
+        // ∫₀^{fs/2} P₁ df = D/(2π corner_hz) = kT/κ, for any corner_hz (even above Nyquist).
+        for (corner_hz, fs) in [(50.0, 1e4), (281.0, 1e4), (8000.0, 1e4)] {
+            let d = 2.0;
+            let n = 200_000;
+            let h = 0.5 * fs / n as f64;
+            let mut s = 0.0;
+            for i in 0..=n {
+                let w = if i == 0 || i == n { 0.5 } else { 1.0 };
+                s += w * aliased_lorentzian_one_sided(i as f64 * h, corner_hz, d, fs);
+            }
+            s *= h;
+            let expect = d / (2.0 * PI * corner_hz);
+            assert!(
+                (s / expect - 1.0).abs() < 1e-6,
+                "corner_hz {corner_hz}: {s} vs {expect}"
+            );
+        }
     }
 }

@@ -75,8 +75,8 @@ impl AppliedTrap {
 /// when it may.
 pub fn check_applicable(c: &TrapCalibration) -> Result<(), String> {
     let values = [
-        ("f_c", c.fc_hz),
-        ("its standard error", c.fc_se_hz),
+        ("f_c", c.corner_hz),
+        ("its standard error", c.corner_se_hz),
         ("κ", c.kappa_pn_um),
         ("κ's standard error", c.kappa_se_pn_um),
         ("R_d", c.rd_um_per_v),
@@ -86,10 +86,10 @@ pub fn check_applicable(c: &TrapCalibration) -> Result<(), String> {
     if let Some((name, v)) = values.iter().find(|(_, v)| !v.is_finite()) {
         return Err(format!("the fit failed: {name} is {v}"));
     }
-    if !(c.fc_hz > 0.0 && c.kappa_pn_um > 0.0 && c.rd_um_per_v > 0.0) {
+    if !(c.corner_hz > 0.0 && c.kappa_pn_um > 0.0 && c.rd_um_per_v > 0.0) {
         return Err(format!(
             "the fit failed: f_c {:.4} Hz, κ {:.4} pN/µm and R_d {:.4} µm/V must be > 0",
-            c.fc_hz, c.kappa_pn_um, c.rd_um_per_v
+            c.corner_hz, c.kappa_pn_um, c.rd_um_per_v
         ));
     }
     if c.backing_pct < MIN_BACKING_PCT {
@@ -225,8 +225,8 @@ mod tests {
 
     fn cal(kappa: f64, se: f64) -> TrapCalibration {
         TrapCalibration {
-            fc_hz: 100.0,
-            fc_se_hz: 100.0 * se / kappa,
+            corner_hz: 100.0,
+            corner_se_hz: 100.0 * se / kappa,
             diffusion_v2_s: 0.03,
             diffusion_se_v2_s: 1e-4,
             kappa_pn_um: kappa,

@@ -58,10 +58,12 @@ pub struct TrapCalibrationSettings {
 /// `kilotouch tweezer calibrate`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrapCalibration {
-    /// Corner frequency f_c, Hz.
-    pub fc_hz: f64,
-    /// Its standard error, Hz.
-    pub fc_se_hz: f64,
+    /// Corner frequency f_c, Hz (JSON key `fc_hz`).
+    #[serde(rename = "fc_hz")]
+    pub corner_hz: f64,
+    /// Its standard error, Hz (JSON key `fc_se_hz`).
+    #[serde(rename = "fc_se_hz")]
+    pub corner_se_hz: f64,
     /// Diffusion coefficient of the detector signal, V²/s.
     pub diffusion_v2_s: f64,
     /// Its standard error, V²/s.
@@ -217,17 +219,17 @@ pub fn calibrate_periodogram(
 pub fn from_fit(fit: &PsdFit, s: &TrapCalibrationSettings) -> TrapCalibration {
     let gamma = s.drag();
     let kt = BOLTZMANN * s.temperature_k;
-    let (fc, d) = (fit.theta[0], fit.theta[1]);
-    let (fc_se, d_se) = (fit.se[0], fit.se[1]);
-    let kappa = 2.0 * PI * gamma * fc * 1e6; // N/m → pN/µm
+    let (corner_hz, d) = (fit.theta[0], fit.theta[1]);
+    let (corner_se_hz, d_se) = (fit.se[0], fit.se[1]);
+    let kappa = 2.0 * PI * gamma * corner_hz * 1e6; // N/m → pN/µm
     let rd = (kt / (gamma * d)).sqrt() * 1e6; // m/V → µm/V
     TrapCalibration {
-        fc_hz: fc,
-        fc_se_hz: fc_se,
+        corner_hz,
+        corner_se_hz,
         diffusion_v2_s: d,
         diffusion_se_v2_s: d_se,
         kappa_pn_um: kappa,
-        kappa_se_pn_um: kappa / fc * fc_se,
+        kappa_se_pn_um: kappa / corner_hz * corner_se_hz,
         rd_um_per_v: rd,
         rd_se_um_per_v: rd / (2.0 * d) * d_se,
         rf_pn_per_v: rd * kappa,
@@ -366,7 +368,10 @@ mod tests {
             (c.kappa_pn_um - kappa).abs() < 3.5 * c.kappa_se_pn_um,
             "{c:?} vs κ {kappa}"
         );
-        assert!((c.fc_hz - p.corner_hz()).abs() < 3.5 * c.fc_se_hz, "{c:?}");
+        assert!(
+            (c.corner_hz - p.corner_hz()).abs() < 3.5 * c.corner_se_hz,
+            "{c:?}"
+        );
         let rd = 1e6 / det.sensitivity_v_per_m;
         assert!(
             (c.rd_um_per_v - rd).abs() < 3.5 * c.rd_se_um_per_v,

@@ -51,19 +51,19 @@ pub struct Detector {
 }
 
 impl Detector {
-    /// A detector for a trap of corner frequency `fc_hz` sampled at `fs_hz`.
-    pub fn new(cfg: &DetectorConfig, fc_hz: f64, fs_hz: f64) -> Result<Self, RigError> {
+    /// A detector for a trap of corner frequency `corner_hz` sampled at `fs_hz`.
+    pub fn new(cfg: &DetectorConfig, corner_hz: f64, fs_hz: f64) -> Result<Self, RigError> {
         cfg.validate()?;
-        if !(fc_hz.is_finite() && fc_hz > 0.0 && fs_hz.is_finite() && fs_hz > 0.0) {
+        if !(corner_hz.is_finite() && corner_hz > 0.0 && fs_hz.is_finite() && fs_hz > 0.0) {
             return Err(RigError::InvalidParameter {
                 name: "fc",
-                value: fc_hz,
+                value: corner_hz,
                 reason: "corner and sample frequencies must be finite and > 0".into(),
             });
         }
         let step = cfg.diode_hz.map(|fd| {
             let h = 1.0 / fs_hz;
-            let a = 2.0 * PI * fc_hz;
+            let a = 2.0 * PI * corner_hz;
             let mut b = 2.0 * PI * fd;
             if ((b - a) / a).abs() < 1e-6 {
                 b = a * (1.0 + 1e-6);
@@ -254,8 +254,8 @@ mod tests {
     use super::*;
 
     /// Exact OU samples of rate a with stationary sd `sd`.
-    fn ou(n: usize, fc: f64, fs: f64, sd: f64, seed: u64) -> Vec<f64> {
-        let c = (-2.0 * PI * fc / fs).exp();
+    fn ou(n: usize, corner_hz: f64, fs: f64, sd: f64, seed: u64) -> Vec<f64> {
+        let c = (-2.0 * PI * corner_hz / fs).exp();
         let mut rng = NormalStream::new(seed);
         let mut x = sd * rng.sample();
         (0..n)
@@ -270,7 +270,7 @@ mod tests {
     fn filtered_variance_matches_the_integrated_spectrum() {
         // ∫ Lorentzian·g_diode df = (k_BT/κ)[α² + (1 − α²) f_d/(f_d + f_c)]
         // (sampling does not change a variance).
-        let (fc, fs, fd, alpha, sd) = (800.0, 10e3, 1500.0, 0.3, 1e-8);
+        let (corner_hz, fs, fd, alpha, sd) = (800.0, 10e3, 1500.0, 0.3, 1e-8);
         let cfg = DetectorConfig {
             sensitivity_v_per_m: 1.0,
             diode_hz: Some(fd),
@@ -278,12 +278,12 @@ mod tests {
             noise_v_rms: 0.0,
             seed: 3,
         };
-        let mut det = Detector::new(&cfg, fc, fs).unwrap();
-        let x = ou(400_000, fc, fs, sd, 11);
+        let mut det = Detector::new(&cfg, corner_hz, fs).unwrap();
+        let x = ou(400_000, corner_hz, fs, sd, 11);
         det.reset([x[0], 0.0]);
         let v: Vec<f64> = x.iter().map(|&xi| det.output([xi, 0.0], sd)[0]).collect();
         let var = v.iter().map(|a| a * a).sum::<f64>() / v.len() as f64;
-        let expect = sd * sd * (alpha * alpha + (1.0 - alpha * alpha) * fd / (fd + fc));
+        let expect = sd * sd * (alpha * alpha + (1.0 - alpha * alpha) * fd / (fd + corner_hz));
         assert!((var / expect - 1.0).abs() < 0.02, "{var} vs {expect}");
         // Without the diode the output is S·x plus the white noise.
         let plain = DetectorConfig {
@@ -291,7 +291,7 @@ mod tests {
             noise_v_rms: 0.0,
             ..DetectorConfig::default()
         };
-        let mut d = Detector::new(&plain, fc, fs).unwrap();
+        let mut d = Detector::new(&plain, corner_hz, fs).unwrap();
         assert_eq!(d.output([1e-7, -2e-7], sd), [2e-7, -4e-7]);
         assert!(
             Detector::new(
@@ -299,7 +299,7 @@ mod tests {
                     diode_alpha: 1.5,
                     ..plain
                 },
-                fc,
+                corner_hz,
                 fs
             )
             .is_err()

@@ -431,7 +431,7 @@ fn pm(v: f64, se: f64, prec: usize) -> String {
 /// The value rows of one axis' calibration.
 fn rows(c: &TrapCalibration) -> Vec<(&'static str, String)> {
     let mut r = vec![
-        ("f_c (Hz)", pm(c.fc_hz, c.fc_se_hz, 2)),
+        ("f_c (Hz)", pm(c.corner_hz, c.corner_se_hz, 2)),
         (
             "D (V²/s)",
             format!("{:.4e} ± {:.1e}", c.diffusion_v2_s, c.diffusion_se_v2_s),
