@@ -60,7 +60,7 @@ fn open(dir: &std::path::Path) -> H {
     std::fs::write(&proto, PROTOCOL).unwrap();
     let mut h = common::study_page(&proto, "P01", &dir.join("out"), 1400.0);
     {
-        let s = &mut h.state_mut().study;
+        let s = &mut h.state_mut().study.form;
         s.kind = ParticipantKind::Mouse;
         s.speed = Speed::RealTime;
     }

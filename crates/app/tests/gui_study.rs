@@ -30,7 +30,7 @@ const POLL: Duration = Duration::from_millis(5);
 /// participant at full speed.
 fn study_page(proto: &Path, participant: &str, out: &Path) -> AppHarness {
     let mut h = common::study_page(proto, participant, out, 900.0);
-    let s = &mut h.state_mut().study;
+    let s = &mut h.state_mut().study.form;
     s.kind = ParticipantKind::Simulated;
     s.speed = Speed::Fast;
     h
@@ -59,7 +59,7 @@ fn study_page_runs_a_simulated_sitting() {
     h.step();
     // An e-mail address is refused as participant ID.
     assert!(h.query_by_label_contains("e-mail").is_some());
-    h.state_mut().study.participant_text = "P02".into();
+    h.state_mut().study.form.participant_text = "P02".into();
     h.step();
     h.step();
     // The counterbalanced order of P02 (Williams row 2 of 6 for 3 conditions).
@@ -76,7 +76,7 @@ fn study_page_runs_a_simulated_sitting() {
     assert!(err.contains("P01"), "{err}");
     assert!(!h.state().study.is_running());
 
-    h.state_mut().study.participant_text = "P01".into();
+    h.state_mut().study.form.participant_text = "P01".into();
     h.step();
     open_session(&mut h);
     // One engine: the sitting is its driver, the status bar says so.
@@ -199,7 +199,7 @@ fn study_page_records_the_chosen_calibration() {
         let out = dir.path().join(out_name);
         let mut h = study_page(&proto, "P01", &out);
         {
-            let s = &mut h.state_mut().study;
+            let s = &mut h.state_mut().study.form;
             s.calibration = choice;
             s.calibration_file = cal.display().to_string();
         }
@@ -271,7 +271,7 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
     assert_eq!(resume_before.left(), resume_after.left());
     assert_eq!(radio_before, h.get_by_label("person (mouse)").rect());
     // Another participant: nothing of P01's sitting stays on screen.
-    h.state_mut().study.participant_text = "P02".into();
+    h.state_mut().study.form.participant_text = "P02".into();
     h.step();
     h.step();
     assert!(
@@ -317,7 +317,7 @@ fn run_all_remaining_participants_finishes_the_study() {
     h.step();
     assert!(h.query_by_label_contains("study complete").is_some());
     // Another folder: the stale "study complete" goes.
-    h.state_mut().study.out_text = dir.path().join("other").display().to_string();
+    h.state_mut().study.form.out_text = dir.path().join("other").display().to_string();
     h.step();
     h.step();
     assert!(h.query_by_label_contains("study complete").is_none());
@@ -398,7 +398,7 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
 
     // A new folder on a "disk" with 1 kB free: refused, with the numbers.
     let out2 = dir.path().join("out2");
-    h.state_mut().study.out_text = out2.display().to_string();
+    h.state_mut().study.form.out_text = out2.display().to_string();
     h.state_mut().study.size_gate.confirm_over_bytes = 1_000_000_000;
     h.state_mut().study.size_gate.assume_free_bytes = Some(1_000);
     h.step();

@@ -131,10 +131,10 @@ pub fn study_page(proto: &Path, participant: &str, out: &Path, height: f32) -> A
     let app = fresh_app(Some(Page::Study));
     let mut h = app_harness(app, 1100.0, height, None);
     let s = &mut h.state_mut().study;
-    s.source = ProtocolSource::File;
-    s.protocol_file = proto.display().to_string();
-    s.participant_text = participant.into();
-    s.out_text = out.display().to_string();
+    s.form.source = ProtocolSource::File;
+    s.form.protocol_file = proto.display().to_string();
+    s.form.participant_text = participant.into();
+    s.form.out_text = out.display().to_string();
     s.separate_window = false;
     h
 }

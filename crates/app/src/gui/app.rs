@@ -241,11 +241,11 @@ impl KilotouchApp {
         }
         let mut study = StudyPage::with_gpu(gpu);
         match settings.protocol_source.as_deref() {
-            Some("blind") => study.source = ProtocolSource::Blind,
+            Some("blind") => study.form.source = ProtocolSource::Blind,
             Some("file") => {
-                study.source = ProtocolSource::File;
+                study.form.source = ProtocolSource::File;
                 if let Some(f) = &settings.protocol_file {
-                    study.protocol_file = f.display().to_string();
+                    study.form.protocol_file = f.display().to_string();
                 }
             }
             _ => {}
@@ -1013,14 +1013,14 @@ impl eframe::App for KilotouchApp {
             let tw = self.rig_page.tweezer_text.trim();
             self.settings.tweezer_spec = (!tw.is_empty() && tw != "sim").then(|| tw.to_owned());
             self.settings.protocol_source = Some(
-                match self.study.source {
+                match self.study.form.source {
                     ProtocolSource::Paper => "paper",
                     ProtocolSource::Blind => "blind",
                     ProtocolSource::File => "file",
                 }
                 .to_owned(),
             );
-            let file = self.study.protocol_file.trim();
+            let file = self.study.form.protocol_file.trim();
             self.settings.protocol_file = (!file.is_empty()).then(|| PathBuf::from(file));
             self.settings.save(storage);
         }

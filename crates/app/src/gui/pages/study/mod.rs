@@ -27,39 +27,17 @@ use crate::gui::pages::Page;
 use crate::gui::pages::study_size::SizeGate;
 use crate::gui::participant_screen::ParticipantScreen;
 use crate::gui::path_field::PathField;
+pub use form::{CalibrationChoice, ProtocolSource, StudyForm};
+
 use crate::session::{
     FinishReason, FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionEvent,
     SessionHandle, SessionHealth, Speed, Telemetry, inspect_folder,
 };
 
+mod form;
 mod open;
 mod running;
 mod setup;
-
-/// Where the protocol comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ProtocolSource {
-    /// Built-in `paper` (circling, V/P/D).
-    Paper,
-    /// Built-in `blind` (blind navigation).
-    Blind,
-    /// A TOML file.
-    File,
-}
-
-/// Which chain D runs in a sitting (recorded in `session.json` and the
-/// journal with the file's SHA-256).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum CalibrationChoice {
-    /// The calibration applied to the engine on the Calibration page (its
-    /// file); the as-designed chain when none is applied.
-    #[default]
-    Applied,
-    /// The model's as-designed chain, recorded as uncalibrated.
-    AsDesigned,
-    /// A calibration file typed in.
-    File,
-}
 
 /// Where the participant's window opens.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -77,25 +55,11 @@ pub enum Monitor {
 /// Study sessions.
 #[derive(Debug)]
 pub struct StudyPage {
-    /// Protocol source.
-    pub source: ProtocolSource,
-    /// Protocol file path (for [`ProtocolSource::File`]).
-    pub protocol_file: String,
-    /// Participant ID as typed.
-    pub participant_text: String,
-    /// Output folder as typed (initialised from the settings).
-    pub out_text: String,
-    /// Person at the mouse or simulated participant.
-    pub kind: ParticipantKind,
-    /// Pacing (as fast as possible: simulated participant only).
-    pub speed: Speed,
+    /// What the experimenter typed and chose (validated when a sitting opens).
+    pub form: StudyForm,
     /// Participant view in a separate window (else inline on this page;
     /// inline is what the UI tests use).
     pub separate_window: bool,
-    /// Which chain D runs.
-    pub calibration: CalibrationChoice,
-    /// Calibration file (for [`CalibrationChoice::File`]).
-    pub calibration_file: String,
     /// Draw the scene with wgpu (set by the shell when installed).
     pub gpu: bool,
     /// Monitor of the participant's window.
@@ -156,15 +120,8 @@ impl StudyPage {
     /// New page.
     pub fn new() -> Self {
         Self {
-            source: ProtocolSource::Paper,
-            protocol_file: String::new(),
-            participant_text: String::new(),
-            out_text: String::new(),
-            kind: ParticipantKind::Mouse,
-            speed: Speed::RealTime,
+            form: StudyForm::default(),
             separate_window: true,
-            calibration: CalibrationChoice::default(),
-            calibration_file: String::new(),
             gpu: false,
             monitor: Monitor::Same,
             fullscreen: false,
@@ -280,8 +237,8 @@ impl StudyPage {
     /// participant (or P01 of a new folder) with the simulated participant
     /// in real time, participant view inline, and start it.
     pub fn simulate_sitting(&mut self) {
-        self.kind = ParticipantKind::Simulated;
-        self.speed = Speed::RealTime;
+        self.form.kind = ParticipantKind::Simulated;
+        self.form.speed = Speed::RealTime;
         self.separate_window = false;
         self.autostart = true;
     }
@@ -501,12 +458,12 @@ impl StudyPage {
     }
 
     fn load_protocol(&mut self) {
-        let key = (self.source, self.protocol_file.trim().to_owned());
+        let key = (self.form.source, self.form.protocol_file.trim().to_owned());
         if self.loaded_source.as_ref() == Some(&key) {
             return;
         }
         self.loaded_source = Some(key.clone());
-        let r = match self.source {
+        let r = match self.form.source {
             ProtocolSource::Paper => Protocol::builtin("paper"),
             ProtocolSource::Blind => Protocol::builtin("blind"),
             ProtocolSource::File if key.1.is_empty() => {
@@ -532,7 +489,7 @@ impl StudyPage {
     }
 
     fn folder_status(&mut self) -> Option<&FolderStatus> {
-        let t = self.out_text.trim();
+        let t = self.form.out_text.trim();
         if t.is_empty() {
             return None;
         }

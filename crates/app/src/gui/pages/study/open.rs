@@ -14,34 +14,14 @@ use crate::session::{
     SessionOptions, Speed, validate_participant_id,
 };
 
-use super::{CalibrationChoice, StudyPage};
+use super::StudyPage;
 
 impl StudyPage {
     /// The calibration file the sitting runs and records (`None`: the
     /// as-designed chain, recorded as uncalibrated).
     pub(super) fn resolve_calibration(&self, env: &PageEnv<'_>) -> Result<Option<PathBuf>, String> {
-        match self.calibration {
-            CalibrationChoice::AsDesigned => Ok(None),
-            CalibrationChoice::Applied => match env.applied {
-                None => Ok(None),
-                Some(a) => match &a.path {
-                    Some(p) => Ok(Some(p.clone())),
-                    None => Err(
-                        "the applied calibration was not saved: save it on the Calibration page \
-                         (a study records the file and its SHA-256), or choose another chain"
-                            .into(),
-                    ),
-                },
-            },
-            CalibrationChoice::File => {
-                let t = self.calibration_file.trim();
-                if t.is_empty() {
-                    Err("type the calibration file, or choose another chain".into())
-                } else {
-                    Ok(Some(PathBuf::from(t)))
-                }
-            }
-        }
+        self.form
+            .calibration_path(env.applied.map(|a| a.path.as_deref()))
     }
 
     /// Open a sitting (`resume`: at the folder's next pending trial;
@@ -122,11 +102,13 @@ impl StudyPage {
     ) -> Option<PreparedSitting> {
         self.finished = None;
         self.screen = None;
-        let out = PathBuf::from(self.out_text.trim());
-        if self.out_text.trim().is_empty() {
-            self.error = Some("choose an output folder".into());
-            return None;
-        }
+        let out = match self.form.out_folder() {
+            Ok(out) => out,
+            Err(e) => {
+                self.error = Some(e);
+                return None;
+            }
+        };
         let (protocol, pid) = if resume {
             let next = match self.folder_status() {
                 Some(FolderStatus::Study { next: Some(n), .. }) => n.clone(),
@@ -147,7 +129,7 @@ impl StudyPage {
                 self.error = Some("load a valid protocol first".into());
                 return None;
             };
-            match validate_participant_id(&self.participant_text, t) {
+            match validate_participant_id(&self.form.participant_text, t) {
                 Ok(id) => (Some(p.clone()), id),
                 Err(e) => {
                     self.error = Some(e);
@@ -165,19 +147,9 @@ impl StudyPage {
         let mut opts = SessionOptions::new(&out, protocol, env.rig_config.clone());
         opts.calibration = calibration;
         opts.trap_calibration = env.trap_applied.cloned();
-        let kind = if engine.is_live() {
-            ParticipantKind::Handle
-        } else if self.kind == ParticipantKind::Handle {
-            ParticipantKind::Mouse
-        } else {
-            self.kind
-        };
+        let kind = self.form.participant_kind(engine.is_live());
         opts.participant = kind;
-        opts.speed = if kind == ParticipantKind::Simulated {
-            self.speed
-        } else {
-            Speed::RealTime
-        };
+        opts.speed = self.form.speed_for(kind);
         opts.only_participant = (!self.run_all).then_some(pid.index);
         // The participant's screens run in real time (a person, or the
         // simulated participant paced like one); a fast dry run skips them.
@@ -239,8 +211,8 @@ impl StudyPage {
                     ));
                 }
                 self.protocol = Some(info.protocol);
-                self.participant_text = pid.id.clone();
-                self.shown_for = Some((pid.id.clone(), self.out_text.trim().to_owned()));
+                self.form.participant_text = pid.id.clone();
+                self.shown_for = Some((pid.id.clone(), self.form.out_text.trim().to_owned()));
                 self.sitting_id = Some(pid);
                 self.state = Some(RunnerState::Idle);
                 self.log.clear();

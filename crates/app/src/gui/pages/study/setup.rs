@@ -23,10 +23,10 @@ impl StudyPage {
     ) {
         if !self.out_seeded {
             self.out_seeded = true;
-            if self.out_text.is_empty()
+            if self.form.out_text.is_empty()
                 && let Some(d) = env.output_dir
             {
-                self.out_text = d.display().to_string();
+                self.form.out_text = d.display().to_string();
             }
         }
         self.poll(engine.as_deref_mut());
@@ -38,7 +38,7 @@ impl StudyPage {
                 _ => None,
             };
             let resume = next.is_some();
-            self.participant_text = match next {
+            self.form.participant_text = match next {
                 Some(n) => n,
                 None => self
                     .table
@@ -120,14 +120,22 @@ impl StudyPage {
     fn protocol_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label("Protocol:");
-            ui.radio_value(&mut self.source, ProtocolSource::Paper, "paper (built-in)");
-            ui.radio_value(&mut self.source, ProtocolSource::Blind, "blind (built-in)");
-            ui.radio_value(&mut self.source, ProtocolSource::File, "file");
-            if self.source == ProtocolSource::File {
+            ui.radio_value(
+                &mut self.form.source,
+                ProtocolSource::Paper,
+                "paper (built-in)",
+            );
+            ui.radio_value(
+                &mut self.form.source,
+                ProtocolSource::Blind,
+                "blind (built-in)",
+            );
+            ui.radio_value(&mut self.form.source, ProtocolSource::File, "file");
+            if self.form.source == ProtocolSource::File {
                 let r = self.protocol_field.ui(
                     ui,
                     "Protocol file:",
-                    &mut self.protocol_file,
+                    &mut self.form.protocol_file,
                     PathKind::Open(TOML.0, TOML.1),
                     "path/to/protocol.toml",
                     260.0,
@@ -167,13 +175,13 @@ impl StudyPage {
     fn participant_ui(&mut self, ui: &mut egui::Ui) -> bool {
         ui.horizontal(|ui| {
             let l = ui.label("Participant ID:");
-            ui.add(egui::TextEdit::singleline(&mut self.participant_text).hint_text("P01"))
+            ui.add(egui::TextEdit::singleline(&mut self.form.participant_text).hint_text("P01"))
                 .labelled_by(l.id);
         });
         let pid = self
             .table
             .as_ref()
-            .map(|t| validate_participant_id(&self.participant_text, t));
+            .map(|t| validate_participant_id(&self.form.participant_text, t));
         match (&pid, &self.table) {
             (Some(Ok(id)), Some(t)) => {
                 if let Some(row) = t
@@ -209,7 +217,7 @@ impl StudyPage {
                     }
                 }
             }
-            (Some(Err(e)), _) if !self.participant_text.trim().is_empty() => {
+            (Some(Err(e)), _) if !self.form.participant_text.trim().is_empty() => {
                 ui.colored_label(Color32::from_rgb(235, 80, 70), e);
             }
             _ => {}
@@ -224,14 +232,14 @@ impl StudyPage {
             let r = self.out_field.ui(
                 ui,
                 "Output folder:",
-                &mut self.out_text,
+                &mut self.form.out_text,
                 PathKind::Folder,
                 "study folder",
                 380.0,
             );
-            if (r.edit.lost_focus() || r.picked) && !self.out_text.trim().is_empty() {
+            if (r.edit.lost_focus() || r.picked) && !self.form.out_text.trim().is_empty() {
                 env.requests.push(ShellRequest::SetOutputDir(PathBuf::from(
-                    self.out_text.trim(),
+                    self.form.out_text.trim(),
                 )));
             }
         });
@@ -239,8 +247,8 @@ impl StudyPage {
         // What the last sitting showed belongs to its participant and
         // folder: switching either clears it.
         let now = (
-            self.participant_text.trim().to_owned(),
-            self.out_text.trim().to_owned(),
+            self.form.participant_text.trim().to_owned(),
+            self.form.out_text.trim().to_owned(),
         );
         if self.shown_for.as_ref().is_some_and(|s| *s != now) {
             self.clear_sitting_state();
@@ -280,31 +288,35 @@ impl StudyPage {
         ui.horizontal(|ui| {
             ui.label("At the handle:");
             if live {
-                self.kind = ParticipantKind::Handle;
+                self.form.kind = ParticipantKind::Handle;
                 ui.radio_value(
-                    &mut self.kind,
+                    &mut self.form.kind,
                     ParticipantKind::Handle,
                     "the participant at the live rig's handle",
                 );
             } else {
-                if self.kind == ParticipantKind::Handle {
-                    self.kind = ParticipantKind::Mouse;
+                if self.form.kind == ParticipantKind::Handle {
+                    self.form.kind = ParticipantKind::Mouse;
                 }
-                ui.radio_value(&mut self.kind, ParticipantKind::Mouse, "person (mouse)");
                 ui.radio_value(
-                    &mut self.kind,
+                    &mut self.form.kind,
+                    ParticipantKind::Mouse,
+                    "person (mouse)",
+                );
+                ui.radio_value(
+                    &mut self.form.kind,
                     ParticipantKind::Simulated,
                     "simulated participant",
                 );
             }
             ui.separator();
-            let fast_ok = self.kind == ParticipantKind::Simulated;
+            let fast_ok = self.form.kind == ParticipantKind::Simulated;
             if !fast_ok {
-                self.speed = Speed::RealTime;
+                self.form.speed = Speed::RealTime;
             }
-            ui.radio_value(&mut self.speed, Speed::RealTime, "real time");
+            ui.radio_value(&mut self.form.speed, Speed::RealTime, "real time");
             ui.add_enabled_ui(fast_ok, |ui| {
-                ui.radio_value(&mut self.speed, Speed::Fast, "as fast as possible")
+                ui.radio_value(&mut self.form.speed, Speed::Fast, "as fast as possible")
                     .on_disabled_hover_text("for the simulated participant only");
             });
         });
@@ -386,7 +398,7 @@ impl StudyPage {
             {
                 resume = true;
             }
-            let sim = self.kind == ParticipantKind::Simulated;
+            let sim = self.form.kind == ParticipantKind::Simulated;
             let pending = next.is_some() || matches!(status, Some(FolderStatus::Empty));
             if ui
                 .add_enabled(
@@ -410,7 +422,7 @@ impl StudyPage {
             let resume = next.is_some();
             if !resume && let Some(first) = self.table.as_ref().and_then(|t| t.participants.first())
             {
-                self.participant_text = first.id.clone();
+                self.form.participant_text = first.id.clone();
             }
             self.open_session(env, engine, resume, true);
         }
@@ -467,19 +479,23 @@ impl StudyPage {
                 Some(a) => format!("applied: {}", a.chain.source.describe()),
                 None => "applied (none: as designed)".into(),
             };
-            ui.radio_value(&mut self.calibration, CalibrationChoice::Applied, applied)
-                .on_hover_text("the calibration applied on the Calibration page");
             ui.radio_value(
-                &mut self.calibration,
+                &mut self.form.calibration,
+                CalibrationChoice::Applied,
+                applied,
+            )
+            .on_hover_text("the calibration applied on the Calibration page");
+            ui.radio_value(
+                &mut self.form.calibration,
                 CalibrationChoice::AsDesigned,
                 "as designed (uncalibrated)",
             );
-            ui.radio_value(&mut self.calibration, CalibrationChoice::File, "file:");
-            if self.calibration == CalibrationChoice::File {
+            ui.radio_value(&mut self.form.calibration, CalibrationChoice::File, "file:");
+            if self.form.calibration == CalibrationChoice::File {
                 self.calibration_field.ui(
                     ui,
                     "calibration file",
-                    &mut self.calibration_file,
+                    &mut self.form.calibration_file,
                     PathKind::Open(TOML.0, TOML.1),
                     "calibration file (.toml)",
                     260.0,
