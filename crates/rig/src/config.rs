@@ -285,6 +285,21 @@ pub struct CouplingConfig {
     pub trap_max_m: [f64; 2],
     /// Handle force per optical force (N/N).
     pub force_scale: f64,
+    /// Rendering gain of the high band in D, g_H (dimensionless): the
+    /// Haptuator drive is g_H·C_H·F, so the band above the crossover is
+    /// rendered g_H times the force image while the low band stays at
+    /// `force_scale` (the paper's "magnified representation" of the bead's
+    /// agitation, §4.2). The stability analysis includes it on the high
+    /// path of every D case (`docs/theory/coupling-and-stability.md`,
+    /// rendering gain of the high band). 1 = the force image as it is.
+    ///
+    /// Not written when 1, so rig files and their hashes from before the
+    /// key existed stay the same.
+    #[serde(
+        default = "default_high_band_gain",
+        skip_serializing_if = "is_unit_gain"
+    )]
+    pub high_band_gain: f64,
     /// Damping rendered along the contact normal while the bead touches an
     /// obstacle, N·s/m at the handle: the virtual wall's damper (Colgate &
     /// Brown 1994). It gives the pressed loop its phase margin
@@ -313,6 +328,18 @@ fn default_contact_damping() -> f64 {
 fn default_velocity_filter() -> f64 {
     100.0
 }
+
+fn default_high_band_gain() -> f64 {
+    1.0
+}
+
+#[allow(clippy::trivially_copy_pass_by_ref)] // serde's skip_serializing_if signature
+fn is_unit_gain(g: &f64) -> bool {
+    *g == 1.0
+}
+
+/// Largest accepted `coupling.high_band_gain`.
+pub const MAX_HIGH_BAND_GAIN: f64 = 1e5;
 
 /// `[stability]`: what the closed-loop analysis assumes and requires
 /// (`crate::stability`). Every key has a default.
@@ -1061,6 +1088,13 @@ impl CouplingConfig {
                 ),
             ));
         }
+        let gh = self.high_band_gain;
+        if !(gh.is_finite() && (0.0..=MAX_HIGH_BAND_GAIN).contains(&gh)) {
+            v.push((
+                "high_band_gain",
+                format!("must be finite with 0 ≤ g_H ≤ {MAX_HIGH_BAND_GAIN:e} (got {gh})"),
+            ));
+        }
         if let Some(hz) = self.pantograph_band_hz {
             v.push((
                 "pantograph_band_hz",
@@ -1202,6 +1236,40 @@ mod tests {
             }
             other => panic!("wrong error {other:?}"),
         }
+    }
+
+    /// The high-band gain: a negative one is located; 1 is not written,
+    /// so a rig file's content hash is the one it had before the key.
+    #[test]
+    fn high_band_gain_is_checked_and_one_is_not_written() {
+        let text = default_config_text().replace("high_band_gain = 1.0", "high_band_gain = -3.0");
+        assert_ne!(text, default_config_text());
+        let line = text
+            .lines()
+            .position(|l| l.starts_with("high_band_gain"))
+            .unwrap()
+            + 1;
+        match RigConfig::from_toml_str(&text, "g.toml").unwrap_err() {
+            RigError::Config {
+                line: got,
+                field,
+                message,
+                ..
+            } => {
+                assert_eq!(field, "coupling.high_band_gain");
+                assert_eq!(got, Some(line));
+                assert!(message.contains("-3"), "{message}");
+            }
+            other => panic!("wrong error {other:?}"),
+        }
+        let mut c = RigConfig::default();
+        assert!(!c.to_toml_string().unwrap().contains("high_band_gain"));
+        let without = default_config_text().replace("high_band_gain = 1.0\n", "");
+        let old = RigConfig::from_toml_str(&without, "old.toml").unwrap();
+        assert_eq!(old, c);
+        c.coupling.high_band_gain = 38.0;
+        let again = RigConfig::from_toml_str(&c.to_toml_string().unwrap(), "rt").unwrap();
+        assert_eq!(again.coupling.high_band_gain, 38.0);
     }
 
     #[test]

@@ -95,6 +95,54 @@ fn routing_by_condition_and_nonfinite_forces() {
     let _ = cfg;
 }
 
+/// The high-band gain multiplies D's Haptuator drive and nothing else: the
+/// Pantograph forces, P and V are the same sample for sample.
+#[test]
+fn the_high_band_gain_scales_the_haptuator_drive_only() {
+    let mut loud = RigConfig::default();
+    loud.coupling.high_band_gain = 25.0;
+    for cond in Condition::ALL {
+        let mut a = coupling();
+        let mut b = Coupling::from_config(&loud).unwrap();
+        assert_eq!(b.high_band_gain(), 25.0);
+        a.set_condition_now(cond);
+        b.set_condition_now(cond);
+        for k in 0..2000 {
+            let t = k as f64 * 1e-4;
+            let s = TweezerSample {
+                force_n: [1e-12 * (2e3 * t).sin(), 3e-13 * (7e2 * t).cos()],
+                trapped: true,
+                ..Default::default()
+            };
+            let (ra, rb) = (a.render([0.0; 2], &s), b.render([0.0; 2], &s));
+            assert_eq!(ra.command.force_n, rb.command.force_n, "{cond} sample {k}");
+            assert_eq!(ra.image_n, rb.image_n);
+            assert_eq!(25.0 * ra.command.haptuator_v, rb.command.haptuator_v);
+            if cond == Condition::D && k > 0 {
+                assert!(rb.command.haptuator_v != 0.0);
+            }
+        }
+    }
+}
+
+/// In the closed loop, a high-band gain g_H raises the Brownian agitation
+/// the fingertip feels in D at 400–1000 Hz, where the Haptuator carries it,
+/// by nearly g_H² in power, and it still collapses on contact.
+#[test]
+fn a_high_band_gain_magnifies_the_felt_agitation() {
+    let (free1, _) = felt_band_power_at(Condition::D, PMode::FullBand, false, 1.0);
+    let (free10, _) = felt_band_power_at(Condition::D, PMode::FullBand, false, 10.0);
+    let (press10, c) = felt_band_power_at(Condition::D, PMode::FullBand, true, 10.0);
+    let gain = free10 / free1;
+    eprintln!("free-space 400–1000 Hz power at g_H = 10 over g_H = 1: {gain:.1}");
+    assert!(gain > 80.0 && gain < 105.0, "{gain}");
+    assert!(c > 25_000, "{c}");
+    assert!(
+        press10 < 0.2 * free10,
+        "pressed {press10:e} vs free {free10:e}"
+    );
+}
+
 fn grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (0..n)
         .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
@@ -164,7 +212,15 @@ fn condition_switch_is_glitch_free() {
 }
 
 fn felt_band_power(condition: Condition, p_mode: PMode, press: bool) -> (f64, u64) {
+    felt_band_power_at(condition, p_mode, press, 1.0)
+}
+
+/// 400–1000 Hz power of the fingertip's x acceleration ((m/s²)²) over the
+/// last 3 s of 6 s in `condition`, free or pressed against an obstacle, at
+/// the high-band gain `g_h`; and the samples in contact.
+fn felt_band_power_at(condition: Condition, p_mode: PMode, press: bool, g_h: f64) -> (f64, u64) {
     let mut cfg = RigConfig::default();
+    cfg.coupling.high_band_gain = g_h;
     cfg.coupling.mode = condition;
     cfg.coupling.p_mode = p_mode;
     let chain = LoopChain::as_designed(&cfg).unwrap();

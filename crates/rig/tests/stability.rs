@@ -549,3 +549,126 @@ fn latency_rounds_up_to_whole_samples() {
     assert!(delay_samples(0.1, 2e4).is_err());
     assert!(delay_samples(f64::NAN, 1e4).is_err());
 }
+
+/// The D loop with the high band rendered g_H times stronger, case by
+/// case, against the reference script's loop with g_H·C_H on the
+/// Haptuator: margins, pole radius and the g_H at which the case turns
+/// unstable.
+#[test]
+fn high_band_gain_cases_match_the_independent_model() {
+    let r = reference();
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let kappa = cfg.tweezer.stiffness_n_per_m;
+    let g = cfg.coupling.force_scale;
+    let at = |gh: f64| {
+        let mut c = cfg.clone();
+        c.coupling.high_band_gain = gh;
+        LoopAnalysis::new(&c, &chain.coefficients).unwrap()
+    };
+    for c in r["high_gain_cases"].as_array().unwrap() {
+        let case = Case {
+            condition: Condition::D,
+            ..case_from(&serde_json::json!({
+                "condition": "D",
+                "state": c["state"],
+                "hand_stiffness_n_per_m": c["hand_stiffness_n_per_m"],
+                "hand_damping_n_s_per_m": c["hand_damping_n_s_per_m"],
+            }))
+        };
+        let gh = c["high_band_gain"].as_f64().unwrap();
+        let got = at(gh).case(&case, kappa, g, true).unwrap();
+        let m = got.margins.unwrap();
+        let what = format!("{case:?} at g_H = {gh}");
+        let gm = c["gain_margin_db"].as_f64().unwrap();
+        assert!(
+            (m.gain_margin_db - gm).abs() < 0.02,
+            "{what}: GM {m:?} vs {gm}"
+        );
+        match c["phase_margin_deg"].as_f64() {
+            Some(pm) => assert!((m.phase_margin_deg - pm).abs() < 0.05, "{what}: PM {m:?}"),
+            None => assert!(m.phase_margin_deg.is_infinite(), "{what}: {m:?}"),
+        }
+        let rho = c["spectral_radius"].as_f64().unwrap();
+        assert!((got.spectral_radius - rho).abs() < 1e-8, "{what}: ρ");
+        // The critical g_H of this case by bisection on the verdict.
+        let Some(want) = c["critical_high_band_gain"].as_f64() else {
+            continue;
+        };
+        let stable = |x: f64| at(x).case(&case, kappa, g, false).unwrap().stable;
+        let (mut lo, mut hi) = (0.8 * want, 1.25 * want);
+        assert!(
+            stable(lo) && !stable(hi),
+            "{what}: critical g_H near {want}"
+        );
+        while hi / lo > 1.0005 {
+            let mid = (lo * hi).sqrt();
+            if stable(mid) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let got = (lo * hi).sqrt();
+        assert!(
+            (got / want - 1.0).abs() < 2e-3,
+            "{what}: critical g_H {got} vs {want}"
+        );
+    }
+}
+
+/// Without its high band (g_H = 0) the D loop is the D chain's low channel
+/// alone, which is what P renders with `p_mode = "low-channel"`: the two
+/// conditions' margins agree exactly.
+#[test]
+fn without_the_high_band_d_is_its_low_channel() {
+    let mut cfg = RigConfig::default();
+    cfg.coupling.high_band_gain = 0.0;
+    cfg.coupling.p_mode = kilotouch_rig::PMode::LowChannel;
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let r = analyse(&cfg, &chain.coefficients).unwrap();
+    let (p, d) = (
+        r.condition(Condition::P).unwrap(),
+        r.condition(Condition::D).unwrap(),
+    );
+    assert_eq!(p.gain_margin_db, d.gain_margin_db, "{}", r.summary());
+    assert_eq!(p.phase_margin_deg, d.phase_margin_deg, "{}", r.summary());
+    // D's state space still carries the (zero-gain) high path's states.
+    assert!((p.spectral_radius - d.spectral_radius).abs() < 1e-12);
+    assert!(r.high_band_force_full_scale_n.is_infinite());
+}
+
+/// The report names the largest safe high-band gain; just below it the
+/// loop is cleared, above it refused with both numbers.
+#[test]
+fn a_high_band_gain_beyond_the_largest_safe_one_is_refused() {
+    let cfg = RigConfig::default();
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let r = analyse(&cfg, &chain.coefficients).unwrap();
+    assert_eq!(r.high_band_gain, 1.0);
+    let max = r.max_high_band_gain;
+    assert!(max.is_finite() && max > 100.0, "{}", r.summary());
+    assert!(
+        r.summary().contains("high-band gain g_H 1.000"),
+        "{}",
+        r.summary()
+    );
+    let mut below = cfg.clone();
+    below.coupling.high_band_gain = 0.98 * max;
+    let rb = analyse(&below, &chain.coefficients).unwrap();
+    assert!(rb.safe, "{}", rb.summary());
+    // Rendering the high band louder shrinks the Haptuator's full scale.
+    assert!(
+        (rb.high_band_force_full_scale_n * 0.98 * max / r.high_band_force_full_scale_n - 1.0).abs()
+            < 1e-9
+    );
+    let mut above = cfg.clone();
+    above.coupling.high_band_gain = 1.05 * max;
+    match Clearance::check(&above, &chain) {
+        Err(RigError::LoopNotSafe(m)) => {
+            assert!(m.contains("D "), "{m}");
+            assert!(m.contains("largest safe high-band gain"), "{m}");
+        }
+        other => panic!("{other:?}"),
+    }
+}

@@ -16,6 +16,9 @@ reference values for crates/rig/tests/stability.rs.
 3. The same loop with an extra delay of d samples (z^-d): margins, poles
    with python-control's state space of the delay appended, and the delay
    at which the pressed D loop turns unstable.
+4. The D loop with the high band rendered g_H times stronger (the
+   Haptuator path g_H C_H): margins, poles and the critical g_H by
+   bisection on the poles.
 
 Regenerate with `python3 crates/rig/tests/stability_reference.py` (numpy,
 scipy, control). Recorded with numpy 2.4, scipy 1.17, control 0.10.2.
@@ -200,9 +203,9 @@ damp_b = np.polymul(bv, [FS, -FS])
 damp_a = np.concatenate([av, np.zeros(len(damp_b) - len(av))])
 
 
-def loop(condition, state, kf, bf, g, kappa=KAPPA):
-    """The open loop L = -(E - b V)(P_f C_low + P_v C_high) as a python-control
-    state-space system (discrete, dt), x axis."""
+def loop(condition, state, kf, bf, g, kappa=KAPPA, gh=1.0):
+    """The open loop L = -(E - b V)(P_f C_low + g_H P_v C_high) as a
+    python-control state-space system (discrete, dt), x axis."""
     A, B, Cx1, _ = axis(True, kf, bf)
     Phi, Gam = zoh(A, B)
     # One plant with two inputs (a sum of two single-input copies would
@@ -210,7 +213,8 @@ def loop(condition, state, kf, bf, g, kappa=KAPPA):
     plant = control.ss(Phi, Gam, Cx1, np.zeros((1, 2)), DT)
     if condition == "D":
         split = control.append(
-            control.ss(control.tf(low_b, low_a, DT)), control.ss(control.tf(high_b, high_a, DT))
+            control.ss(control.tf(low_b, low_a, DT)),
+            control.ss(control.tf(gh * high_b, high_a, DT)),
         ) * control.ss([], [], [], np.ones((2, 1)), DT)
     else:  # P, full band: the force on the Pantograph, nothing on the Haptuator
         split = control.ss([], [], [], np.array([[1.0], [0.0]]), DT)
@@ -309,6 +313,38 @@ out["critical_delay"] = {
     "hand_damping_n_s_per_m": pl["b_f"],
     "last_stable_samples": lo, "first_unstable_samples": hi,
 }
+
+# ------------------------------------- 4. the high band's rendering gain g_H
+high_gain_cases = []
+for state, kf, bf, gh in [
+    ("pressed", pl["k_f"], pl["b_f"], 10.0),
+    ("free", pl["k_f"], pl["b_f"], 10.0),
+    ("pressed", 200.0, 2.0, 40.0),
+    ("pressed", 800.0, 4.5, 40.0),
+]:
+    g = cp["force_scale"]
+    L = loop("D", state, kf, bf, g, gh=gh)
+    resp = L(np.exp(2j * np.pi * freqs / FS))
+    frd = control.frd(np.asarray(resp).reshape(-1), 2 * np.pi * freqs)
+    gm, pm, sm, wpc, wgc, wms = control.stability_margins(frd)
+    lo, hi = gh, gh
+    while rho(loop("D", state, kf, bf, g, gh=hi)) < 1 and hi < 1e6:
+        lo, hi = hi, hi * 1.25
+    while hi / lo > 1.0005:
+        mid = np.sqrt(lo * hi)
+        if rho(loop("D", state, kf, bf, g, gh=mid)) < 1:
+            lo = mid
+        else:
+            hi = mid
+    high_gain_cases.append({
+        "state": state, "hand_stiffness_n_per_m": kf, "hand_damping_n_s_per_m": bf,
+        "high_band_gain": gh,
+        "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) else None,
+        "phase_margin_deg": float(pm) if np.isfinite(pm) else None,
+        "spectral_radius": rho(L),
+        "critical_high_band_gain": float(np.sqrt(lo * hi)) if hi < 1e6 else None,
+    })
+out["high_gain_cases"] = high_gain_cases
 
 os.makedirs(os.path.join(HERE, "data"), exist_ok=True)
 with open(os.path.join(HERE, "data", "stability_reference.json"), "w") as f:

@@ -12,8 +12,9 @@
 //!    switching is glitch-free); P — the Pantograph alone with
 //!    [`PMode`] (`coupling.p_mode`), Haptuator off; D — the paper's chain
 //!    (Fig. 6) on x: Linkwitz–Riley crossover, C_L on the Pantograph force
-//!    and C_H on the Haptuator drive, from a force-normalised chain
-//!    ([`loop_chain`]) behind the [`ForceSplitter`] trait. The y axis has no
+//!    and g_H·C_H on the Haptuator drive (g_H = `coupling.high_band_gain`),
+//!    from a force-normalised chain ([`loop_chain`]) behind the
+//!    [`ForceSplitter`] trait. The y axis has no
 //!    Haptuator: it gets the P path in P and the full band in D. A change
 //!    of condition cross-fades the two routings over [`CONDITION_FADE_S`].
 //! 4. **Passivity controller** (optional, [`passivity`]) on the Pantograph
@@ -104,6 +105,8 @@ pub struct Coupling<S: ForceSplitter = Chain> {
     last_trap: [f64; 2],
     counters: CouplingCounters,
     lean: bool,
+    /// Rendering gain of the high band, g_H (`coupling.high_band_gain`).
+    high_gain: f64,
 }
 
 impl Coupling<Chain> {
@@ -156,6 +159,7 @@ impl<S: ForceSplitter> Coupling<S> {
             last_trap: mapping.rest_trap_m(),
             counters: CouplingCounters::default(),
             lean: false,
+            high_gain: c.high_band_gain,
         })
     }
 
@@ -288,14 +292,19 @@ impl<S: ForceSplitter> Coupling<S> {
         self.mapping.to_hand_force(s.force_n)
     }
 
-    /// The routing of condition `c` for the forces (fx, fy) and the
-    /// chain/P outputs already computed.
+    /// The rendering gain of the high band, g_H (dimensionless).
+    pub fn high_band_gain(&self) -> f64 {
+        self.high_gain
+    }
+
+    /// The routing of condition `c` for the force `fy` (N) and the chain/P
+    /// outputs already computed; `g_h` scales D's Haptuator drive.
     #[inline(always)]
-    fn route(c: Condition, fy: f64, p: (f64, f64), d: (f64, f64)) -> (f64, f64, f64) {
+    fn route(c: Condition, fy: f64, p: (f64, f64), d: (f64, f64), g_h: f64) -> (f64, f64, f64) {
         match c {
             Condition::V => (0.0, 0.0, 0.0),
             Condition::P => (p.0, p.1, 0.0),
-            Condition::D => (d.0, fy, d.1),
+            Condition::D => (d.0, fy, g_h * d.1),
         }
     }
 
@@ -330,10 +339,11 @@ impl<S: ForceSplitter> Coupling<S> {
             _ => self.p_x.process(f[0]),
         };
         let py = self.p_y.process(f[1]);
-        let (mut lx, mut ly, mut hx) = Self::route(self.condition, f[1], (px, py), d);
+        let g_h = self.high_gain;
+        let (mut lx, mut ly, mut hx) = Self::route(self.condition, f[1], (px, py), d, g_h);
         if self.fade_k > 0 {
             let a = f64::from(self.fade_k) / f64::from(self.fade_n);
-            let (ox, oy, oh) = Self::route(self.fade_from, f[1], (px, py), d);
+            let (ox, oy, oh) = Self::route(self.fade_from, f[1], (px, py), d, g_h);
             lx += a * (ox - lx);
             ly += a * (oy - ly);
             hx += a * (oh - hx);

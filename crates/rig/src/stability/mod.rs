@@ -11,7 +11,8 @@
 //! image F = g·κ·(bead − trap) plus, in contact, the wall damper
 //! −b_c·v̂ (v̂ = 2nd-order Butterworth low-pass of the backward difference of
 //! x₁) enters the controller path of the condition (D on x: crossover with
-//! C_L to the Pantograph force and C_H to the Haptuator drive; P: `p_mode`;
+//! C_L to the Pantograph force and g_H·C_H to the Haptuator drive, g_H the
+//! rendering gain of the high band `coupling.high_band_gain`; P: `p_mode`;
 //! the y axis has no Haptuator and gets the P path in P and the full band in
 //! D); the commands are held over the next sample (ZOH) by the plant of
 //! eq. 1 with the hand held still behind the finger spring, whose output is
@@ -19,7 +20,7 @@
 //! and P(z) = C(zI − Φ)⁻¹Γ the exact ZOH plant from its inputs to x₁,
 //!
 //! ```text
-//! L(z) = −[E(z) − b_c·V(z)] · [P_f(z)·C_low(z) + P_v(z)·C_high(z)]
+//! L(z) = −[E(z) − b_c·V(z)] · [P_f(z)·C_low(z) + g_H·P_v(z)·C_high(z)]
 //! E(z) = g·κ·s·(B(z) − 1),   B(z) = β·((1 − a)z + a − c)/(z − c)
 //! ```
 //!
@@ -168,8 +169,16 @@ pub struct StabilityReport {
     /// Every condition meets the minima.
     pub safe: bool,
     /// Largest high-band handle force the Haptuator renders without
-    /// clipping: drive limit / max_f |C_high(f)|, N.
+    /// clipping: drive limit / max_f |g_H·C_high(f)|, N.
     pub high_band_force_full_scale_n: f64,
+    /// Configured rendering gain of the high band, g_H (dimensionless).
+    #[serde(default = "one")]
+    pub high_band_gain: f64,
+    /// Largest g_H at which every D case meets the minimum margins at the
+    /// configured force scale: the largest safe value (null: none below
+    /// 10⁴× the configured value, or 10⁴ when it is 0).
+    #[serde(default)]
+    pub max_high_band_gain: f64,
     /// What P receives.
     pub p_mode: PMode,
     /// Extra loop delay the report is for, s (0: the simulated loop's one
@@ -179,6 +188,10 @@ pub struct StabilityReport {
     /// That delay in whole samples, d = ⌈latency·f_s⌉ ([`delay_samples`]).
     #[serde(default)]
     pub latency_samples: usize,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl StabilityReport {
@@ -223,8 +236,16 @@ impl StabilityReport {
             ),
             None => (String::new(), ""),
         };
+        let high = if self.high_band_gain > self.max_high_band_gain {
+            format!(
+                "; the largest safe high-band gain{at_delay} is {:.3} (now {:.3})",
+                self.max_high_band_gain, self.high_band_gain
+            )
+        } else {
+            String::new()
+        };
         Some(format!(
-            "closed loop not safe{with_delay}: {}; the largest safe force scale{at_delay} is {:.3e} N/N (now {:.3e})",
+            "closed loop not safe{with_delay}: {}; the largest safe force scale{at_delay} is {:.3e} N/N (now {:.3e}){high}",
             bad.join(", "),
             self.max_force_scale,
             self.force_scale
@@ -272,6 +293,11 @@ impl StabilityReport {
             self.max_force_scale,
             self.force_scale,
             self.critical_force_scale
+        ));
+        s.push_str(&format!(
+            "high-band gain g_H {:.3}; largest safe {}\n",
+            self.high_band_gain,
+            fmt_margin(self.max_high_band_gain)
         ));
         s
     }
@@ -475,7 +501,7 @@ impl LoopAnalysis {
         self.paths.clear();
         for cond in Condition::HAPTIC {
             for axis in [Axis::X, Axis::Y] {
-                let p = self.ctrl(cond, axis)?;
+                let p = self.ctrl(cond, axis, 1.0)?;
                 let r = self.grid.iter().map(|&f| p.response(f, fs)).collect();
                 self.paths.push(((cond, axis), r));
             }
@@ -527,8 +553,9 @@ impl LoopAnalysis {
         l * C64::from_polar(1.0, -2.0 * PI * (turns - turns.floor()))
     }
 
-    /// The controller path of `condition` on `axis` (module docs).
-    fn ctrl(&self, condition: Condition, axis: Axis) -> Result<CtrlPath, RigError> {
+    /// The controller path of `condition` on `axis` (module docs), the
+    /// Haptuator's path times the high-band gain `gh`.
+    fn ctrl(&self, condition: Condition, axis: Axis, gh: f64) -> Result<CtrlPath, RigError> {
         let fs = self.fs;
         let p_path = |axis: Axis| -> Result<Vec<BiquadCoeffs>, RigError> {
             Ok(match (self.cfg.coupling.p_mode, axis) {
@@ -542,7 +569,7 @@ impl LoopAnalysis {
         Ok(match (condition, axis) {
             (Condition::D, Axis::X) => CtrlPath {
                 low: self.chain.low().to_vec(),
-                high: Some(self.chain.high().to_vec()),
+                high: Some(scaled_sections(self.chain.high(), gh)),
             },
             (Condition::D, Axis::Y) => CtrlPath {
                 low: Vec::new(),
@@ -621,9 +648,9 @@ impl LoopAnalysis {
 
     /// The loop of `case` as a state-space block from the force at the
     /// controller's input back to itself.
-    fn open_loop(&self, case: &Case, kappa: f64, g: f64) -> Result<Dss, RigError> {
+    fn open_loop(&self, case: &Case, kappa: f64, g: f64, gh: f64) -> Result<Dss, RigError> {
         let plant = self.plant(case)?;
-        let ctrl = self.ctrl(case.condition, case.axis)?;
+        let ctrl = self.ctrl(case.condition, case.axis, gh)?;
         let low = Dss::sections(&ctrl.low);
         let to_plant = match (&ctrl.high, case.axis) {
             (Some(h), Axis::X) => low.stack(&Dss::sections(h)),
@@ -700,7 +727,20 @@ impl LoopAnalysis {
         with_margins: bool,
         refine: bool,
     ) -> Result<CaseResult, RigError> {
-        let ol = self.open_loop(case, kappa, g)?;
+        let gh = self.cfg.coupling.high_band_gain;
+        self.case_gains(case, [kappa, g, gh], with_margins, refine)
+    }
+
+    /// [`Self::case_with`] at trap stiffness, force scale and high-band gain
+    /// `[κ (N/m), g (N/N), g_H]`.
+    fn case_gains(
+        &self,
+        case: &Case,
+        [kappa, g, gh]: [f64; 3],
+        with_margins: bool,
+        refine: bool,
+    ) -> Result<CaseResult, RigError> {
+        let ol = self.open_loop(case, kappa, g, gh)?;
         let (stable, rho) = match ol.closed_unity() {
             Some(a) => {
                 let rho = crate::lti::spectral_radius(&a);
@@ -710,7 +750,7 @@ impl LoopAnalysis {
         };
         let margins = if with_margins {
             let plant = self.plant(case)?;
-            let ctrl = self.ctrl(case.condition, case.axis)?;
+            let ctrl = self.ctrl(case.condition, case.axis, gh)?;
             let paths = &self
                 .paths
                 .iter()
@@ -723,7 +763,7 @@ impl LoopAnalysis {
                     let l = Self::loop_value(
                         case.state,
                         plant.resp[i],
-                        paths[i],
+                        [paths[i][0], gh * paths[i][1]],
                         env.response(self.grid[i], self.fs),
                         self.damper_resp[i],
                     );
@@ -879,13 +919,25 @@ impl LoopAnalysis {
                 Ok(self.meets_minimum(std::slice::from_ref(&r)))
             })
         })?;
+        let gh = self.cfg.coupling.high_band_gain;
+        // Only D's x axis carries the Haptuator: the other cases do not
+        // depend on g_H.
+        let max_gh = self.critical(if gh > 0.0 { gh } else { 1.0 }, &|x| {
+            self.all_cases(&hint, &|c| {
+                if c.condition != Condition::D || c.axis != Axis::X {
+                    return Ok(true);
+                }
+                let r = self.case_gains(c, [kappa, g, x], true, false)?;
+                Ok(self.meets_minimum(std::slice::from_ref(&r)))
+            })
+        })?;
         let t = &self.tweezer;
         let kc = t.contact_stiffness_n_per_m;
         let drive_max = self.cfg.limits.haptuator_drive_max_v;
         let high_gain = self
             .grid
             .iter()
-            .map(|&f| sections_response(self.chain.high(), f, self.fs).norm())
+            .map(|&f| gh * sections_response(self.chain.high(), f, self.fs).norm())
             .fold(0.0, f64::max);
         Ok(StabilityReport {
             safe: conditions.iter().all(|c| c.meets_minimum),
@@ -904,6 +956,8 @@ impl LoopAnalysis {
             } else {
                 f64::INFINITY
             },
+            high_band_gain: gh,
+            max_high_band_gain: max_gh,
             p_mode: self.cfg.coupling.p_mode,
             latency_s: self.latency_s,
             latency_samples: self.delay,
@@ -963,6 +1017,18 @@ impl LoopAnalysis {
         }
         Ok(good)
     }
+}
+
+/// `sections` with the numerator of the first section times `k`: the
+/// cascade's response times `k` (none: `sections` is empty).
+fn scaled_sections(sections: &[BiquadCoeffs], k: f64) -> Vec<BiquadCoeffs> {
+    let mut v = sections.to_vec();
+    if let Some(s) = v.first_mut() {
+        s.b0 *= k;
+        s.b1 *= k;
+        s.b2 *= k;
+    }
+    v
 }
 
 /// Largest extra loop delay [`LoopAnalysis::with_latency`] takes, s. A

@@ -616,6 +616,14 @@ pub fn margins_ui(
                 format!("{:.0} N/m", r.pressed_stiffness_n_per_m),
             ),
             (
+                "high-band gain g_H",
+                format!(
+                    "{:.3} (largest safe {})",
+                    r.high_band_gain,
+                    fmt_or_inf(r.max_high_band_gain, "")
+                ),
+            ),
+            (
                 "Haptuator full scale",
                 format!("{:.2} N (high band)", r.high_band_force_full_scale_n),
             ),
