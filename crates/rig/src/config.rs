@@ -49,6 +49,75 @@ pub struct RigConfig {
     /// the defaults.
     #[serde(default)]
     pub stability: StabilityConfig,
+    /// The microscope camera the participant watches; absent = the
+    /// defaults (not written when default, so rig files and their hashes
+    /// from before the section existed stay the same).
+    #[serde(default, skip_serializing_if = "CameraConfig::is_default")]
+    pub camera: CameraConfig,
+}
+
+/// `[camera]`: the microscope camera whose frames the participant's screen
+/// shows (paper §4.1: the bead, the trap and the obstacles as the
+/// participant sees them). What vision-only trials depend on.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Frames per second (default 25, a video-rate camera).
+    pub frame_rate_hz: f64,
+    /// From the end of a frame's exposure to its display, s (default 40 ms:
+    /// one frame of transfer and display).
+    pub latency_s: f64,
+    /// Exposure time, s: a frame shows the mean positions over this window
+    /// ending at its capture (motion blur). 0 (default) = instantaneous;
+    /// at most one frame period.
+    pub exposure_s: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            frame_rate_hz: 25.0,
+            latency_s: 0.04,
+            exposure_s: 0.0,
+        }
+    }
+}
+
+/// Largest camera latency accepted, s.
+pub const MAX_CAMERA_LATENCY_S: f64 = 10.0;
+
+impl CameraConfig {
+    /// Whether every key has its default value.
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// Problems with the values at loop rate `fs` Hz (key, message).
+    pub fn issues(&self, fs: f64) -> Vec<(&'static str, String)> {
+        let mut v = Vec::new();
+        let r = self.frame_rate_hz;
+        if !(r.is_finite() && r > 0.0 && (!fs.is_finite() || r <= fs)) {
+            v.push((
+                "frame_rate_hz",
+                format!("must be > 0 and at most the loop rate {fs} Hz (got {r})"),
+            ));
+        }
+        let l = self.latency_s;
+        if !(l.is_finite() && (0.0..=MAX_CAMERA_LATENCY_S).contains(&l)) {
+            v.push((
+                "latency_s",
+                format!("must be in [0, {MAX_CAMERA_LATENCY_S}] s (got {l})"),
+            ));
+        }
+        let e = self.exposure_s;
+        if !(e.is_finite() && e >= 0.0 && (r <= 0.0 || e <= 1.0 / r + 1e-12)) {
+            v.push((
+                "exposure_s",
+                format!("must be in [0, 1/frame_rate_hz] s (got {e})"),
+            ));
+        }
+        v
+    }
 }
 
 /// `[rig]`: identity and timing.
@@ -681,6 +750,7 @@ impl RigConfig {
             }
         }
         add("haptuator", self.haptuator.issues(fs));
+        add("camera", self.camera.issues(fs));
         add("accelerometer", self.accelerometer.issues(fs));
         add("tweezer", self.tweezer.issues());
         for (i, o) in self.tweezer.obstacles.iter().enumerate() {
@@ -1264,6 +1334,7 @@ mod tests {
         }
         let mut c = RigConfig::default();
         assert!(!c.to_toml_string().unwrap().contains("high_band_gain"));
+        assert!(!c.to_toml_string().unwrap().contains("[camera]"));
         let without = default_config_text().replace("high_band_gain = 1.0\n", "");
         let old = RigConfig::from_toml_str(&without, "old.toml").unwrap();
         assert_eq!(old, c);

@@ -391,6 +391,7 @@ fn merged_meta(s: &SessionInfo) -> StudyMeta {
         rig_hash: s.rig_hash.clone(),
         raw_signals: s.raw_signals,
         trap_calibration: s.trap_calibration.clone(),
+        camera: s.camera,
         recorded_change: None,
         device: None,
     }

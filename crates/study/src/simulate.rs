@@ -211,6 +211,7 @@ pub fn sim_meta(
             .map_err(|e| RunError::Config(format!("rig file: {e}")))?,
     );
     meta.raw_signals = Some(raw);
+    meta.camera = Some(rig.camera);
     meta.recorded_change = recorded_change.map(str::to_owned);
     Ok((meta, chain))
 }

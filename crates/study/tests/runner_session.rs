@@ -261,13 +261,13 @@ fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
     let (fps, latency) = (25.0, 0.013);
     let cfg = RunnerConfig {
         act_every: 1,
-        camera_fps: fps,
-        camera_latency_s: latency,
         raw: None,
         trajectory_every: 100,
     };
-    let mut engine =
-        TrialEngine::new(SimStation::new(&RigConfig::default()).unwrap(), cfg).unwrap();
+    let mut rig = RigConfig::default();
+    rig.camera.frame_rate_hz = fps;
+    rig.camera.latency_s = latency;
+    let mut engine = TrialEngine::new(SimStation::new(&rig).unwrap(), cfg).unwrap();
     let key = TrialKey {
         participant: 0,
         phase: Phase::Test,
@@ -316,4 +316,94 @@ fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
     }
     let shown = shown.unwrap_or(0);
     assert!(shown > 600, "only {shown} frames shown");
+}
+
+/// With an exposure time, a frame shows the bead and trap positions
+/// averaged over the exposure's samples ending at its capture (the raw
+/// record's positions, sample by sample), not the positions at the
+/// capture; a camera setting out of range is refused naming the key.
+#[test]
+fn a_frame_shows_the_mean_positions_over_its_exposure() {
+    use kilotouch_study::export::ExportError;
+    use kilotouch_study::participant::{Observation, Participant, VisualFrame};
+    use kilotouch_study::protocol::Condition;
+    use kilotouch_study::runner::{RawSink, TrialEngine};
+    use kilotouch_study::seeds::TrialKey;
+
+    /// Moves the hand steadily (so the bead moves within an exposure) and
+    /// records every frame it is shown.
+    struct Sweeper(Vec<VisualFrame>, f64);
+    impl Participant for Sweeper {
+        fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
+            if let Some(f) = obs.frame
+                && self.0.last().is_none_or(|g| g.seq != f.seq)
+            {
+                self.0.push(f);
+            }
+            // 2 mm/s at the hand (0.8 µm/s of trap), from rest.
+            self.1 += 2e-6;
+            [self.1, 0.0]
+        }
+    }
+    #[derive(Default)]
+    struct Rows(Vec<[f64; 6]>);
+    impl RawSink for Rows {
+        fn push(&mut self, row: &[f64]) -> Result<(), ExportError> {
+            self.0
+                .push([row[0], row[1], row[2], row[3], row[4], row[5]]);
+            Ok(())
+        }
+    }
+    let cfg = RunnerConfig {
+        act_every: 10,
+        raw: Some(Dtype::F64),
+        trajectory_every: 100,
+    };
+    let mut rig = RigConfig::default();
+    rig.camera.exposure_s = 0.02; // 200 samples at 10 kHz, half a frame
+    let mut engine = TrialEngine::new(SimStation::new(&rig).unwrap(), cfg).unwrap();
+    let key = TrialKey {
+        participant: 0,
+        phase: Phase::Test,
+        condition: Condition::V,
+        trial: 1,
+    };
+    let setup = engine.setup(&protocol(), key);
+    let (mut who, mut rows) = (Sweeper(Vec::new(), 0.0), Rows::default());
+    engine.run_trial(&setup, &mut who, &mut rows).unwrap();
+    let fs = engine.sample_rate_hz();
+    let n = 200;
+    let mut checked = 0;
+    let mut blurred = 0;
+    for f in &who.0 {
+        // Row k − 1 is sample k (the first sample is k = 1).
+        let k = (f.captured_s * fs).round() as usize;
+        let window = &rows.0[k.saturating_sub(n)..k];
+        let mean = |c: usize| window.iter().map(|r| r[c]).sum::<f64>() / window.len() as f64;
+        let (bead, trap) = ([mean(4), mean(5)], [mean(2), mean(3)]);
+        for (got, want) in [(f.bead_m, bead), (f.trap_m, trap)] {
+            for i in 0..2 {
+                assert!(
+                    (got[i] - want[i]).abs() <= 1e-12 * (1.0 + want[i].abs()) + 1e-18,
+                    "frame {}: {got:?} vs mean {want:?}",
+                    f.seq
+                );
+            }
+        }
+        let last = rows.0[k - 1];
+        blurred += usize::from((f.trap_m[0] - last[2]).abs() > 1e-12);
+        checked += 1;
+    }
+    assert!(checked > 20, "{checked} frames");
+    assert!(
+        blurred > checked / 2,
+        "the moving trap is blurred in {blurred} of {checked}"
+    );
+
+    let mut bad = RigConfig::default();
+    bad.camera.exposure_s = 0.05;
+    match SimStation::new(&bad) {
+        Err(e) => assert!(e.to_string().contains("camera.exposure_s"), "{e}"),
+        Ok(_) => panic!("an exposure longer than a frame was accepted"),
+    }
 }

@@ -196,7 +196,8 @@ pub const SIM_READ_S: f64 = 1.5;
 impl SessionOptions {
     /// Defaults: mouse participant, real time, telemetry every 20 samples
     /// (2 ms at 10 kHz), the study crate's
-    /// [`RunnerConfig::default`] (25 Hz camera, 40 ms latency, f32 raw files).
+    /// [`RunnerConfig::default`] (1 kHz control, f32 raw files); the
+    /// camera is the rig file's.
     pub fn new(out: &Path, protocol: Option<Protocol>, rig: RigConfig) -> Self {
         Self {
             out: out.to_path_buf(),
@@ -470,7 +471,7 @@ impl SessionHandle {
         let counters = Arc::new(driver::SittingCounters::default());
         let contact_gap_m = TaskParams::from_protocol(&info.protocol).contact_gap_m();
         let d = driver::SittingDriver::new(driver::DriverParts {
-            core: TrialCore::new(fs, opts.runner)?,
+            core: TrialCore::new(fs, opts.runner, opts.rig.camera)?,
             who: Tap::new(who, contact_gap_m),
             inbox,
             outbox,

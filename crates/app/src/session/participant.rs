@@ -12,7 +12,7 @@ use kilotouch_study::seeds::TrialKey;
 use super::Telemetry;
 
 /// Live estimates of the running trial's metrics, from what the tap sees:
-/// camera frames (25 Hz by default, displayed 40 ms late) for the geometry,
+/// camera frames (the rig file's `[camera]`: 25 Hz, displayed 40 ms late by default) for the geometry,
 /// every sample's handle force for the force. The committed row holds the
 /// exact per-sample values (study crate, `task::circling`).
 ///

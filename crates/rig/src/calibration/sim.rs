@@ -34,9 +34,9 @@ pub struct RigAdapter<R: Rig> {
 /// content hash ([`super::hash`]) of the sections that describe the device
 /// a calibration measures (`[rig]`, `[plant]`, `[haptuator]`,
 /// `[accelerometer]` without its noise seed, `[limits]`). The tweezer, the
-/// coupling, the safety layer and the stability requirements are set to
-/// their defaults first: a calibration stays valid when the trap, the force
-/// scale or a safety setting changes.
+/// coupling, the safety layer, the stability requirements and the camera
+/// are set to their defaults first: a calibration stays valid when the
+/// trap, the force scale, a safety setting or the camera changes.
 pub fn rig_config_hash(cfg: &RigConfig) -> Result<String> {
     let mut c = cfg.clone();
     let d = RigConfig::default();
@@ -45,6 +45,7 @@ pub fn rig_config_hash(cfg: &RigConfig) -> Result<String> {
     c.coupling = d.coupling;
     c.safety = crate::config::SafetyConfig::default();
     c.stability = crate::config::StabilityConfig::default();
+    c.camera = crate::config::CameraConfig::default();
     content_hash(&c)
 }
 

@@ -120,6 +120,7 @@ impl NewStudy<'_> {
             rig_hash: self.meta.rig_hash.clone(),
             raw_signals: self.meta.raw_signals,
             trap_calibration: self.meta.trap_calibration.clone(),
+            camera: self.meta.camera,
             created_utc: self.now,
             updated_utc: self.now,
             sittings: Vec::new(),

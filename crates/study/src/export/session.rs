@@ -9,6 +9,7 @@ use crate::protocol::{AssignmentTable, Condition, Protocol};
 use crate::storage::error::{ExportError, Result, io_err};
 use crate::storage::fsutil::write_atomic;
 use crate::storage::utc::UtcTime;
+use kilotouch_rig::config::CameraConfig;
 use kilotouch_rig::tweezer::TrapCalibrationRecord;
 
 /// File name of the study record.
@@ -40,6 +41,9 @@ pub struct StudyMeta {
     /// The trap calibration in force (κ and the detector's sensitivity
     /// applied to the tweezer; `None`: none applied).
     pub trap_calibration: Option<TrapCalibrationRecord>,
+    /// The camera the participant watched (the rig file's `[camera]`;
+    /// `None`: not known to the writer).
+    pub camera: Option<CameraConfig>,
     /// The experimenter starts a new sitting with a recorded change of
     /// rig file, calibration or raw recording: the reason, journaled with
     /// the differences. `None`: a resume with different settings is
@@ -114,6 +118,7 @@ impl StudyMeta {
             rig_hash: None,
             raw_signals: None,
             trap_calibration: None,
+            camera: None,
             recorded_change: None,
             device: None,
         }
@@ -362,6 +367,11 @@ pub struct SessionInfo {
     /// that applied one; absent: none applied).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trap_calibration: Option<TrapCalibrationRecord>,
+    /// The camera the participant watches: frame rate, latency, exposure
+    /// (the rig file's `[camera]`; absent in folders written before it was
+    /// recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraConfig>,
     /// Creation time of the folder.
     pub created_utc: UtcTime,
     /// Time of the last rewrite of this file.

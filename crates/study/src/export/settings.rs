@@ -105,4 +105,7 @@ pub(crate) fn adopt(info: &mut SessionInfo, meta: &StudyMeta) {
     if meta.trap_calibration.is_some() {
         info.trap_calibration.clone_from(&meta.trap_calibration);
     }
+    if meta.camera.is_some() {
+        info.camera = meta.camera;
+    }
 }

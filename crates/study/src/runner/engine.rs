@@ -22,13 +22,14 @@ pub struct TrialEngine<S: PrepareStation> {
 }
 
 impl<S: PrepareStation> TrialEngine<S> {
-    /// An engine on `station`.
+    /// An engine on `station`, whose rig file's camera the participant
+    /// watches.
     ///
     /// # Errors
-    /// [`RunError::Config`] for a zero control period or a non-positive
-    /// frame rate / negative latency.
+    /// [`RunError::Config`] for a zero control period or a camera setting
+    /// out of range.
     pub fn new(station: S, cfg: RunnerConfig) -> Result<Self, RunError> {
-        let core = TrialCore::new(station.sample_rate_hz(), cfg)?;
+        let core = TrialCore::new(station.sample_rate_hz(), cfg, station.camera())?;
         Ok(Self { station, core })
     }
 

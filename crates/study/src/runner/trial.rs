@@ -8,6 +8,7 @@
 //! running a trial allocate nothing (the trajectory buffer comes in with
 //! [`TrialCore::start`] and leaves with [`TrialCore::take_outcome`]).
 
+use kilotouch_rig::config::CameraConfig;
 use kilotouch_rig::tweezer::{TweezerEvents, TweezerSample};
 
 use crate::error::RunError;
@@ -45,6 +46,7 @@ const FRAME_RING: usize = 64;
 #[derive(Debug)]
 pub struct TrialCore {
     cfg: RunnerConfig,
+    camera: CameraConfig,
     // The station's rate, Hz.
     station_fs: f64,
     // The current trial's rate (the station's / its decimation), Hz, and
@@ -54,6 +56,11 @@ pub struct TrialCore {
     trajectory_every: u64,
     frame_every: u64,
     latency_samples: u64,
+    // Samples of a frame's exposure (0: instantaneous) and the sums of
+    // the bead and trap positions over the current exposure, m.
+    exposure_samples: u64,
+    exposure_sum: [[f64; 2]; 2],
+    exposure_n: u64,
     // Trial state.
     key: Option<TrialKey>,
     acc: Option<TaskAccumulator>,
@@ -83,24 +90,20 @@ pub struct TrialCore {
 }
 
 impl TrialCore {
-    /// A core for a station running at `station_fs` Hz.
+    /// A core for a station running at `station_fs` Hz whose participant
+    /// watches `camera` (the rig file's `[camera]`).
     ///
     /// # Errors
-    /// [`RunError::Config`] for a zero control period or a non-positive
-    /// frame rate / negative latency.
-    pub fn new(station_fs: f64, cfg: RunnerConfig) -> Result<Self, RunError> {
+    /// [`RunError::Config`] for a zero control period or a camera setting
+    /// out of range ([`CameraConfig::issues`]).
+    pub fn new(station_fs: f64, cfg: RunnerConfig, camera: CameraConfig) -> Result<Self, RunError> {
         if cfg.act_every == 0 || cfg.trajectory_every == 0 {
             return Err(RunError::Config(
                 "act_every and trajectory_every must be ≥ 1".into(),
             ));
         }
-        let fps_ok = cfg.camera_fps.is_finite() && cfg.camera_fps > 0.0;
-        let latency_ok = cfg.camera_latency_s.is_finite() && cfg.camera_latency_s >= 0.0;
-        if !(fps_ok && latency_ok) {
-            return Err(RunError::Config(format!(
-                "camera_fps must be > 0 and camera_latency_s ≥ 0, got {} and {}",
-                cfg.camera_fps, cfg.camera_latency_s
-            )));
+        if let Some((key, why)) = camera.issues(station_fs).into_iter().next() {
+            return Err(RunError::Config(format!("camera.{key} {why}")));
         }
         if !(station_fs.is_finite() && station_fs > 0.0) {
             return Err(RunError::Config(format!(
@@ -110,12 +113,16 @@ impl TrialCore {
         let fs = station_fs;
         let mut engine = Self {
             cfg,
+            camera,
             station_fs: fs,
             fs,
             act_every: 1,
             trajectory_every: 1,
             frame_every: 1,
             latency_samples: 0,
+            exposure_samples: 0,
+            exposure_sum: [[0.0; 2]; 2],
+            exposure_n: 0,
             key: None,
             acc: None,
             scene: None,
@@ -166,13 +173,20 @@ impl TrialCore {
         self.fs = self.station_fs / d as f64;
         self.act_every = (self.cfg.act_every as u64 / d).max(1);
         self.trajectory_every = (self.cfg.trajectory_every as u64 / d).max(1);
-        self.frame_every = ((self.fs / self.cfg.camera_fps).round() as u64).max(1);
-        self.latency_samples = (self.cfg.camera_latency_s * self.fs).round() as u64;
+        let cam = &self.camera;
+        self.frame_every = ((self.fs / cam.frame_rate_hz).round() as u64).max(1);
+        self.latency_samples = (cam.latency_s * self.fs).round() as u64;
+        self.exposure_samples = ((cam.exposure_s * self.fs).round() as u64).min(self.frame_every);
     }
 
     /// Configuration.
     pub fn config(&self) -> &RunnerConfig {
         &self.cfg
+    }
+
+    /// The camera the participant watches.
+    pub fn camera(&self) -> &CameraConfig {
+        &self.camera
     }
 
     /// The station's sample rate, Hz (a trial may run at a divisor of it:
@@ -237,6 +251,8 @@ impl TrialCore {
         self.frames = [None; FRAME_RING];
         self.next_due = u64::MAX;
         self.frame_seq = 0;
+        self.exposure_sum = [[0.0; 2]; 2];
+        self.exposure_n = 0;
         self.shown = None;
         self.trajectory_cap = cap;
         trajectory.clear();
@@ -394,19 +410,43 @@ impl TrialCore {
     }
 
     /// Camera capture: every frame period, a frame of the scene at time `t`
-    /// (s) is queued for display `latency_samples` later. Returns whether a
-    /// frame was captured at this sample.
+    /// (s) is queued for display `latency_samples` later; with an exposure,
+    /// its positions are the means over the exposure's samples ending at
+    /// the capture (motion blur). Returns whether a frame was captured at
+    /// this sample.
     #[inline]
     fn capture_frame(&mut self, t: f64, tw: &TweezerSample) -> bool {
+        let n = self.exposure_samples;
+        if n > 0 {
+            // Samples to the next capture (0: this one).
+            let fe = self.frame_every;
+            let ahead = (fe - self.k % fe) % fe;
+            if ahead < n {
+                for (sum, p) in self.exposure_sum.iter_mut().zip([tw.bead_m, tw.trap_m]) {
+                    sum[0] += p[0];
+                    sum[1] += p[1];
+                }
+                self.exposure_n += 1;
+            }
+        }
         if !self.k.is_multiple_of(self.frame_every) {
             return false;
         }
+        let (bead_m, trap_m) = if self.exposure_n > 0 {
+            let w = 1.0 / self.exposure_n as f64;
+            let [b, p] = self.exposure_sum;
+            self.exposure_sum = [[0.0; 2]; 2];
+            self.exposure_n = 0;
+            ([b[0] * w, b[1] * w], [p[0] * w, p[1] * w])
+        } else {
+            (tw.bead_m, tw.trap_m)
+        };
         let geometry = self.geometry;
         let f = VisualFrame {
             seq: self.frame_seq,
             captured_s: t,
-            bead_m: tw.bead_m,
-            trap_m: tw.trap_m,
+            bead_m,
+            trap_m,
             obstacle_m: geometry.obstacle_m,
             obstacle_radius_m: geometry.obstacle_radius_m,
             bead_radius_m: geometry.bead_radius_m,

@@ -129,6 +129,10 @@ impl Station for SimStation {
 }
 
 impl PrepareStation for SimStation {
+    fn camera(&self) -> kilotouch_rig::config::CameraConfig {
+        self.kits.config().camera
+    }
+
     fn prepare(
         &mut self,
         scene: &Scene,

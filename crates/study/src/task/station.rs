@@ -105,4 +105,7 @@ pub trait PrepareStation: Station + Send {
         max_decimation: u32,
         rng: &mut ChaCha20Rng,
     ) -> Result<(), RunError>;
+
+    /// The camera the participant watches (the rig file's `[camera]`).
+    fn camera(&self) -> kilotouch_rig::config::CameraConfig;
 }
