@@ -734,6 +734,11 @@ mod tests {
         Tf::new(vec![250.0, 6.40e5], vec![1.0, 2135.0, 4.56e6]).unwrap()
     }
 
+    /// The default fit of G_H's exact response at `f` (Hz), order 1/2.
+    fn fit_g_h(f: &[f64]) -> FitResult {
+        fit_tf(f, &response(&g_h(), f), None, 1, 2, &FitOptions::default()).unwrap()
+    }
+
     fn logspace(f0: f64, f1: f64, n: usize) -> Vec<f64> {
         (0..n)
             .map(|i| f0 * (f1 / f0).powf(i as f64 / (n - 1) as f64))
@@ -808,15 +813,7 @@ mod tests {
         // REFERENCE-VALUES.md: ωn 2135.42 rad/s (339.86 Hz), ζ 0.49990,
         // zero −2560 rad/s (407.44 Hz), DC gain 0.140351.
         let f = logspace(10.0, 5000.0, 200);
-        let r = fit_tf(
-            &f,
-            &response(&g_h(), &f),
-            None,
-            1,
-            2,
-            &FitOptions::default(),
-        )
-        .unwrap();
+        let r = fit_g_h(&f);
         assert_eq!(r.modes.len(), 1);
         let m = r.modes[0];
         assert!((m.wn_rad_s - 2135.42).abs() < 0.005, "{m:?}");
@@ -1138,15 +1135,7 @@ mod tests {
         // Data including f = 0 (excluded from the geometric mean): G_H again.
         let mut f = vec![0.0];
         f.extend(logspace(10.0, 5000.0, 100));
-        let r = fit_tf(
-            &f,
-            &response(&g_h(), &f),
-            None,
-            1,
-            2,
-            &FitOptions::default(),
-        )
-        .unwrap();
+        let r = fit_g_h(&f);
         assert_coeffs(&r.tf, &g_h(), 1e-8);
         assert!(rel(r.omega0_rad_s, 2.0 * PI * (10.0_f64 * 5000.0).sqrt()) < 1e-12);
         // A pole at the origin: G(s) = 1e4/(s (s + 300)), 0.1 Hz – 1 kHz.

@@ -24,19 +24,11 @@ use kilotouch_rig::tweezer::{Obstacle, SimTweezer, Tweezer, TweezerIntegrator, T
 use nalgebra::SVector;
 use std::hint::black_box;
 
+#[path = "common/drive.rs"]
+mod common_drive;
+use common_drive::drive;
+
 const N: usize = 10_000;
-
-/// Precomputed test signal (no `sin` inside the timed loops).
-static DRIVE: std::sync::LazyLock<Vec<f64>> = std::sync::LazyLock::new(|| {
-    (0..4096)
-        .map(|k| 0.3 * ((k as f64) * 0.0731).sin())
-        .collect()
-});
-
-#[inline]
-fn drive(k: usize) -> f64 {
-    DRIVE[k & 4095]
-}
 
 fn bench_plant(c: &mut Criterion) {
     let cfg = RigConfig::default();

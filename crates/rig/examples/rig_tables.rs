@@ -19,6 +19,10 @@ use kilotouch_rig::tweezer::{TweezerIntegrator, TweezerParams};
 use nalgebra::SVector;
 use std::hint::black_box;
 
+#[path = "../benches/common/drive.rs"]
+mod common_drive;
+use common_drive::drive;
+
 fn grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (0..n)
         .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
@@ -39,18 +43,6 @@ fn ns_per_call(n: usize, mut f: impl FnMut(usize) -> f64) -> f64 {
     }
     black_box(sink);
     best
-}
-
-/// Precomputed test signal (no `sin` inside the timed loops).
-static DRIVE: std::sync::LazyLock<Vec<f64>> = std::sync::LazyLock::new(|| {
-    (0..4096)
-        .map(|k| 0.3 * ((k as f64) * 0.0731).sin())
-        .collect()
-});
-
-#[inline]
-fn drive(k: usize) -> f64 {
-    DRIVE[k & 4095]
 }
 
 fn timings(cfg: &RigConfig) -> Result<(), Box<dyn std::error::Error>> {

@@ -12,6 +12,7 @@ use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_mai
 use kilotouch_study::export::{StudyMeta, StudyStore, UtcTime, regenerate_summaries};
 use kilotouch_study::protocol::Protocol;
 use kilotouch_study::rawsig::{Dtype, NpyWriter, RawLayout, standard_channels};
+use kilotouch_study::seeds::TrialKey;
 
 fn protocol(participants: u32) -> Protocol {
     let text = format!(
@@ -52,6 +53,19 @@ fn bench_npy(c: &mut Criterion) {
     g.finish();
 }
 
+/// Begins trial `k` and commits it as a success in 42 s with the mean
+/// displacement error `disp_err_mean_um` (µm; `None`: NA).
+fn commit_success(store: &mut StudyStore, k: TrialKey, disp_err_mean_um: Option<f64>) {
+    let ticket = store
+        .begin_trial(k, UtcTime::from_unix_millis(0))
+        .expect("begin");
+    let mut row = ticket.row();
+    row.success = true;
+    row.time_s = Some(42.0);
+    row.disp_err_mean_um = disp_err_mean_um;
+    store.commit_trial(ticket, &row).expect("commit");
+}
+
 fn bench_commit(c: &mut Criterion) {
     let meta = StudyMeta::new("bench");
     let mut g = c.benchmark_group("trial_commit");
@@ -67,13 +81,7 @@ fn bench_commit(c: &mut Criterion) {
             let keys: Vec<_> = store.plan().iter().map(|p| p.key).collect();
             let start = Instant::now();
             for &k in keys.iter().take(iters as usize) {
-                let ticket = store
-                    .begin_trial(k, UtcTime::from_unix_millis(0))
-                    .expect("begin");
-                let mut row = ticket.row();
-                row.success = true;
-                row.time_s = Some(42.0);
-                store.commit_trial(ticket, &row).expect("commit");
+                commit_success(&mut store, k, None);
             }
             start.elapsed()
         });
@@ -85,14 +93,7 @@ fn bench_commit(c: &mut Criterion) {
     let mut store = StudyStore::open(dir.path(), &protocol(8), &meta).expect("open");
     let keys: Vec<_> = store.plan().iter().map(|p| p.key).collect();
     for k in keys {
-        let ticket = store
-            .begin_trial(k, UtcTime::from_unix_millis(0))
-            .expect("begin");
-        let mut row = ticket.row();
-        row.success = true;
-        row.time_s = Some(42.0);
-        row.disp_err_mean_um = Some(0.5);
-        store.commit_trial(ticket, &row).expect("commit");
+        commit_success(&mut store, k, Some(0.5));
     }
     drop(store);
     c.bench_function("regenerate summaries, 312 trials", |b| {

@@ -428,6 +428,17 @@ fn check_bead_obstacle(prefix: &str, obstacle: f64, bead: f64, escape: f64) -> R
     Ok(())
 }
 
+/// A task's time limit `timeout_s` (s): positive, at most [`MAX_TIMEOUT_S`];
+/// `prefix` is the task's table, e.g. `task.circling`.
+fn check_timeout(prefix: &str, timeout_s: f64) -> Result<(), Invalid> {
+    positive_at_most(
+        &format!("{prefix}.timeout_s"),
+        timeout_s,
+        MAX_TIMEOUT_S,
+        "seconds",
+    )
+}
+
 /// A task whose bead must go `extent` µm from its start (computed by
 /// `how`) fits the scene ([`SCENE_REACH_UM`]); `field` is the value to
 /// change.
@@ -532,21 +543,24 @@ impl Protocol {
     /// The task's values: positive, bounded and fitting the scene
     /// ([`SCENE_REACH_UM`]).
     fn validate_task(&self) -> Result<(), Invalid> {
+        let (p, obstacle, bead, escape) = match &self.task {
+            Task::Circling(t) => (
+                "task.circling",
+                t.obstacle_radius_um,
+                t.bead_radius_um,
+                t.escape_distance_um,
+            ),
+            Task::BlindNavigation(t) => (
+                "task.blind_navigation",
+                t.obstacle_radius_um,
+                t.bead_radius_um,
+                t.escape_distance_um,
+            ),
+        };
+        check_bead_obstacle(p, obstacle, bead, escape)?;
         match &self.task {
             Task::Circling(t) => {
-                let p = "task.circling";
-                check_bead_obstacle(
-                    p,
-                    t.obstacle_radius_um,
-                    t.bead_radius_um,
-                    t.escape_distance_um,
-                )?;
-                positive_at_most(
-                    &format!("{p}.timeout_s"),
-                    t.timeout_s,
-                    MAX_TIMEOUT_S,
-                    "seconds",
-                )?;
+                check_timeout(p, t.timeout_s)?;
                 positive_at_most(
                     &format!("{p}.revolutions"),
                     t.revolutions,
@@ -572,13 +586,6 @@ impl Protocol {
                 }
             }
             Task::BlindNavigation(t) => {
-                let p = "task.blind_navigation";
-                check_bead_obstacle(
-                    p,
-                    t.obstacle_radius_um,
-                    t.bead_radius_um,
-                    t.escape_distance_um,
-                )?;
                 positive(&format!("{p}.start_distance_um"), t.start_distance_um, "µm")?;
                 positive(
                     &format!("{p}.retreat_distance_um"),
@@ -595,12 +602,7 @@ impl Protocol {
                     t.obstacle_radius_um + t.bead_radius_um + t.start_distance_um,
                     "to the obstacle's centre: R_o + R_b + start_distance_um",
                 )?;
-                positive_at_most(
-                    &format!("{p}.timeout_s"),
-                    t.timeout_s,
-                    MAX_TIMEOUT_S,
-                    "seconds",
-                )?;
+                check_timeout(p, t.timeout_s)?;
                 if !(t.success_angle_deg > 0.0 && t.success_angle_deg <= 90.0) {
                     return Err(invalid(
                         format!("{p}.success_angle_deg"),

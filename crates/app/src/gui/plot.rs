@@ -300,6 +300,38 @@ pub struct AxisReadout {
     pub ticks: Vec<String>,
 }
 
+/// The tick labels an axis drew, recorded as [`tick_label`] formats them
+/// (egui_plot calls the formatter while it paints).
+#[derive(Debug, Default)]
+struct ShownTicks(std::cell::RefCell<Vec<String>>);
+
+impl ShownTicks {
+    /// [`tick_label`], recorded.
+    fn label(&self, mark: egui_plot::GridMark, range: &std::ops::RangeInclusive<f64>) -> String {
+        let t = tick_label(mark, range);
+        self.0.borrow_mut().push(t.clone());
+        t
+    }
+
+    /// The axis's readout: `label` and the ticks recorded.
+    fn readout(self, label: String) -> AxisReadout {
+        AxisReadout {
+            label,
+            ticks: self.0.into_inner(),
+        }
+    }
+}
+
+/// A plot `height` points high that the mouse neither scrolls, drags nor
+/// zooms (the live plots follow their data).
+fn fixed_plot<'a>(id: &str, height: f32) -> Plot<'a> {
+    Plot::new(id.to_owned())
+        .height(height)
+        .allow_scroll(false)
+        .allow_drag(false)
+        .allow_zoom(false)
+}
+
 /// Spacing of labelled ticks, screen points: wanted, and the least
 /// ([`ticks_125`]); egui_plot hides x labels closer than 60 pt and y labels
 /// closer than 20 pt.
@@ -439,16 +471,11 @@ pub fn trace_plot(
         })
         .collect();
     let label = format!("{prefix}{unit}");
-    let shown = std::cell::RefCell::new(Vec::new());
-    Plot::new(id.to_owned())
-        .height(height)
+    let shown = ShownTicks::default();
+    fixed_plot(id, height)
         .y_axis_label(label.clone())
         .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
-        .y_axis_formatter(|m, r| {
-            let t = tick_label(m, r);
-            shown.borrow_mut().push(t.clone());
-            t
-        })
+        .y_axis_formatter(|m, r| shown.label(m, r))
         .y_axis_min_width(44.0)
         .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
         .x_axis_formatter(tick_label)
@@ -458,19 +485,13 @@ pub fn trace_plot(
             ""
         })
         .include_y(0.0)
-        .allow_scroll(false)
-        .allow_drag(false)
-        .allow_zoom(false)
         .legend(egui_plot::Legend::default())
         .show(ui, |p| {
             for l in lines {
                 p.line(l);
             }
         });
-    AxisReadout {
-        label,
-        ticks: shown.into_inner(),
-    }
+    shown.readout(label)
 }
 
 /// Bins of a histogram of a quantised signal: `bins` bins over ±`range`,
@@ -549,24 +570,16 @@ pub fn histogram_plot(
         })
         .collect();
     let label = format!("{quantity} ({prefix}{unit})");
-    let shown = std::cell::RefCell::new(Vec::new());
+    let shown = ShownTicks::default();
     let r = f64::from(range) * factor;
-    Plot::new(id.to_owned())
-        .height(height)
+    fixed_plot(id, height)
         .x_axis_label(label.clone())
         .x_grid_spacer(|i| ticks_125(i, X_TICK_PX.0, X_TICK_PX.1))
-        .x_axis_formatter(|m, rr| {
-            let t = tick_label(m, rr);
-            shown.borrow_mut().push(t.clone());
-            t
-        })
+        .x_axis_formatter(|m, rr| shown.label(m, rr))
         .y_axis_label("density")
         .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
         .y_axis_formatter(tick_label)
         .y_axis_min_width(44.0)
-        .allow_scroll(false)
-        .allow_drag(false)
-        .allow_zoom(false)
         .include_x(-r)
         .include_x(r)
         .show(ui, |p| {
@@ -574,10 +587,7 @@ pub fn histogram_plot(
                 egui_plot::BarChart::new("histogram", bars).color(egui::Color32::LIGHT_BLUE),
             );
         });
-    AxisReadout {
-        label,
-        ticks: shown.into_inner(),
-    }
+    shown.readout(label)
 }
 
 /// Welch PSD of the last samples (periodic Hann, 50 % overlap, one-sided
@@ -604,8 +614,7 @@ pub fn spectrum_plot(ui: &mut egui::Ui, id: &str, height: f32, spec: Option<&Spe
                 .collect()
         })
         .unwrap_or_default();
-    Plot::new(id.to_owned())
-        .height(height)
+    fixed_plot(id, height)
         .x_axis_label("frequency (Hz)")
         .y_axis_label("dB")
         .x_grid_spacer(|i| crate::gui::charts::log_freq_marks(i.bounds))
@@ -613,9 +622,6 @@ pub fn spectrum_plot(ui: &mut egui::Ui, id: &str, height: f32, spec: Option<&Spe
         .y_grid_spacer(|i| ticks_125(i, Y_TICK_PX.0, Y_TICK_PX.1))
         .y_axis_formatter(tick_label)
         .y_axis_min_width(44.0)
-        .allow_scroll(false)
-        .allow_drag(false)
-        .allow_zoom(false)
         .show(ui, |p| {
             p.line(Line::new("PSD", PlotPoints::from(pts)).color(egui::Color32::GOLD));
         });

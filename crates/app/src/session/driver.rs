@@ -193,7 +193,7 @@ impl Station for LoopStation<'_, '_> {
             ctx.exchange(hands.len())?;
             for (o, l) in out.iter_mut().zip(ctx.lp.block()) {
                 ctx.out.publish(l, l.sensors.handle_m);
-                *o = station_sample(l);
+                *o = StationSample::from_loop(l);
             }
             return Ok(());
         }
@@ -202,19 +202,9 @@ impl Station for LoopStation<'_, '_> {
             ctx.lp.advance()?;
             let l = ctx.lp.last();
             ctx.out.publish(l, *h);
-            *o = station_sample(l);
+            *o = StationSample::from_loop(l);
         }
         Ok(())
-    }
-}
-
-#[inline]
-fn station_sample(l: &kilotouch_rig::LoopSample) -> StationSample {
-    StationSample {
-        sensors: l.sensors,
-        command: l.command,
-        tweezer: l.tweezer,
-        force_hand_n: l.rendered.image_n,
     }
 }
 

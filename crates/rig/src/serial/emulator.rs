@@ -693,6 +693,22 @@ pub struct DaqInstrument {
     agent: Option<Box<dyn HandAgent>>,
 }
 
+/// A sample rate as the serial protocol carries it: whole Hz, from 1 to
+/// `u32::MAX`.
+///
+/// # Errors
+/// [`RigError::InvalidParameter`] (`sample_rate_hz`) for any other rate.
+pub(crate) fn wire_rate_hz(fs: f64) -> Result<u32, RigError> {
+    if fs.fract() != 0.0 || !(1.0..=f64::from(u32::MAX)).contains(&fs) {
+        return Err(RigError::InvalidParameter {
+            name: "sample_rate_hz",
+            value: fs,
+            reason: "the serial protocol carries whole Hz".into(),
+        });
+    }
+    Ok(fs as u32)
+}
+
 impl DaqInstrument {
     /// Encoder counts per metre used when the rig file sets no resolution.
     pub const DEFAULT_COUNTS_PER_M: f64 = 1e7;
@@ -701,14 +717,7 @@ impl DaqInstrument {
     pub fn new(cfg: &RigConfig) -> Result<Self, RigError> {
         let mut rig = SimRig::new(cfg)?;
         rig.start()?;
-        let fs = cfg.rig.sample_rate_hz;
-        if fs.fract() != 0.0 || !(1.0..=f64::from(u32::MAX)).contains(&fs) {
-            return Err(RigError::InvalidParameter {
-                name: "sample_rate_hz",
-                value: fs,
-                reason: "the serial protocol carries whole Hz".into(),
-            });
-        }
+        let fs = wire_rate_hz(cfg.rig.sample_rate_hz)?;
         let range = rig.accelerometer().range_m_s2();
         let lsb = rig.accelerometer().lsb_m_s2();
         let res = cfg.rig.encoder_resolution_m;
@@ -734,7 +743,7 @@ impl DaqInstrument {
             rig,
             caps,
             name: cfg.rig.name.clone(),
-            fs: fs as u32,
+            fs,
             frame: [SensorFrame::default()],
             agent: None,
         })

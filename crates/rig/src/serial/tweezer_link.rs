@@ -45,7 +45,7 @@
 //! gives κ and the displacement sensitivity R_d; once applied, the bead is
 //! placed at trap + R_d·V and the force is κ_cal (trap − bead).
 
-use super::emulator::Instrument;
+use super::emulator::{Instrument, wire_rate_hz};
 use super::frame::{
     self, Caps, DeviceKind, Hello, MAX_SCENE_OBSTACLES, Scene, SceneObstacle, TrapCommand,
     TweezerCaps, TweezerWireSample, tweezer_status as ts,
@@ -72,14 +72,7 @@ pub struct TweezerInstrument {
 impl TweezerInstrument {
     /// The tweezer of `cfg` at the rig's sample rate.
     pub fn new(cfg: &RigConfig) -> Result<Self, RigError> {
-        let fs = cfg.rig.sample_rate_hz;
-        if fs.fract() != 0.0 || !(1.0..=f64::from(u32::MAX)).contains(&fs) {
-            return Err(RigError::InvalidParameter {
-                name: "sample_rate_hz",
-                value: fs,
-                reason: "the serial protocol carries whole Hz".into(),
-            });
-        }
+        let fs = wire_rate_hz(cfg.rig.sample_rate_hz)?;
         let p = TweezerParams::from_config(&cfg.tweezer);
         let waist_m = p.escape_distance_m;
         let obstacles: Vec<SceneObstacle> = p
@@ -98,8 +91,8 @@ impl TweezerInstrument {
             ))
         })?;
         Ok(Self {
-            tw: DetectedTweezer::new(p, &cfg.tweezer.detector, fs)?,
-            fs: fs as u32,
+            tw: DetectedTweezer::new(p, &cfg.tweezer.detector, f64::from(fs))?,
+            fs,
             name: format!("{} (tweezer)", cfg.rig.name),
             waist_m,
             scene,

@@ -590,19 +590,8 @@ impl StudyStore {
     /// # Errors
     /// [`ExportError::Trial`] when a trial is still open; I/O errors.
     pub fn end_sitting(mut self) -> Result<()> {
-        if let Some(key) = self.open_trial {
-            return Err(ExportError::Trial {
-                key,
-                message: "still open: commit or abort it before ending the sitting".into(),
-            });
-        }
-        self.journal.append(Record::SessionDone {
-            completed: self.completed.len() as u64,
-            planned: self.plan.len() as u64,
-            timing: self.timing.take(),
-        })?;
-        self.write_session_info()?;
-        Ok(())
+        self.refuse_open_trial("ending the sitting")?;
+        self.session_done()
     }
 
     /// Closes the sitting: regenerates the summaries and journals
@@ -614,20 +603,33 @@ impl StudyStore {
     /// [`ExportError::Trial`] when a trial is still open; those of
     /// [`StudyStore::regenerate_summaries`].
     pub fn close(mut self) -> Result<SummaryFiles> {
-        if let Some(key) = self.open_trial {
-            return Err(ExportError::Trial {
-                key,
-                message: "still open: commit or abort it before closing".into(),
-            });
-        }
+        self.refuse_open_trial("closing")?;
         let files = regenerate_summaries(&self.dir)?;
+        self.session_done()?;
+        Ok(files)
+    }
+
+    /// [`ExportError::Trial`] when a trial is still open, naming what the
+    /// caller was doing (`closing`).
+    fn refuse_open_trial(&self, doing: &str) -> Result<()> {
+        match self.open_trial {
+            Some(key) => Err(ExportError::Trial {
+                key,
+                message: format!("still open: commit or abort it before {doing}"),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Journals `session_done` with the progress so far and rewrites
+    /// `session.json`.
+    fn session_done(&mut self) -> Result<()> {
         self.journal.append(Record::SessionDone {
             completed: self.completed.len() as u64,
             planned: self.plan.len() as u64,
             timing: self.timing.take(),
         })?;
-        self.write_session_info()?;
-        Ok(files)
+        self.write_session_info()
     }
 }
 

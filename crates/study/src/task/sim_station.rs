@@ -116,13 +116,7 @@ impl Station for SimStation {
         for (h, o) in hands.iter().zip(out.iter_mut()) {
             self.lp.rig.set_hand(*h);
             self.lp.advance()?;
-            let s = self.lp.last();
-            *o = StationSample {
-                sensors: s.sensors,
-                command: s.command,
-                tweezer: s.tweezer,
-                force_hand_n: s.rendered.image_n,
-            };
+            *o = StationSample::from_loop(self.lp.last());
         }
         Ok(())
     }

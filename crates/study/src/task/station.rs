@@ -15,10 +15,10 @@
 //! A station advances in blocks ([`Station::step_block`]): a live rig
 //! exchanges a block per round trip, the simulated rig steps each sample.
 
-use kilotouch_rig::Condition;
 use kilotouch_rig::coupling::ChainSource;
 use kilotouch_rig::device::{ActuatorFrame, SensorFrame};
 use kilotouch_rig::tweezer::TweezerSample;
+use kilotouch_rig::{Condition, LoopSample};
 use rand_chacha::ChaCha20Rng;
 
 pub use kilotouch_rig::coupling::HandMapping;
@@ -39,6 +39,21 @@ pub struct StationSample {
     /// Image of the optical force rendered at the hand, N (zero in V): what
     /// the force metrics use (the wall damper is not part of it).
     pub force_hand_n: [f64; 2],
+}
+
+impl StationSample {
+    /// The station sample of one step of the closed loop: its sensor frame,
+    /// command and tweezer output, and the rendered image of the optical
+    /// force at the hand (N).
+    #[inline]
+    pub fn from_loop(l: &LoopSample) -> Self {
+        Self {
+            sensors: l.sensors,
+            command: l.command,
+            tweezer: l.tweezer,
+            force_hand_n: l.rendered.image_n,
+        }
+    }
 }
 
 /// The largest block a station advances at once, samples (the closed
