@@ -313,4 +313,27 @@ mod tests {
             .is_err()
         );
     }
+
+    #[test]
+    fn a_record_written_in_pn_per_um_loads_and_is_written_back_identically() {
+        // Written by `kilotouch tweezer record --calibration-out` when the
+        // record held pN/µm and µm/V.
+        let text = include_str!("../../tests/data/trap_calibration_record.json");
+        let r: TrapCalibrationRecord = serde_json::from_str(text).unwrap();
+        let file: serde_json::Value = serde_json::from_str(text).unwrap();
+        let num = |v: &serde_json::Value| v.as_f64().unwrap();
+        let ulps = |a: f64, b: f64| a.to_bits().abs_diff(b.to_bits());
+        // The loop gets what it got from the file before: pN/µm × 1e-6
+        // (within one unit in the last place: now the correctly rounded
+        // pN/µm ÷ 10⁶).
+        let a = r.applied();
+        assert!(ulps(a.stiffness_n_per_m, num(&file["kappa_pn_um"]) * 1e-6) <= 1);
+        for k in 0..2 {
+            assert!(ulps(a.rd_m_per_v[k], num(&file["rd_um_per_v"][k]) * 1e-6) <= 1);
+        }
+        assert!(ulps(r.x.rf_n_per_v, num(&file["x"]["rf_pn_per_v"]) * 1e-12) <= 1);
+        assert!((r.kappa_n_per_m - 20.19e-6).abs() < 0.01e-6, "{r:?}");
+        // Keys, units and every number as they were.
+        assert_eq!(serde_json::to_string_pretty(&r).unwrap() + "\n", text);
+    }
 }
