@@ -7,13 +7,21 @@
 //! **Files.** A serialised SI field keeps its key and unit on disk with
 //! `#[serde(rename = "kappa_pn_um", with = "kilotouch_rig::units::pn_per_um")]`
 //! (the modules [`pn_per_um`], [`um_per_v`], [`pn_per_v`]; for `f64` and
-//! `[f64; 2]`). Writing multiplies by the exact power of ten (a value
-//! computed in SI is written exactly as `value * 1e6`); reading divides by
-//! it (correctly rounded). A value read and written back is the same `f64`,
-//! except where the file's grid of numbers is finer than the SI one (about
-//! 3 % of values in pN/µm or µm/V, 6 % in pN/V, all near the top of their
-//! binary octave): no SI `f64` maps back to such a value, and it comes back
-//! one unit in the last place away (the tests measure both).
+//! `[f64; 2]`). Writing multiplies by the exact power of ten; reading
+//! divides by it (correctly rounded).
+//!
+//! **Last bits.** With an exact float parser (serde_json's
+//! `float_roundtrip`, which the study crate enables), a file this code wrote
+//! reads back and is written again byte for byte. A value written otherwise (a hand edit, a file from when
+//! the code held pN/µm) comes back as it was too, except where the file's
+//! grid of numbers is finer than the SI one (about 3 % of values in pN/µm
+//! or µm/V, 6 % in pN/V, all near the top of their binary octave): no SI
+//! `f64` maps back to such a value, and it is written one unit in the last
+//! place away (the tests measure both). A quantity computed in SI and
+//! written as `value * 1e6` (κ and R_d of a fit, the stability report's
+//! stiffnesses) has the bits it had when computed in pN/µm; one computed
+//! from them (standard errors, R_f = R_d κ, the two axes' weighted κ) may
+//! differ from that in its last digit.
 
 /// N/m → pN/µm.
 #[inline]
@@ -166,6 +174,19 @@ mod tests {
         }
         let frac = moved.map(|m| m as f64 / n as f64);
         assert!(frac[0] < 0.04 && frac[1] < 0.07, "{frac:?}");
+        // What this code writes reads back to a value written identically.
+        for _ in 0..n {
+            let y = 10f64.powf(-12.0 + 11.0 * next());
+            for (to, from) in [
+                (
+                    to_pn_per_um as fn(f64) -> f64,
+                    from_pn_per_um as fn(f64) -> f64,
+                ),
+                (to_pn_per_v, from_pn_per_v),
+            ] {
+                assert_eq!(to(from(to(y))), to(y), "{y}");
+            }
+        }
         // Short decimal values, as typed into a file, and the paper's ones.
         for x in [20.0, 20.4, 2.0, 0.5, 100.0, 1000.0, 1.9] {
             assert_eq!(to_pn_per_um(from_pn_per_um(x)), x);

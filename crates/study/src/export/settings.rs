@@ -110,3 +110,19 @@ pub(crate) fn adopt(info: &mut SessionInfo, meta: &StudyMeta) {
         info.trap_calibration.clone_from(&meta.trap_calibration);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use kilotouch_rig::tweezer::TrapCalibrationRecord;
+
+    #[test]
+    fn a_recorded_trap_calibration_is_written_back_byte_for_byte() {
+        // A record `kilotouch tweezer record --calibration-out` wrote when
+        // the record held pN/µm: read (SI inside) and written again as a
+        // session.json keeps it, with this crate's exact float parser.
+        let text = include_str!("../../../rig/tests/data/trap_calibration_record.json");
+        let r: TrapCalibrationRecord = serde_json::from_str(text).unwrap();
+        assert!((r.kappa_n_per_m - 20.19e-6).abs() < 0.01e-6, "{r:?}");
+        assert_eq!(serde_json::to_string_pretty(&r).unwrap() + "\n", text);
+    }
+}
