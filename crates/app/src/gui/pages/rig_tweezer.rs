@@ -285,7 +285,7 @@ impl TweezerSection {
                          (R_d = {:.4} µm/V); recorded in free solution, away from the obstacles",
                         to_pn_per_um(rc.tweezer.stiffness_n_per_m),
                         rc.tweezer.detector.sensitivity_v_per_m * 1e-6,
-                        1e6 / rc.tweezer.detector.sensitivity_v_per_m
+                        to_um_per_v(1.0 / rc.tweezer.detector.sensitivity_v_per_m)
                     ));
                 }
                 Ok(RigSpec::Audio(_)) => {
