@@ -174,7 +174,7 @@ fn predicted_and_simulated_stability_agree() {
     cfg.stability.hand_damping_n_s_per_m = [cfg.plant.b_f; 2];
     let chain = LoopChain::as_designed(&cfg).expect("chain");
     let base = analyse(&cfg, &chain.coefficients).expect("analysis");
-    let kappa_c = base.critical_trap_stiffness_pn_um * 1e-6;
+    let kappa_c = base.critical_trap_stiffness_n_per_m;
     let g_c = base.critical_force_scale;
     assert!(kappa_c.is_finite() && g_c.is_finite());
     let mut checked = 0;

@@ -6,6 +6,7 @@
 use kilotouch_dsp::trap_psd::PsdFit;
 use kilotouch_rig::tweezer::calibration::{TrapCalibration, TrapCalibrationSettings};
 use kilotouch_rig::tweezer::record::model_name;
+use kilotouch_rig::units::{to_pn_per_um, to_um_per_v};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -74,7 +75,11 @@ fn draw_fit(
     root.fill(&WHITE)?;
     let title = format!(
         "κ = {:.3} ± {:.3} pN/µm   f_c = {:.1} ± {:.1} Hz   R_d = {:.4} µm/V",
-        cal.kappa_pn_um, cal.kappa_se_pn_um, cal.corner_hz, cal.corner_se_hz, cal.rd_um_per_v
+        to_pn_per_um(cal.kappa_n_per_m),
+        to_pn_per_um(cal.kappa_se_n_per_m),
+        cal.corner_hz,
+        cal.corner_se_hz,
+        to_um_per_v(cal.rd_m_per_v)
     );
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT, 22).into_font())

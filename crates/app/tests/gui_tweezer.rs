@@ -12,6 +12,7 @@ use kilotouch_testkit as common;
 use common::{engine_reporting, step_until};
 use egui_kittest::kittest::{NodeT, Queryable};
 use kilotouch::gui::{KilotouchApp, Page};
+use kilotouch_rig::units::{to_pn_per_um, to_um_per_v};
 
 fn shown_kappa(h: &egui_kittest::Harness<'_, KilotouchApp>) -> f64 {
     // "κ to apply: 20.123 ± 0.234 pN/µm (both axes, weighted)"
@@ -25,7 +26,7 @@ fn shown_kappa(h: &egui_kittest::Harness<'_, KilotouchApp>) -> f64 {
 fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     let mut h = common::app_harness(common::fresh_app(Some(Page::Rig)), 1400.0, 2200.0, Some(16));
     assert!(step_until(&mut h, common::WAIT_S, engine_reporting));
-    let truth = h.state().rig_config.tweezer.stiffness_n_per_m * 1e6;
+    let truth = to_pn_per_um(h.state().rig_config.tweezer.stiffness_n_per_m);
     h.get_by_label("Tweezer: trap calibration");
     h.get_by_label_contains("Active trap calibration: none");
     h.get_by_label("Record and calibrate").click();
@@ -42,14 +43,20 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     let r = h.state().rig_page().tweezer.result().unwrap().clone();
     assert_eq!(r.n_samples, 100_000);
     let kappa = shown_kappa(&h);
-    assert!((kappa - r.kappa_pn_um).abs() < 1e-3, "{kappa} vs {r:?}");
+    assert!(
+        (kappa - to_pn_per_um(r.kappa_n_per_m)).abs() < 1e-3,
+        "{kappa} vs {r:?}"
+    );
     assert!(
         (kappa / truth - 1.0).abs() < 0.04,
         "κ shown {kappa} pN/µm vs the simulated trap's {truth}"
     );
-    assert!((kappa - truth).abs() < 3.5 * r.kappa_se_pn_um, "{r:?}");
+    assert!(
+        (kappa - truth).abs() < 3.5 * to_pn_per_um(r.kappa_se_n_per_m),
+        "{r:?}"
+    );
     // R_d of the simulated detector: 1/S = 2 µm/V.
-    for rd in r.rd_um_per_v {
+    for rd in r.rd_m_per_v.map(to_um_per_v) {
         assert!((rd / 2.0 - 1.0).abs() < 0.03, "R_d {rd}");
     }
     h.get_by_label("fit accepted");
@@ -73,7 +80,7 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.step();
     h.get_by_label_contains(&format!(
         "trap calibration recorded: κ = {:.3}",
-        r.kappa_pn_um
+        to_pn_per_um(r.kappa_n_per_m)
     ));
 
     // Removed again: the tweezer reports the simulated bead and κ.

@@ -16,6 +16,7 @@ use common::{Emulator, engine_reporting, step_until};
 use egui_kittest::kittest::Queryable;
 use kilotouch::gui::{KilotouchApp, Page};
 use kilotouch_rig::tweezer::surface_drag;
+use kilotouch_rig::units::to_pn_per_um;
 use kilotouch_rig::{RigConfig, TweezerParams};
 
 fn live_tweezer_running(a: &KilotouchApp, path: &str) -> bool {
@@ -53,15 +54,17 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     // from the obstacle at (12, 0) µm (`tweezer::spot`; −24 % in x, −12 %
     // in y): a live tweezer has no "free solution" the host could choose.
     let rc = RigConfig::default();
-    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
+    let truth = rc.tweezer.stiffness_n_per_m;
     let bias = surface_drag(&TweezerParams::from_config(&rc.tweezer), [0.0; 2]).kappa_bias();
     for (axis, c) in [&r.x, &r.y].into_iter().enumerate() {
         let want = truth * (1.0 + bias[axis]);
         assert!(
-            (c.kappa_pn_um - want).abs() < 4.0 * c.kappa_se_pn_um + 0.05 * want,
-            "axis {axis}: κ {} ± {} pN/µm against {want} (the trap's {truth}, drag bias {:+.3})",
-            c.kappa_pn_um,
-            c.kappa_se_pn_um,
+            (c.kappa_n_per_m - want).abs() < 4.0 * c.kappa_se_n_per_m + 0.05 * want,
+            "axis {axis}: κ {} ± {} pN/µm against {} (the trap's {}, drag bias {:+.3})",
+            to_pn_per_um(c.kappa_n_per_m),
+            to_pn_per_um(c.kappa_se_n_per_m),
+            to_pn_per_um(want),
+            to_pn_per_um(truth),
             bias[axis]
         );
     }

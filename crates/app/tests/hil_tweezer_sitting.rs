@@ -144,7 +144,7 @@ fn a_whole_participant_with_a_live_daq_and_a_live_tweezer() {
     let mut rc = RigConfig::default();
     let escape = rc.tweezer.escape_distance_m;
     Geometry::of_protocol(&tiny().task).apply_to(&mut rc.tweezer, escape);
-    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
+    let truth = kilotouch_rig::units::to_pn_per_um(rc.tweezer.stiffness_n_per_m);
     let drag = surface_drag(&TweezerParams::from_config(&rc.tweezer), [15e-6, 0.0]);
     let bias = drag.kappa_bias();
     let file: Value = serde_json::from_str(&std::fs::read_to_string(&cal).unwrap()).unwrap();

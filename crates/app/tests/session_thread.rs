@@ -527,8 +527,8 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     let gui = kilotouch::gui::pages::rig_tweezer::TweezerSection::new();
     let (cal, _) = kilotouch_rig::tweezer::record::calibrate_axes(&rec, &gui.settings()).unwrap();
     cal.check().unwrap();
-    let truth = rc.tweezer.stiffness_n_per_m * 1e6;
-    assert!((cal.kappa_pn_um / truth - 1.0).abs() < 0.04, "{cal:?}");
+    let truth = rc.tweezer.stiffness_n_per_m;
+    assert!((cal.kappa_n_per_m / truth - 1.0).abs() < 0.04, "{cal:?}");
 
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
@@ -550,18 +550,18 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
     assert_eq!((got.source.as_str(), got.n_samples), ("sim", 100_000));
     assert_eq!(got.settings, cal.settings);
-    assert!(close(got.kappa_pn_um, cal.kappa_pn_um), "{t}");
-    assert!(close(got.kappa_se_pn_um, cal.kappa_se_pn_um));
+    assert!(close(got.kappa_n_per_m, cal.kappa_n_per_m), "{t}");
+    assert!(close(got.kappa_se_n_per_m, cal.kappa_se_n_per_m));
     for k in 0..2 {
-        assert!(close(got.rd_um_per_v[k], cal.rd_um_per_v[k]));
+        assert!(close(got.rd_m_per_v[k], cal.rd_m_per_v[k]));
     }
     for (g, c) in [(&got.x, &cal.x), (&got.y, &cal.y)] {
         for (a, b) in [
             (g.corner_hz, c.corner_hz),
             (g.corner_se_hz, c.corner_se_hz),
             (g.diffusion_v2_s, c.diffusion_v2_s),
-            (g.kappa_pn_um, c.kappa_pn_um),
-            (g.rd_um_per_v, c.rd_um_per_v),
+            (g.kappa_n_per_m, c.kappa_n_per_m),
+            (g.rd_m_per_v, c.rd_m_per_v),
             (g.chi2_per_dof, c.chi2_per_dof),
             (g.backing_pct, c.backing_pct),
         ] {
@@ -572,7 +572,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
 
     // A resume with another trap calibration is refused, naming it.
     let mut other = cal.clone();
-    other.kappa_pn_um *= 1.1;
+    other.kappa_n_per_m *= 1.1;
     let mut o = opts(&out, Some(tiny()), false);
     o.trap_calibration = Some(other);
     let e = SessionHandle::spawn(o, &mut eng).unwrap_err().to_string();
@@ -587,6 +587,7 @@ fn a_sitting_records_the_applied_trap_calibration_in_session_json() {
     drop(h);
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap()).unwrap();
+    // Kept in pN/µm, as written from the same calibration.
     let kept = json["trap_calibration"]["kappa_pn_um"].as_f64().unwrap();
-    assert!((kept - cal.kappa_pn_um).abs() <= 1e-14 * cal.kappa_pn_um);
+    assert_eq!(kept, kilotouch_rig::units::to_pn_per_um(cal.kappa_n_per_m));
 }

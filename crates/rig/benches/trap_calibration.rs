@@ -61,7 +61,12 @@ fn bench(c: &mut Criterion) {
         let (c, _) = calibrate_trap(&x, &s).expect("calibration");
         eprintln!(
             "{name}: f_c {:.2} ± {:.2} Hz, κ {:.3} pN/µm, χ²/dof {:.3}, {} points, {} iterations",
-            c.corner_hz, c.corner_se_hz, c.kappa_pn_um, c.chi2_per_dof, c.n_points, c.iterations
+            c.corner_hz,
+            c.corner_se_hz,
+            kilotouch_rig::units::to_pn_per_um(c.kappa_n_per_m),
+            c.chi2_per_dof,
+            c.n_points,
+            c.iterations
         );
         g.bench_function(name, |b| {
             b.iter(|| calibrate_trap(black_box(&x), &s).expect("calibration"))

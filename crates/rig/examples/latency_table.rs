@@ -40,7 +40,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             r.latency_samples,
             cell(Condition::P),
             cell(Condition::D),
-            r.critical_trap_stiffness_pn_um,
+            kilotouch_rig::units::to_pn_per_um(r.critical_trap_stiffness_n_per_m),
             r.max_force_scale,
             r.critical_force_scale
         );

@@ -8,7 +8,8 @@
 //! implement too, the bilateral coupling between handle and trap, the closed
 //! loop ([`HapticLoop`]) and its stability analysis ([`stability`]).
 //!
-//! Units are SI unless a name says otherwise. Theory and references:
+//! Units are SI unless a name says otherwise; pN/µm, µm/V and pN/V only at
+//! the edges (command line, text, GUI, files: [`units`]). Theory and references:
 //! `docs/theory/` (index: `docs/THEORY.md`); speed and accuracy tables: `docs/PERFORMANCE.md`.
 
 pub mod accel;
@@ -36,6 +37,7 @@ pub mod stability;
 pub mod text;
 pub mod toml_location;
 pub mod tweezer;
+pub mod units;
 
 pub use backend::{AnyRig, AnyTweezer, open_rig};
 pub use condition::{Condition, PMode};

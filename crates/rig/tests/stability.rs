@@ -223,7 +223,7 @@ fn default_rig_is_safe_and_an_undamped_wall_is_refused() {
     }
     assert!(r.max_force_scale >= cfg.coupling.force_scale);
     assert!(r.critical_force_scale > r.max_force_scale);
-    assert!(r.critical_trap_stiffness_pn_um > r.trap_stiffness_pn_um);
+    assert!(r.critical_trap_stiffness_n_per_m > r.trap_stiffness_n_per_m);
     Clearance::check(&cfg, &chain).unwrap();
 
     let mut bare = cfg.clone();
@@ -244,8 +244,8 @@ fn default_rig_is_safe_and_an_undamped_wall_is_refused() {
     let mut stiff = cfg.clone();
     let crit = analyse(&cfg, &chain.coefficients)
         .unwrap()
-        .critical_trap_stiffness_pn_um;
-    stiff.tweezer.stiffness_n_per_m = 1.2 * crit * 1e-6;
+        .critical_trap_stiffness_n_per_m;
+    stiff.tweezer.stiffness_n_per_m = 1.2 * crit;
     let r = analyse(&stiff, &chain.coefficients).unwrap();
     assert!(!r.condition(Condition::D).unwrap().stable);
 }
@@ -505,7 +505,7 @@ fn the_clearance_at_a_delay_names_it() {
     assert!(!r3.safe && d3.phase_margin_deg < 30.0, "{}", r3.summary());
     assert!(r3.max_force_scale < r0.max_force_scale);
     assert!(r3.critical_force_scale < r0.critical_force_scale);
-    assert!(r3.critical_trap_stiffness_pn_um < r0.critical_trap_stiffness_pn_um);
+    assert!(r3.critical_trap_stiffness_n_per_m < r0.critical_trap_stiffness_n_per_m);
     match Clearance::check_with_latency(&cfg, &chain, 3e-3) {
         Err(RigError::LoopNotSafe(m)) => {
             for part in [

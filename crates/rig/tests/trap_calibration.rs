@@ -15,6 +15,7 @@ use kilotouch_rig::tweezer::calibration::{
     TrapCalibrationSettings, calibrate_trap,
 };
 use kilotouch_rig::tweezer::{BOLTZMANN, faxen_parallel, stokes_drag};
+use kilotouch_rig::units::{from_pn_per_um, from_pn_per_v, from_um_per_v};
 use serde_json::Value;
 use std::f64::consts::PI;
 use std::path::PathBuf;
@@ -75,11 +76,17 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
         // The acceptance bound is 1 %; the same formulation agrees far closer.
         assert!(rel(cal.corner_hz, num(py, "fc")) < 1e-3, "f_c {msg}");
         assert!(
-            rel(cal.kappa_pn_um, num(py, "kappa_pn_um")) < 1e-3,
+            rel(cal.kappa_n_per_m, from_pn_per_um(num(py, "kappa_pn_um"))) < 1e-3,
             "κ {msg}"
         );
-        assert!(rel(cal.rd_um_per_v, num(py, "Rd")) < 1e-3, "R_d {msg}");
-        assert!(rel(cal.rf_pn_per_v, num(py, "Rf")) < 1e-3, "R_f {msg}");
+        assert!(
+            rel(cal.rd_m_per_v, from_um_per_v(num(py, "Rd"))) < 1e-3,
+            "R_d {msg}"
+        );
+        assert!(
+            rel(cal.rf_n_per_v, from_pn_per_v(num(py, "Rf"))) < 1e-3,
+            "R_f {msg}"
+        );
         assert!(rel(cal.diffusion_v2_s, num(py, "D")) < 1e-3, "D {msg}");
         // Standard errors, goodness of fit.
         assert!(
@@ -87,11 +94,14 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
             "σ f_c {msg}"
         );
         assert!(
-            rel(cal.kappa_se_pn_um, num(py, "err_kappa_pn_um")) < 1e-2,
+            rel(
+                cal.kappa_se_n_per_m,
+                from_pn_per_um(num(py, "err_kappa_pn_um"))
+            ) < 1e-2,
             "σ κ {msg}"
         );
         assert!(
-            rel(cal.rd_se_um_per_v, num(py, "err_Rd")) < 1e-2,
+            rel(cal.rd_se_m_per_v, from_um_per_v(num(py, "err_Rd"))) < 1e-2,
             "σ R_d {msg}"
         );
         assert!(
@@ -116,7 +126,7 @@ fn agrees_with_pylake_on_plain_faxen_hydro_and_diode_fits() {
             "truth {msg}"
         );
         assert!(
-            (cal.rd_um_per_v - num(t, "rd_um_per_v")).abs() < 3.5 * cal.rd_se_um_per_v,
+            (cal.rd_m_per_v - from_um_per_v(num(t, "rd_um_per_v"))).abs() < 3.5 * cal.rd_se_m_per_v,
             "truth R_d {msg}"
         );
     }
@@ -247,8 +257,8 @@ fn coverage(kind: Kind, seeds: u64) -> ([[f64; 2]; 3], u32) {
         let (c, _): (TrapCalibration, _) = calibrate_trap(&x, &s).unwrap();
         let z = [
             (c.corner_hz - corner_hz) / c.corner_se_hz,
-            (c.kappa_pn_um - t.kappa_n_m * 1e6) / c.kappa_se_pn_um,
-            (c.rd_um_per_v - t.rd_m_per_v * 1e6) / c.rd_se_um_per_v,
+            (c.kappa_n_per_m - t.kappa_n_m) / c.kappa_se_n_per_m,
+            (c.rd_m_per_v - t.rd_m_per_v) / c.rd_se_m_per_v,
         ];
         if z[0].abs() >= 3.5 {
             eprintln!("{kind:?} seed {seed}: f_c z = {}", z[0]);

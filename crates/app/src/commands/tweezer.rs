@@ -13,6 +13,7 @@ use kilotouch_rig::tweezer::calibration::{
     DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, TrapCalibrationSettings,
     calibrate_trap,
 };
+use kilotouch_rig::units::{to_pn_per_um, to_pn_per_v, to_um_per_v};
 use kilotouch_study::csvio::read_columns;
 use std::io::Write;
 use std::path::PathBuf;
@@ -215,13 +216,15 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
         );
         t += &format!(
             "  κ     = {:.4} ± {:.4} pN/µm\n",
-            cal.kappa_pn_um, cal.kappa_se_pn_um
+            to_pn_per_um(cal.kappa_n_per_m),
+            to_pn_per_um(cal.kappa_se_n_per_m)
         );
         t += &format!(
             "  R_d   = {:.5} ± {:.5} µm/V\n",
-            cal.rd_um_per_v, cal.rd_se_um_per_v
+            to_um_per_v(cal.rd_m_per_v),
+            to_um_per_v(cal.rd_se_m_per_v)
         );
-        t += &format!("  R_f   = {:.4} pN/V\n", cal.rf_pn_per_v);
+        t += &format!("  R_f   = {:.4} pN/V\n", to_pn_per_v(cal.rf_n_per_v));
         if let (Some(fd), Some(al)) = (cal.f_diode_hz, cal.alpha) {
             t += &format!(
                 "  f_diode = {:.1} ± {:.1} Hz, α = {:.4} ± {:.4}\n",
@@ -265,11 +268,16 @@ struct RecordReport {
 struct RecordCalibration {
     /// The JSON file written.
     file: String,
-    /// κ of both axes, inverse-variance weighted, pN/µm, and its SE.
-    kappa_pn_um: f64,
-    kappa_se_pn_um: f64,
-    /// R_d per axis (x, y), µm/V.
-    rd_um_per_v: [f64; 2],
+    /// κ of both axes, inverse-variance weighted, N/m (JSON key
+    /// `kappa_pn_um`, pN/µm).
+    #[serde(rename = "kappa_pn_um", with = "kilotouch_rig::units::pn_per_um")]
+    kappa_n_per_m: f64,
+    /// Its standard error, N/m (JSON key `kappa_se_pn_um`, pN/µm).
+    #[serde(rename = "kappa_se_pn_um", with = "kilotouch_rig::units::pn_per_um")]
+    kappa_se_n_per_m: f64,
+    /// R_d per axis (x, y), m/V (JSON key `rd_um_per_v`, µm/V).
+    #[serde(rename = "rd_um_per_v", with = "kilotouch_rig::units::um_per_v")]
+    rd_m_per_v: [f64; 2],
     /// Corner frequency per axis (x, y), Hz (JSON key `fc_hz`).
     #[serde(rename = "fc_hz")]
     corner_hz: [f64; 2],
@@ -350,10 +358,10 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
                 t += &format!(
                     "trap calibration: κ = {:.4} ± {:.4} pN/µm, R_d = ({:.5}, {:.5}) µm/V, \
                      f_c = ({:.1}, {:.1}) Hz, written to {}\n",
-                    c.kappa_pn_um,
-                    c.kappa_se_pn_um,
-                    c.rd_um_per_v[0],
-                    c.rd_um_per_v[1],
+                    to_pn_per_um(c.kappa_n_per_m),
+                    to_pn_per_um(c.kappa_se_n_per_m),
+                    to_um_per_v(c.rd_m_per_v[0]),
+                    to_um_per_v(c.rd_m_per_v[1]),
                     c.corner_hz[0],
                     c.corner_hz[1],
                     c.file
@@ -391,9 +399,9 @@ fn write_calibration(
     Ok((
         RecordCalibration {
             file: path.display().to_string(),
-            kappa_pn_um: cal.kappa_pn_um,
-            kappa_se_pn_um: cal.kappa_se_pn_um,
-            rd_um_per_v: cal.rd_um_per_v,
+            kappa_n_per_m: cal.kappa_n_per_m,
+            kappa_se_n_per_m: cal.kappa_se_n_per_m,
+            rd_m_per_v: cal.rd_m_per_v,
             corner_hz: [cal.x.corner_hz, cal.y.corner_hz],
         },
         cal,

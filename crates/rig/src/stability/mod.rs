@@ -51,6 +51,7 @@ use crate::config::RigConfig;
 use crate::error::RigError;
 use crate::plant::{Axis, AxisModel, IN_DRIVE, IN_FORCE, OUT_MOTOR};
 use crate::tweezer::{DRAG_CLAMP_GAP_OVER_R, TweezerParams, brenner_perpendicular};
+use crate::units::to_pn_per_um;
 use discrete::Dss;
 use kilotouch_dsp::chain::ChainCoefficients;
 use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
@@ -148,9 +149,14 @@ pub struct ConditionMargins {
 pub struct StabilityReport {
     /// P and D.
     pub conditions: Vec<ConditionMargins>,
-    /// Trap stiffness at which some case turns unstable, pN/µm (at the
-    /// configured force scale; null: none below 10⁴× the configured value).
-    pub critical_trap_stiffness_pn_um: f64,
+    /// Trap stiffness at which some case turns unstable, N/m (at the
+    /// configured force scale; infinite, JSON null: none below 10⁴× the
+    /// configured value; JSON key `critical_trap_stiffness_pn_um`, pN/µm).
+    #[serde(
+        rename = "critical_trap_stiffness_pn_um",
+        with = "crate::units::pn_per_um"
+    )]
+    pub critical_trap_stiffness_n_per_m: f64,
     /// Largest force scale (N/N) at which every case meets the minimum
     /// margins: the largest safe value.
     pub max_force_scale: f64,
@@ -158,8 +164,9 @@ pub struct StabilityReport {
     pub critical_force_scale: f64,
     /// Configured force scale, N/N.
     pub force_scale: f64,
-    /// Configured trap stiffness, pN/µm.
-    pub trap_stiffness_pn_um: f64,
+    /// Configured trap stiffness, N/m (JSON key `trap_stiffness_pn_um`, pN/µm).
+    #[serde(rename = "trap_stiffness_pn_um", with = "crate::units::pn_per_um")]
+    pub trap_stiffness_n_per_m: f64,
     /// Pressed environment stiffness at the handle, K_e = g·s·κ·k_c/(κ + k_c), N/m.
     pub pressed_stiffness_n_per_m: f64,
     /// Required gain margin, dB.
@@ -288,8 +295,8 @@ impl StabilityReport {
         }
         s.push_str(&format!(
             "critical trap stiffness {} pN/µm (now {:.1}); largest safe force scale {:.3e} N/N (now {:.3e}); instability at {:.3e}\n",
-            fmt_margin(self.critical_trap_stiffness_pn_um),
-            self.trap_stiffness_pn_um,
+            fmt_margin(to_pn_per_um(self.critical_trap_stiffness_n_per_m)),
+            to_pn_per_um(self.trap_stiffness_n_per_m),
             self.max_force_scale,
             self.force_scale,
             self.critical_force_scale
@@ -942,11 +949,11 @@ impl LoopAnalysis {
         Ok(StabilityReport {
             safe: conditions.iter().all(|c| c.meets_minimum),
             conditions,
-            critical_trap_stiffness_pn_um: critical_kappa * 1e6,
+            critical_trap_stiffness_n_per_m: critical_kappa,
             max_force_scale: max_g,
             critical_force_scale: critical_g,
             force_scale: g,
-            trap_stiffness_pn_um: kappa * 1e6,
+            trap_stiffness_n_per_m: kappa,
             pressed_stiffness_n_per_m: g * self.cfg.coupling.position_scale.abs() * kappa * kc
                 / (kappa + kc),
             min_gain_margin_db: st.min_gain_margin_db,

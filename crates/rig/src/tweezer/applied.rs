@@ -20,6 +20,7 @@
 
 use super::calibration::{TrapCalibration, TrapCalibrationSettings};
 use crate::error::RigError;
+use crate::units::{to_pn_per_um, to_um_per_v};
 use serde::{Deserialize, Serialize};
 
 /// Lowest statistical backing P(χ² ≥ observed) a fit may have to be
@@ -77,19 +78,21 @@ pub fn check_applicable(c: &TrapCalibration) -> Result<(), String> {
     let values = [
         ("f_c", c.corner_hz),
         ("its standard error", c.corner_se_hz),
-        ("κ", c.kappa_pn_um),
-        ("κ's standard error", c.kappa_se_pn_um),
-        ("R_d", c.rd_um_per_v),
+        ("κ", c.kappa_n_per_m),
+        ("κ's standard error", c.kappa_se_n_per_m),
+        ("R_d", c.rd_m_per_v),
         ("χ²/dof", c.chi2_per_dof),
         ("the backing", c.backing_pct),
     ];
     if let Some((name, v)) = values.iter().find(|(_, v)| !v.is_finite()) {
         return Err(format!("the fit failed: {name} is {v}"));
     }
-    if !(c.corner_hz > 0.0 && c.kappa_pn_um > 0.0 && c.rd_um_per_v > 0.0) {
+    if !(c.corner_hz > 0.0 && c.kappa_n_per_m > 0.0 && c.rd_m_per_v > 0.0) {
         return Err(format!(
             "the fit failed: f_c {:.4} Hz, κ {:.4} pN/µm and R_d {:.4} µm/V must be > 0",
-            c.corner_hz, c.kappa_pn_um, c.rd_um_per_v
+            c.corner_hz,
+            to_pn_per_um(c.kappa_n_per_m),
+            to_um_per_v(c.rd_m_per_v)
         ));
     }
     if c.backing_pct < MIN_BACKING_PCT {
@@ -107,7 +110,7 @@ pub fn check_applicable(c: &TrapCalibration) -> Result<(), String> {
             c.chi2_per_dof
         ));
     }
-    let rel = c.kappa_se_pn_um / c.kappa_pn_um;
+    let rel = c.kappa_se_n_per_m / c.kappa_n_per_m;
     if rel > MAX_KAPPA_REL_SE {
         return Err(format!(
             "κ is too imprecise: ±{:.0} % (at most {:.0} %); record longer",
@@ -128,7 +131,7 @@ pub fn check_loop_gain(
     report: &crate::stability::StabilityReport,
     kappa_n_per_m: f64,
 ) -> Result<(), String> {
-    let analysed = report.trap_stiffness_pn_um * 1e-6;
+    let analysed = report.trap_stiffness_n_per_m;
     let scale = report.force_scale * kappa_n_per_m / analysed;
     if scale.is_finite() && scale <= report.max_force_scale {
         Ok(())
@@ -136,9 +139,9 @@ pub fn check_loop_gain(
         Err(format!(
             "the loop was cleared for κ = {:.3} pN/µm at force scale {:.3e} N/N; κ = {:.3} pN/µm \
              renders like force scale {scale:.3e} N/N, above the largest safe {:.3e} N/N",
-            report.trap_stiffness_pn_um,
+            to_pn_per_um(report.trap_stiffness_n_per_m),
             report.force_scale,
-            kappa_n_per_m * 1e6,
+            to_pn_per_um(kappa_n_per_m),
             report.max_force_scale
         ))
     }
@@ -159,12 +162,16 @@ pub struct TrapCalibrationRecord {
     pub x: TrapCalibration,
     /// The y axis' calibration.
     pub y: TrapCalibration,
-    /// κ applied: inverse-variance weighted mean of the axes, pN/µm.
-    pub kappa_pn_um: f64,
-    /// Its standard error, pN/µm.
-    pub kappa_se_pn_um: f64,
-    /// R_d applied per axis (x, y), µm/V.
-    pub rd_um_per_v: [f64; 2],
+    /// κ applied: inverse-variance weighted mean of the axes, N/m (JSON key
+    /// `kappa_pn_um`, pN/µm).
+    #[serde(rename = "kappa_pn_um", with = "crate::units::pn_per_um")]
+    pub kappa_n_per_m: f64,
+    /// Its standard error, N/m (JSON key `kappa_se_pn_um`, pN/µm).
+    #[serde(rename = "kappa_se_pn_um", with = "crate::units::pn_per_um")]
+    pub kappa_se_n_per_m: f64,
+    /// R_d applied per axis (x, y), m/V (JSON key `rd_um_per_v`, µm/V).
+    #[serde(rename = "rd_um_per_v", with = "crate::units::um_per_v")]
+    pub rd_m_per_v: [f64; 2],
 }
 
 impl TrapCalibrationRecord {
@@ -176,27 +183,27 @@ impl TrapCalibrationRecord {
         x: TrapCalibration,
         y: TrapCalibration,
     ) -> Self {
-        let (wx, wy) = (x.kappa_se_pn_um.powi(-2), y.kappa_se_pn_um.powi(-2));
+        let (wx, wy) = (x.kappa_se_n_per_m.powi(-2), y.kappa_se_n_per_m.powi(-2));
         let (kappa, se) = if wx.is_finite() && wy.is_finite() && wx + wy > 0.0 {
             (
-                (wx * x.kappa_pn_um + wy * y.kappa_pn_um) / (wx + wy),
+                (wx * x.kappa_n_per_m + wy * y.kappa_n_per_m) / (wx + wy),
                 (wx + wy).sqrt().recip(),
             )
         } else {
             (
-                0.5 * (x.kappa_pn_um + y.kappa_pn_um),
-                0.5 * x.kappa_se_pn_um.hypot(y.kappa_se_pn_um),
+                0.5 * (x.kappa_n_per_m + y.kappa_n_per_m),
+                0.5 * x.kappa_se_n_per_m.hypot(y.kappa_se_n_per_m),
             )
         };
         Self {
             source: source.to_owned(),
             n_samples,
             settings,
-            rd_um_per_v: [x.rd_um_per_v, y.rd_um_per_v],
+            rd_m_per_v: [x.rd_m_per_v, y.rd_m_per_v],
             x,
             y,
-            kappa_pn_um: kappa,
-            kappa_se_pn_um: se,
+            kappa_n_per_m: kappa,
+            kappa_se_n_per_m: se,
         }
     }
 
@@ -210,11 +217,11 @@ impl TrapCalibrationRecord {
             .map(|_| ())
     }
 
-    /// What the loop uses (SI units).
+    /// What the loop uses.
     pub fn applied(&self) -> AppliedTrap {
         AppliedTrap {
-            stiffness_n_per_m: self.kappa_pn_um * 1e-6,
-            rd_m_per_v: [self.rd_um_per_v[0] * 1e-6, self.rd_um_per_v[1] * 1e-6],
+            stiffness_n_per_m: self.kappa_n_per_m,
+            rd_m_per_v: self.rd_m_per_v,
         }
     }
 }
@@ -223,17 +230,18 @@ impl TrapCalibrationRecord {
 mod tests {
     use super::*;
 
+    /// κ ± SE in N/m, R_d 2 µm/V.
     fn cal(kappa: f64, se: f64) -> TrapCalibration {
         TrapCalibration {
             corner_hz: 100.0,
             corner_se_hz: 100.0 * se / kappa,
             diffusion_v2_s: 0.03,
             diffusion_se_v2_s: 1e-4,
-            kappa_pn_um: kappa,
-            kappa_se_pn_um: se,
-            rd_um_per_v: 2.0,
-            rd_se_um_per_v: 0.01,
-            rf_pn_per_v: 2.0 * kappa,
+            kappa_n_per_m: kappa,
+            kappa_se_n_per_m: se,
+            rd_m_per_v: 2e-6,
+            rd_se_m_per_v: 0.01e-6,
+            rf_n_per_v: 2e-6 * kappa,
             chi2_per_dof: 1.02,
             backing_pct: 35.0,
             f_diode_hz: None,
@@ -248,23 +256,23 @@ mod tests {
 
     #[test]
     fn bad_fits_are_refused_with_the_reason() {
-        assert!(check_applicable(&cal(20.0, 0.4)).is_ok());
-        let mut c = cal(20.0, 0.4);
-        c.kappa_pn_um = f64::NAN;
+        assert!(check_applicable(&cal(20e-6, 0.4e-6)).is_ok());
+        let mut c = cal(20e-6, 0.4e-6);
+        c.kappa_n_per_m = f64::NAN;
         assert!(check_applicable(&c).unwrap_err().contains("κ is NaN"));
-        let mut c = cal(20.0, 0.4);
+        let mut c = cal(20e-6, 0.4e-6);
         c.backing_pct = 1e-5;
         assert!(check_applicable(&c).unwrap_err().contains("backing"));
-        let mut c = cal(20.0, 0.4);
+        let mut c = cal(20e-6, 0.4e-6);
         c.chi2_per_dof = 3.1;
         assert!(check_applicable(&c).unwrap_err().contains("χ²/dof = 3.100"));
         assert!(
-            check_applicable(&cal(20.0, 5.0))
+            check_applicable(&cal(20e-6, 5e-6))
                 .unwrap_err()
                 .contains("imprecise")
         );
-        let mut c = cal(20.0, 0.4);
-        c.rd_um_per_v = -1.0;
+        let mut c = cal(20e-6, 0.4e-6);
+        c.rd_m_per_v = -1e-6;
         assert!(check_applicable(&c).is_err());
     }
 
@@ -284,10 +292,10 @@ mod tests {
             bead_density_kg_m3: 1060.0,
             distance_to_surface_m: None,
         };
-        let r = TrapCalibrationRecord::new("sim", 1000, s, cal(20.0, 1.0), cal(22.0, 2.0));
-        // (20/1 + 22/4)/(1 + 1/4) = 20.4, SE 1/√1.25.
-        assert!((r.kappa_pn_um - 20.4).abs() < 1e-12);
-        assert!((r.kappa_se_pn_um - 1.25f64.sqrt().recip()).abs() < 1e-12);
+        let r = TrapCalibrationRecord::new("sim", 1000, s, cal(20e-6, 1e-6), cal(22e-6, 2e-6));
+        // (20/1 + 22/4)/(1 + 1/4) = 20.4 pN/µm, SE 1/√1.25 pN/µm.
+        assert!((r.kappa_n_per_m - 20.4e-6).abs() < 1e-18);
+        assert!((r.kappa_se_n_per_m - 1e-6 / 1.25f64.sqrt()).abs() < 1e-18);
         let a = r.applied();
         assert!((a.stiffness_n_per_m - 20.4e-6).abs() < 1e-18);
         assert_eq!(a.rd_m_per_v, [2e-6, 2e-6]);
@@ -304,5 +312,48 @@ mod tests {
             .validate()
             .is_err()
         );
+    }
+
+    #[test]
+    fn a_record_written_in_pn_per_um_loads_and_is_written_back_identically() {
+        // Written by `kilotouch tweezer record --calibration-out` when the
+        // record held pN/µm and µm/V.
+        let text = include_str!("../../tests/data/trap_calibration_record.json");
+        let r: TrapCalibrationRecord = serde_json::from_str(text).unwrap();
+        let file: serde_json::Value = serde_json::from_str(text).unwrap();
+        let num = |v: &serde_json::Value| v.as_f64().unwrap();
+        let ulps = |a: f64, b: f64| a.to_bits().abs_diff(b.to_bits());
+        // The loop gets what it got from the file before: pN/µm × 1e-6
+        // (within one unit in the last place: now the correctly rounded
+        // pN/µm ÷ 10⁶).
+        let a = r.applied();
+        assert!(ulps(a.stiffness_n_per_m, num(&file["kappa_pn_um"]) * 1e-6) <= 1);
+        for k in 0..2 {
+            assert!(ulps(a.rd_m_per_v[k], num(&file["rd_um_per_v"][k]) * 1e-6) <= 1);
+        }
+        assert!(ulps(r.x.rf_n_per_v, num(&file["x"]["rf_pn_per_v"]) * 1e-12) <= 1);
+        assert!((r.kappa_n_per_m - 20.19e-6).abs() < 0.01e-6, "{r:?}");
+        // Keys and units as they were, every number within a unit in the
+        // last place (exactly with an exact float parser: the study crate's
+        // tests, serde_json's `float_roundtrip`).
+        fn same(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+            use serde_json::Value::{Array, Number, Object};
+            match (a, b) {
+                (Number(x), Number(y)) if x.is_f64() || y.is_f64() => {
+                    let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+                    x.to_bits().abs_diff(y.to_bits()) <= 1
+                }
+                (Array(x), Array(y)) => {
+                    x.len() == y.len() && x.iter().zip(y).all(|(x, y)| same(x, y))
+                }
+                (Object(x), Object(y)) => {
+                    x.len() == y.len()
+                        && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+                }
+                _ => a == b,
+            }
+        }
+        let back = serde_json::to_value(&r).unwrap();
+        assert!(same(&back, &file), "{back}");
     }
 }

@@ -54,8 +54,8 @@ pub struct TrapCalibrationSettings {
     pub distance_to_surface_m: Option<f64>,
 }
 
-/// Result of a trap calibration (units in the names; the JSON of
-/// `kilotouch tweezer calibrate`).
+/// Result of a trap calibration (SI units in the names; the JSON of
+/// `kilotouch tweezer calibrate`, whose keys and units differ where noted).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrapCalibration {
     /// Corner frequency f_c, Hz (JSON key `fc_hz`).
@@ -68,16 +68,21 @@ pub struct TrapCalibration {
     pub diffusion_v2_s: f64,
     /// Its standard error, V²/s.
     pub diffusion_se_v2_s: f64,
-    /// Trap stiffness κ, pN/µm.
-    pub kappa_pn_um: f64,
-    /// Its standard error, pN/µm.
-    pub kappa_se_pn_um: f64,
-    /// Displacement sensitivity R_d, µm/V.
-    pub rd_um_per_v: f64,
-    /// Its standard error, µm/V.
-    pub rd_se_um_per_v: f64,
-    /// Force sensitivity R_f = R_d κ, pN/V.
-    pub rf_pn_per_v: f64,
+    /// Trap stiffness κ, N/m (JSON key `kappa_pn_um`, pN/µm).
+    #[serde(rename = "kappa_pn_um", with = "crate::units::pn_per_um")]
+    pub kappa_n_per_m: f64,
+    /// Its standard error, N/m (JSON key `kappa_se_pn_um`, pN/µm).
+    #[serde(rename = "kappa_se_pn_um", with = "crate::units::pn_per_um")]
+    pub kappa_se_n_per_m: f64,
+    /// Displacement sensitivity R_d, m/V (JSON key `rd_um_per_v`, µm/V).
+    #[serde(rename = "rd_um_per_v", with = "crate::units::um_per_v")]
+    pub rd_m_per_v: f64,
+    /// Its standard error, m/V (JSON key `rd_se_um_per_v`, µm/V).
+    #[serde(rename = "rd_se_um_per_v", with = "crate::units::um_per_v")]
+    pub rd_se_m_per_v: f64,
+    /// Force sensitivity R_f = R_d κ, N/V (JSON key `rf_pn_per_v`, pN/V).
+    #[serde(rename = "rf_pn_per_v", with = "crate::units::pn_per_v")]
+    pub rf_n_per_v: f64,
     /// χ² per degree of freedom of the fit (≈ 1 for a good fit).
     pub chi2_per_dof: f64,
     /// Statistical backing P(χ² ≥ observed), %.
@@ -221,18 +226,18 @@ pub fn from_fit(fit: &PsdFit, s: &TrapCalibrationSettings) -> TrapCalibration {
     let kt = BOLTZMANN * s.temperature_k;
     let (corner_hz, d) = (fit.theta[0], fit.theta[1]);
     let (corner_se_hz, d_se) = (fit.se[0], fit.se[1]);
-    let kappa = 2.0 * PI * gamma * corner_hz * 1e6; // N/m → pN/µm
-    let rd = (kt / (gamma * d)).sqrt() * 1e6; // m/V → µm/V
+    let kappa = 2.0 * PI * gamma * corner_hz;
+    let rd = (kt / (gamma * d)).sqrt();
     TrapCalibration {
         corner_hz,
         corner_se_hz,
         diffusion_v2_s: d,
         diffusion_se_v2_s: d_se,
-        kappa_pn_um: kappa,
-        kappa_se_pn_um: kappa / corner_hz * corner_se_hz,
-        rd_um_per_v: rd,
-        rd_se_um_per_v: rd / (2.0 * d) * d_se,
-        rf_pn_per_v: rd * kappa,
+        kappa_n_per_m: kappa,
+        kappa_se_n_per_m: kappa / corner_hz * corner_se_hz,
+        rd_m_per_v: rd,
+        rd_se_m_per_v: rd / (2.0 * d) * d_se,
+        rf_n_per_v: rd * kappa,
         chi2_per_dof: fit.chi2_per_dof(),
         backing_pct: fit.backing_pct,
         f_diode_hz: s.diode.then(|| fit.theta[2]),
@@ -363,21 +368,21 @@ mod tests {
         tw.start_stationary();
         let [x, _] = record_detector(&mut tw, [0.0; 2], 0, 200_000, &mut |_| {}).unwrap();
         let (c, _) = calibrate_trap(&x, &settings(fs)).unwrap();
-        let kappa = p.stiffness_n_per_m * 1e6;
+        let kappa = p.stiffness_n_per_m;
         assert!(
-            (c.kappa_pn_um - kappa).abs() < 3.5 * c.kappa_se_pn_um,
+            (c.kappa_n_per_m - kappa).abs() < 3.5 * c.kappa_se_n_per_m,
             "{c:?} vs κ {kappa}"
         );
         assert!(
             (c.corner_hz - p.corner_hz()).abs() < 3.5 * c.corner_se_hz,
             "{c:?}"
         );
-        let rd = 1e6 / det.sensitivity_v_per_m;
+        let rd = 1.0 / det.sensitivity_v_per_m;
         assert!(
-            (c.rd_um_per_v - rd).abs() < 3.5 * c.rd_se_um_per_v,
+            (c.rd_m_per_v - rd).abs() < 3.5 * c.rd_se_m_per_v,
             "{c:?} vs {rd}"
         );
-        assert!(c.kappa_se_pn_um / c.kappa_pn_um < 0.03, "{c:?}");
+        assert!(c.kappa_se_n_per_m / c.kappa_n_per_m < 0.03, "{c:?}");
     }
 
     /// A tweezer whose link fails, or whose bead escapes, at sample `at`.

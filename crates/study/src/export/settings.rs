@@ -7,6 +7,7 @@
 //! ([`super::StudyMeta::recorded_change`]).
 
 use super::session::{CalibrationRef, SessionInfo, StudyMeta};
+use kilotouch_rig::units::{to_pn_per_um, to_um_per_v};
 
 /// One setting that differs between the folder and this sitting.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -63,14 +64,17 @@ pub(crate) fn changes(info: &SessionInfo, meta: &StudyMeta) -> Vec<SettingChange
     let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
     if let (Some(was), Some(now)) = (&info.trap_calibration, &meta.trap_calibration)
         && !(was.source == now.source
-            && same(was.kappa_pn_um, now.kappa_pn_um)
-            && same(was.rd_um_per_v[0], now.rd_um_per_v[0])
-            && same(was.rd_um_per_v[1], now.rd_um_per_v[1]))
+            && same(was.kappa_n_per_m, now.kappa_n_per_m)
+            && same(was.rd_m_per_v[0], now.rd_m_per_v[0])
+            && same(was.rd_m_per_v[1], now.rd_m_per_v[1]))
     {
         let text = |t: &kilotouch_rig::tweezer::TrapCalibrationRecord| {
             format!(
                 "κ {:.4} pN/µm, R_d {:.5}/{:.5} µm/V ({})",
-                t.kappa_pn_um, t.rd_um_per_v[0], t.rd_um_per_v[1], t.source
+                to_pn_per_um(t.kappa_n_per_m),
+                to_um_per_v(t.rd_m_per_v[0]),
+                to_um_per_v(t.rd_m_per_v[1]),
+                t.source
             )
         };
         out.push(SettingChange {
@@ -107,5 +111,21 @@ pub(crate) fn adopt(info: &mut SessionInfo, meta: &StudyMeta) {
     }
     if meta.camera.is_some() {
         info.camera = meta.camera;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use kilotouch_rig::tweezer::TrapCalibrationRecord;
+
+    #[test]
+    fn a_recorded_trap_calibration_is_written_back_byte_for_byte() {
+        // A record `kilotouch tweezer record --calibration-out` wrote when
+        // the record held pN/µm: read (SI inside) and written again as a
+        // session.json keeps it, with this crate's exact float parser.
+        let text = include_str!("../../../rig/tests/data/trap_calibration_record.json");
+        let r: TrapCalibrationRecord = serde_json::from_str(text).unwrap();
+        assert!((r.kappa_n_per_m - 20.19e-6).abs() < 0.01e-6, "{r:?}");
+        assert_eq!(serde_json::to_string_pretty(&r).unwrap() + "\n", text);
     }
 }

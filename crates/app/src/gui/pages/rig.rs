@@ -12,6 +12,7 @@ use crate::gui::plot::format_si;
 use egui::{Color32, RichText};
 use kilotouch_rig::device::{RigSpec, TweezerSpec};
 use kilotouch_rig::stability::StabilityReport;
+use kilotouch_rig::units::to_pn_per_um;
 
 /// Hint shown under the rig field.
 pub const RIG_HINT: &str = "sim  ·  serial:/dev/ttyACM0[,baud=N][,timeout-ms=N]  ·  audio[:DEVICE]  \
@@ -404,7 +405,7 @@ fn status_ui(ui: &mut egui::Ui, env: &PageEnv<'_>, h: &EngineHandle) {
                     ui,
                     r,
                     "rig-margins",
-                    env.trap_applied.map(|t| t.kappa_pn_um),
+                    env.trap_applied.map(|t| t.kappa_n_per_m),
                 ),
                 None => {
                     ui.label("not analysed (the loop was armed without the analysis)");
@@ -520,13 +521,13 @@ fn fmt_or_inf(x: f64, unit: &str) -> String {
 /// phase margins over the hand range and the free/pressed states, the
 /// verdict, and the critical values (Rig and Calibration pages).
 ///
-/// `applied_kappa_pn_um`: the trap stiffness of an applied trap
-/// calibration, shown instead of the rig file's.
+/// `applied_kappa_n_per_m`: the trap stiffness of an applied trap
+/// calibration (N/m), shown instead of the rig file's.
 pub fn margins_ui(
     ui: &mut egui::Ui,
     r: &StabilityReport,
     id: &str,
-    applied_kappa_pn_um: Option<f64>,
+    applied_kappa_n_per_m: Option<f64>,
 ) {
     egui::Grid::new(id).striped(true).show(ui, |ui| {
         for h in ["", "gain margin", "phase margin", "verdict", "worst at"] {
@@ -579,17 +580,18 @@ pub fn margins_ui(
             ),
             (
                 "trap stiffness",
-                match applied_kappa_pn_um {
+                match applied_kappa_n_per_m {
                     Some(k) => format!(
-                        "{k:.2} pN/µm from the applied trap calibration (the margins are for \
+                        "{:.2} pN/µm from the applied trap calibration (the margins are for \
                          the rig file's {:.2}; unstable above {})",
-                        r.trap_stiffness_pn_um,
-                        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                        to_pn_per_um(k),
+                        to_pn_per_um(r.trap_stiffness_n_per_m),
+                        fmt_or_inf(to_pn_per_um(r.critical_trap_stiffness_n_per_m), "pN/µm")
                     ),
                     None => format!(
                         "{:.2} pN/µm, the rig file's (unstable above {})",
-                        r.trap_stiffness_pn_um,
-                        fmt_or_inf(r.critical_trap_stiffness_pn_um, "pN/µm")
+                        to_pn_per_um(r.trap_stiffness_n_per_m),
+                        fmt_or_inf(to_pn_per_um(r.critical_trap_stiffness_n_per_m), "pN/µm")
                     ),
                 },
             ),

@@ -34,6 +34,7 @@ use kilotouch_rig::tweezer::calibration::{
     DEFAULT_BEAD_DENSITY_KG_M3, DEFAULT_FLUID_DENSITY_KG_M3, TrapCalibration,
     TrapCalibrationSettings,
 };
+use kilotouch_rig::units::{to_pn_per_um, to_pn_per_v, to_um_per_v};
 
 /// Colours of the x and y axes' spectra.
 const AXIS_COLORS: [Color32; 2] = [charts::LOW_COLOR, charts::HIGH_COLOR];
@@ -282,9 +283,9 @@ impl TweezerSection {
                     ui.weak(format!(
                         "simulated trap of the rig file: κ = {:.3} pN/µm, detector {:.3} V/µm \
                          (R_d = {:.4} µm/V); recorded in free solution, away from the obstacles",
-                        rc.tweezer.stiffness_n_per_m * 1e6,
+                        to_pn_per_um(rc.tweezer.stiffness_n_per_m),
                         rc.tweezer.detector.sensitivity_v_per_m * 1e-6,
-                        1e6 / rc.tweezer.detector.sensitivity_v_per_m
+                        to_um_per_v(1.0 / rc.tweezer.detector.sensitivity_v_per_m)
                     ));
                 }
                 Ok(RigSpec::Audio(_)) => {
@@ -436,9 +437,19 @@ fn rows(c: &TrapCalibration) -> Vec<(&'static str, String)> {
             "D (V²/s)",
             format!("{:.4e} ± {:.1e}", c.diffusion_v2_s, c.diffusion_se_v2_s),
         ),
-        ("κ (pN/µm)", pm(c.kappa_pn_um, c.kappa_se_pn_um, 3)),
-        ("R_d (µm/V)", pm(c.rd_um_per_v, c.rd_se_um_per_v, 4)),
-        ("R_f (pN/V)", format!("{:.3}", c.rf_pn_per_v)),
+        (
+            "κ (pN/µm)",
+            pm(
+                to_pn_per_um(c.kappa_n_per_m),
+                to_pn_per_um(c.kappa_se_n_per_m),
+                3,
+            ),
+        ),
+        (
+            "R_d (µm/V)",
+            pm(to_um_per_v(c.rd_m_per_v), to_um_per_v(c.rd_se_m_per_v), 4),
+        ),
+        ("R_f (pN/V)", format!("{:.3}", to_pn_per_v(c.rf_n_per_v))),
     ];
     if let (Some(fd), Some(al)) = (c.f_diode_hz, c.alpha) {
         r.push((
@@ -511,16 +522,21 @@ fn result_ui(
         ui.label(
             RichText::new(format!(
                 "κ to apply: {} pN/µm (both axes, weighted)",
-                pm(r.kappa_pn_um, r.kappa_se_pn_um, 3)
+                pm(
+                    to_pn_per_um(r.kappa_n_per_m),
+                    to_pn_per_um(r.kappa_se_n_per_m),
+                    3
+                )
             ))
             .strong(),
         );
         if r.source == "sim" {
-            let truth = env.rig_config.tweezer.stiffness_n_per_m * 1e6;
+            let truth = env.rig_config.tweezer.stiffness_n_per_m;
             ui.label(format!(
-                "simulated trap: κ = {truth:.3} pN/µm ({:+.2} %, {:+.1} SE)",
-                100.0 * (r.kappa_pn_um / truth - 1.0),
-                (r.kappa_pn_um - truth) / r.kappa_se_pn_um
+                "simulated trap: κ = {:.3} pN/µm ({:+.2} %, {:+.1} SE)",
+                to_pn_per_um(truth),
+                100.0 * (r.kappa_n_per_m / truth - 1.0),
+                (r.kappa_n_per_m - truth) / r.kappa_se_n_per_m
             ));
         }
         let verdict = r.check();
@@ -611,9 +627,13 @@ fn active_ui(ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
                 charts::PASS_COLOR,
                 format!(
                     "Active trap calibration: κ = {} pN/µm, R_d = {:.4} / {:.4} µm/V ({})",
-                    pm(t.kappa_pn_um, t.kappa_se_pn_um, 3),
-                    t.rd_um_per_v[0],
-                    t.rd_um_per_v[1],
+                    pm(
+                        to_pn_per_um(t.kappa_n_per_m),
+                        to_pn_per_um(t.kappa_se_n_per_m),
+                        3
+                    ),
+                    to_um_per_v(t.rd_m_per_v[0]),
+                    to_um_per_v(t.rd_m_per_v[1]),
                     t.source
                 ),
             );

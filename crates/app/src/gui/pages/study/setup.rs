@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use egui::{Color32, RichText};
+use kilotouch_rig::units::{to_pn_per_um, to_um_per_v};
 
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
@@ -512,7 +513,10 @@ impl StudyPage {
             Some(t) => format!(
                 "trap calibration recorded: κ = {:.3} ± {:.3} pN/µm, R_d = {:.4} / {:.4} µm/V \
                  (applied on the Rig page)",
-                t.kappa_pn_um, t.kappa_se_pn_um, t.rd_um_per_v[0], t.rd_um_per_v[1]
+                to_pn_per_um(t.kappa_n_per_m),
+                to_pn_per_um(t.kappa_se_n_per_m),
+                to_um_per_v(t.rd_m_per_v[0]),
+                to_um_per_v(t.rd_m_per_v[1])
             ),
             None => "no trap calibration applied (the Rig page's Tweezer section)".to_owned(),
         };
