@@ -126,7 +126,7 @@ fn wizard_calibrates_the_default_sim_rig_saves_applies_and_checks_files() {
 
     // The page shows the closed loop's margins with this calibration.
     h.get_by_label("Closed loop with this calibration");
-    h.get_by_label_contains("largest safe");
+    h.get_by_label_contains("largest safe force scale");
     // Apply to engine pushes the calibration's force chain, cleared by the
     // stability analysis, to the shell; its source is the saved file.
     h.get_by_label("Apply to engine").click();

@@ -618,16 +618,13 @@ pub fn margins_ui(
                 format!("{:.0} N/m", r.pressed_stiffness_n_per_m),
             ),
             (
-                "high-band gain g_H",
+                "Haptuator full scale",
                 format!(
-                    "{:.3} (largest safe {})",
+                    "{:.2} N (high band at g_H = {:.3}; largest safe g_H {})",
+                    r.high_band_force_full_scale_n,
                     r.high_band_gain,
                     fmt_or_inf(r.max_high_band_gain, "")
                 ),
-            ),
-            (
-                "Haptuator full scale",
-                format!("{:.2} N (high band)", r.high_band_force_full_scale_n),
             ),
             ("P renders", r.p_mode.describe()),
         ];
