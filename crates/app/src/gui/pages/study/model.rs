@@ -1,7 +1,7 @@
 //! The Study page's model of a sitting: what the session's events change
 //! (runner state, current trial, live metrics, health, rows, progress, the
 //! event log, the error and how the sitting ended) and how each event
-//! changes it. No egui here: the page (`mod.rs`) drains the session's
+//! changes it. No GUI toolkit here: the page (`mod.rs`) drains the session's
 //! events into [`SittingModel::apply`] and tells the participant's screen
 //! what the returned [`ScreenNote`] says; the views (`running.rs`,
 //! `setup.rs`) read the model.
