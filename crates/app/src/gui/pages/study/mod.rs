@@ -18,7 +18,6 @@ use kilotouch_study::export::TrialRow;
 use kilotouch_study::protocol::{AssignmentTable, Protocol};
 use kilotouch_study::runner::RunnerState;
 use kilotouch_study::seeds::TrialKey;
-use kilotouch_study::task::Scene;
 use kilotouch_study::task::station::HandMapping;
 
 use crate::engine::EngineHandle;
@@ -28,13 +27,15 @@ use crate::gui::pages::study_size::SizeGate;
 use crate::gui::participant_screen::ParticipantScreen;
 use crate::gui::path_field::PathField;
 pub use form::{CalibrationChoice, ProtocolSource, StudyForm};
+pub use model::{LOG_CAPACITY, ScreenNote, SittingModel};
 
 use crate::session::{
-    FinishReason, FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionEvent,
-    SessionHandle, SessionHealth, Speed, Telemetry, inspect_folder,
+    FinishReason, FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionHandle,
+    Speed, inspect_folder,
 };
 
 mod form;
+mod model;
 mod open;
 mod running;
 mod setup;
@@ -80,23 +81,9 @@ pub struct StudyPage {
     session: Option<SessionHandle>,
     sitting_id: Option<ParticipantId>,
     mapping: HandMapping,
-    state: Option<RunnerState>,
-    current: Option<(TrialKey, Scene)>,
-    telemetry: Option<Telemetry>,
-    health: SessionHealth,
-    /// The running sitting's timing verdict so far.
-    timing: Option<kilotouch_study::export::SittingTiming>,
-    rows: Vec<TrialRow>,
-    committed: usize,
-    planned: usize,
+    /// What the sitting's events changed (egui-free).
+    model: SittingModel,
     note_text: String,
-    log: Vec<String>,
-    error: Option<String>,
-    finished: Option<FinishReason>,
-    recovery_text: Option<String>,
-    trap_target_m: [f64; 2],
-    /// The participant's hand to send to the engine (mouse drags).
-    pending_hand: Option<[f64; 2]>,
     /// The rig of the sitting (`sim`, `serial:PATH`), its loop delay.
     rig_used: Option<String>,
     /// What the last emergency stop did to the sitting.
@@ -139,21 +126,8 @@ impl StudyPage {
             session: None,
             sitting_id: None,
             mapping: HandMapping::from_config(&kilotouch_rig::RigConfig::default().coupling),
-            state: None,
-            current: None,
-            telemetry: None,
-            health: SessionHealth::default(),
-            timing: None,
-            rows: Vec::new(),
-            committed: 0,
-            planned: 0,
+            model: SittingModel::default(),
             note_text: String::new(),
-            log: Vec::new(),
-            error: None,
-            finished: None,
-            recovery_text: None,
-            trap_target_m: [0.0; 2],
-            pending_hand: None,
             rig_used: None,
             estop_what: None,
             participant_at: None,
@@ -179,34 +153,39 @@ impl StudyPage {
     /// The participant's screen shows a trial as soon as the runner is in
     /// it, a block or so before the engine begins it.
     pub fn trial_started(&self) -> Option<TrialKey> {
-        self.current.map(|(k, _)| k)
+        self.model.trial_started()
     }
 
     /// Trials in the study's plan as the sitting last reported it (it grows
     /// when an unsuccessful practice trial earns an extra one).
     pub fn planned(&self) -> usize {
-        self.planned
+        self.model.planned()
     }
 
     /// Rows shown in the table (this participant's, from `trials.csv` and
     /// the rows committed in this sitting).
     pub fn rows(&self) -> &[TrialRow] {
-        &self.rows
+        self.model.rows()
     }
 
     /// The runner state last reported.
     pub fn runner_state(&self) -> Option<RunnerState> {
-        self.state
+        self.model.runner_state()
     }
 
     /// How the last sitting ended.
     pub fn finished(&self) -> Option<&FinishReason> {
-        self.finished.as_ref()
+        self.model.finished()
     }
 
     /// The last error shown.
     pub fn error(&self) -> Option<&str> {
-        self.error.as_deref()
+        self.model.error()
+    }
+
+    /// The sitting's model (what its events changed).
+    pub fn model(&self) -> &SittingModel {
+        &self.model
     }
 
     /// The shell pressed the engine's emergency stop: a running sitting
@@ -221,14 +200,7 @@ impl StudyPage {
     pub fn emergency_stop(&mut self) -> Option<String> {
         self.session.as_ref()?;
         self.estop_latched = true;
-        let what = match self.state {
-            Some(
-                RunnerState::Training(k) | RunnerState::Trial(k) | RunnerState::Paused(Some(k)),
-            ) => {
-                format!("trial {k} was aborted (its row is kept as `aborted`)")
-            }
-            _ => "no trial was running, none was aborted".to_owned(),
-        };
+        let what = self.model.estop_effect();
         self.estop_what = Some(what.clone());
         Some(what)
     }
@@ -266,7 +238,7 @@ impl StudyPage {
     /// is (a run of every remaining participant says so: the trial's key
     /// names its participant).
     fn heading(&self) -> String {
-        let state = self.state.unwrap_or(RunnerState::Idle);
+        let state = self.model.state_or_idle();
         if self.run_all {
             return format!("all remaining participants · {state}");
         }
@@ -297,17 +269,7 @@ impl StudyPage {
     /// Forget what the last sitting showed (after switching participant or
     /// folder): rows, metrics, messages, the end screen.
     fn clear_sitting_state(&mut self) {
-        self.rows.clear();
-        self.telemetry = None;
-        self.current = None;
-        self.state = None;
-        self.finished = None;
-        self.error = None;
-        self.recovery_text = None;
-        self.log.clear();
-        self.health = SessionHealth::default();
-        self.committed = 0;
-        self.planned = 0;
+        self.model.clear();
         self.screen = None;
     }
 
@@ -369,80 +331,31 @@ impl StudyPage {
 
     /// The participant's hand (mouse) to the engine.
     fn flush_hand(&mut self, engine: Option<&mut EngineHandle>) {
-        if let (Some(h), Some(e)) = (self.pending_hand, engine)
+        if let (Some(h), Some(e)) = (self.model.pending_hand(), engine)
             && e.set_hand(h)
         {
-            self.pending_hand = None;
+            self.model.hand_sent();
         }
     }
 
+    /// Drains the session's events into the model and tells the
+    /// participant's screen; a finished sitting gives the engine back.
     fn poll(&mut self, engine: Option<&mut EngineHandle>) {
         let Some(s) = &mut self.session else {
             return;
         };
         let events = s.poll();
         if let Some(e) = engine.as_deref() {
-            self.health = s.health(e);
+            self.model.set_health(s.health(e));
         }
-        self.timing = Some(s.timing());
-        let mut end = None;
+        self.model.set_timing(s.timing());
+        let mut ended = false;
         for e in events {
-            match e {
-                SessionEvent::State(st) => {
-                    self.state = Some(st);
-                    if let Some(sc) = &mut self.screen {
-                        sc.on_state(st);
-                    }
-                }
-                SessionEvent::TrialStarted { key, scene } => {
-                    self.current = Some((key, scene));
-                    self.telemetry = None;
-                    self.trap_target_m = scene.start_m;
-                    self.pending_hand = Some(self.mapping.to_hand(scene.start_m));
-                    self.log.push(format!("started {key}"));
-                }
-                SessionEvent::TrialEnded(k, e) => {
-                    if let Some(sc) = &mut self.screen {
-                        sc.on_trial_ended(k);
-                    }
-                    self.log.push(format!("ended {k}: {e:?}"));
-                }
-                SessionEvent::Committed(row) => {
-                    self.committed += 1;
-                    self.rows.push(*row);
-                }
-                SessionEvent::Replanned(n) => {
-                    self.planned = n;
-                    self.log.push(format!(
-                        "an unsuccessful practice trial earned an extra one ({n} trials planned)"
-                    ));
-                }
-                SessionEvent::Telemetry(t) => self.telemetry = Some(t),
-                SessionEvent::Noted(n) => self.log.push(format!("note: {n}")),
-                SessionEvent::Error(m) => {
-                    self.log.push(format!("error: {m}"));
-                    self.error = Some(m);
-                }
-                SessionEvent::Finished(r) => end = Some(r),
+            if let Some(note) = self.model.apply(e, &self.mapping) {
+                ended |= self.tell_screen(note);
             }
         }
-        if self.log.len() > 200 {
-            let cut = self.log.len() - 200;
-            self.log.drain(..cut);
-        }
-        if let Some(r) = end {
-            if let FinishReason::Failed(m) = &r {
-                self.error = Some(m.clone());
-            }
-            // The end screen stays (participant done, study done); a
-            // stopped or failed sitting closes the participant's window.
-            match (&r, &mut self.screen) {
-                (FinishReason::StudyDone | FinishReason::ParticipantDone(_), Some(sc)) => {
-                    sc.on_finished();
-                }
-                _ => self.screen = None,
-            }
-            self.finished = Some(r);
+        if ended {
             // The engine goes back to free exploration (its driver, pacing
             // and chain as before the sitting).
             if let Some(s) = self.session.take() {
@@ -451,10 +364,29 @@ impl StudyPage {
                     None => drop(s),
                 }
             }
-            self.current = None;
             self.folder = None;
             self.run_all = false;
         }
+    }
+
+    /// Tells the participant's screen what an event changed; `true` when
+    /// the sitting ended.
+    fn tell_screen(&mut self, note: ScreenNote) -> bool {
+        match (note, &mut self.screen) {
+            (ScreenNote::State(st), Some(sc)) => sc.on_state(st),
+            (ScreenNote::TrialEnded(k), Some(sc)) => sc.on_trial_ended(k),
+            (ScreenNote::State(_) | ScreenNote::TrialEnded(_), None) => {}
+            // The end screen stays (participant done, study done); a
+            // stopped or failed sitting closes the participant's window.
+            (ScreenNote::Finished { keep_end_screen }, screen) => {
+                match screen {
+                    Some(sc) if keep_end_screen => sc.on_finished(),
+                    _ => *screen = None,
+                }
+                return true;
+            }
+        }
+        false
     }
 
     fn load_protocol(&mut self) {

@@ -3,15 +3,13 @@
 
 use std::path::PathBuf;
 
-use kilotouch_study::runner::RunnerState;
-
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::pages::study_size::{PreparedSitting, Verdict};
 use crate::gui::participant_screen::ParticipantScreen;
 use crate::session::{
-    FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionHandle, SessionHealth,
-    SessionOptions, Speed, validate_participant_id,
+    FolderStatus, ParticipantId, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
+    Speed, validate_participant_id,
 };
 
 use super::StudyPage;
@@ -36,13 +34,14 @@ impl StudyPage {
         resume: bool,
         start: bool,
     ) {
-        self.error = None;
+        self.model.clear_error();
         if self.size_gate.is_busy() {
-            self.error = Some("a sitting is already being checked: confirm or cancel it".into());
+            self.model
+                .set_error("a sitting is already being checked: confirm or cancel it".into());
             return;
         }
         let Some(engine) = engine else {
-            self.error = Some(
+            self.model.set_error(
                 "no rig is connected: connect the simulated rig or a live rig on the Rig page"
                     .into(),
             );
@@ -77,16 +76,17 @@ impl StudyPage {
             }
             (Verdict::Open(_), None) => {
                 self.run_all = false;
-                self.error = Some("the rig was disconnected before the sitting opened".into());
+                self.model
+                    .set_error("the rig was disconnected before the sitting opened".into());
             }
             (Verdict::Refused(why), _) => {
                 self.run_all = false;
-                self.error = Some(why);
+                self.model.set_error(why);
             }
             (Verdict::Cancelled, _) => {
                 self.run_all = false;
-                self.log
-                    .push("the sitting was not opened (cancelled)".into());
+                self.model
+                    .push_log("the sitting was not opened (cancelled)".into());
             }
         }
     }
@@ -100,12 +100,12 @@ impl StudyPage {
         resume: bool,
         start: bool,
     ) -> Option<PreparedSitting> {
-        self.finished = None;
+        self.model.clear_finished();
         self.screen = None;
         let out = match self.form.out_folder() {
             Ok(out) => out,
             Err(e) => {
-                self.error = Some(e);
+                self.model.set_error(e);
                 return None;
             }
         };
@@ -113,7 +113,8 @@ impl StudyPage {
             let next = match self.folder_status() {
                 Some(FolderStatus::Study { next: Some(n), .. }) => n.clone(),
                 _ => {
-                    self.error = Some("nothing to resume in this folder".into());
+                    self.model
+                        .set_error("nothing to resume in this folder".into());
                     return None;
                 }
             };
@@ -126,13 +127,13 @@ impl StudyPage {
             )
         } else {
             let (Some(p), Some(t)) = (&self.protocol, &self.table) else {
-                self.error = Some("load a valid protocol first".into());
+                self.model.set_error("load a valid protocol first".into());
                 return None;
             };
             match validate_participant_id(&self.form.participant_text, t) {
                 Ok(id) => (Some(p.clone()), id),
                 Err(e) => {
-                    self.error = Some(e);
+                    self.model.set_error(e);
                     return None;
                 }
             }
@@ -140,7 +141,7 @@ impl StudyPage {
         let calibration = match self.resolve_calibration(env) {
             Ok(c) => c,
             Err(e) => {
-                self.error = Some(e);
+                self.model.set_error(e);
                 return None;
             }
         };
@@ -186,15 +187,18 @@ impl StudyPage {
                     ),
                     None => "the simulated rig".to_owned(),
                 });
-                self.rows = info
+                let rows = info
                     .rows
                     .iter()
                     .filter(|r| r.participant == pid.id)
                     .cloned()
                     .collect();
-                self.committed = info.completed;
-                self.planned = info.planned;
-                self.recovery_text = Some(info.recovery_text.clone());
+                self.model.opened(
+                    rows,
+                    info.completed,
+                    info.planned,
+                    info.recovery_text.clone(),
+                );
                 if let Ok(t) = info.protocol.assignment() {
                     self.table = Some(t);
                 }
@@ -214,16 +218,13 @@ impl StudyPage {
                 self.form.participant_text = pid.id.clone();
                 self.shown_for = Some((pid.id.clone(), self.form.out_text.trim().to_owned()));
                 self.sitting_id = Some(pid);
-                self.state = Some(RunnerState::Idle);
-                self.log.clear();
-                self.health = SessionHealth::default();
                 if resume {
                     h.send(SessionCommand::Note("resumed from the Study page".into()));
                 }
                 self.session = Some(h);
                 env.requests.push(ShellRequest::SetOutputDir(out));
             }
-            Err(e) => self.error = Some(e.to_string()),
+            Err(e) => self.model.set_error(e.to_string()),
         }
     }
 
@@ -231,7 +232,8 @@ impl StudyPage {
         if let Some(s) = &mut self.session
             && !s.send(cmd)
         {
-            self.error = Some("command not sent (queue full); try again".into());
+            self.model
+                .set_error("command not sent (queue full); try again".into());
         }
     }
 }

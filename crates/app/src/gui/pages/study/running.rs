@@ -15,7 +15,7 @@ use super::StudyPage;
 
 impl StudyPage {
     pub(super) fn running_ui(&mut self, ui: &mut egui::Ui) {
-        let state = self.state.unwrap_or(RunnerState::Idle);
+        let state = self.model.state_or_idle();
         self.status_ui(ui);
         self.controls_ui(ui, state);
         self.live_ui(ui);
@@ -23,7 +23,7 @@ impl StudyPage {
         egui::CollapsingHeader::new("Event log")
             .id_salt("study-log")
             .show(ui, |ui| {
-                for l in self.log.iter().rev().take(30) {
+                for l in self.model.log().iter().rev().take(30) {
                     ui.monospace(l);
                 }
             });
@@ -34,15 +34,12 @@ impl StudyPage {
         ui.horizontal(|ui| {
             ui.label(RichText::new(self.heading()).strong().size(16.0));
             ui.separator();
-            ui.label(format!(
-                "committed {} of {} trials (study)",
-                self.committed, self.planned
-            ));
+            ui.label(self.model.progress_text());
         });
         if let Some(r) = &self.rig_used {
             ui.label(format!("rig: {r}"));
         }
-        if let Some(r) = &self.recovery_text {
+        if let Some(r) = self.model.recovery_text() {
             ui.weak(format!("folder: {r}"));
         }
         if self.run_all {
@@ -138,33 +135,17 @@ impl StudyPage {
 
     /// The current trial, live metrics, timing verdict and session thread health.
     fn live_ui(&self, ui: &mut egui::Ui) {
-        if let Some((key, _)) = &self.current {
-            ui.label(format!(
-                "current: {key} ({} — {})",
-                key.condition.code(),
-                key.condition.description()
-            ));
+        if let Some(t) = self.model.current_text() {
+            ui.label(t);
         }
-        if let Some(t) = &self.telemetry {
-            let l = t.live;
-            let f = |v: Option<f64>, d: usize| {
-                v.map(|x| format!("{x:.d$}")).unwrap_or_else(|| "—".into())
-            };
-            ui.label(format!(
-                "time {:.1} s · contact fraction {} · mean handle force {} N (peak {:.3}) · disp. error {} µm",
-                l.t_s,
-                f(l.contact_fraction, 2),
-                f(l.force_mean_n, 3),
-                l.force_peak_n,
-                f(l.disp_err_mean_um, 2)
-            ))
-            .on_hover_text(
+        if let Some(t) = self.model.live_text() {
+            ui.label(t).on_hover_text(
                 "live estimates from the camera frames and the force at the handle (N, what the \
                  participant feels); the row holds the exact time, contact and displacement \
                  error, and the mean optical force on the bead (pN, the paper's force metric)",
             );
         }
-        if let Some(t) = &self.timing {
+        if let Some(t) = self.model.timing() {
             let text = format!("timing verdict so far: {}", t.describe());
             let hover = "Blocks of the real-time loop that missed their deadline and commands the \
                          device received late, against the rig file's sitting_max_late_fraction; \
@@ -177,19 +158,11 @@ impl StudyPage {
                 ui.weak(text).on_hover_text(hover);
             }
         }
-        let h = self.health;
-        ui.weak(format!(
-            "session thread: load {:.1} % · deadline misses {} · overruns {} · telemetry dropped {} · simulated {:.1} s",
-            100.0 * h.load,
-            h.deadline_misses,
-            h.overruns,
-            h.telemetry_dropped,
-            h.simulated_s
-        ));
+        ui.weak(self.model.health_text());
     }
 
     pub(super) fn rows_ui(&mut self, ui: &mut egui::Ui) {
-        ui.label(RichText::new(format!("Finished trials: {}", self.rows.len())).strong());
+        ui.label(RichText::new(format!("Finished trials: {}", self.model.rows().len())).strong());
         egui::Grid::new("study-rows").striped(true).show(ui, |ui| {
             for h in [
                 "participant",
@@ -207,7 +180,7 @@ impl StudyPage {
             }
             ui.end_row();
             let f = |v: Option<f64>, d: usize| v.map(|x| format!("{x:.d$}")).unwrap_or_default();
-            for r in self.rows.iter().rev().take(200) {
+            for r in self.model.rows().iter().rev().take(200) {
                 ui.label(&r.participant);
                 ui.label(r.phase.to_string());
                 ui.label(r.condition.code());
@@ -276,7 +249,7 @@ impl StudyPage {
                 return;
             }
         }
-        let Some((_, scene)) = self.current else {
+        let Some((_, scene)) = self.model.current() else {
             painter.text(
                 rect.center(),
                 egui::Align2::CENTER_CENTER,
@@ -296,11 +269,10 @@ impl StudyPage {
         if resp.dragged() {
             let d = resp.drag_delta();
             let k = view.um_per_pt * 1e-6;
-            self.trap_target_m[0] += f64::from(d.x) * k;
-            self.trap_target_m[1] -= f64::from(d.y) * k;
-            self.pending_hand = Some(self.mapping.to_hand(self.trap_target_m));
+            self.model
+                .drag_trap([f64::from(d.x) * k, -f64::from(d.y) * k], &self.mapping);
         }
-        let frame = self.telemetry.and_then(|t| t.frame);
+        let frame = self.model.telemetry().and_then(|t| t.frame);
         if let Some(f) = frame {
             let sf = SceneFrame {
                 view,

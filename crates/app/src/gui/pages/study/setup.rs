@@ -10,7 +10,7 @@ use kilotouch_rig::units::{to_pn_per_um, to_um_per_v};
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::path_field::{PathKind, TOML};
-use crate::session::{FinishReason, FolderStatus, ParticipantKind, Speed, validate_participant_id};
+use crate::session::{FolderStatus, ParticipantKind, Speed, validate_participant_id};
 
 use super::{CalibrationChoice, Monitor, ProtocolSource, StudyPage};
 
@@ -524,22 +524,10 @@ impl StudyPage {
     }
 
     pub(super) fn messages_ui(&mut self, ui: &mut egui::Ui) {
-        if let Some(e) = &self.error {
-            ui.colored_label(Color32::from_rgb(235, 80, 70), e.clone());
+        if let Some(e) = self.model.error() {
+            ui.colored_label(Color32::from_rgb(235, 80, 70), e.to_owned());
         }
-        if let Some(f) = &self.finished {
-            let text = match f {
-                FinishReason::StudyDone => {
-                    "study complete: every trial has its row; summaries written".to_owned()
-                }
-                FinishReason::ParticipantDone(id) => format!(
-                    "participant {id} finished (session ended paused; the next participant resumes the folder)"
-                ),
-                FinishReason::Stopped => {
-                    "sitting stopped (a trial in progress runs again on resume)".to_owned()
-                }
-                FinishReason::Failed(m) => format!("session failed: {m}"),
-            };
+        if let Some(text) = self.model.finish_text() {
             ui.label(RichText::new(text).strong());
         }
     }
