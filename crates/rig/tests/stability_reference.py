@@ -231,6 +231,23 @@ def rho(L):
     return float(np.max(np.abs(np.linalg.eigvals(cl.A))))
 
 
+def critical(stable, x0, cap=np.inf):
+    """The gain at which `stable(x)` turns false, by bisection on a log scale
+    from the stable x0 (steps of 1.25, then to 0.05 %); None at or above cap."""
+    lo, hi = x0, x0
+    while stable(hi) and hi < cap:
+        lo, hi = hi, hi * 1.25
+    if hi >= cap:
+        return None
+    while hi / lo > 1.0005:
+        mid = np.sqrt(lo * hi)
+        if stable(mid):
+            lo = mid
+        else:
+            hi = mid
+    return float(np.sqrt(lo * hi))
+
+
 freqs = np.logspace(-2, np.log10(FS / 2 * (1 - 1e-9)), 40000)
 cases = []
 for condition, state, kf, bf in [
@@ -244,15 +261,7 @@ for condition, state, kf, bf in [
     frd = control.frd(np.asarray(resp).reshape(-1), 2 * np.pi * freqs)
     gm, pm, sm, wpc, wgc, wms = control.stability_margins(frd)
     # Critical force scale of this case: bisection on the poles.
-    lo, hi = cp["force_scale"], cp["force_scale"]
-    while rho(loop(condition, state, kf, bf, hi)) < 1:
-        lo, hi = hi, hi * 1.25
-    while hi / lo > 1.0005:
-        mid = np.sqrt(lo * hi)
-        if rho(loop(condition, state, kf, bf, mid)) < 1:
-            lo = mid
-        else:
-            hi = mid
+    crit = critical(lambda x: rho(loop(condition, state, kf, bf, x)) < 1, cp["force_scale"])
     cases.append({
         "condition": condition, "state": state, "hand_stiffness_n_per_m": kf,
         "hand_damping_n_s_per_m": bf,
@@ -260,7 +269,7 @@ for condition, state, kf, bf in [
         "phase_margin_deg": float(pm) if np.isfinite(pm) else None,
         "gain_crossover_hz": float(wgc / (2 * np.pi)) if np.isfinite(wgc) else None,
         "spectral_radius": rho(L),
-        "critical_force_scale": float(np.sqrt(lo * hi)),
+        "critical_force_scale": crit,
     })
 out["loop_cases"] = cases
 
@@ -327,22 +336,14 @@ for state, kf, bf, gh in [
     resp = L(np.exp(2j * np.pi * freqs / FS))
     frd = control.frd(np.asarray(resp).reshape(-1), 2 * np.pi * freqs)
     gm, pm, sm, wpc, wgc, wms = control.stability_margins(frd)
-    lo, hi = gh, gh
-    while rho(loop("D", state, kf, bf, g, gh=hi)) < 1 and hi < 1e6:
-        lo, hi = hi, hi * 1.25
-    while hi / lo > 1.0005:
-        mid = np.sqrt(lo * hi)
-        if rho(loop("D", state, kf, bf, g, gh=mid)) < 1:
-            lo = mid
-        else:
-            hi = mid
+    crit = critical(lambda x: rho(loop("D", state, kf, bf, g, gh=x)) < 1, gh, cap=1e6)
     high_gain_cases.append({
         "state": state, "hand_stiffness_n_per_m": kf, "hand_damping_n_s_per_m": bf,
         "high_band_gain": gh,
         "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) else None,
         "phase_margin_deg": float(pm) if np.isfinite(pm) else None,
         "spectral_radius": rho(L),
-        "critical_high_band_gain": float(np.sqrt(lo * hi)) if hi < 1e6 else None,
+        "critical_high_band_gain": crit,
     })
 out["high_gain_cases"] = high_gain_cases
 
