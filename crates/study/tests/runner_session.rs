@@ -238,6 +238,27 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
     }
 }
 
+/// An engine on the simulated `rig` with the runner `cfg`, and the set-up
+/// of participant 0's first V test trial of [`protocol`].
+fn first_vision_trial(
+    rig: &RigConfig,
+    cfg: RunnerConfig,
+) -> (
+    kilotouch_study::runner::TrialEngine<SimStation>,
+    kilotouch_study::runner::TrialSetup,
+) {
+    let engine =
+        kilotouch_study::runner::TrialEngine::new(SimStation::new(rig).unwrap(), cfg).unwrap();
+    let key = kilotouch_study::seeds::TrialKey {
+        participant: 0,
+        phase: Phase::Test,
+        condition: kilotouch_study::protocol::Condition::V,
+        trial: 1,
+    };
+    let setup = engine.setup(&protocol(), key);
+    (engine, setup)
+}
+
 /// The participant sees, at every sample, the newest camera frame whose
 /// capture is at least the camera latency old (frames every 1/fps): the
 /// runner's frame queue delivers each frame on time, not earlier, and never
@@ -245,9 +266,7 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
 #[test]
 fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
     use kilotouch_study::participant::{Observation, Participant};
-    use kilotouch_study::protocol::Condition;
-    use kilotouch_study::runner::{NoRaw, TrialEngine};
-    use kilotouch_study::seeds::TrialKey;
+    use kilotouch_study::runner::NoRaw;
 
     /// Holds the hand still and records what it was shown.
     struct Watcher(Vec<(f64, Option<(u64, f64)>)>);
@@ -267,14 +286,7 @@ fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
     let mut rig = RigConfig::default();
     rig.camera.frame_rate_hz = fps;
     rig.camera.latency_s = latency;
-    let mut engine = TrialEngine::new(SimStation::new(&rig).unwrap(), cfg).unwrap();
-    let key = TrialKey {
-        participant: 0,
-        phase: Phase::Test,
-        condition: Condition::V,
-        trial: 1,
-    };
-    let setup = engine.setup(&protocol(), key);
+    let (mut engine, setup) = first_vision_trial(&rig, cfg);
     let mut w = Watcher(Vec::new());
     // The still hand never completes the task: the trial runs to its
     // 25 s time-out, ≈ 625 frames.
@@ -326,9 +338,7 @@ fn the_displayed_frame_is_the_newest_one_past_the_camera_latency() {
 fn a_frame_shows_the_mean_positions_over_its_exposure() {
     use kilotouch_study::export::ExportError;
     use kilotouch_study::participant::{Observation, Participant, VisualFrame};
-    use kilotouch_study::protocol::Condition;
-    use kilotouch_study::runner::{RawSink, TrialEngine};
-    use kilotouch_study::seeds::TrialKey;
+    use kilotouch_study::runner::RawSink;
 
     /// Moves the hand steadily (so the bead moves within an exposure) and
     /// records every frame it is shown.
@@ -361,14 +371,7 @@ fn a_frame_shows_the_mean_positions_over_its_exposure() {
     };
     let mut rig = RigConfig::default();
     rig.camera.exposure_s = 0.02; // 200 samples at 10 kHz, half a frame
-    let mut engine = TrialEngine::new(SimStation::new(&rig).unwrap(), cfg).unwrap();
-    let key = TrialKey {
-        participant: 0,
-        phase: Phase::Test,
-        condition: Condition::V,
-        trial: 1,
-    };
-    let setup = engine.setup(&protocol(), key);
+    let (mut engine, setup) = first_vision_trial(&rig, cfg);
     let (mut who, mut rows) = (Sweeper(Vec::new(), 0.0), Rows::default());
     engine.run_trial(&setup, &mut who, &mut rows).unwrap();
     let fs = engine.sample_rate_hz();
