@@ -48,6 +48,7 @@ pub mod size;
 pub mod stats;
 mod storage;
 pub mod task;
+pub mod vibrotactile;
 
 // The journal lives in export/ (it is part of the study folder); this keeps
 // `kilotouch_study::journal` working.

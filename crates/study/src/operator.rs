@@ -10,21 +10,32 @@
 //!   magnitude exceeds `force_threshold_n`; magnitude perceived with a
 //!   per-trial gain error of SD `force_weber` (Weber fraction), direction
 //!   with SD `force_direction_sd_deg`.
-//! * *Vibration* (Pacinian, high band): the in-plane acceleration
-//!   high-passed at `vibration_band_hz`; short (`vibration_short_s`) and
-//!   long (`vibration_long_s`) mean-square envelopes; a *vibration
-//!   transient* (the collision spike of paper Fig. 9d) is detected when the
-//!   short envelope exceeds the detection threshold
-//!   `vibration_threshold_m_s2` (RMS) and the long one by the RMS ratio
-//!   `vibration_change_ratio`.
+//! * *Vibration* (Pacinian): the in-plane acceleration weighted by the
+//!   P channel's U-shaped threshold curve `pacinian`
+//!   ([`crate::vibrotactile::PacinianCurve`]: flat 40–300 Hz in
+//!   acceleration at 0.17 m/s² RMS for the median participant); short
+//!   (`vibration_short_s`) and long (`vibration_long_s`) mean-square
+//!   envelopes. A *vibration transient* (the collision spike of paper
+//!   Fig. 9d) is detected when the short envelope exceeds the detection
+//!   threshold and the long one by the RMS ratio `vibration_change_ratio`.
+//!   The *agitation* (the bead's Brownian motion, paper §4.1) is the
+//!   envelope over `agitation_window_s`: once it has been felt in free space
+//!   (its level is remembered while it is felt), an RMS drop by
+//!   `agitation_drop_ratio` is perceived as *quieting* (the bead pressed on
+//!   a surface, paper Fig. 9f–g) and its return above the level ÷ √ratio as
+//!   *resuming* (contact lost). A participant who never feels the
+//!   agitation (threshold above it, or too little of it rendered) has no
+//!   such cue.
 //! * *Vision*: each camera frame is perceived `visual_delay_s` after it is
 //!   displayed, with Gaussian localisation noise `visual_noise_m` on each
 //!   position; surfaces are seen touching when the seen gap is below
 //!   `visual_contact_gap_m`.
 //!
 //! Control (identical in every condition): contact is *believed* when force
-//! is felt, a vibration transient was detected within `vibration_memory_s`, or
-//! contact is seen. *Circling*: the commanded trap point is
+//! is felt, a vibration transient was detected within `vibration_memory_s`,
+//! the agitation is quiet, or contact is seen — unless the agitation resumed
+//! within `vibration_memory_s` (the fresher haptic percept overrides the
+//! delayed image: "helping her(him) to anticipate and adjust", paper §4.3). *Circling*: the commanded trap point is
 //! c + (R_c + d)·(cos θ, sin θ); without believed contact d decreases at
 //! `approach_speed_m_s`; with felt force d is servoed towards the force goal
 //! `force_goal_n` (gain `force_gain_m_per_n_s`); with seen contact d is
@@ -55,7 +66,6 @@
 
 use std::f64::consts::PI;
 
-use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
 use kilotouch_dsp::filter::Sos;
 use rand_chacha::ChaCha20Rng;
 use rand_chacha::rand_core::SeedableRng;
@@ -65,6 +75,7 @@ use crate::export::TaskKind;
 use crate::participant::{Observation, Participant, TrialBrief, VisualFrame};
 use crate::seeds::{STREAM_LAPSE, SplitMix64, TRAIT_DOMAIN, splitmix64_mix};
 use crate::task::{angle_between, norm, unit_uniform};
+use crate::vibrotactile::PacinianCurve;
 use kilotouch_rig::coupling::HandMapping;
 
 /// Parameters of the simulated operator (SI units; see the module docs and
@@ -89,10 +100,9 @@ pub struct OperatorParams {
     pub force_weber: f64,
     /// SD of the perceived force direction, degrees.
     pub force_direction_sd_deg: f64,
-    /// Corner of the vibration (high-band) high-pass, Hz.
-    pub vibration_band_hz: f64,
-    /// Vibration detection threshold, m/s² RMS.
-    pub vibration_threshold_m_s2: f64,
+    /// Vibrotactile (Pacinian) threshold curve: weighting corners and the
+    /// detection threshold, m/s² RMS of the weighted acceleration.
+    pub pacinian: PacinianCurve,
     /// Short envelope time constant, s.
     pub vibration_short_s: f64,
     /// Long (baseline) envelope time constant, s.
@@ -101,6 +111,12 @@ pub struct OperatorParams {
     pub vibration_change_ratio: f64,
     /// How long a vibration event keeps contact believed, s.
     pub vibration_memory_s: f64,
+    /// RMS window of the agitation percept, s (temporal summation of the
+    /// P channel extends to ≈ 0.5–1 s, Verrillo 1965; 0.1 s keeps the
+    /// percept prompt).
+    pub agitation_window_s: f64,
+    /// RMS drop of the felt agitation perceived as quieting (contact).
+    pub agitation_drop_ratio: f64,
     /// Radial approach speed without believed contact, m/s (sample plane).
     pub approach_speed_m_s: f64,
     /// Tangential speed while circling, m/s (sample plane).
@@ -148,12 +164,13 @@ impl Default for OperatorParams {
             force_threshold_n: 0.1,
             force_weber: 0.10,
             force_direction_sd_deg: 12.0,
-            vibration_band_hz: 100.0,
-            vibration_threshold_m_s2: 0.17,
+            pacinian: PacinianCurve::default(),
             vibration_short_s: 0.02,
             vibration_long_s: 0.5,
             vibration_change_ratio: 3.0,
             vibration_memory_s: 0.3,
+            agitation_window_s: 0.15,
+            agitation_drop_ratio: 1.3,
             approach_speed_m_s: 1.5e-6,
             circling_speed_m_s: 3.0e-6,
             force_goal_n: 0.3,
@@ -259,7 +276,10 @@ impl OperatorParams {
             force_goal_n: d.force_goal_n * force,
             force_gain_m_per_n_s: d.force_gain_m_per_n_s * gain,
             force_threshold_n: d.force_threshold_n * threshold,
-            vibration_threshold_m_s2: d.vibration_threshold_m_s2 * vibration,
+            pacinian: PacinianCurve {
+                threshold_m_s2: d.pacinian.threshold_m_s2 * vibration,
+                ..d.pacinian
+            },
             visual_gain: d.visual_gain * vision,
             visual_delay_s,
             haptic_delay_s,
@@ -268,6 +288,13 @@ impl OperatorParams {
         }
     }
 }
+
+/// Vibration percept: a transient (collision spike).
+const VIB_TRANSIENT: u8 = 1;
+/// Vibration percept: the felt agitation is quiet (dropped on contact).
+const VIB_QUIET: u8 = 2;
+/// Vibration percept: the agitation came back (contact lost).
+const VIB_RESUMED: u8 = 4;
 
 /// Fixed-capacity delay line of percepts sampled at the control rate.
 #[derive(Debug, Clone)]
@@ -320,11 +347,15 @@ pub struct SimOperator {
     // Perception.
     force_lp: [f64; 2],
     force_delay: Delay<[f64; 2]>,
-    vib_hp: [Sos; 2],
+    vib_weight: [Sos; 2],
     env_short: f64,
     env_long: f64,
-    vib_delay: Delay<bool>,
+    env_agitation: f64,
+    free_agitation: f64,
+    quiet: bool,
+    vib_delay: Delay<u8>,
     last_vib_event_s: f64,
+    last_resume_s: f64,
     force_gain_err: f64,
     frames: [Option<VisualFrame>; 16],
     percept_frame: Option<VisualFrame>,
@@ -367,15 +398,7 @@ impl SimOperator {
         control_rate_hz: f64,
         sample_rate_hz: f64,
     ) -> Result<Self, kilotouch_dsp::DspError> {
-        let hp = |f: f64| -> Result<Sos, kilotouch_dsp::DspError> {
-            Sos::new(butter(
-                2,
-                f,
-                sample_rate_hz,
-                FilterKind::Highpass,
-                Prewarp::AtCutoff,
-            )?)
-        };
+        let weight = || Sos::new(params.pacinian.sections(sample_rate_hz)?);
         let ticks = |s: f64| ((s * control_rate_hz).round() as usize).max(1);
         let mapping = HandMapping {
             scale: 1.0,
@@ -393,11 +416,15 @@ impl SimOperator {
             mapping,
             force_lp: [0.0; 2],
             force_delay: Delay::new(ticks(params.haptic_delay_s), [0.0; 2]),
-            vib_hp: [hp(params.vibration_band_hz)?, hp(params.vibration_band_hz)?],
+            vib_weight: [weight()?, weight()?],
             env_short: 0.0,
             env_long: 0.0,
-            vib_delay: Delay::new(ticks(params.haptic_delay_s), false),
+            env_agitation: 0.0,
+            free_agitation: 0.0,
+            quiet: false,
+            vib_delay: Delay::new(ticks(params.haptic_delay_s), 0),
             last_vib_event_s: f64::NEG_INFINITY,
+            last_resume_s: f64::NEG_INFINITY,
             force_gain_err: 1.0,
             frames: [None; 16],
             percept_frame: None,
@@ -522,27 +549,70 @@ impl SimOperator {
         [d[0] * self.force_gain_err, d[1] * self.force_gain_err]
     }
 
-    /// Whether a vibration transient is perceived now (delayed).
-    fn perceive_vibration(&mut self, obs: &Observation<'_>) -> bool {
+    /// The vibration percepts now (delayed by the haptic delay): a bit set
+    /// of [`VIB_TRANSIENT`], [`VIB_QUIET`] and [`VIB_RESUMED`] (module docs).
+    fn perceive_vibration(&mut self, obs: &Observation<'_>) -> u8 {
         let a_s = 1.0 - (-obs.dt_s / self.p.vibration_short_s).exp();
         let a_l = 1.0 - (-obs.dt_s / self.p.vibration_long_s).exp();
+        let a_a = 1.0 - (-obs.dt_s / self.p.agitation_window_s).exp();
         for acc in obs.accel_m_s2 {
             let mut e = 0.0;
-            for (hp, &x) in self.vib_hp.iter_mut().zip(acc) {
+            for (w, &x) in self.vib_weight.iter_mut().zip(acc) {
                 let v = if x.is_finite() { x } else { 0.0 };
-                let y = hp.process(v);
+                let y = w.process(v);
                 e += y * y;
             }
             self.env_short += a_s * (e - self.env_short);
             self.env_long += a_l * (e - self.env_long);
+            self.env_agitation += a_a * (e - self.env_agitation);
         }
-        let thr2 = self.p.vibration_threshold_m_s2 * self.p.vibration_threshold_m_s2;
+        let thr = self.p.pacinian.threshold_m_s2;
+        let thr2 = thr * thr;
         let r2 = self.p.vibration_change_ratio * self.p.vibration_change_ratio;
-        let audible = self.env_short.max(self.env_long) > thr2;
+        let felt = self.env_short.max(self.env_long) > thr2;
         let change = self.env_short > r2 * self.env_long;
         // Ignore the first long time constant (baseline not settled).
         let settled = obs.t_s > 2.0 * self.p.vibration_long_s;
-        self.vib_delay.push(audible && change && settled)
+        let mut bits = 0;
+        if felt && change && settled {
+            bits |= VIB_TRANSIENT;
+        }
+        if settled {
+            let dt = obs.dt_s * obs.accel_m_s2.len() as f64;
+            bits |= self.agitation_percept(thr2, dt);
+        }
+        self.vib_delay.push(bits)
+    }
+
+    /// The agitation's quieting and resuming (module docs): the free level
+    /// is learned (over `vibration_long_s`) while the agitation is felt and
+    /// not quiet; quiet below level ÷ ratio², in mean square, and back above
+    /// level ÷ ratio (hysteresis); `dt` is the time since the last call, s.
+    /// Returns [`VIB_QUIET`] while quiet and
+    /// [`VIB_RESUMED`] at the step it ends.
+    fn agitation_percept(&mut self, thr2: f64, dt: f64) -> u8 {
+        let r2 = self.p.agitation_drop_ratio * self.p.agitation_drop_ratio;
+        let e = self.env_agitation;
+        let known = self.free_agitation > thr2;
+        let mut bits = 0;
+        if self.quiet {
+            if e > self.free_agitation / self.p.agitation_drop_ratio {
+                self.quiet = false;
+                bits |= VIB_RESUMED;
+            }
+        } else if known && e * r2 < self.free_agitation {
+            self.quiet = true;
+        }
+        if !self.quiet && e > thr2 {
+            // Up over the long envelope's time, down ten times slower, so
+            // a gradual approach does not teach a lower free level.
+            let tau = if e > self.free_agitation { 1.0 } else { 10.0 } * self.p.vibration_long_s;
+            self.free_agitation += (1.0 - (-dt / tau).exp()) * (e - self.free_agitation);
+        }
+        if self.quiet {
+            bits |= VIB_QUIET;
+        }
+        bits
     }
 
     /// The frame perceived now (displayed at least `visual_delay_s` ago).
@@ -606,13 +676,7 @@ impl SimOperator {
         self.arm_pos
     }
 
-    fn circling(
-        &mut self,
-        obs: &Observation<'_>,
-        force: [f64; 2],
-        vib_recent: bool,
-        dt: f64,
-    ) -> [f64; 2] {
+    fn circling(&mut self, force: [f64; 2], vib_recent: bool, resumed: bool, dt: f64) -> [f64; 2] {
         let fmag = norm(force);
         let felt = fmag > self.p.force_threshold_n;
         let Some(f) = self.percept_frame else {
@@ -648,7 +712,8 @@ impl SimOperator {
                 -1.0
             };
         }
-        let touch = felt || vib_recent || seen_touch;
+        // The agitation resuming is fresher than the delayed image.
+        let touch = felt || vib_recent || (seen_touch && !resumed);
         if !touch {
             self.depth -= self.p.approach_speed_m_s * dt;
         } else {
@@ -664,7 +729,6 @@ impl SimOperator {
         self.last_used_frame = f.seq;
         self.depth = self.depth.clamp(-3.0e-6, 5.0e-6);
         let r = self.contact_r + self.depth;
-        let _ = obs;
         [
             self.centre[0] + r * self.theta.cos(),
             self.centre[1] + r * self.theta.sin(),
@@ -729,13 +793,17 @@ impl Participant for SimOperator {
         self.mapping = brief.mapping;
         self.force_lp = [0.0; 2];
         self.force_delay.fill([0.0; 2]);
-        for h in &mut self.vib_hp {
+        for h in &mut self.vib_weight {
             h.reset();
         }
         self.env_short = 0.0;
         self.env_long = 0.0;
-        self.vib_delay.fill(false);
+        self.env_agitation = 0.0;
+        self.free_agitation = 0.0;
+        self.quiet = false;
+        self.vib_delay.fill(0);
         self.last_vib_event_s = f64::NEG_INFINITY;
+        self.last_resume_s = f64::NEG_INFINITY;
         self.force_gain_err = (1.0 + self.p.force_weber * self.gauss()).max(0.2);
         self.frames = [None; 16];
         self.percept_frame = None;
@@ -761,10 +829,17 @@ impl Participant for SimOperator {
     fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
         let dt = (obs.force_n.len().max(1) as f64) * obs.dt_s;
         let force = self.perceive_force(obs);
-        if self.perceive_vibration(obs) {
+        let vib = self.perceive_vibration(obs);
+        if vib & VIB_TRANSIENT != 0 {
             self.last_vib_event_s = obs.t_s;
         }
-        let vib_recent = obs.t_s - self.last_vib_event_s <= self.p.vibration_memory_s;
+        if vib & VIB_RESUMED != 0 {
+            self.last_resume_s = obs.t_s;
+        }
+        // Contact felt through vibration: a recent transient, or quiet.
+        let vib_recent =
+            vib & VIB_QUIET != 0 || obs.t_s - self.last_vib_event_s <= self.p.vibration_memory_s;
+        let resumed = obs.t_s - self.last_resume_s <= self.p.vibration_memory_s;
         self.perceive_frame(obs);
         let before = self.plan_coords();
         let target = if self.lapsing(obs.t_s) {
@@ -772,7 +847,7 @@ impl Participant for SimOperator {
         } else {
             self.in_lapse = false;
             match self.task {
-                TaskKind::Circling => self.circling(obs, force, vib_recent, dt),
+                TaskKind::Circling => self.circling(force, vib_recent, resumed, dt),
                 TaskKind::BlindNavigation => self.blind(force, vib_recent, dt),
             }
         };
@@ -878,5 +953,132 @@ impl Participant for SimCohort {
             Some((_, op)) => op.act(obs),
             None => obs.handle_m,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FS: f64 = 10_000.0;
+    const PER_ACT: usize = 10;
+
+    /// White Gaussian noise in x and y whose Pacinian-weighted RMS (the
+    /// envelope the operator compares with its threshold) is `felt_rms`.
+    struct Noise {
+        g: SplitMix64,
+        scale: f64,
+    }
+
+    impl Noise {
+        fn new(seed: u64) -> Self {
+            // Weighted RMS of unit white noise, measured through the curve.
+            let mut n = Self {
+                g: SplitMix64::new(seed),
+                scale: 1.0,
+            };
+            let curve = PacinianCurve::default();
+            let mut w = Sos::new(curve.sections(FS).unwrap()).unwrap();
+            let mut ms = 0.0;
+            let k = 200_000;
+            for i in 0..k {
+                let y = w.process(n.gauss());
+                if i >= 10_000 {
+                    ms += y * y;
+                }
+            }
+            n.scale = 1.0 / (ms / f64::from(k - 10_000)).sqrt();
+            n
+        }
+        fn gauss(&mut self) -> f64 {
+            let u1 = 1.0 - (self.g.next_u64() >> 11) as f64 / (1_u64 << 53) as f64;
+            let u2 = (self.g.next_u64() >> 11) as f64 / (1_u64 << 53) as f64;
+            (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+        }
+        /// Per-axis samples so that both axes together have weighted RMS
+        /// `felt_rms` (e = a_x² + a_y²).
+        fn sample(&mut self, felt_rms: f64) -> [f64; 3] {
+            let s = self.scale * felt_rms / 2.0_f64.sqrt();
+            [s * self.gauss(), s * self.gauss(), 0.0]
+        }
+    }
+
+    /// Runs the vibration percept over `segments` (duration s, weighted RMS
+    /// m/s²) and returns (time, bits) per act call.
+    fn percepts(params: OperatorParams, segments: &[(f64, f64)], seed: u64) -> Vec<(f64, u8)> {
+        let mut op = SimOperator::new(params, FS / PER_ACT as f64, FS).unwrap();
+        let mut noise = Noise::new(seed);
+        let force = [[0.0; 2]; PER_ACT];
+        let mut accel = [[0.0; 3]; PER_ACT];
+        let mut out = Vec::new();
+        let mut k = 0_u64;
+        for &(dur, level) in segments {
+            let n = (dur * FS) as usize / PER_ACT;
+            for _ in 0..n {
+                for a in &mut accel {
+                    *a = noise.sample(level);
+                }
+                k += PER_ACT as u64;
+                let obs = Observation {
+                    t_s: k as f64 / FS,
+                    dt_s: 1.0 / FS,
+                    frame: None,
+                    force_n: &force,
+                    accel_m_s2: &accel,
+                    handle_m: [0.0; 2],
+                };
+                out.push((obs.t_s, op.perceive_vibration(&obs)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn felt_agitation_that_drops_is_perceived_as_quiet_then_as_resuming() {
+        let p = OperatorParams::default();
+        let thr = p.pacinian.threshold_m_s2;
+        let free = 3.0 * thr;
+        let v = percepts(p, &[(3.0, free), (2.0, free / 4.0), (2.0, free)], 3);
+        let quiet = |a: f64, b: f64| {
+            v.iter()
+                .filter(|(t, _)| (a..b).contains(t))
+                .map(|(_, bits)| bits & VIB_QUIET != 0)
+                .collect::<Vec<_>>()
+        };
+        assert!(quiet(1.0, 3.0).iter().all(|q| !q), "quiet while free");
+        // Quiet within window (0.1 s) + haptic delay (60 ms) + margin.
+        assert!(
+            quiet(3.3, 5.0).iter().all(|q| *q),
+            "not quiet while pressed"
+        );
+        assert!(
+            quiet(5.3, 7.0).iter().all(|q| !q),
+            "still quiet when free again"
+        );
+        let resumed: Vec<f64> = v
+            .iter()
+            .filter(|(_, b)| b & VIB_RESUMED != 0)
+            .map(|(t, _)| *t)
+            .collect();
+        assert_eq!(resumed.len(), 1, "{resumed:?}");
+        assert!((5.0..5.3).contains(&resumed[0]), "{resumed:?}");
+    }
+
+    #[test]
+    fn agitation_below_threshold_gives_no_cue_and_steady_agitation_no_false_quiet() {
+        let p = OperatorParams::default();
+        let thr = p.pacinian.threshold_m_s2;
+        let below = percepts(p, &[(3.0, 0.6 * thr), (2.0, 0.1 * thr)], 4);
+        assert!(
+            below
+                .iter()
+                .all(|(_, b)| b & (VIB_QUIET | VIB_RESUMED) == 0)
+        );
+        let steady = percepts(p, &[(20.0, 2.0 * thr)], 5);
+        assert!(
+            steady
+                .iter()
+                .all(|(_, b)| b & (VIB_QUIET | VIB_RESUMED) == 0)
+        );
     }
 }

@@ -54,7 +54,7 @@ fn lapse_rates_and_haptic_delays_follow_their_sources() {
         );
         assert_eq!(a.motor_noise_m, b.motor_noise_m);
         assert_eq!(a.force_goal_n, b.force_goal_n);
-        assert_eq!(a.vibration_threshold_m_s2, b.vibration_threshold_m_s2);
+        assert_eq!(a.pacinian, b.pacinian);
         assert_eq!(
             b.lapse_rate_per_h,
             OperatorParams::default().lapse_rate_per_h
