@@ -362,8 +362,9 @@ pub struct CouplingConfig {
     /// path of every D case (`docs/theory/coupling-and-stability.md`,
     /// rendering gain of the high band). 1 = the force image as it is.
     ///
-    /// Not written when 1, so rig files and their hashes from before the
-    /// key existed stay the same.
+    /// 1 when the key is absent, and not written when 1, so rig files and
+    /// their hashes from before the key existed stay the same; the
+    /// shipped rig file sets 30 (`assets/rigs/default.toml`).
     #[serde(
         default = "default_high_band_gain",
         skip_serializing_if = "is_unit_gain"
@@ -1308,11 +1309,12 @@ mod tests {
         }
     }
 
-    /// The high-band gain: a negative one is located; 1 is not written,
-    /// so a rig file's content hash is the one it had before the key.
+    /// The high-band gain: a negative one is located; an absent key is 1
+    /// and 1 is not written, so a rig file's content hash is the one it
+    /// had before the key.
     #[test]
     fn high_band_gain_is_checked_and_one_is_not_written() {
-        let text = default_config_text().replace("high_band_gain = 1.0", "high_band_gain = -3.0");
+        let text = default_config_text().replace("high_band_gain = 30.0", "high_band_gain = -3.0");
         assert_ne!(text, default_config_text());
         let line = text
             .lines()
@@ -1333,11 +1335,19 @@ mod tests {
             other => panic!("wrong error {other:?}"),
         }
         let mut c = RigConfig::default();
-        assert!(!c.to_toml_string().unwrap().contains("high_band_gain"));
+        assert_eq!(c.coupling.high_band_gain, 30.0);
+        assert!(
+            c.to_toml_string()
+                .unwrap()
+                .contains("high_band_gain = 30.0")
+        );
         assert!(!c.to_toml_string().unwrap().contains("[camera]"));
-        let without = default_config_text().replace("high_band_gain = 1.0\n", "");
+        let without = default_config_text().replace("high_band_gain = 30.0\n", "");
         let old = RigConfig::from_toml_str(&without, "old.toml").unwrap();
+        assert_eq!(old.coupling.high_band_gain, 1.0);
+        c.coupling.high_band_gain = 1.0;
         assert_eq!(old, c);
+        assert!(!c.to_toml_string().unwrap().contains("high_band_gain"));
         c.coupling.high_band_gain = 38.0;
         let again = RigConfig::from_toml_str(&c.to_toml_string().unwrap(), "rt").unwrap();
         assert_eq!(again.coupling.high_band_gain, 38.0);
