@@ -13,8 +13,10 @@
 //! fingertip acceleration it sensed, the handle) and saw (the camera frame
 //! the host's screen shows, as the device last heard of it — the link's
 //! delay adds to the camera's latency). Between trials the hand rests where
-//! it is. What differs from `study simulate` is only what the live loop
-//! adds: the link's and the block's delay, and the device's own noise.
+//! it is. What differs from `study simulate` is what the live loop adds
+//! (the link's and the block's delay, and the device's own noise) and the
+//! time on task that drives the attention lapses ([`crate::lapse`]): here
+//! the time the block's trials really took, there a nominal one.
 
 use kilotouch_rig::device::{
     ActuatorFrame, HandAgent, HostInfo, PhaseCode, SensorFrame, TaskCode, TrialInfo,
@@ -23,6 +25,7 @@ use kilotouch_rig::device::{
 use crate::export::TaskKind;
 use crate::operator::SimCohort;
 use crate::participant::{ControlPeriod, Participant, TrialBrief, VisualFrame};
+use crate::protocol::Condition;
 use crate::seeds::{Phase, STREAM_PARTICIPANT, TrialKey};
 
 /// The simulated participant at a device's handle (module docs).
@@ -37,6 +40,10 @@ pub struct DeviceParticipant {
     vision: bool,
     k: u64,
     frame: Option<VisualFrame>,
+    /// The block of the latest trial (participant, phase, condition) and
+    /// the time spent in its trials so far, s: the time on task.
+    block: Option<(u32, Phase, Condition)>,
+    block_trials_s: f64,
 }
 
 impl DeviceParticipant {
@@ -55,6 +62,8 @@ impl DeviceParticipant {
             vision: true,
             k: 0,
             frame: None,
+            block: None,
+            block_trials_s: 0.0,
         }
     }
 
@@ -83,6 +92,13 @@ impl DeviceParticipant {
             TaskCode::Circling => TaskKind::Circling,
             TaskCode::BlindNavigation => TaskKind::BlindNavigation,
         };
+        // Time on task: the trials run since this block began (a new
+        // block follows a break or the instructions).
+        let block = (key.participant, key.phase, key.condition);
+        if self.block != Some(block) {
+            self.block = Some(block);
+            self.block_trials_s = 0.0;
+        }
         let brief = TrialBrief {
             participant: t.participant,
             task,
@@ -91,6 +107,7 @@ impl DeviceParticipant {
             heading: t.heading,
             retreat_distance_m: t.retreat_distance_m,
             rng: key.rng(self.study_seed, STREAM_PARTICIPANT),
+            time_on_task_s: self.block_trials_s,
         };
         self.cohort.begin_trial(&brief);
         self.control
@@ -106,7 +123,12 @@ impl HandAgent for DeviceParticipant {
     fn info(&mut self, info: &HostInfo) {
         match info {
             HostInfo::TrialBegin(t) => self.begin(t),
-            HostInfo::TrialEnd => self.active = false,
+            HostInfo::TrialEnd => {
+                if self.active {
+                    self.block_trials_s += self.k as f64 * self.dt_s;
+                }
+                self.active = false;
+            }
             HostInfo::View(v) => {
                 self.frame = Some(*v);
             }

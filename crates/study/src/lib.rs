@@ -8,7 +8,7 @@
 //!   ([`seeds`]);
 //! * the two micro-bead tasks, their metrics and the stations they run on
 //!   ([`task`]); the participant interface ([`participant`]) and the
-//!   simulated operator ([`operator`]);
+//!   simulated operator ([`operator`]) with its attention lapses ([`lapse`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
 //!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]), whole or
 //!   in participant shards ([`shard`]) merged afterwards ([`merge`]);
@@ -31,6 +31,7 @@ pub mod csvio;
 mod error;
 pub mod export;
 pub mod fidelity;
+pub mod lapse;
 pub mod merge;
 pub mod operator;
 pub mod participant;

@@ -50,17 +50,17 @@
 //! Wolpert 1998) and a critically damped second-order "arm" at
 //! `arm_bandwidth_hz`.
 //!
-//! *Attention lapses* (Peiris et al. 2006, J. Sleep Res. 15:291): a Poisson
-//! process of rate `lapse_rate_per_h` (per participant, log-normal around
-//! 24 /h, mean 39 /h) starts lapses lasting `lapse_min_s` plus an
-//! exponential (mean `lapse_mean_s` = 3.4 s). During a lapse perception is
-//! not acted on: the movement under way goes on open-loop at the rates the
-//! plan had when the lapse began (circling: its turn and radial rate in the
-//! plan's polar frame; blind navigation: a straight line), and the hand's
-//! passive impedance still meets the device's force. Peiris et al. saw
-//! lapses as flat spots in a pursuit-tracking trace; carrying on with the
-//! movement under way is this model's assumption for a self-paced task.
-//! Lapses come from their own random stream of the trial's generator.
+//! *Attention lapses* ([`crate::lapse`]): a Poisson process whose rate
+//! grows with the time on task since the block began (the trial's
+//! [`TrialBrief::time_on_task_s`]), λ₀ ≈ 6 /h for the median rested
+//! participant at the start of a block, doubling over 10 min on task, as
+//! the rested psychomotor vigilance test counts lapses (responses
+//! ≥ 500 ms); a lapse lasts `lapse_min_s` plus an exponential, 0.6 s on
+//! average. During a lapse the hand holds still: the plan's trap point
+//! stays where it was when the lapse began and nothing perceived is acted
+//! on (the arm, the motor noise and the hand's passive impedance against
+//! the device's force go on); afterwards the plan resumes from where it
+//! was. Lapses come from their own random stream of the trial's generator.
 //!
 //! Parameters, their sources and the model's limits: `docs/STUDY.md` §13.
 
@@ -72,6 +72,7 @@ use rand_chacha::rand_core::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 use crate::export::TaskKind;
+use crate::lapse::{LapseModel, LapseSchedule};
 use crate::participant::{Observation, Participant, TrialBrief, VisualFrame};
 use crate::seeds::{STREAM_LAPSE, SplitMix64, TRAIT_DOMAIN, splitmix64_mix};
 use crate::task::{angle_between, norm, unit_uniform};
@@ -141,15 +142,24 @@ pub struct OperatorParams {
     pub motor_noise_tau_s: f64,
     /// Bandwidth of the arm's second-order response, Hz.
     pub arm_bandwidth_hz: f64,
-    /// Rate of attention lapses, per hour of task (a Poisson process).
-    /// Default 24 /h, the median of the population's log-normal spread
-    /// ([`TraitSpread::lapse_rate_ln_sd`]), whose mean is Peiris et al.'s
-    /// (2006) 39 per hour (SD ≈ 50 between rested people in continuous
-    /// visuomotor tracking).
+    /// Rate of attention lapses at the start of a block (time on task 0),
+    /// per hour of task (a Poisson process, [`crate::lapse`]). Default
+    /// 6 /h, the median of the population's log-normal spread
+    /// ([`TraitSpread::lapse_rate_ln_sd`]): with the growth below, about
+    /// 1.5 lapses in a 10-min block, as rested adults have in the 10-min
+    /// psychomotor vigilance test (1–3 responses ≥ 500 ms; Basner & Dinges
+    /// 2011; `docs/STUDY.md` §13).
     pub lapse_rate_per_h: f64,
-    /// Mean lapse duration, s (Peiris et al. 2006: 3.4 s).
+    /// Relative increase of the lapse rate per 10 min on task since the
+    /// block began (time-on-task effect, Lim & Dinges 2008); the rate is
+    /// back at `lapse_rate_per_h` after a break. Default 1 (twice the rate
+    /// after 10 min).
+    pub lapse_growth_per_10min: f64,
+    /// Mean lapse duration, s (default 0.6 s: a PVT lapse is a response
+    /// ≥ 500 ms against ≈ 250 ms normally, attention away ≳ 0.25 s).
     pub lapse_mean_s: f64,
-    /// Shortest lapse, s (durations are this plus an exponential).
+    /// Shortest lapse, s (durations are this plus an exponential; default
+    /// 0.25 s).
     pub lapse_min_s: f64,
 }
 
@@ -183,9 +193,10 @@ impl Default for OperatorParams {
             motor_noise_gain: 0.08,
             motor_noise_tau_s: 0.4,
             arm_bandwidth_hz: 4.0,
-            lapse_rate_per_h: 24.0,
-            lapse_mean_s: 3.4,
-            lapse_min_s: 0.5,
+            lapse_rate_per_h: 6.0,
+            lapse_growth_per_10min: 1.0,
+            lapse_mean_s: 0.6,
+            lapse_min_s: 0.25,
         }
     }
 }
@@ -214,7 +225,9 @@ pub struct TraitSpread {
     pub visual_delay_s: (f64, f64),
     /// Haptic (long-latency) delay, s: U(lo, hi) (absolute, not a factor).
     pub haptic_delay_s: (f64, f64),
-    /// Attention-lapse rate: log-normal σ.
+    /// Attention-lapse rate (`lapse_rate_per_h`): log-normal σ (default
+    /// 0.98: the between-person coefficient of variation of rested lapse
+    /// rates, ≈ 1.3, `docs/STUDY.md` §13).
     pub lapse_rate_ln_sd: f64,
 }
 
@@ -380,11 +393,8 @@ pub struct SimOperator {
     prev_target: [f64; 2],
     started: bool,
     // Attention lapses.
-    lapse_start_s: f64,
-    lapse_end_s: f64,
+    lapses: LapseSchedule,
     in_lapse: bool,
-    plan_rates: [f64; 2],
-    lapse_rates: [f64; 2],
 }
 
 impl SimOperator {
@@ -446,11 +456,8 @@ impl SimOperator {
             arm_vel: [0.0; 2],
             prev_target: [0.0; 2],
             started: false,
-            lapse_start_s: f64::INFINITY,
-            lapse_end_s: f64::INFINITY,
+            lapses: LapseSchedule::default(),
             in_lapse: false,
-            plan_rates: [0.0; 2],
-            lapse_rates: [0.0; 2],
         })
     }
 
@@ -466,74 +473,11 @@ impl SimOperator {
         (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
     }
 
-    /// Schedules the next lapse after `from_s` (s since the trial start):
-    /// its start after an exponential interval of mean 1/`lapse_rate_per_h`,
-    /// its duration `lapse_min_s` plus an exponential making the mean
-    /// `lapse_mean_s`.
-    fn schedule_lapse(&mut self, from_s: f64) {
-        let rate_per_s = self.p.lapse_rate_per_h / 3600.0;
-        if !(rate_per_s > 0.0 && rate_per_s.is_finite()) {
-            self.lapse_start_s = f64::INFINITY;
-            self.lapse_end_s = f64::INFINITY;
-            return;
-        }
-        // u in (0, 1]: −ln u is a unit exponential.
-        let mut exp1 = || -(1.0 - unit_uniform(&mut self.lapse_rng)).ln();
-        let gap = exp1() / rate_per_s;
-        let extra = (self.p.lapse_mean_s - self.p.lapse_min_s).max(0.0) * exp1();
-        self.lapse_start_s = from_s + gap;
-        self.lapse_end_s = self.lapse_start_s + self.p.lapse_min_s.max(0.0) + extra;
-    }
-
-    /// Whether the operator is in an attention lapse at `t_s`; schedules
-    /// the next lapse when one ends.
+    /// Whether the operator is in an attention lapse at `t_s` (s since the
+    /// trial start), drawing the lapses up to then from the lapse stream
+    /// ([`crate::lapse`]).
     fn lapsing(&mut self, t_s: f64) -> bool {
-        while t_s >= self.lapse_end_s {
-            let end = self.lapse_end_s;
-            self.schedule_lapse(end);
-        }
-        t_s >= self.lapse_start_s
-    }
-
-    /// One step of a lapse: the movement under way goes on open-loop at
-    /// the rates the plan had when the lapse began (module docs): circling
-    /// in the plan's polar frame (the turn and the radial push or approach
-    /// go on), blind navigation in a straight line.
-    fn lapse_step(&mut self, dt: f64) -> [f64; 2] {
-        if !self.in_lapse {
-            self.in_lapse = true;
-            self.lapse_rates = self.plan_rates;
-        }
-        let [r0, r1] = self.lapse_rates;
-        match self.task {
-            TaskKind::Circling if self.plan == Plan::Circling => {
-                self.depth = (self.depth + r0 * dt).clamp(-3.0e-6, 5.0e-6);
-                self.theta += r1 * dt;
-                let r = self.contact_r + self.depth;
-                [
-                    self.centre[0] + r * self.theta.cos(),
-                    self.centre[1] + r * self.theta.sin(),
-                ]
-            }
-            TaskKind::Circling => self.point,
-            TaskKind::BlindNavigation => {
-                self.point[0] += r0 * dt;
-                self.point[1] += r1 * dt;
-                if self.plan == Plan::Retreating {
-                    self.retreated += norm([r0 * dt, r1 * dt]);
-                }
-                self.point
-            }
-        }
-    }
-
-    /// The plan's coordinates the lapse rates are taken from: circling
-    /// (depth, angle), blind navigation (x, y) of the trap point.
-    fn plan_coords(&self) -> [f64; 2] {
-        match self.task {
-            TaskKind::Circling => [self.depth, self.theta],
-            TaskKind::BlindNavigation => self.point,
-        }
+        self.lapses.lapsing(t_s, &mut self.lapse_rng)
     }
 
     /// Perceived force vector (delayed, low-passed, gain error), N.
@@ -822,8 +766,11 @@ impl Participant for SimOperator {
         self.arm_vel = [0.0; 2];
         self.started = false;
         self.in_lapse = false;
-        self.plan_rates = [0.0; 2];
-        self.schedule_lapse(0.0);
+        self.lapses.begin(
+            LapseModel::of(&self.p),
+            brief.time_on_task_s,
+            &mut self.lapse_rng,
+        );
     }
 
     fn act(&mut self, obs: &Observation<'_>) -> [f64; 2] {
@@ -841,31 +788,17 @@ impl Participant for SimOperator {
             vib & VIB_QUIET != 0 || obs.t_s - self.last_vib_event_s <= self.p.vibration_memory_s;
         let resumed = obs.t_s - self.last_resume_s <= self.p.vibration_memory_s;
         self.perceive_frame(obs);
-        let before = self.plan_coords();
-        let target = if self.lapsing(obs.t_s) {
-            self.lapse_step(dt)
+        // During a lapse the hand holds still: the plan's trap point stays
+        // where it was and resumes from there (module docs).
+        self.in_lapse = self.lapsing(obs.t_s);
+        let target = if self.in_lapse {
+            self.point
         } else {
-            self.in_lapse = false;
             match self.task {
                 TaskKind::Circling => self.circling(force, vib_recent, resumed, dt),
                 TaskKind::BlindNavigation => self.blind(force, vib_recent, dt),
             }
         };
-        // Rates of the plan, low-passed over 0.1 s: what a lapse goes on with.
-        let after = self.plan_coords();
-        if dt > 0.0 {
-            let a = 1.0 - (-dt / 0.1).exp();
-            for (rate, (x1, x0)) in self
-                .plan_rates
-                .iter_mut()
-                .zip(after.into_iter().zip(before))
-            {
-                let v = (x1 - x0) / dt;
-                if v.is_finite() {
-                    *rate += a * (v - *rate);
-                }
-            }
-        }
         self.point = target;
         let hand = self.motor(target, dt);
         if hand.iter().all(|v| v.is_finite()) {
@@ -958,6 +891,8 @@ impl Participant for SimCohort {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used)]
+
     use super::*;
 
     const FS: f64 = 10_000.0;
@@ -1079,6 +1014,102 @@ mod tests {
             steady
                 .iter()
                 .all(|(_, b)| b & (VIB_QUIET | VIB_RESUMED) == 0)
+        );
+    }
+}
+
+#[cfg(test)]
+mod lapse_tests {
+    #![allow(clippy::unwrap_used)]
+
+    use rand_chacha::rand_core::SeedableRng;
+
+    use super::*;
+
+    /// Drives an operator with frequent lapses through `steps` control
+    /// periods of 1 ms (no force, no vibration; `frame` shown throughout)
+    /// and checks that the plan's trap point holds still while a lapse is
+    /// under way, moves otherwise, and resumes from where it stopped.
+    /// Returns (steps lapsing, steps acting).
+    fn hold_still(task: TaskKind, frame: Option<VisualFrame>, step_m: Option<f64>) -> (u32, u32) {
+        let params = OperatorParams {
+            lapse_rate_per_h: 1800.0,
+            lapse_growth_per_10min: 0.0,
+            ..OperatorParams::default()
+        };
+        let (fs, every) = (10_000.0, 10_usize);
+        let mut op = SimOperator::new(params, fs / every as f64, fs).unwrap();
+        let mapping = op.mapping;
+        op.begin_trial(&TrialBrief {
+            participant: 0,
+            task,
+            mapping,
+            start_trap_m: [0.0; 2],
+            heading: [1.0, 0.0],
+            retreat_distance_m: 3.0e-6,
+            rng: ChaCha20Rng::seed_from_u64(17),
+            time_on_task_s: 0.0,
+        });
+        let force = vec![[0.0; 2]; every];
+        let accel = vec![[0.0; 3]; every];
+        let (mut lapsing, mut acting) = (0, 0);
+        let mut prev: Option<(bool, [f64; 2])> = None;
+        for k in 0..6000_u32 {
+            let obs = Observation {
+                t_s: f64::from(k) * 1e-3,
+                dt_s: 1.0 / fs,
+                frame,
+                force_n: &force,
+                accel_m_s2: &accel,
+                handle_m: [0.0; 2],
+            };
+            op.act(&obs);
+            let now = (op.in_lapse, op.point);
+            if let Some((was, before)) = prev {
+                let moved = norm([now.1[0] - before[0], now.1[1] - before[1]]);
+                if now.0 {
+                    lapsing += 1;
+                    assert_eq!(now.1, before, "moved during a lapse at step {k}");
+                } else {
+                    acting += 1;
+                    assert!(moved > 0.0, "still while acting at step {k}");
+                    if let Some(step) = step_m {
+                        // Resumes from the held point: one ordinary step.
+                        assert!((moved - step).abs() < 1e-6 * step, "{moved} at {k} ({was})");
+                    }
+                }
+            }
+            prev = Some(now);
+        }
+        (lapsing, acting)
+    }
+
+    #[test]
+    fn the_hand_holds_still_during_a_lapse_blind() {
+        let step = OperatorParams::default().blind_speed_m_s * 1e-3;
+        let (lapsing, acting) = hold_still(TaskKind::BlindNavigation, None, Some(step));
+        assert!(
+            lapsing > 200 && acting > 200,
+            "{lapsing} lapsing, {acting} acting"
+        );
+    }
+
+    #[test]
+    fn the_hand_holds_still_during_a_lapse_circling() {
+        // The obstacle far away: the operator approaches all along.
+        let frame = VisualFrame {
+            seq: 0,
+            captured_s: -1.0,
+            bead_m: [0.0; 2],
+            trap_m: [0.0; 2],
+            obstacle_m: [20.0e-6, 0.0],
+            obstacle_radius_m: 5.0e-6,
+            bead_radius_m: 1.5e-6,
+        };
+        let (lapsing, acting) = hold_still(TaskKind::Circling, Some(frame), None);
+        assert!(
+            lapsing > 200 && acting > 200,
+            "{lapsing} lapsing, {acting} acting"
         );
     }
 }

@@ -66,6 +66,11 @@ pub struct TrialBrief {
     pub retreat_distance_m: f64,
     /// The trial's participant generator ([`crate::seeds::STREAM_PARTICIPANT`]).
     pub rng: ChaCha20Rng,
+    /// Time on task at the trial's start, s: how long the participant has
+    /// been at the task since the block began (after a break or the
+    /// instructions); 0 for the first trial of a block. A simulated study
+    /// gives the nominal value ([`crate::lapse::nominal_time_on_task_s`]).
+    pub time_on_task_s: f64,
 }
 
 /// A participant: a person at the GUI, a recorded trajectory, or the

@@ -101,6 +101,8 @@ impl PacinianCurve {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used)]
+
     use super::*;
     use kilotouch_dsp::filter::Sos;
 

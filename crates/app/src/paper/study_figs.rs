@@ -126,9 +126,8 @@ pub struct Fig11 {
 /// one-way ANOVA on the displacement error at its 8 participants
 /// (`docs/PAPER.md`, "Where the simulation disagrees").
 pub const DISP_ERR_ANOVA_DISAGREEMENT: &str = "the simulated operator's V − P/D difference in displacement error is \
-     small beside its between-participant spread (attention lapses add large errors to the P and D \
-     trials they do not fail), so 8 simulated participants show it at p < 0.01 in only a few \
-     seeds (docs/PAPER.md)";
+     small beside its between-participant spread, so 8 simulated participants show it at \
+     p < 0.01 in about half of the seeds (docs/PAPER.md)";
 
 /// Mean of a bar, NaN when absent.
 fn mean_of(v: &kilotouch_study::results::MeanSd) -> f64 {

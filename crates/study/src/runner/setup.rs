@@ -3,6 +3,7 @@
 use kilotouch_rig::coupling::HandMapping;
 
 use crate::export::TaskKind;
+use crate::lapse::nominal_time_on_task_s;
 use crate::participant::TrialBrief;
 use crate::protocol::{Protocol, Task};
 use crate::seeds::{STREAM_PARTICIPANT, STREAM_RIG, STREAM_TASK, TrialKey};
@@ -56,6 +57,7 @@ impl TrialSetup {
                 heading: scene.heading,
                 retreat_distance_m: retreat,
                 rng: key.rng(seed, STREAM_PARTICIPANT),
+                time_on_task_s: nominal_time_on_task_s(protocol, key),
             },
             rig_rng: key.rng(seed, STREAM_RIG),
         }
