@@ -180,7 +180,7 @@ impl Default for OperatorParams {
             vibration_change_ratio: 3.0,
             vibration_memory_s: 0.3,
             agitation_window_s: 0.15,
-            agitation_drop_ratio: 1.3,
+            agitation_drop_ratio: 2.0,
             approach_speed_m_s: 1.5e-6,
             circling_speed_m_s: 3.0e-6,
             force_goal_n: 0.3,

@@ -23,6 +23,7 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::press::{APPROACH_S, PressOptions, SETTLE_S, simulate_press_after_rest};
+use kilotouch_study::vibrotactile::PacinianCurve;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;
@@ -117,6 +118,12 @@ pub struct Fig9 {
     pub spike_s: f64,
     /// The bead stayed trapped and the press was stable.
     pub stable: bool,
+    /// RMS of the true tip acceleration through the Pacinian weighting
+    /// ([`PacinianCurve`]), free / pressed, m/s² (both axes of the press
+    /// direction only, as recorded).
+    pub pacinian_rms: [f64; 2],
+    /// The median participant's Pacinian threshold, m/s² RMS.
+    pub pacinian_threshold: f64,
 }
 
 fn highpass(x: &[f64], fs: f64) -> Result<Vec<f64>, PaperError> {
@@ -152,6 +159,13 @@ impl Fig9 {
         let (report, tr) = simulate_press_after_rest(&cfg, &chain, clearance, &opts, rest_s)?;
         let fs = cfg.rig.sample_rate_hz;
         let accel_felt = highpass(&tr.accel_m_s2, fs)?;
+        let curve = PacinianCurve::default();
+        let mut weighting = Sos::new(curve.sections(fs)?)?;
+        let weighted: Vec<f64> = tr
+            .accel_m_s2
+            .iter()
+            .map(|&v| weighting.process(v))
+            .collect();
         let sensor_felt = highpass(&tr.accel_sensor_m_s2, fs)?;
         let t_press = rest_s + APPROACH_S + SETTLE_S;
         let phase: Vec<f64> = tr
@@ -189,7 +203,12 @@ impl Fig9 {
                 }
             }
         }
+        let rms =
+            |v: Vec<f64>| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        let pacinian_rms = [rms(window(&weighted, 0.0)), rms(window(&weighted, 3.0))];
         Ok(Self {
+            pacinian_rms,
+            pacinian_threshold: curve.threshold_m_s2,
             tip: [
                 Moments::of(&window(&accel_felt, 0.0)),
                 Moments::of(&window(&accel_felt, 3.0)),
@@ -220,6 +239,7 @@ impl Fig9 {
         let gauss = tf.ex_kurt.abs().max(tf.skew.abs());
         let ratio_tip = tf.sd / tp.sd;
         let ratio_sensor = sf.sd / sp.sd;
+        let felt_over_threshold = self.pacinian_rms[0] / self.pacinian_threshold;
         let spike_ratio = self.spike / tf.sd;
         vec![
             Claim::new(
@@ -266,12 +286,22 @@ impl Fig9 {
                 ratio_sensor,
                 "×",
                 &format!(
-                    "below the tip's ratio, explained by the sensor's noise floor: pressed, the sensor reads {:.1}× the tip's SD (SD {:.4} → {:.4} m/s²; criterion: ratio ≤ the tip's and floor ≥ 2× the pressed tip SD)",
-                    sp.sd / tp.sd,
-                    sf.sd,
-                    sp.sd
+                    "≥ 2 through the sensor's own noise floor (SD {:.4} → {:.4} m/s²; high-band gain g_H renders the agitation above it)",
+                    sf.sd, sp.sd
                 ),
-                ratio_sensor <= ratio_tip && sp.sd >= 2.0 * tp.sd,
+                ratio_sensor >= 2.0,
+            ),
+            Claim::new(
+                "9",
+                "free space: the agitation at the fingertip, Pacinian-weighted RMS ÷ the median participant's threshold",
+                "users feel the Brownian motion of the bead (§4.1–4.2: a magnified representation through the Haptuator)",
+                felt_over_threshold,
+                "×",
+                &format!(
+                    "≥ 1 ({:.3} m/s² free, {:.3} m/s² pressed; threshold {:.2} m/s² RMS, flat 40–300 Hz)",
+                    self.pacinian_rms[0], self.pacinian_rms[1], self.pacinian_threshold
+                ),
+                felt_over_threshold >= 1.0,
             ),
         ]
     }
