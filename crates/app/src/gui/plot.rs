@@ -457,6 +457,19 @@ pub fn trace_plot(
         .filter(|v| v.is_finite())
         .fold(0f64, |m, v| m.max(f64::from(v.abs())));
     let (factor, prefix) = scale.update(peak);
+    // The y range reaches a 1-2-5 value on each side the data reaches, so
+    // ±that value and 0 are ticks in view whatever the plot's height (a
+    // range just short of a tick value left only "0" labelled).
+    let (lo, hi) = series
+        .iter()
+        .flat_map(|(_, _, s)| s.iter())
+        .filter(|v| v.is_finite())
+        .fold((0f64, 0f64), |(lo, hi), &v| {
+            (lo.min(f64::from(v)), hi.max(f64::from(v)))
+        });
+    let nice = |x: f64| f64::from(nice_range((x * factor) as f32));
+    let y_top = if hi > 0.0 { nice(hi) } else { 0.0 };
+    let y_bottom = if lo < 0.0 { -nice(-lo) } else { 0.0 };
     let lines: Vec<Line<'static>> = series
         .iter()
         .map(|(name, color, s)| {
@@ -485,6 +498,8 @@ pub fn trace_plot(
             ""
         })
         .include_y(0.0)
+        .include_y(y_top)
+        .include_y(y_bottom)
         .legend(egui_plot::Legend::default())
         .show(ui, |p| {
             for l in lines {
