@@ -109,7 +109,10 @@ impl GaussStep {
     #[inline]
     fn substeps(&self, d0: f64, l: f64) -> u32 {
         let lo = (d0 - l).max(0.0);
-        let (u_min, u_max) = (self.two_over_w2 * lo * lo, self.two_over_w2 * (d0 + l) * (d0 + l));
+        let (u_min, u_max) = (
+            self.two_over_w2 * lo * lo,
+            self.two_over_w2 * (d0 + l) * (d0 + l),
+        );
         // 2u e^{−u} is largest at u = 1: the point of the range nearest 1.
         let uc = if u_max < 1.0 {
             u_max
