@@ -391,7 +391,8 @@ pub struct TweezerEvents {
     pub contact_start: bool,
     /// The bead left the contact zone (with hysteresis, 3δ).
     pub contact_end: bool,
-    /// The bead left the trap's linear range and is lost.
+    /// The bead left the trap's escape radius
+    /// ([`TweezerParams::escape_radius_m`]) and is lost.
     pub escaped: bool,
     /// A lost bead was recaptured by the trap.
     pub recaptured: bool,
@@ -409,7 +410,9 @@ pub struct TweezerSample {
     pub bead_m: [f64; 2],
     /// Trap centre (x, y), m.
     pub trap_m: [f64; 2],
-    /// Optical force on the bead κ(trap − bead), N (0 when lost).
+    /// Optical force on the bead, N: κ(trap − bead), 0 when lost (linear
+    /// profile); the Gaussian profile's force, also when lost
+    /// ([`TweezerParams::optical_force_n`]).
     pub force_n: [f64; 2],
     /// Surface gap to the nearest obstacle, m (∞ without obstacles).
     pub gap_m: f64,
