@@ -234,8 +234,19 @@ pub struct TweezerConfig {
     /// Bead-centre to coverslip distance, m; absent = no wall correction.
     #[serde(default)]
     pub wall_distance_m: Option<f64>,
-    /// Linear range of the trap, m: beyond it the bead escapes.
+    /// Linear range of the trap, m: beyond it the bead escapes (with
+    /// `profile = "gaussian"`, the bead escapes beyond the larger of this and
+    /// 2 `waist_m`).
     pub escape_distance_m: f64,
+    /// Radial force profile: `"linear"` (default, a spring up to the escape
+    /// distance) or `"gaussian"` (the gradient force of a Gaussian beam of
+    /// waist `waist_m`; docs/theory/tweezer.md).
+    #[serde(default, skip_serializing_if = "TrapProfileKind::is_linear")]
+    pub profile: TrapProfileKind,
+    /// Beam waist w0 of the Gaussian profile (1/e² intensity radius), m;
+    /// required with `profile = "gaussian"`, refused otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waist_m: Option<f64>,
     /// Range of the short-range contact repulsion, m.
     pub contact_range_m: f64,
     /// Stiffness of the contact repulsion, N/m.
@@ -248,6 +259,24 @@ pub struct TweezerConfig {
     /// Position detector between the bead and the reported signal.
     #[serde(default)]
     pub detector: DetectorConfig,
+}
+
+/// `[tweezer] profile`: the radial force profile of the trap.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TrapProfileKind {
+    /// Linear spring with an escape cliff (default).
+    #[default]
+    Linear,
+    /// Gaussian-beam gradient force (needs `waist_m`).
+    Gaussian,
+}
+
+impl TrapProfileKind {
+    /// The default linear profile.
+    pub fn is_linear(&self) -> bool {
+        matches!(self, Self::Linear)
+    }
 }
 
 /// `[tweezer.detector]`: the simulated position detector
@@ -1050,6 +1079,18 @@ impl AccelerometerConfig {
 }
 
 impl TweezerConfig {
+    /// The trap profile of `profile` and `waist_m` (a Gaussian profile
+    /// without a waist gets NaN, which [`Self::issues`] and
+    /// [`crate::tweezer::TweezerParams::validate`] refuse).
+    pub fn trap_profile(&self) -> crate::tweezer::TrapProfile {
+        match self.profile {
+            TrapProfileKind::Linear => crate::tweezer::TrapProfile::Linear,
+            TrapProfileKind::Gaussian => crate::tweezer::TrapProfile::Gaussian {
+                waist_m: self.waist_m.unwrap_or(f64::NAN),
+            },
+        }
+    }
+
     /// Problems as (key, message) (the obstacles check themselves).
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
@@ -1096,6 +1137,31 @@ impl TweezerConfig {
                 "wall_distance_m",
                 format!("must exceed the bead radius {} m (got {hw})", self.radius_m),
             ));
+        }
+        use crate::tweezer::{WAIST_MAX_M, WAIST_MIN_M};
+        match (self.profile, self.waist_m) {
+            (TrapProfileKind::Gaussian, None) => v.push((
+                "profile",
+                "the gaussian profile needs `waist_m`, the beam's 1/e² intensity radius in m \
+                 (≈ 0.4–0.6 µm for a high-NA 1064 nm trap)"
+                    .into(),
+            )),
+            (TrapProfileKind::Linear, Some(_)) => v.push((
+                "waist_m",
+                "is used only with profile = \"gaussian\" (the linear profile has no waist)".into(),
+            )),
+            (TrapProfileKind::Gaussian, Some(w))
+                if !(w.is_finite() && (WAIST_MIN_M..=WAIST_MAX_M).contains(&w)) =>
+            {
+                v.push((
+                    "waist_m",
+                    format!(
+                        "beam waist must be finite and within [{WAIST_MIN_M}, {WAIST_MAX_M}] m \
+                         (got {w})"
+                    ),
+                ))
+            }
+            _ => {}
         }
         if let Err(e) = self.detector.validate() {
             v.push(("detector", e.to_string()));

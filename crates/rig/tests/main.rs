@@ -13,6 +13,7 @@ mod common;
 mod coupling;
 mod device_estop;
 mod frame_props;
+mod gaussian_trap;
 mod hello_bounds;
 mod live_protocol;
 mod live_serial;

@@ -43,6 +43,25 @@
 //! **Escape.** Beyond `escape_distance` from the trap centre (the linear
 //! range, default ≈ R) the bead is lost: no optical force, free diffusion,
 //! until the trap comes back within half that distance (recapture).
+//!
+//! **Trap profile** ([`TrapProfile`]). The linear spring above with its
+//! cliff is the default. The Gaussian profile replaces it by the
+//! Rayleigh-regime gradient force of a Gaussian beam, F ∝ ∇I with
+//! I ∝ exp(−2|d|²/w0²) (Ashkin 1992, Biophys. J. 61:569; Harada & Asakura
+//! 1996, Opt. Commun. 124:529):
+//!
+//! F(d) = −κ d exp(−2|d|²/w0²),  U(d) = (κ w0²/4)(1 − exp(−2|d|²/w0²)),
+//!
+//! d = bead − trap in the plane: stiffness κ at small d, the force peaks at
+//! |d| = w0/2 with F_max = κ (w0/2) e^{−1/2} ≈ 0.303 κ w0, depth
+//! U0 = κ w0²/4. The force acts whether or not the bead counts as trapped,
+//! so escape is thermally activated (or forced) by the Langevin dynamics
+//! themselves; "escaped" is bookkeeping, declared beyond
+//! max(2 w0, `escape_distance`) (at 2 w0 the force is 0.2 % of F_max and U
+//! is within 0.03 % of U0; a configured escape distance beyond that is
+//! kept, so the rest of the code's escape radius is never shortened), and
+//! recapture within half of it. The integrator of this profile is
+//! described in [`sim`].
 
 pub mod applied;
 pub mod calibration;
@@ -97,6 +116,33 @@ impl std::str::FromStr for TweezerIntegrator {
         }
     }
 }
+/// Smallest Gaussian beam waist w0 accepted, m: the 1/e² radius of the
+/// tightest diffraction-limited focus (≈ 0.42 λ/NA at λ = 0.35 µm,
+/// NA = 1.5).
+pub const WAIST_MIN_M: f64 = 1.0e-7;
+/// Largest Gaussian beam waist w0 accepted, m (an effective profile of a
+/// bead a few micrometres across; beyond it the "trap" is not a focus).
+pub const WAIST_MAX_M: f64 = 2.0e-5;
+/// Radial profile of the optical force (module docs).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TrapProfile {
+    /// Linear spring F = −κ d up to the escape distance, then no force
+    /// (default).
+    #[default]
+    Linear,
+    /// Gaussian-beam gradient force F = −κ d exp(−2|d|²/w0²).
+    Gaussian {
+        /// Beam waist w0 (1/e² intensity radius), m.
+        waist_m: f64,
+    },
+}
+impl TrapProfile {
+    /// The default linear profile.
+    pub fn is_linear(&self) -> bool {
+        matches!(self, Self::Linear)
+    }
+}
 /// A fixed spherical obstacle whose centre lies in the focal plane.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Obstacle {
@@ -133,6 +179,9 @@ pub struct TweezerParams {
     pub ito_drift: bool,
     /// RNG seed.
     pub seed: u64,
+    /// Radial force profile (default linear).
+    #[serde(default, skip_serializing_if = "TrapProfile::is_linear")]
+    pub profile: TrapProfile,
 }
 impl TweezerParams {
     /// Paper defaults: R = 1.5 µm glass bead in water at 20 °C, κ = 20 pN/µm,
@@ -151,6 +200,7 @@ impl TweezerParams {
             integrator: TweezerIntegrator::Exact,
             ito_drift: true,
             seed: 0,
+            profile: TrapProfile::Linear,
         }
     }
 
@@ -176,6 +226,7 @@ impl TweezerParams {
             integrator: TweezerIntegrator::Exact,
             ito_drift: true,
             seed: c.seed,
+            profile: c.trap_profile(),
         }
     }
 
@@ -196,6 +247,15 @@ impl TweezerParams {
                 name: "wall_distance_m",
                 value: h,
                 reason: format!("must exceed the bead radius {} m", self.radius_m),
+            });
+        }
+        if let TrapProfile::Gaussian { waist_m } = self.profile
+            && !(waist_m.is_finite() && (WAIST_MIN_M..=WAIST_MAX_M).contains(&waist_m))
+        {
+            return Err(RigError::InvalidParameter {
+                name: "waist_m",
+                value: waist_m,
+                reason: format!("beam waist must lie in [{WAIST_MIN_M}, {WAIST_MAX_M}] m"),
             });
         }
         for o in &self.obstacles {
@@ -253,6 +313,76 @@ impl TweezerParams {
     pub fn tau(&self) -> f64 {
         self.gamma_free() / self.stiffness_n_per_m
     }
+
+    /// Optical force on a bead at `d` = bead − trap (m), N: −κ d for the
+    /// linear profile (inside the escape distance; the caller handles a
+    /// lost bead), −κ d exp(−2|d|²/w0²) for the Gaussian one.
+    pub fn optical_force_n(&self, d: [f64; 2]) -> [f64; 2] {
+        let k = self.secant_stiffness(d[0] * d[0] + d[1] * d[1]);
+        [-k * d[0], -k * d[1]]
+    }
+
+    /// Secant stiffness F/|d| at |d|² = `d2` (m²), N/m: κ (linear) or
+    /// κ exp(−2|d|²/w0²) (Gaussian; 0 once the exponent exceeds 600, where
+    /// the force is below 1e-260 κ w0).
+    #[inline]
+    pub fn secant_stiffness(&self, d2: f64) -> f64 {
+        match self.profile {
+            TrapProfile::Linear => self.stiffness_n_per_m,
+            TrapProfile::Gaussian { waist_m } => {
+                let u = 2.0 * d2 / (waist_m * waist_m);
+                if u <= 600.0 {
+                    self.stiffness_n_per_m * (-u).exp()
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// Optical potential U at distance `r` (m) from the trap centre, J:
+    /// κ r²/2 (linear, inside the escape distance) or
+    /// (κ w0²/4)(1 − exp(−2 r²/w0²)) (Gaussian).
+    pub fn potential_j(&self, r: f64) -> f64 {
+        let k = self.stiffness_n_per_m;
+        match self.profile {
+            TrapProfile::Linear => 0.5 * k * r * r,
+            TrapProfile::Gaussian { waist_m } => {
+                let w2 = waist_m * waist_m;
+                -0.25 * k * w2 * (-2.0 * r * r / w2).exp_m1()
+            }
+        }
+    }
+
+    /// Depth of the trap, J: κ w0²/4 (Gaussian), κ e²/2 at the escape
+    /// distance e (linear).
+    pub fn depth_j(&self) -> f64 {
+        match self.profile {
+            TrapProfile::Linear => self.potential_j(self.escape_distance_m),
+            TrapProfile::Gaussian { waist_m } => 0.25 * self.stiffness_n_per_m * waist_m * waist_m,
+        }
+    }
+
+    /// Largest restoring force, N: κ (w0/2) e^{−1/2} at |d| = w0/2
+    /// (Gaussian), κ e at the escape distance (linear).
+    pub fn peak_force_n(&self) -> f64 {
+        match self.profile {
+            TrapProfile::Linear => self.stiffness_n_per_m * self.escape_distance_m,
+            TrapProfile::Gaussian { waist_m } => {
+                self.stiffness_n_per_m * 0.5 * waist_m * (-0.5_f64).exp()
+            }
+        }
+    }
+
+    /// Distance from the trap centre beyond which the bead counts as
+    /// escaped, m: the escape distance (linear) or max(2 w0, escape
+    /// distance) (Gaussian, module docs).
+    pub fn escape_radius_m(&self) -> f64 {
+        match self.profile {
+            TrapProfile::Linear => self.escape_distance_m,
+            TrapProfile::Gaussian { waist_m } => (2.0 * waist_m).max(self.escape_distance_m),
+        }
+    }
 }
 /// Events of one sample.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -261,7 +391,8 @@ pub struct TweezerEvents {
     pub contact_start: bool,
     /// The bead left the contact zone (with hysteresis, 3δ).
     pub contact_end: bool,
-    /// The bead left the trap's linear range and is lost.
+    /// The bead left the trap's escape radius
+    /// ([`TweezerParams::escape_radius_m`]) and is lost.
     pub escaped: bool,
     /// A lost bead was recaptured by the trap.
     pub recaptured: bool,
@@ -279,7 +410,9 @@ pub struct TweezerSample {
     pub bead_m: [f64; 2],
     /// Trap centre (x, y), m.
     pub trap_m: [f64; 2],
-    /// Optical force on the bead κ(trap − bead), N (0 when lost).
+    /// Optical force on the bead, N: κ(trap − bead), 0 when lost (linear
+    /// profile); the Gaussian profile's force, also when lost
+    /// ([`TweezerParams::optical_force_n`]).
     pub force_n: [f64; 2],
     /// Surface gap to the nearest obstacle, m (∞ without obstacles).
     pub gap_m: f64,
