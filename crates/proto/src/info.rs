@@ -29,7 +29,8 @@ pub struct TrialBegin {
     pub condition: u8,
     /// 0 practice, 1 test.
     pub phase: u8,
-    /// 0-based trial index within (participant, condition, phase).
+    /// 1-based trial number within (participant, condition, phase), as in
+    /// `trials.csv`.
     pub index: u32,
     /// Task: 0 circling, 1 blind navigation.
     pub task: u8,

@@ -37,7 +37,8 @@ pub struct TrialInfo {
     pub condition: Condition,
     /// Practice or test.
     pub phase: PhaseCode,
-    /// 0-based trial index within its (participant, condition, phase).
+    /// 1-based trial number within its (participant, condition, phase), as
+    /// in `trials.csv`.
     pub index: u32,
     /// The task.
     pub task: TaskCode,
