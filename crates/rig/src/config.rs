@@ -437,6 +437,14 @@ fn is_unit_gain(g: &f64) -> bool {
     *g == 1.0
 }
 
+/// Smallest Gaussian beam waist w0 accepted, m: the 1/e² radius of the
+/// tightest diffraction-limited focus (≈ 0.42 λ/NA at λ = 0.35 µm,
+/// NA = 1.5).
+pub const WAIST_MIN_M: f64 = 1.0e-7;
+/// Largest Gaussian beam waist w0 accepted, m (an effective profile of a
+/// bead a few micrometres across; beyond it the "trap" is not a focus).
+pub const WAIST_MAX_M: f64 = 2.0e-5;
+
 /// Largest accepted `coupling.high_band_gain`.
 pub const MAX_HIGH_BAND_GAIN: f64 = 1e5;
 
@@ -1079,18 +1087,6 @@ impl AccelerometerConfig {
 }
 
 impl TweezerConfig {
-    /// The trap profile of `profile` and `waist_m` (a Gaussian profile
-    /// without a waist gets NaN, which [`Self::issues`] and
-    /// [`crate::tweezer::TweezerParams::validate`] refuse).
-    pub fn trap_profile(&self) -> crate::tweezer::TrapProfile {
-        match self.profile {
-            TrapProfileKind::Linear => crate::tweezer::TrapProfile::Linear,
-            TrapProfileKind::Gaussian => crate::tweezer::TrapProfile::Gaussian {
-                waist_m: self.waist_m.unwrap_or(f64::NAN),
-            },
-        }
-    }
-
     /// Problems as (key, message) (the obstacles check themselves).
     pub fn issues(&self) -> Vec<(&'static str, String)> {
         let mut v = Vec::new();
@@ -1138,7 +1134,6 @@ impl TweezerConfig {
                 format!("must exceed the bead radius {} m (got {hw})", self.radius_m),
             ));
         }
-        use crate::tweezer::{WAIST_MAX_M, WAIST_MIN_M};
         match (self.profile, self.waist_m) {
             (TrapProfileKind::Gaussian, None) => v.push((
                 "profile",

@@ -5,7 +5,7 @@
 //! * **Rate.** Lapse starts form a Poisson process whose rate grows
 //!   linearly with the time on task τ since the last break (the start of
 //!   the block): λ(τ) = λ₀·(1 + g·τ / 600 s). λ₀ is
-//!   `OperatorParams::lapse_rate_per_h` (per participant, log-normal
+//!   `operator::OperatorParams::lapse_rate_per_h` (per participant, log-normal
 //!   between participants) and g is `lapse_growth_per_10min`. The process
 //!   is sampled exactly, by inverting its integrated rate (a quadratic in
 //!   the waiting time), not by a per-step coin.
@@ -17,21 +17,16 @@
 //!   simulated study runs a block's trials in parallel and a resumed one
 //!   re-runs single trials, so there every trial must be a function of its
 //!   key alone: its time on task is the nominal one,
-//!   [`nominal_time_on_task_s`] (the trials before it in its block times a
+//!   [`crate::operator::nominal_time_on_task_s`] (the trials before it in its block times a
 //!   nominal trial plus the inter-trial interval).
 //!
 //! Sources, numbers and limits: `docs/STUDY.md` §13, "Attention lapses".
 //!
 //! [`TrialBrief::time_on_task_s`]: crate::participant::TrialBrief::time_on_task_s
 
-use std::f64::consts::PI;
-
 use rand_chacha::ChaCha20Rng;
 
-use crate::operator::OperatorParams;
-use crate::protocol::{CIRCLING_START_GAP_M, Protocol, Task};
-use crate::seeds::TrialKey;
-use crate::task::{UM, unit_uniform};
+use crate::task::unit_uniform;
 
 /// Time on task over which `lapse_growth_per_10min` is the relative rate
 /// increase, s (the standard 10-min psychomotor vigilance test).
@@ -52,16 +47,6 @@ pub struct LapseModel {
 }
 
 impl LapseModel {
-    /// The model of an operator with parameters `p`.
-    pub fn of(p: &OperatorParams) -> Self {
-        Self {
-            rate0_per_s: p.lapse_rate_per_h / 3600.0,
-            growth: p.lapse_growth_per_10min,
-            min_s: p.lapse_min_s,
-            mean_s: p.lapse_mean_s,
-        }
-    }
-
     fn active(&self) -> bool {
         self.rate0_per_s > 0.0 && self.rate0_per_s.is_finite()
     }
@@ -187,35 +172,6 @@ impl LapseSchedule {
     }
 }
 
-/// How long the simulated operator takes for one trial of `task` at its
-/// default speeds, s: circling, the approach over the start gap and the
-/// revolutions around the obstacle; blind navigation, the start gap and
-/// the retreat.
-pub fn nominal_trial_s(task: &Task) -> f64 {
-    let p = OperatorParams::default();
-    match task {
-        Task::Circling(t) => {
-            let r = (t.obstacle_radius_um + t.bead_radius_um) * UM;
-            CIRCLING_START_GAP_M / p.approach_speed_m_s
-                + t.revolutions * 2.0 * PI * r / p.circling_speed_m_s
-        }
-        Task::BlindNavigation(t) => {
-            t.start_distance_um * UM / p.blind_speed_m_s
-                + t.retreat_distance_um * UM / p.retreat_speed_m_s
-        }
-    }
-}
-
-/// The nominal time on task at the start of trial `key` of `protocol`, s:
-/// the trials before it in its block (a run of trials with the same
-/// participant, phase and condition, begun after a break or instructions,
-/// [`crate::screens::gate`]) times a nominal trial ([`nominal_trial_s`])
-/// plus the inter-trial interval. The first trial of a block is at 0.
-pub fn nominal_time_on_task_s(protocol: &Protocol, key: TrialKey) -> f64 {
-    let before = f64::from(key.trial.saturating_sub(1));
-    before * (nominal_trial_s(&protocol.task) + protocol.screens.iti_s.max(0.0))
-}
-
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
@@ -307,20 +263,6 @@ mod tests {
         assert_eq!(r0, 6.0 / 3600.0);
         assert!(m.rate_per_s(300.0) > r0);
         assert!((m.rate_per_s(600.0) / r0 - 2.0).abs() < 1e-12);
-        // A break resets the time on task: the next block's first trial
-        // starts at 0 and has the base rate.
-        let p = Protocol::paper().unwrap();
-        let first = TrialKey::new(0, p.conditions[0], crate::seeds::Phase::Test, 1);
-        let fifth = TrialKey { trial: 5, ..first };
-        assert_eq!(nominal_time_on_task_s(&p, first), 0.0);
-        let tau = nominal_time_on_task_s(&p, fifth);
-        assert!(tau > 4.0 * nominal_trial_s(&p.task), "{tau}");
-        assert!(m.rate_per_s(tau) > r0);
-        let next_block = TrialKey {
-            condition: p.conditions[1],
-            ..first
-        };
-        assert_eq!(m.rate_per_s(nominal_time_on_task_s(&p, next_block)), r0);
         // Drawn lapses follow: over many trials at 20 min on task, more
         // starts than at 0 with the same seed.
         let m = model(360.0, 1.0);

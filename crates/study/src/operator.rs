@@ -74,8 +74,10 @@ use serde::{Deserialize, Serialize};
 use crate::export::TaskKind;
 use crate::lapse::{LapseModel, LapseSchedule};
 use crate::participant::{Observation, Participant, TrialBrief, VisualFrame};
+use crate::protocol::{CIRCLING_START_GAP_M, Protocol, Task};
+use crate::seeds::TrialKey;
 use crate::seeds::{STREAM_LAPSE, SplitMix64, TRAIT_DOMAIN, splitmix64_mix};
-use crate::task::{angle_between, norm, unit_uniform};
+use crate::task::{UM, angle_between, norm, unit_uniform};
 use crate::vibrotactile::PacinianCurve;
 use kilotouch_rig::coupling::HandMapping;
 
@@ -249,6 +251,17 @@ impl Default for TraitSpread {
 }
 
 impl OperatorParams {
+    /// The lapse process of an operator with these parameters
+    /// ([`crate::lapse`]).
+    pub fn lapse_model(&self) -> LapseModel {
+        LapseModel {
+            rate0_per_s: self.lapse_rate_per_h / 3600.0,
+            growth: self.lapse_growth_per_10min,
+            min_s: self.lapse_min_s,
+            mean_s: self.lapse_mean_s,
+        }
+    }
+
     /// Parameters of participant `index` of a study: the defaults with
     /// individual differences ([`TraitSpread::default`]) drawn from (study
     /// seed, participant) only — never from the condition or the trial — so
@@ -767,7 +780,7 @@ impl Participant for SimOperator {
         self.started = false;
         self.in_lapse = false;
         self.lapses.begin(
-            LapseModel::of(&self.p),
+            self.p.lapse_model(),
             brief.time_on_task_s,
             &mut self.lapse_rng,
         );
@@ -807,6 +820,35 @@ impl Participant for SimOperator {
             obs.handle_m
         }
     }
+}
+
+/// How long the simulated operator takes for one trial of `task` at its
+/// default speeds, s: circling, the approach over the start gap and the
+/// revolutions around the obstacle; blind navigation, the start gap and
+/// the retreat.
+pub fn nominal_trial_s(task: &Task) -> f64 {
+    let p = OperatorParams::default();
+    match task {
+        Task::Circling(t) => {
+            let r = (t.obstacle_radius_um + t.bead_radius_um) * UM;
+            CIRCLING_START_GAP_M / p.approach_speed_m_s
+                + t.revolutions * 2.0 * PI * r / p.circling_speed_m_s
+        }
+        Task::BlindNavigation(t) => {
+            t.start_distance_um * UM / p.blind_speed_m_s
+                + t.retreat_distance_um * UM / p.retreat_speed_m_s
+        }
+    }
+}
+
+/// The nominal time on task at the start of trial `key` of `protocol`, s:
+/// the trials before it in its block (a run of trials with the same
+/// participant, phase and condition, begun after a break or instructions,
+/// [`crate::screens::gate`]) times a nominal trial ([`nominal_trial_s`])
+/// plus the inter-trial interval. The first trial of a block is at 0.
+pub fn nominal_time_on_task_s(protocol: &Protocol, key: TrialKey) -> f64 {
+    let before = f64::from(key.trial.saturating_sub(1));
+    before * (nominal_trial_s(&protocol.task) + protocol.screens.iti_s.max(0.0))
 }
 
 /// Angle (degrees) between a retreat direction and a normal; re-exported
@@ -894,6 +936,23 @@ mod tests {
     #![allow(clippy::unwrap_used)]
 
     use super::*;
+
+    #[test]
+    fn nominal_time_on_task_restarts_with_each_block() {
+        let p = Protocol::paper().unwrap();
+        let first = TrialKey::new(0, p.conditions[0], crate::seeds::Phase::Test, 1);
+        let fifth = TrialKey { trial: 5, ..first };
+        assert_eq!(nominal_time_on_task_s(&p, first), 0.0);
+        let tau = nominal_time_on_task_s(&p, fifth);
+        assert!(tau > 4.0 * nominal_trial_s(&p.task), "{tau}");
+        let m = OperatorParams::default().lapse_model();
+        assert!(m.rate_per_s(tau) > m.rate_per_s(0.0));
+        let next_block = TrialKey {
+            condition: p.conditions[1],
+            ..first
+        };
+        assert_eq!(nominal_time_on_task_s(&p, next_block), 0.0);
+    }
 
     const FS: f64 = 10_000.0;
     const PER_ACT: usize = 10;

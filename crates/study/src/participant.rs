@@ -69,7 +69,7 @@ pub struct TrialBrief {
     /// Time on task at the trial's start, s: how long the participant has
     /// been at the task since the block began (after a break or the
     /// instructions); 0 for the first trial of a block. A simulated study
-    /// gives the nominal value ([`crate::lapse::nominal_time_on_task_s`]).
+    /// gives the nominal value ([`crate::operator::nominal_time_on_task_s`]).
     pub time_on_task_s: f64,
 }
 

@@ -6,7 +6,6 @@
 
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
 use kilotouch_study::fidelity::Fidelity;
-use kilotouch_study::lapse::LapseModel;
 use kilotouch_study::operator::{OperatorParams, TraitSpread};
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::runner::RunnerConfig;
@@ -30,7 +29,8 @@ fn lapse_rates_and_haptic_delays_follow_their_sources() {
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
     let block = |q: &OperatorParams| {
-        LapseModel::of(q).expected_starts(0.0, kilotouch_study::lapse::GROWTH_SPAN_S)
+        q.lapse_model()
+            .expected_starts(0.0, kilotouch_study::lapse::GROWTH_SPAN_S)
     };
     let median_p = OperatorParams {
         lapse_rate_per_h: median,

@@ -116,13 +116,23 @@ impl std::str::FromStr for TweezerIntegrator {
         }
     }
 }
-/// Smallest Gaussian beam waist w0 accepted, m: the 1/e² radius of the
-/// tightest diffraction-limited focus (≈ 0.42 λ/NA at λ = 0.35 µm,
-/// NA = 1.5).
-pub const WAIST_MIN_M: f64 = 1.0e-7;
-/// Largest Gaussian beam waist w0 accepted, m (an effective profile of a
-/// bead a few micrometres across; beyond it the "trap" is not a focus).
-pub const WAIST_MAX_M: f64 = 2.0e-5;
+pub use crate::config::{WAIST_MAX_M, WAIST_MIN_M};
+
+impl TrapProfile {
+    /// The trap profile of a rig file's `profile` and `waist_m` (a
+    /// Gaussian profile without a waist gets NaN, which
+    /// [`crate::config::TweezerConfig::issues`] and
+    /// [`TweezerParams::validate`] refuse).
+    pub fn of(c: &TweezerConfig) -> Self {
+        match c.profile {
+            crate::config::TrapProfileKind::Linear => Self::Linear,
+            crate::config::TrapProfileKind::Gaussian => Self::Gaussian {
+                waist_m: c.waist_m.unwrap_or(f64::NAN),
+            },
+        }
+    }
+}
+
 /// Radial profile of the optical force (module docs).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -226,7 +236,7 @@ impl TweezerParams {
             integrator: TweezerIntegrator::Exact,
             ito_drift: true,
             seed: c.seed,
-            profile: c.trap_profile(),
+            profile: TrapProfile::of(c),
         }
     }
 

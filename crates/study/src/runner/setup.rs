@@ -3,7 +3,7 @@
 use kilotouch_rig::coupling::HandMapping;
 
 use crate::export::TaskKind;
-use crate::lapse::nominal_time_on_task_s;
+use crate::operator::nominal_time_on_task_s;
 use crate::participant::TrialBrief;
 use crate::protocol::{Protocol, Task};
 use crate::seeds::{STREAM_PARTICIPANT, STREAM_RIG, STREAM_TASK, TrialKey};
