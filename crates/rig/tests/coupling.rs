@@ -99,10 +99,12 @@ fn routing_by_condition_and_nonfinite_forces() {
 /// Pantograph forces, P and V are the same sample for sample.
 #[test]
 fn the_high_band_gain_scales_the_haptuator_drive_only() {
+    let mut plain = RigConfig::default();
+    plain.coupling.high_band_gain = 1.0;
     let mut loud = RigConfig::default();
     loud.coupling.high_band_gain = 25.0;
     for cond in Condition::ALL {
-        let mut a = coupling();
+        let mut a = Coupling::from_config(&plain).unwrap();
         let mut b = Coupling::from_config(&loud).unwrap();
         assert_eq!(b.high_band_gain(), 25.0);
         a.set_condition_now(cond);

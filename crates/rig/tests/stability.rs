@@ -103,7 +103,9 @@ fn delayed_margins_match_python_control() {
 #[test]
 fn loop_cases_match_the_independent_model() {
     let r = reference();
-    let cfg = RigConfig::default();
+    // The reference cases are built with the force image as it is (g_H = 1).
+    let mut cfg = RigConfig::default();
+    cfg.coupling.high_band_gain = 1.0;
     let chain = LoopChain::as_designed(&cfg).unwrap();
     let a = LoopAnalysis::new(&cfg, &chain.coefficients).unwrap();
     let kappa = cfg.tweezer.stiffness_n_per_m;
@@ -645,11 +647,11 @@ fn a_high_band_gain_beyond_the_largest_safe_one_is_refused() {
     let cfg = RigConfig::default();
     let chain = LoopChain::as_designed(&cfg).unwrap();
     let r = analyse(&cfg, &chain.coefficients).unwrap();
-    assert_eq!(r.high_band_gain, 1.0);
+    assert_eq!(r.high_band_gain, 30.0, "the shipped rig's g_H");
     let max = r.max_high_band_gain;
     assert!(max.is_finite() && max > 100.0, "{}", r.summary());
     assert!(
-        r.summary().contains("high-band gain g_H 1.000"),
+        r.summary().contains("high-band gain g_H 30.000"),
         "{}",
         r.summary()
     );
@@ -659,7 +661,10 @@ fn a_high_band_gain_beyond_the_largest_safe_one_is_refused() {
     assert!(rb.safe, "{}", rb.summary());
     // Rendering the high band louder shrinks the Haptuator's full scale.
     assert!(
-        (rb.high_band_force_full_scale_n * 0.98 * max / r.high_band_force_full_scale_n - 1.0).abs()
+        (rb.high_band_force_full_scale_n * 0.98 * max
+            / (r.high_band_force_full_scale_n * r.high_band_gain)
+            - 1.0)
+            .abs()
             < 1e-9
     );
     let mut above = cfg.clone();
