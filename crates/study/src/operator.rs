@@ -1040,9 +1040,11 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert!(quiet(1.0, 3.0).iter().all(|q| !q), "quiet while free");
-        // Quiet within window (0.1 s) + haptic delay (60 ms) + margin.
+        // Quiet once the 0.15 s envelope has fallen below free/ratio² in
+        // mean square (≈ 0.21 s for a 16× drop in mean square) plus the
+        // haptic delay (60 ms), with margin.
         assert!(
-            quiet(3.3, 5.0).iter().all(|q| *q),
+            quiet(3.45, 5.0).iter().all(|q| *q),
             "not quiet while pressed"
         );
         assert!(
