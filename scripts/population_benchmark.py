@@ -10,7 +10,12 @@ per seed and pooled:
 * the one-way ANOVA over V/P/D of the per-participant mean displacement
   error (scipy.stats.f_oneway; the paper: p < 0.01) and of the success count
   (the paper: p < 0.005);
-* the paired t-test of D against P on the displacement error.
+* the paired t-test of D against P on the displacement error, and the
+  pooled paired effect size d_z = mean(P - D) / SD(P - D) over every
+  participant of every seed;
+* whether V is worst on all four of the paper's Fig. 12 metrics (fewest
+  successes, longest time, largest optical force, largest displacement
+  error; means over participants).
 
 Usage (from the repository root, after `cargo build --release`):
 
@@ -61,6 +66,8 @@ def analyse(folder):
     table = cells(folder)
     disp = {c: [] for c in "VPD"}
     succ = {c: [] for c in "VPD"}
+    time = {c: [] for c in "VPD"}
+    force = {c: [] for c in "VPD"}
     d_better = 0
     pairs = []
     for person in sorted(table):
@@ -68,6 +75,8 @@ def analyse(folder):
         for c in "VPD":
             disp[c].append(number(row[c]["disp_err_mean_um"]))
             succ[c].append(number(row[c]["n_success"]))
+            time[c].append(number(row[c]["time_s"]))
+            force[c].append(number(row[c]["force_mean_pn"]))
         p, d = disp["P"][-1], disp["D"][-1]
         if math.isfinite(p) and math.isfinite(d):
             pairs.append((p, d))
@@ -77,7 +86,20 @@ def analyse(folder):
     anova_succ = stats.f_oneway(*(succ[c] for c in "VPD")).pvalue
     t = stats.ttest_rel([p for p, _ in pairs], [d for _, d in pairs])
     mean = {c: sum(finite[c]) / len(finite[c]) for c in "VPD"}
+
+    def avg(values):
+        v = [x for x in values if math.isfinite(x)]
+        return sum(v) / len(v) if v else math.nan
+
+    v_worst = (
+        avg(succ["V"]) < min(avg(succ["P"]), avg(succ["D"]))
+        and avg(time["V"]) > max(avg(time["P"]), avg(time["D"]))
+        and avg(force["V"]) > max(avg(force["P"]), avg(force["D"]))
+        and mean["V"] > max(mean["P"], mean["D"])
+    )
     return {
+        "v_worst_on_all_four": bool(v_worst),
+        "p_minus_d": [p - d for p, d in pairs],
         "participants": len(table),
         "d_better_than_p": d_better,
         "pairs": len(pairs),
@@ -117,19 +139,27 @@ def main():
         r["seed"] = s
         rows.append(r)
     n = len(rows)
+    diffs = [x for r in rows for x in r.pop("p_minus_d")]
+    m_diff = sum(diffs) / len(diffs)
+    sd_diff = math.sqrt(sum((x - m_diff) ** 2 for x in diffs) / (len(diffs) - 1))
     pooled = {
+        "seeds_d_mean_below_p": int(sum(
+            r["mean_disp_err_um"]["D"] < r["mean_disp_err_um"]["P"] for r in rows)),
+        "pooled_d_z": m_diff / sd_diff,
+        "seeds_d_vs_p_not_significant": int(sum(r["p_paired_d_vs_p"] >= 0.05 for r in rows)),
+        "seeds_v_worst_on_all_four": int(sum(r["v_worst_on_all_four"] for r in rows)),
         "seeds": n,
         "d_better_than_p": sum(r["d_better_than_p"] for r in rows),
         "pairs": sum(r["pairs"] for r in rows),
-        "seeds_disp_err_p_below_0_01": sum(r["p_oneway_disp_err"] < 0.01 for r in rows),
-        "seeds_success_p_below_0_005": sum(r["p_oneway_success"] < 0.005 for r in rows),
-        "seeds_d_vs_p_p_below_0_05": sum(
-            r["p_paired_d_vs_p"] < 0.05 and r["t_paired_p_minus_d"] > 0 for r in rows),
+        "seeds_disp_err_p_below_0_01": int(sum(r["p_oneway_disp_err"] < 0.01 for r in rows)),
+        "seeds_success_p_below_0_005": int(sum(r["p_oneway_success"] < 0.005 for r in rows)),
+        "seeds_d_vs_p_p_below_0_05": int(sum(
+            r["p_paired_d_vs_p"] < 0.05 and r["t_paired_p_minus_d"] > 0 for r in rows)),
         "mean_disp_err_um": {c: sum(r["mean_disp_err_um"][c] for r in rows) / n for c in "VPD"},
         "mean_success": {c: sum(r["mean_success"][c] for r in rows) / n for c in "VPD"},
     }
     if a.json:
-        print(json.dumps({"per_seed": rows, "pooled": pooled}, indent=1))
+        print(json.dumps({"per_seed": rows, "pooled": pooled}, indent=1, default=float))
         return
     print("| seed | D < P (participants) | one-way p, disp. error | one-way p, successes | paired p, D vs P | mean disp. error V / P / D (µm) |")
     print("|---|---|---|---|---|---|")
@@ -144,7 +174,11 @@ def main():
           f"disp. error one-way p < 0.01 in {p['seeds_disp_err_p_below_0_01']} of {n} seeds; "
           f"successes p < 0.005 in {p['seeds_success_p_below_0_005']} of {n}; "
           f"D better than P at paired p < 0.05 in {p['seeds_d_vs_p_p_below_0_05']} of {n}; "
-          f"mean disp. error V/P/D {m['V']:.4f} / {m['P']:.4f} / {m['D']:.4f} µm.")
+          f"mean disp. error V/P/D {m['V']:.4f} / {m['P']:.4f} / {m['D']:.4f} µm; "
+          f"D's mean below P's in {p['seeds_d_mean_below_p']} of {n} seeds; pooled d_z (P - D) "
+          f"{p['pooled_d_z']:.2f}; P vs D not significant (paired p >= 0.05) in "
+          f"{p['seeds_d_vs_p_not_significant']} of {n}; V worst on all four Fig. 12 metrics "
+          f"in {p['seeds_v_worst_on_all_four']} of {n}.")
 
 
 if __name__ == "__main__":
