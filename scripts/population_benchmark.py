@@ -24,6 +24,13 @@ Usage (from the repository root, after `cargo build --release`):
 
 Folders already complete under --out are reused (delete them to rerun).
 Needs numpy and scipy.
+
+`--check` exits with status 1 unless the pooled figures meet the
+population criteria the project holds the model to: D's mean
+displacement error below P's in >= 70 % of seeds, pooled d_z (P - D) in
+[0.2, 0.6], P vs D not significant in >= 60 % of seeds, the displacement
+error's one-way p < 0.01 in >= 50 % of seeds, the successes' p < 0.005 and
+V worst on all four metrics in >= 90 % of seeds. CI runs it on seeds 1-4.
 """
 
 import argparse
@@ -121,6 +128,8 @@ def main():
     ap.add_argument("--rig-config")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 unless the population criteria hold (module docs)")
     a = ap.parse_args()
     rows = []
     for s in seed_list(a.seeds):
@@ -158,9 +167,38 @@ def main():
         "mean_disp_err_um": {c: sum(r["mean_disp_err_um"][c] for r in rows) / n for c in "VPD"},
         "mean_success": {c: sum(r["mean_success"][c] for r in rows) / n for c in "VPD"},
     }
+    failed = check(pooled) if a.check else []
     if a.json:
         print(json.dumps({"per_seed": rows, "pooled": pooled}, indent=1, default=float))
-        return
+    else:
+        table(rows, pooled)
+    for f in failed:
+        print(f"criterion not met: {f}", file=sys.stderr)
+    if failed:
+        sys.exit(1)
+
+
+def check(p):
+    """The population criteria (module docs) that `p` does not meet."""
+    n = p["seeds"]
+    failed = []
+
+    def at_least(key, share, what):
+        if p[key] < share * n:
+            failed.append(f"{what}: {p[key]} of {n} seeds, want >= {share:.0%}")
+
+    at_least("seeds_d_mean_below_p", 0.7, "D's mean displacement error below P's")
+    at_least("seeds_d_vs_p_not_significant", 0.6, "P vs D not significant")
+    at_least("seeds_disp_err_p_below_0_01", 0.5, "displacement error one-way p < 0.01")
+    at_least("seeds_success_p_below_0_005", 0.9, "successes one-way p < 0.005")
+    at_least("seeds_v_worst_on_all_four", 0.9, "V worst on all four metrics")
+    if not 0.2 <= p["pooled_d_z"] <= 0.6:
+        failed.append(f"pooled d_z (P - D) = {p['pooled_d_z']:.2f}, want 0.2 to 0.6")
+    return failed
+
+
+def table(rows, pooled):
+    n = len(rows)
     print("| seed | D < P (participants) | one-way p, disp. error | one-way p, successes | paired p, D vs P | mean disp. error V / P / D (µm) |")
     print("|---|---|---|---|---|---|")
     for r in rows:

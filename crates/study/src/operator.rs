@@ -114,11 +114,16 @@ pub struct OperatorParams {
     pub vibration_change_ratio: f64,
     /// How long a vibration event keeps contact believed, s.
     pub vibration_memory_s: f64,
-    /// RMS window of the agitation percept, s (temporal summation of the
-    /// P channel extends to ≈ 0.5–1 s, Verrillo 1965; 0.1 s keeps the
-    /// percept prompt).
+    /// Time constant of the agitation's mean-square envelope, s (default
+    /// 0.05 s: a change of a vibration already felt is resolved in tens of
+    /// milliseconds, gaps in vibrotactile noise from ≈ 10 to 40 ms, Van
+    /// Doren, Gescheider & Verrillo 1990; the 0.5–1 s temporal summation of
+    /// the P channel, Verrillo 1965, concerns detecting a weak vibration,
+    /// not following a felt one).
     pub agitation_window_s: f64,
-    /// RMS drop of the felt agitation perceived as quieting (contact).
+    /// RMS drop of the felt agitation perceived as quieting (contact)
+    /// (default 1.69 = 1.3²: two intensity difference thresholds of ≈ 1.3
+    /// in amplitude, 2.3 dB, Gescheider et al. 1990).
     pub agitation_drop_ratio: f64,
     /// Radial approach speed without believed contact, m/s (sample plane).
     pub approach_speed_m_s: f64,
@@ -181,8 +186,8 @@ impl Default for OperatorParams {
             vibration_long_s: 0.5,
             vibration_change_ratio: 3.0,
             vibration_memory_s: 0.3,
-            agitation_window_s: 0.15,
-            agitation_drop_ratio: 2.0,
+            agitation_window_s: 0.05,
+            agitation_drop_ratio: 1.69,
             approach_speed_m_s: 1.5e-6,
             circling_speed_m_s: 3.0e-6,
             force_goal_n: 0.3,
@@ -1040,11 +1045,11 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert!(quiet(1.0, 3.0).iter().all(|q| !q), "quiet while free");
-        // Quiet once the 0.15 s envelope has fallen below free/ratio² in
-        // mean square (≈ 0.21 s for a 16× drop in mean square) plus the
+        // Quiet once the 0.05 s envelope has fallen below free/ratio² in
+        // mean square (≈ 0.06 s for a 16× drop in mean square) plus the
         // haptic delay (60 ms), with margin.
         assert!(
-            quiet(3.45, 5.0).iter().all(|q| *q),
+            quiet(3.25, 5.0).iter().all(|q| *q),
             "not quiet while pressed"
         );
         assert!(
