@@ -69,23 +69,13 @@ fn quick_paper_regenerates_every_figure_and_every_claim_holds() {
     let v: Value = serde_json::from_slice(&o.stdout)
         .unwrap_or_else(|e| panic!("no JSON ({e}); stderr:\n{stderr}"));
     let claims = v["claims"].as_array().unwrap();
-    // Documented disagreements with the paper (docs/PAPER.md) are reported
-    // but do not fail the run; there is exactly one such claim.
+    // Documented disagreements with the paper (docs/PAPER.md) would be
+    // reported without failing the run; at the default seed there are none.
     let known: Vec<&Value> = claims
         .iter()
         .filter(|c| !c["known_disagreement"].is_null())
         .collect();
-    assert_eq!(known.len(), 1, "{known:?}");
-    assert!(
-        known[0]["figure"] == "12"
-            && known[0]["claim"]
-                .as_str()
-                .unwrap()
-                .contains("displacement error")
-            && known[0]["measured"].is_number(),
-        "{}",
-        known[0]
-    );
+    assert!(known.is_empty(), "{known:?}");
     let failed: Vec<String> = claims
         .iter()
         .filter(|c| c["holds"] != true && c["known_disagreement"].is_null())
@@ -125,9 +115,6 @@ fn quick_paper_regenerates_every_figure_and_every_claim_holds() {
         }
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    if known[0]["holds"] != true {
-        assert!(report.contains("no — known disagreement"), "{report}");
-    }
     for id in ids {
         assert!(report.contains(&format!("![Fig. {id}](fig{id}.png)")));
     }

@@ -444,3 +444,33 @@ pub fn fmt_measured(v: f64) -> String {
     let decimals = (3 - mag).clamp(0, 8) as usize;
     format!("{v:.decimals$}")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_known_disagreement_is_reported_but_does_not_fail_the_run() {
+        let checked = Claim::new("12", "a", "paper", 0.02, "", "< 0.01", false);
+        let known = checked.clone().known_disagreement("why it differs");
+        let holding = Claim::new("12", "b", "paper", 0.001, "", "< 0.01", true);
+        assert!(checked.fails());
+        assert!(!known.fails() && !holding.fails());
+        let report = PaperReport {
+            figures: vec![FigureFiles::new("12", "title")],
+            claims: vec![known, holding, checked],
+            out: PathBuf::from("out"),
+            quick: true,
+            seed: 1,
+            failed: 1,
+            wall_s: 1.0,
+        };
+        assert_eq!(
+            report.tally(),
+            "1 of 3 claims hold; 1 known disagreement(s) with the paper do not (docs/PAPER.md)."
+        );
+        let md = report_markdown(&report);
+        assert!(md.contains("| no — known disagreement: why it differs |"), "{md}");
+        assert!(md.contains("| **NO** |") && md.contains("| yes |"), "{md}");
+    }
+}

@@ -62,9 +62,9 @@ pub struct CirclingStudy {
 }
 
 impl CirclingStudy {
-    /// Simulate the paper's protocol (quick: 8 participants × 4 trials per
-    /// condition, no practice; full: 8 × 10 with 3 practice trials each, as
-    /// shipped), without raw files.
+    /// Simulate the paper's protocol (8 participants × 10 test trials per
+    /// condition, the paper's design; quick without the 3 practice trials
+    /// each), without raw files.
     ///
     /// # Errors
     /// Study and file errors.
@@ -76,7 +76,6 @@ impl CirclingStudy {
             Protocol::builtin("paper").map_err(|e| PaperError::Results(e.to_string()))?;
         protocol.seeds.study = opts.seed;
         if opts.quick {
-            protocol.trials_per_session = 4;
             protocol.training.practice_trials = 0;
         }
         let dir = opts.out.join("study-circling");
@@ -121,13 +120,6 @@ pub struct Fig11 {
     /// Trials per session.
     pub trials_per_session: u32,
 }
-
-/// Why the simulated study does not reproduce the paper's significant
-/// one-way ANOVA on the displacement error at its 8 participants
-/// (`docs/PAPER.md`, "Where the simulation disagrees").
-pub const DISP_ERR_ANOVA_DISAGREEMENT: &str = "the simulated operator's V − P/D difference in displacement error is \
-     small beside its between-participant spread, so 8 simulated participants show it at \
-     p < 0.01 in about half of the seeds (docs/PAPER.md)";
 
 /// Mean of a bar, NaN when absent.
 fn mean_of(v: &kilotouch_study::results::MeanSd) -> f64 {
@@ -455,20 +447,23 @@ impl Fig12 {
             };
             let p = t.oneway.as_ref().map_or(f64::NAN, |o| o.p);
             let p_rm = t.rm_anova.as_ref().map_or(f64::NAN, |a| a.p_gg);
-            let claim = Claim::new(
+            // Eight participants find the displacement error's difference
+            // at p < 0.01 in about half of the simulated studies
+            // (docs/PAPER.md, population benchmark): a seed may fail it.
+            let odds = if m == ResultMetric::Column(Metric::DispErrMeanUm) {
+                "; holds in 11 of 20 simulated studies of this design, docs/PAPER.md"
+            } else {
+                ""
+            };
+            v.push(Claim::new(
                 "12",
                 &format!("conditions differ in {}: one-way ANOVA p", m.label()),
                 "significant difference according to a one-way ANOVA on the number of successful trials and the displacement error (*** p < 0.005, ** p < 0.01) (§4.3, Fig. 12)",
                 p,
                 "",
-                &format!("< 0.01 (RM-ANOVA, Greenhouse–Geisser: p = {p_rm:.2e})"),
+                &format!("< 0.01 (RM-ANOVA, Greenhouse–Geisser: p = {p_rm:.2e}{odds})"),
                 p < 0.01,
-            );
-            v.push(if m == ResultMetric::Column(Metric::DispErrMeanUm) {
-                claim.known_disagreement(DISP_ERR_ANOVA_DISAGREEMENT)
-            } else {
-                claim
-            });
+            ));
         }
         if let Some((_, bars, t)) = self.panel(ResultMetric::Column(Metric::DispErrMeanUm)) {
             let get =
