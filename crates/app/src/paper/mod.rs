@@ -470,7 +470,10 @@ mod tests {
             "1 of 3 claims hold; 1 known disagreement(s) with the paper do not (docs/PAPER.md)."
         );
         let md = report_markdown(&report);
-        assert!(md.contains("| no — known disagreement: why it differs |"), "{md}");
+        assert!(
+            md.contains("| no — known disagreement: why it differs |"),
+            "{md}"
+        );
         assert!(md.contains("| **NO** |") && md.contains("| yes |"), "{md}");
     }
 }
