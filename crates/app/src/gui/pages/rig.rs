@@ -396,22 +396,6 @@ fn status_ui(ui: &mut egui::Ui, env: &PageEnv<'_>, h: &EngineHandle) {
                     }
                 });
         });
-        cols[0].add_space(6.0);
-        cols[0].group(|ui| {
-            ui.label(RichText::new("Closed-loop stability").strong());
-            ui.label(format!("D chain: {}", h.chain_source().describe()));
-            match h.stability() {
-                Some(r) => margins_ui(
-                    ui,
-                    r,
-                    "rig-margins",
-                    env.trap_applied.map(|t| t.kappa_n_per_m),
-                ),
-                None => {
-                    ui.label("not analysed (the loop was armed without the analysis)");
-                }
-            }
-        });
         cols[1].group(|ui| {
             ui.label(RichText::new("Status").strong());
             match h.health() {
@@ -469,6 +453,25 @@ fn status_ui(ui: &mut egui::Ui, env: &PageEnv<'_>, h: &EngineHandle) {
                 }
             }
         });
+    });
+    // Full width: the margins table has long rows that a half-width
+    // column would let run into the Status box.
+    ui.add_space(6.0);
+    ui.group(|ui| {
+        ui.set_width(ui.available_width());
+        ui.label(RichText::new("Closed-loop stability").strong());
+        ui.label(format!("D chain: {}", h.chain_source().describe()));
+        match h.stability() {
+            Some(r) => margins_ui(
+                ui,
+                r,
+                "rig-margins",
+                env.trap_applied.map(|t| t.kappa_n_per_m),
+            ),
+            None => {
+                ui.label("not analysed (the loop was armed without the analysis)");
+            }
+        }
     });
 }
 
