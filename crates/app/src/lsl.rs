@@ -81,11 +81,13 @@ pub enum Marker {
 
 impl Marker {
     /// The marker's text on the stream (`trial_start participant=P01
-    /// condition=V phase=test trial=1`, `contact_start`, …).
-    pub fn text(&self) -> String {
+    /// condition=V phase=test trial=1`, `contact_start`, …); participant
+    /// IDs have `id_width` digits, as the protocol writes them (2 up to 99
+    /// participants).
+    pub fn text(&self, id_width: usize) -> String {
         let trial = |what: &str, k: &TrialKey| {
             format!(
-                "{what} participant=P{:02} condition={} phase={} trial={}",
+                "{what} participant=P{:0id_width$} condition={} phase={} trial={}",
                 k.participant + 1,
                 k.condition,
                 k.phase,
@@ -249,12 +251,14 @@ impl LslTap {
 }
 
 /// Who the streams are about (XDF meta-data).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct LslIdentity {
     /// The study's name.
     pub study: String,
     /// The participant (`P01`).
     pub participant: String,
+    /// Digits of the protocol's participant IDs (`P01`: 2).
+    pub id_width: usize,
 }
 
 /// Why the outlets could not start.
@@ -378,7 +382,8 @@ impl LslPublisher {
                         return;
                     }
                 };
-                publish_loop(&mo, &so, &mut rx, &notes_rx, &th_shared, &th_stop);
+                let width = id.id_width.max(1);
+                publish_loop(&mo, &so, &mut rx, &notes_rx, &th_shared, &th_stop, width);
                 th_shared.on.store(false, Ordering::Release);
                 if let Ok(mut slot) = th_shared.rx.lock() {
                     *slot = Some(rx);
@@ -454,6 +459,7 @@ fn publish_loop(
     notes: &mpsc::Receiver<String>,
     shared: &LslShared,
     stop: &AtomicBool,
+    id_width: usize,
 ) {
     use lsl::ExPushable;
     let mut row: Vec<f32> = vec![0.0; N_SIGNAL];
@@ -472,7 +478,7 @@ fn publish_loop(
                     let _ = so.push_sample_ex(&row, t, rx.is_empty());
                 }
                 LslRecord::Marker { t, m } => {
-                    text[0] = m.text();
+                    text[0] = m.text(id_width);
                     let _ = mo.push_sample_ex(&text, t, true);
                 }
             }
@@ -597,7 +603,7 @@ mod tests {
             trial: 3,
         };
         assert_eq!(
-            Marker::TrialStart(k).text(),
+            Marker::TrialStart(k).text(2),
             "trial_start participant=P01 condition=P phase=test trial=3"
         );
     }

@@ -19,6 +19,7 @@ fn a_consumer_that_never_reads_does_not_block_the_engine() {
     let id = LslIdentity {
         study: "lsl-test".into(),
         participant: "P01".into(),
+        id_width: 2,
     };
     let publisher = h.start_lsl(1000.0, id).unwrap();
     // A consumer that connects and then never pulls a sample.

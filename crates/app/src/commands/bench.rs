@@ -378,6 +378,7 @@ fn run_paced(a: &Args, seconds: f64) -> anyhow::Result<()> {
             let id = crate::lsl::LslIdentity {
                 study: "bench".to_owned(),
                 participant: String::new(),
+                id_width: 2,
             };
             h.start_lsl(1000.0, id)
                 .map(|p| Box::new(p) as Box<dyn std::fmt::Debug>)

@@ -241,6 +241,7 @@ pub fn sitting(
         let id = crate::lsl::LslIdentity {
             study: study_name,
             participant: pid.id.clone(),
+            id_width: pid.id.len().saturating_sub(1),
         };
         let p = match engine.start_lsl(a.lsl_rate_hz, id) {
             Ok(p) => p,

@@ -204,6 +204,7 @@ impl RigPage {
                     let id = LslIdentity {
                         study: "explore".to_owned(),
                         participant: String::new(),
+                        id_width: 2,
                     };
                     match h.start_lsl(1000.0, id) {
                         Ok(p) => {
