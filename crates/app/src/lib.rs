@@ -8,6 +8,8 @@ pub mod cli;
 pub mod commands;
 pub mod engine;
 pub mod gui;
+#[cfg(feature = "lsl")]
+pub mod lsl;
 pub mod output;
 pub mod paper;
 pub mod power_plot;

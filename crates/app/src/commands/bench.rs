@@ -37,6 +37,11 @@ pub struct Args {
     /// Rig file for `--paced` (default: the built-in rig).
     #[arg(long, value_name = "FILE", requires = "paced")]
     pub rig_config: Option<std::path::PathBuf>,
+    /// `--paced`: run it twice in one go, without and then with the Lab
+    /// Streaming Layer outlets on (1 kHz signal stream), and report both.
+    #[cfg(feature = "lsl")]
+    #[arg(long, requires = "paced")]
+    pub lsl: bool,
     /// Instead of the speed figures: hardware in the loop against the
     /// simulation. The paper's protocol runs through `study simulate` and,
     /// sitting by sitting, through `study run` on the DAQ emulator hosting
@@ -365,5 +370,36 @@ fn run_paced(a: &Args, seconds: f64) -> anyhow::Result<()> {
         bar.count(((f * seconds).floor() as usize).min(total), total);
     })?;
     drop(bar);
+    #[cfg(feature = "lsl")]
+    if a.lsl {
+        use crate::engine::EngineError;
+        let mut bar = super::progress::Progress::new("s of the paced run with LSL");
+        let mut attach = |h: &crate::engine::EngineHandle| {
+            let id = crate::lsl::LslIdentity {
+                study: "bench".to_owned(),
+                participant: String::new(),
+                id_width: 2,
+            };
+            h.start_lsl(1000.0, id)
+                .map(|p| Box::new(p) as Box<dyn std::fmt::Debug>)
+                .map_err(|e| EngineError::Rig(kilotouch_rig::RigError::Device(e.to_string())))
+        };
+        let with = crate::engine::soak::run_soak_with(
+            &cfg,
+            EngineOptions::default(),
+            seconds,
+            &mut |f| bar.count(((f * seconds).floor() as usize).min(total), total),
+            &mut attach,
+        )?;
+        drop(bar);
+        let both = serde_json::json!({ "without_lsl": report, "with_lsl": with });
+        return emit(a.json, &both, || {
+            format!(
+                "without LSL:\n{}\nwith LSL (1 kHz signal stream):\n{}",
+                report.describe(),
+                with.describe()
+            )
+        });
+    }
     emit(a.json, &report, || report.describe())
 }

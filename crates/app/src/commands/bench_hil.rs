@@ -228,6 +228,12 @@ pub fn run(b: &HilBench) -> anyhow::Result<HilReport> {
                 calibration: None,
             },
             json: true,
+            #[cfg(feature = "lsl")]
+            lsl: false,
+            #[cfg(feature = "lsl")]
+            lsl_rate_hz: 1000.0,
+            #[cfg(feature = "lsl")]
+            lsl_wait_s: 0.0,
         };
         let (report, finish) = sitting(&args, (k == 0).then(|| protocol.clone()))?;
         match finish {

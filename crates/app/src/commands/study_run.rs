@@ -78,6 +78,21 @@ pub struct RunArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Stream trial markers and the haptic signals to Lab Streaming Layer
+    /// (`kilotouch-markers`, `kilotouch-signals`; docs/LSL.md) and record
+    /// the LSL clock against UTC in the study folder (`lsl_clock.json`).
+    #[cfg(feature = "lsl")]
+    #[arg(long)]
+    pub lsl: bool,
+    /// Rate of the LSL signal stream, Hz (the engine's samples decimated).
+    #[cfg(feature = "lsl")]
+    #[arg(long, default_value_t = 1000.0, requires = "lsl")]
+    pub lsl_rate_hz: f64,
+    /// Before the first trial, wait up to this long for a consumer on both
+    /// LSL streams (LabRecorder recording them), s; 0: do not wait.
+    #[cfg(feature = "lsl")]
+    #[arg(long, default_value_t = 0.0, requires = "lsl")]
+    pub lsl_wait_s: f64,
 }
 
 /// `kilotouch study run --json`.
@@ -144,6 +159,8 @@ pub fn sitting(
         _ => folder_or_new_protocol(a)?,
     };
     let table = protocol.assignment()?;
+    #[cfg(feature = "lsl")]
+    let study_name = protocol.name.clone();
     let pid = validate_participant_id(&a.participant, &table)
         .map_err(|e| anyhow::anyhow!("--participant: {e}"))?;
     let live = spec != RigSpec::Sim;
@@ -219,10 +236,73 @@ pub fn sitting(
         info.completed,
         info.planned
     );
+    #[cfg(feature = "lsl")]
+    let lsl = if a.lsl {
+        let id = crate::lsl::LslIdentity {
+            study: study_name,
+            participant: pid.id.clone(),
+            id_width: pid.id.len().saturating_sub(1),
+        };
+        let p = match engine.start_lsl(a.lsl_rate_hz, id) {
+            Ok(p) => p,
+            Err(e) => {
+                let _ = session.close(&mut engine);
+                engine.shutdown();
+                anyhow::bail!("--lsl: {e}");
+            }
+        };
+        eprintln!(
+            "kilotouch: LSL outlets {} and {} ({} Hz)",
+            crate::lsl::MARKER_STREAM,
+            crate::lsl::SIGNAL_STREAM,
+            p.signal_rate_hz
+        );
+        if a.lsl_wait_s > 0.0 {
+            let until = Instant::now() + Duration::from_secs_f64(a.lsl_wait_s.min(86_400.0));
+            while p.consumers() != (true, true) && Instant::now() < until {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            if p.consumers() != (true, true) {
+                eprintln!(
+                    "kilotouch: no LSL consumer on both streams after {} s: starting anyway",
+                    a.lsl_wait_s
+                );
+            }
+        }
+        let clock = crate::lsl::ClockPair::now();
+        p.note(&format!("sitting_start participant={}", pid.id));
+        Some((p, clock))
+    } else {
+        None
+    };
     session.send(SessionCommand::Start);
     let t0 = Instant::now();
     let mut planned = info.planned;
-    let (finish, committed) = wait_for_end(&mut session, &mut engine, a.timeout_s, &mut planned)?;
+    #[cfg(not(feature = "lsl"))]
+    let mut on_note = |_msg: &str| {};
+    #[cfg(feature = "lsl")]
+    let mut on_note = |msg: &str| {
+        if let Some((p, _)) = &lsl {
+            p.note(&format!("note {msg}"));
+        }
+    };
+    let ended = wait_for_end(
+        &mut session,
+        &mut engine,
+        a.timeout_s,
+        &mut planned,
+        &mut on_note,
+    );
+    #[cfg(feature = "lsl")]
+    if let Some((p, start)) = lsl {
+        p.note(&format!("sitting_end participant={}", pid.id));
+        let end = crate::lsl::ClockPair::now();
+        let dropped = p.dropped();
+        p.stop();
+        crate::lsl::record_clock(&a.out, &pid.id, start, end, dropped)
+            .with_context(|| format!("--lsl: {}", a.out.display()))?;
+    }
+    let (finish, committed) = ended?;
     // Extra practice trials earned during the sitting are in the plan now.
     info.planned = planned;
     let health = session.health(&engine);
@@ -262,6 +342,7 @@ fn wait_for_end(
     engine: &mut EngineHandle,
     timeout_s: f64,
     planned: &mut usize,
+    on_note: &mut dyn FnMut(&str),
 ) -> anyhow::Result<(FinishReason, usize)> {
     let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
     let mut bar = Progress::new("trials");
@@ -281,7 +362,10 @@ fn wait_for_end(
                     bar.count(done, *planned);
                 }
                 SessionEvent::Error(msg) => eprintln!("sitting: {msg}"),
-                SessionEvent::Noted(msg) => eprintln!("journal: {msg}"),
+                SessionEvent::Noted(msg) => {
+                    on_note(&msg);
+                    eprintln!("journal: {msg}");
+                }
                 SessionEvent::Replanned(n) => {
                     *planned = n;
                     bar.count(done, n);

@@ -183,6 +183,9 @@ pub struct Publisher {
     pub trapped: bool,
     /// [`flags::ESTOP`] while the emergency stop is latched, else 0.
     pub estop_flag: u16,
+    /// The Lab Streaming Layer tap (pushes only while publishing is on).
+    #[cfg(feature = "lsl")]
+    pub lsl: Option<crate::lsl::LslTap>,
 }
 
 impl Publisher {
@@ -196,6 +199,18 @@ impl Publisher {
             last_trap: rest_trap_m,
             trapped: true,
             estop_flag: 0,
+            #[cfg(feature = "lsl")]
+            lsl: None,
+        }
+    }
+
+    /// An event for the Lab Streaming Layer marker stream (nothing while
+    /// publishing is off).
+    #[cfg(feature = "lsl")]
+    #[inline]
+    pub fn marker(&mut self, m: crate::lsl::Marker) {
+        if let Some(t) = &mut self.lsl {
+            t.marker(m);
         }
     }
 
@@ -239,5 +254,9 @@ impl Publisher {
         }
         self.window_samples += 1;
         self.samples += 1;
+        #[cfg(feature = "lsl")]
+        if let Some(tap) = &mut self.lsl {
+            tap.sample(l);
+        }
     }
 }

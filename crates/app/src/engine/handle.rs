@@ -294,6 +294,21 @@ impl EngineHandle {
         self.send(Command::Reconnect(spec.map(Box::new))).is_ok()
     }
 
+    /// Publish the engine's samples and events to Lab Streaming Layer
+    /// outlets at about `rate_hz` (decimated from the engine's rate) until
+    /// the returned publisher is stopped or dropped ([`crate::lsl`]).
+    ///
+    /// # Errors
+    /// [`crate::lsl::LslError`]: the rate, a publisher already running, liblsl.
+    #[cfg(feature = "lsl")]
+    pub fn start_lsl(
+        &self,
+        rate_hz: f64,
+        id: crate::lsl::LslIdentity,
+    ) -> Result<crate::lsl::LslPublisher, crate::lsl::LslError> {
+        crate::lsl::LslPublisher::start(self.shared.lsl.clone(), self.sample_rate_hz(), rate_hz, id)
+    }
+
     /// Sample rate, Hz.
     pub fn sample_rate_hz(&self) -> f64 {
         self.identity.sample_rate_hz

@@ -28,6 +28,9 @@ pub(crate) struct Shared {
     pub estop_count: AtomicU64,
     /// Ask the engine thread to end.
     pub shutdown: AtomicBool,
+    /// The Lab Streaming Layer tap's switches and counters.
+    #[cfg(feature = "lsl")]
+    pub lsl: Arc<crate::lsl::LslShared>,
 }
 
 /// The loop delay of `rig` and `tweezer` for blocks of `block_len`
@@ -205,6 +208,10 @@ impl<C: Clock> EngineCore<C> {
             realtime: false,
             prev_block: BlockTiming::default(),
         };
+        #[cfg(feature = "lsl")]
+        {
+            core.out.lsl = Some(crate::lsl::LslTap::new(core.shared.lsl.clone()));
+        }
         if !opts.start {
             core.stop_rig();
         }
@@ -612,6 +619,10 @@ impl<C: Clock> EngineCore<C> {
     /// The driver runs one block (module docs of [`crate::engine`]).
     fn run_driver(&mut self, n: usize) {
         let latched = self.lp.safety.state().latched();
+        #[cfg(feature = "lsl")]
+        if self.out.estop_flag == 0 && self.lp.safety.state() == SafetyState::EStop {
+            self.out.marker(crate::lsl::Marker::EmergencyStop);
+        }
         self.out.estop_flag = if self.lp.safety.state() == SafetyState::EStop {
             flags::ESTOP
         } else {

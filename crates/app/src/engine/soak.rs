@@ -177,6 +177,26 @@ pub fn run_soak(
     seconds: f64,
     progress: &mut dyn FnMut(f64),
 ) -> Result<SoakReport, EngineError> {
+    run_soak_with(cfg, opts, seconds, progress, &mut |_| Ok(Box::new(())))
+}
+
+/// What [`run_soak_with`] attaches to the engine: called once the engine
+/// runs; what it returns is kept alive until the soak ends (e.g. the Lab
+/// Streaming Layer outlets).
+pub type SoakAttach<'a> =
+    &'a mut dyn FnMut(&EngineHandle) -> Result<Box<dyn std::fmt::Debug>, EngineError>;
+
+/// [`run_soak`] with `attach` run on the engine before the soak starts.
+///
+/// # Errors
+/// As [`run_soak`]; `attach`'s error.
+pub fn run_soak_with(
+    cfg: &RigConfig,
+    opts: EngineOptions,
+    seconds: f64,
+    progress: &mut dyn FnMut(f64),
+    attach: SoakAttach<'_>,
+) -> Result<SoakReport, EngineError> {
     if !(seconds.is_finite() && seconds > 0.0) {
         return Err(EngineError::Option {
             name: "seconds",
@@ -190,6 +210,13 @@ pub fn run_soak(
     let chain = LoopChain::as_designed(cfg)?;
     let clearance = Clearance::check(cfg, &chain)?;
     let mut h = EngineHandle::spawn(cfg, opts)?;
+    let attached = match attach(&h) {
+        Ok(a) => a,
+        Err(e) => {
+            h.shutdown();
+            return Err(e);
+        }
+    };
 
     let reference = ReferenceThread::start(period_s, &opts)?;
     let t0 = Instant::now();
@@ -243,6 +270,7 @@ pub fn run_soak(
         std::thread::sleep(Duration::from_micros(50));
     }
     let floor = reference.stop()?;
+    drop(attached);
     // Let the last health report arrive.
     std::thread::sleep(Duration::from_millis(250));
     received += h.drain_telemetry(|_| {}) as u64;

@@ -379,6 +379,8 @@ impl SittingDriver {
         self.state = State::Running;
         let key = slot.setup.key;
         self.slot = Some(slot);
+        #[cfg(feature = "lsl")]
+        ctx.out.marker(crate::lsl::Marker::TrialStart(key));
         self.tell(FromDriver::Started(key));
     }
 
@@ -390,6 +392,8 @@ impl SittingDriver {
             let _ = ctx.lp.rig.send_info(&HostInfo::TrialEnd);
         }
         if let Some(mut slot) = self.slot.take() {
+            #[cfg(feature = "lsl")]
+            ctx.out.marker(crate::lsl::Marker::TrialEnd(slot.setup.key));
             slot.end = self.core.end();
             slot.outcome = self.core.take_outcome().ok();
             slot.raw_dropped = self.raw.dropped;
@@ -404,6 +408,8 @@ impl SittingDriver {
                 ToDriver::Pause => {
                     if self.state == State::Running {
                         self.state = State::Paused;
+                        #[cfg(feature = "lsl")]
+                        ctx.out.marker(crate::lsl::Marker::Pause);
                         if ctx.live {
                             ctx.lp.safety.disarm();
                         }
@@ -412,6 +418,8 @@ impl SittingDriver {
                 ToDriver::Resume => {
                     if self.state == State::Paused {
                         self.state = State::Running;
+                        #[cfg(feature = "lsl")]
+                        ctx.out.marker(crate::lsl::Marker::Resume);
                         if ctx.live {
                             let _ = ctx.lp.safety.arm();
                         }

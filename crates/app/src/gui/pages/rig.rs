@@ -30,6 +30,12 @@ pub struct RigPage {
     /// The Tweezer section (trap calibration).
     pub tweezer: TweezerSection,
     rig_file_field: PathField,
+    /// The Lab Streaming Layer outlets of the connected engine, while on.
+    #[cfg(feature = "lsl")]
+    lsl: Option<crate::lsl::LslPublisher>,
+    /// Why the outlets could not start.
+    #[cfg(feature = "lsl")]
+    lsl_error: Option<String>,
 }
 
 impl Default for RigPage {
@@ -47,6 +53,10 @@ impl RigPage {
             path_text: String::new(),
             tweezer: TweezerSection::new(),
             rig_file_field: PathField::default(),
+            #[cfg(feature = "lsl")]
+            lsl: None,
+            #[cfg(feature = "lsl")]
+            lsl_error: None,
         }
     }
 
@@ -162,12 +172,79 @@ impl RigPage {
             ui.add_space(6.0);
             run_controls_ui(ui, engine, &mut requests);
             ui.add_space(6.0);
+            #[cfg(feature = "lsl")]
+            self.lsl_ui(ui, engine);
             if let Some(h) = engine {
                 error_ui(ui, h);
                 status_ui(ui, env, h);
             }
         });
         env.requests.extend(requests);
+    }
+
+    /// The Lab Streaming Layer switch: on, the connected engine's samples
+    /// and events go to the `kilotouch-markers` and `kilotouch-signals`
+    /// outlets (docs/LSL.md); the stream names and whether a consumer
+    /// (LabRecorder) is connected. Off when the engine disconnects.
+    #[cfg(feature = "lsl")]
+    fn lsl_ui(&mut self, ui: &mut egui::Ui, engine: Option<&EngineHandle>) {
+        use crate::lsl::{LslIdentity, MARKER_STREAM, SIGNAL_STREAM};
+        let Some(h) = engine else {
+            self.lsl = None;
+            return;
+        };
+        ui.group(|ui| {
+            let mut on = self.lsl.is_some();
+            if ui
+                .checkbox(&mut on, "Stream to Lab Streaming Layer (1 kHz)")
+                .on_hover_text("markers and haptic signals for LabRecorder (docs/LSL.md)")
+                .changed()
+            {
+                if on {
+                    let id = LslIdentity {
+                        study: "explore".to_owned(),
+                        participant: String::new(),
+                        id_width: 2,
+                    };
+                    match h.start_lsl(1000.0, id) {
+                        Ok(p) => {
+                            self.lsl = Some(p);
+                            self.lsl_error = None;
+                        }
+                        Err(e) => self.lsl_error = Some(e.to_string()),
+                    }
+                } else if let Some(p) = self.lsl.take() {
+                    p.stop();
+                }
+            }
+            if let Some(p) = &self.lsl {
+                let (m, s) = p.consumers();
+                let state = |c: bool| {
+                    if c {
+                        "consumer connected"
+                    } else {
+                        "no consumer"
+                    }
+                };
+                ui.label(format!("{MARKER_STREAM}: {}", state(m)));
+                ui.label(format!(
+                    "{SIGNAL_STREAM} ({} Hz): {}",
+                    p.signal_rate_hz,
+                    state(s)
+                ));
+                if p.dropped() > 0 {
+                    ui.colored_label(
+                        Color32::from_rgb(200, 120, 0),
+                        format!("{} records dropped", p.dropped()),
+                    );
+                }
+                ui.ctx()
+                    .request_repaint_after(std::time::Duration::from_millis(500));
+            }
+            if let Some(e) = &self.lsl_error {
+                ui.colored_label(Color32::from_rgb(200, 0, 0), e);
+            }
+        });
     }
 
     /// The device: kind, rig text, Connect, what the rig is, the tweezer row.

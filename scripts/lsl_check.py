@@ -1,0 +1,149 @@
+#!/usr/bin/env python3
+"""Check kilotouch's Lab Streaming Layer outlets with pylsl.
+
+Runs one real-time sitting (`kilotouch study run --lsl` on the simulated
+rig), resolves both streams, records them until the sitting ends and checks:
+
+* every trial's `trial_start` and `trial_end` markers arrive, in order, each
+  end after its start, in the order and with the keys of `trials.csv`;
+* `sitting_start` comes first and `sitting_end` last;
+* the signal stream's sample count within each trial matches its nominal
+  rate times the trial's marker-to-marker duration within 1 %;
+* the study folder records the LSL clock (`lsl_clock.json`).
+
+Usage: lsl_check.py KILOTOUCH_BINARY PROTOCOL OUT_DIR [RATE_HZ]
+"""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pylsl
+
+
+def fail(msg):
+    print(f"lsl_check: FAIL: {msg}", file=sys.stderr)
+    sys.exit(1)
+
+
+def resolve(name, timeout):
+    found = pylsl.resolve_byprop("name", name, timeout=timeout)
+    if not found:
+        fail(f"stream {name} not resolved within {timeout} s")
+    return found[0]
+
+
+def parse_marker(text):
+    parts = text.split(" ")
+    fields = dict(p.split("=", 1) for p in parts[1:] if "=" in p)
+    return parts[0], fields
+
+
+def main():
+    if len(sys.argv) < 4:
+        print(__doc__, file=sys.stderr)
+        sys.exit(2)
+    binary, protocol, out = sys.argv[1], sys.argv[2], sys.argv[3]
+    rate = float(sys.argv[4]) if len(sys.argv) > 4 else 1000.0
+    cmd = [
+        binary, "study", "run", "--protocol", protocol, "--participant", "P01",
+        "--out", out, "--no-raw", "--lsl", "--lsl-rate-hz", str(rate),
+        "--lsl-wait-s", "30", "--timeout-s", "300", "--json",
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE)
+    try:
+        m_info = resolve("kilotouch-markers", 30)
+        s_info = resolve("kilotouch-signals", 30)
+        if s_info.channel_count() != 13 or s_info.channel_format() != pylsl.cf_float32:
+            fail(f"signal stream: {s_info.channel_count()} channels, format {s_info.channel_format()}")
+        srate = s_info.nominal_srate()
+        if abs(srate - rate) > 1e-6 * rate:
+            fail(f"signal stream nominal rate {srate} Hz, asked for {rate} Hz")
+        m_in = pylsl.StreamInlet(m_info, max_buflen=360)
+        s_in = pylsl.StreamInlet(s_info, max_buflen=360)
+        # Full meta-data (channel labels) from the outlet.
+        full = s_in.info(timeout=10)
+        ch = full.desc().child("channels").child("channel")
+        labels = []
+        while not ch.empty():
+            labels.append(ch.child_value("label"))
+            ch = ch.next_sibling()
+        if len(labels) != 13 or labels[0] != "handle_x":
+            fail(f"signal channel labels: {labels}")
+        study = full.desc().child_value("study")
+        participant = full.desc().child_value("participant")
+        if participant != "P01" or not study:
+            fail(f"meta-data: study={study!r} participant={participant!r}")
+        m_in.open_stream(timeout=10)
+        s_in.open_stream(timeout=10)
+        markers, marker_ts, stamps = [], [], []
+        n_ended = None
+        while True:
+            chunk, ts = m_in.pull_chunk(timeout=0.0)
+            markers += [c[0] for c in chunk]
+            marker_ts += ts
+            sch, sts = s_in.pull_chunk(timeout=0.0, max_samples=100000)
+            stamps += sts
+            if proc.poll() is not None:
+                if n_ended is None:
+                    n_ended = time.monotonic()
+                elif time.monotonic() - n_ended > 1.5:
+                    break
+            time.sleep(0.02)
+        stdout = proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if proc.returncode != 0:
+        fail(f"study run exited {proc.returncode}")
+    report = json.loads(stdout)
+    print(f"lsl_check: sitting {report.get('finish')} with {len(markers)} markers, "
+          f"{len(stamps)} signal samples at {srate} Hz")
+    if not markers or not markers[0].startswith("sitting_start"):
+        fail(f"first marker {markers[:1]}, expected sitting_start")
+    if not markers[-1].startswith("sitting_end"):
+        fail(f"last marker {markers[-1:]}, expected sitting_end")
+    with open(os.path.join(out, "trials.csv"), newline="") as f:
+        rows = list(csv.DictReader(f))
+    want = [(r["participant"], r["condition"], r["phase"], r["trial"]) for r in rows]
+    trials, open_trial = [], None
+    for text, t in zip(markers, marker_ts):
+        kind, fld = parse_marker(text)
+        if kind == "trial_start":
+            if open_trial is not None:
+                fail(f"trial_start while {open_trial} runs")
+            open_trial = ((fld["participant"], fld["condition"], fld["phase"], fld["trial"]), t)
+        elif kind == "trial_end":
+            key = (fld["participant"], fld["condition"], fld["phase"], fld["trial"])
+            if open_trial is None or open_trial[0] != key:
+                fail(f"trial_end {key} without its start ({open_trial})")
+            if t < open_trial[1]:
+                fail(f"trial_end {key} before its start")
+            trials.append((key, open_trial[1], t))
+            open_trial = None
+    got = [k for k, _, _ in trials]
+    if got != want:
+        fail(f"trial markers {got} != trials.csv {want}")
+    total_expected = 0.0
+    total_got = 0
+    for key, t0, t1 in trials:
+        n = sum(1 for s in stamps if t0 <= s <= t1)
+        total_expected += (t1 - t0) * srate
+        total_got += n
+    if total_expected <= 0 or abs(total_got - total_expected) > 0.01 * total_expected:
+        fail(f"signal samples within trials {total_got}, expected {total_expected:.0f} (±1 %)")
+    print(f"lsl_check: {len(trials)} trials in order; signal samples within trials "
+          f"{total_got} vs {total_expected:.0f} expected "
+          f"({100 * (total_got / total_expected - 1):+.2f} %)")
+    with open(os.path.join(out, "lsl_clock.json")) as f:
+        clock = json.load(f)
+    if not clock or clock[-1]["participant"] != "P01" or clock[-1]["dropped"] != 0:
+        fail(f"lsl_clock.json: {clock}")
+    print("lsl_check: OK")
+
+
+if __name__ == "__main__":
+    main()
