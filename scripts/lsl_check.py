@@ -9,6 +9,12 @@ rig), resolves both streams, records them until the sitting ends and checks:
 * `sitting_start` comes first and `sitting_end` last;
 * the signal stream's sample count within each trial matches its nominal
   rate times the trial's marker-to-marker duration within 1 %;
+* the signal stream's values are the trial's raw file decimated: for each
+  trial the samples between its markers equal (as float32) every n-th row
+  of its NPY file (n = the rig's rate / the stream's rate) at one phase, on
+  the channels both carry (handle, Pantograph x command, Haptuator drive,
+  accelerometer, bead, trap), for
+  at least 99 % of them (a sample at a block edge may fall outside);
 * the study folder records the LSL clock (`lsl_clock.json`).
 
 Usage: lsl_check.py KILOTOUCH_BINARY PROTOCOL OUT_DIR [RATE_HZ]
@@ -21,7 +27,14 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pylsl
+
+# LSL signal channel -> raw NPY column (docs/STUDY.md, standard layout).
+# Not compared: force_y (the file keeps x's Pantograph command only) and
+# contact (the stream's is the tweezer's contact flag, the file's the task's
+# gap < contact_gap).
+SHARED = {0: 0, 1: 1, 2: 10, 4: 11, 5: 12, 6: 13, 7: 14, 8: 4, 9: 5, 10: 2, 11: 3}
 
 
 def fail(msg):
@@ -50,7 +63,7 @@ def main():
     rate = float(sys.argv[4]) if len(sys.argv) > 4 else 1000.0
     cmd = [
         binary, "study", "run", "--protocol", protocol, "--participant", "P01",
-        "--out", out, "--no-raw", "--lsl", "--lsl-rate-hz", str(rate),
+        "--out", out, "--lsl", "--lsl-rate-hz", str(rate),
         "--lsl-wait-s", "30", "--timeout-s", "300", "--json",
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE)
@@ -79,7 +92,7 @@ def main():
             fail(f"meta-data: study={study!r} participant={participant!r}")
         m_in.open_stream(timeout=10)
         s_in.open_stream(timeout=10)
-        markers, marker_ts, stamps = [], [], []
+        markers, marker_ts, stamps, values = [], [], [], []
         n_ended = None
         while True:
             chunk, ts = m_in.pull_chunk(timeout=0.0)
@@ -87,6 +100,7 @@ def main():
             marker_ts += ts
             sch, sts = s_in.pull_chunk(timeout=0.0, max_samples=100000)
             stamps += sts
+            values += sch
             if proc.poll() is not None:
                 if n_ended is None:
                     n_ended = time.monotonic()
@@ -138,11 +152,45 @@ def main():
     print(f"lsl_check: {len(trials)} trials in order; signal samples within trials "
           f"{total_got} vs {total_expected:.0f} expected "
           f"({100 * (total_got / total_expected - 1):+.2f} %)")
+    check_values(out, rows, trials, stamps, values, srate)
     with open(os.path.join(out, "lsl_clock.json")) as f:
         clock = json.load(f)
     if not clock or clock[-1]["participant"] != "P01" or clock[-1]["dropped"] != 0:
         fail(f"lsl_clock.json: {clock}")
     print("lsl_check: OK")
+
+
+def check_values(out, rows, trials, stamps, values, srate):
+    """The stream's samples within each trial are its raw file decimated."""
+    stamps = np.asarray(stamps)
+    values = np.asarray(values, dtype=np.float32)
+    matched = total = 0
+    for row, (key, t0, t1) in zip(rows, trials):
+        if not row.get("raw_file"):
+            fail(f"trial {key} has no raw file")
+        path = os.path.join(out, row["raw_file"])
+        raw = np.load(path).astype(np.float32)
+        with open(path[:-4] + ".json") as f:
+            every = round(json.load(f)["sample_rate_hz"] / srate)
+        got = values[(stamps >= t0) & (stamps <= t1)]
+        if len(got) == 0:
+            fail(f"no signal samples within trial {key}")
+        lsl_cols = list(SHARED)
+        raw_cols = [SHARED[c] for c in lsl_cols]
+        best = 0
+        for phase in range(every):
+            dec = raw[phase::every][:, raw_cols]
+            # The stream may start a sample before or after the file.
+            for shift in range(-2, 3):
+                a = got[max(0, -shift):, :][:, lsl_cols]
+                b = dec[max(0, shift):, :]
+                n = min(len(a), len(b))
+                best = max(best, int(np.sum(np.all(a[:n] == b[:n], axis=1))))
+        matched += best
+        total += len(got)
+        if best < 0.99 * len(got):
+            fail(f"trial {key}: {best} of {len(got)} stream samples equal the raw file decimated by {every}")
+    print(f"lsl_check: signal values equal the raw files decimated in {matched} of {total} samples")
 
 
 if __name__ == "__main__":
