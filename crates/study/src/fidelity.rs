@@ -19,10 +19,14 @@
 //! errors: the device's own dynamics shake the trap), at the control rate,
 //! where its exact sampled map keeps those dynamics. P and D close the
 //! haptic loop at the rig's rate at `scene` and keep it; [`Fidelity::Draft`]
-//! runs that loop at half the rig's rate (the chain designed again and the
-//! margins analysed at that rate: on the shipped rig at 5 kHz D's phase
-//! margin clears the 30° minimum; with the trap twice as stiff it is 23.1°
-//! and the draft trial is refused). The speed and the change of
+//! runs that loop at a fifth of the rig's rate (the chain designed again and
+//! the margins analysed at that rate: the shipped rig clears the minimum
+//! margins at 2 kHz; with the trap twice as stiff D's phase margin there is
+//! 22.6° against the 30° minimum and the draft trial is refused). On
+//! `study simulate --participants 4 --seed 33 --no-raw --threads 1` (2 cores,
+//! shared) draft took 2.44 s of CPU against 13.08 s at `full` (5.4×) and
+//! 5.43 s at `scene`; on two participants every per-condition metric was
+//! within 0.5 pooled standard errors of `full`. The speed and the change of
 //! the study metrics each shortcut causes are
 //! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
 
@@ -49,7 +53,7 @@ pub enum Fidelity {
 
 /// Rate divisor of P and D's haptic loop at [`Fidelity::Draft`] (used when
 /// it divides the runner's largest allowed divisor; else 1).
-pub const DRAFT_LOOP_DIVISOR: u32 = 2;
+pub const DRAFT_LOOP_DIVISOR: u32 = 5;
 
 impl Fidelity {
     /// Every fidelity.
