@@ -27,4 +27,15 @@ pub enum RunError {
     /// Invalid runner configuration.
     #[error("runner configuration: {0}")]
     Config(String),
+    /// A draft trial's haptic loop at its lower rate would not meet the
+    /// minimum stability margins ([`crate::fidelity::Fidelity::Draft`]).
+    #[error("draft haptic loop at {rate_hz} Hz (rate divisor {divisor}) refused: {why}")]
+    DraftLoopNotSafe {
+        /// The draft loop's rate, Hz.
+        rate_hz: f64,
+        /// The rate divisor from the rig's rate.
+        divisor: u32,
+        /// The stability analysis' reason, with the margins and minima.
+        why: String,
+    },
 }

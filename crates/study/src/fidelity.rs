@@ -9,6 +9,7 @@
 //! | no haptic rendering in V | condition V | the coupling's filters (P paths, D chain, wall damper), whose outputs V zeroes ([`kilotouch_rig::coupling::Coupling::set_lean`]) | none (bit for bit) |
 //! | no D chain in P | condition P (unless `p_mode = low-channel`) | the crossover and both compensators (the Haptuator's lane), whose outputs P ignores (the same switch) | none (bit for bit) |
 //! | exact contact step | every condition | the tweezer's sub-steps while the bead sits in the contact zone, replaced by one exact OU step ([`kilotouch_rig::tweezer::SimTweezer::set_contact_exact`]) | same distribution of the bead; a different noise sequence |
+//! | P and D at a lower loop rate (draft only) | [`Fidelity::Draft`], conditions P and D, no raw file | the samples between two draft loop instants ([`DRAFT_LOOP_DIVISOR`]): rig, coupling (its chain designed again at the lower rate), tweezer and runner step at the rig's rate / divisor; the accelerometer is not rendered; the loop is armed only if the stability analysis at that rate meets the minimum margins, else the trial is refused ([`crate::error::RunError::DraftLoopNotSafe`]) | a longer loop delay (one sample at the lower rate), different margins and what the participant feels: measured, not bit for bit |
 //! | V at the control rate | condition V, no raw file | the samples between two control instants: the rig (the plant's exact ZOH map at the control rate), the tweezer and the runner step once per control period ([`FidelityPlan::decimation`]); the accelerometer is not rendered ([`kilotouch_rig::sim::SimRig::set_accelerometer_rendering`]) | same distributions; 1 ms instead of 0.1 ms time resolution |
 //!
 //! V may leave the rig's rate because it closes no loop through the device:
@@ -17,7 +18,15 @@
 //! follows the hand rigidly changed V's success rate by 3.5 pooled standard
 //! errors: the device's own dynamics shake the trap), at the control rate,
 //! where its exact sampled map keeps those dynamics. P and D close the
-//! haptic loop at the rig's rate and keep it. The speed and the change of
+//! haptic loop at the rig's rate at `scene` and keep it; [`Fidelity::Draft`]
+//! runs that loop at a fifth of the rig's rate (the chain designed again and
+//! the margins analysed at that rate: the shipped rig clears the minimum
+//! margins at 2 kHz; with the trap twice as stiff D's phase margin there is
+//! 22.6° against the 30° minimum and the draft trial is refused). On
+//! `study simulate --participants 4 --seed 33 --no-raw --threads 1` (2 cores,
+//! shared) draft took 2.44 s of CPU against 13.08 s at `full` (5.4×) and
+//! 5.43 s at `scene`; on two participants every per-condition metric was
+//! within 0.5 pooled standard errors of `full`. The speed and the change of
 //! the study metrics each shortcut causes are
 //! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
 
@@ -36,17 +45,26 @@ pub enum Fidelity {
     Scene,
     /// The whole model at every sample (the reference).
     Full,
+    /// [`Fidelity::Scene`] plus P and D's haptic loop at the rig's rate
+    /// divided by [`DRAFT_LOOP_DIVISOR`], its stability clearance checked
+    /// at that rate (module docs): for power planning.
+    Draft,
 }
 
+/// Rate divisor of P and D's haptic loop at [`Fidelity::Draft`] (used when
+/// it divides the runner's largest allowed divisor; else 1).
+pub const DRAFT_LOOP_DIVISOR: u32 = 5;
+
 impl Fidelity {
-    /// Both fidelities.
-    pub const ALL: [Fidelity; 2] = [Fidelity::Scene, Fidelity::Full];
+    /// Every fidelity.
+    pub const ALL: [Fidelity; 3] = [Fidelity::Scene, Fidelity::Full, Fidelity::Draft];
 
     /// The name used on the command line and in `session.json`.
     pub fn name(self) -> &'static str {
         match self {
             Fidelity::Scene => "scene",
             Fidelity::Full => "full",
+            Fidelity::Draft => "draft",
         }
     }
 }
@@ -63,8 +81,9 @@ impl FromStr for Fidelity {
         match s {
             "scene" => Ok(Fidelity::Scene),
             "full" => Ok(Fidelity::Full),
+            "draft" => Ok(Fidelity::Draft),
             other => Err(format!(
-                "unknown fidelity `{other}` (expected scene or full)"
+                "unknown fidelity `{other}` (expected scene, full or draft)"
             )),
         }
     }
@@ -96,6 +115,20 @@ impl FidelityPlan {
     pub fn for_trial(fidelity: Fidelity, condition: Condition, max_decimation: u32) -> Self {
         match fidelity {
             Fidelity::Full => Self::FULL,
+            Fidelity::Draft => {
+                let scene = Self::for_trial(Fidelity::Scene, condition, max_decimation);
+                let d = DRAFT_LOOP_DIVISOR;
+                FidelityPlan {
+                    decimation: if condition != Condition::V
+                        && max_decimation.max(1).is_multiple_of(d)
+                    {
+                        d
+                    } else {
+                        scene.decimation
+                    },
+                    ..scene
+                }
+            }
             Fidelity::Scene => FidelityPlan {
                 // V and P ignore some filters' outputs; D uses them all.
                 lean_coupling: condition != Condition::D,
@@ -138,6 +171,14 @@ mod tests {
         assert_eq!("scene".parse::<Fidelity>(), Ok(Fidelity::Scene));
         assert_eq!("full".parse::<Fidelity>(), Ok(Fidelity::Full));
         assert!("fast".parse::<Fidelity>().is_err());
+        assert_eq!("draft".parse::<Fidelity>(), Ok(Fidelity::Draft));
+        let draft = |c| FidelityPlan::for_trial(Fidelity::Draft, c, 10);
+        assert_eq!(draft(Condition::V), scene(Condition::V));
+        for c in [Condition::P, Condition::D] {
+            assert_eq!(draft(c).decimation, DRAFT_LOOP_DIVISOR);
+            assert_eq!(draft(c).lean_coupling, scene(c).lean_coupling);
+            assert_eq!(FidelityPlan::for_trial(Fidelity::Draft, c, 1).decimation, 1);
+        }
         assert_eq!(
             serde_json::to_string(&Fidelity::Scene).ok().as_deref(),
             Some("\"scene\"")

@@ -111,3 +111,58 @@ fn v_runs_at_the_control_rate_only_without_a_raw_file() {
         assert_eq!(fs, expected, "{fidelity} raw {raw} {c}");
     }
 }
+
+/// Draft against the full model on the same small study: every metric's
+/// difference in pooled standard errors (printed), within 3.
+#[test]
+fn draft_and_full_studies_agree_within_three_pooled_se() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = run(Fidelity::Full, &tmp.path().join("full"));
+    let draft = run(Fidelity::Draft, &tmp.path().join("draft"));
+    assert_eq!(full.len(), draft.len());
+    let table = agreement(&full, &draft, &Compared::CIRCLING, 3.0);
+    assert_eq!(table.len(), 15, "every condition × metric compared");
+    for a in &table {
+        eprintln!(
+            "{} {}: full {} draft {} z {:.2}",
+            a.condition, a.metric, a.mean_a, a.mean_b, a.z
+        );
+    }
+    for a in &table {
+        assert!(a.agrees, "{} {}: z {}", a.condition, a.metric, a.z);
+    }
+}
+
+/// A draft loop whose margins at its lower rate are below the minimum is
+/// refused with the numbers (a stiffer trap raises the loop gain), and the
+/// shipped rig's draft loop clears.
+#[test]
+fn an_unsafe_draft_loop_is_refused_with_its_margins() {
+    use kilotouch_rig::coupling::LoopChain;
+    use kilotouch_study::fidelity::DRAFT_LOOP_DIVISOR;
+    use kilotouch_study::runner::RunError;
+    use kilotouch_study::task::sim_station::draft_loop;
+
+    let base = RigConfig::default();
+    let d = DRAFT_LOOP_DIVISOR;
+    assert!(draft_loop(&base, &LoopChain::as_designed(&base).unwrap(), d).is_ok());
+    let mut cfg = base.clone();
+    cfg.tweezer.stiffness_n_per_m *= 2.0;
+    let chain = LoopChain::as_designed(&cfg).unwrap();
+    let err = draft_loop(&cfg, &chain, d).map(|_| ()).unwrap_err();
+    let text = err.to_string();
+    eprintln!("{text}");
+    match err {
+        RunError::DraftLoopNotSafe {
+            rate_hz, divisor, ..
+        } => {
+            assert_eq!(divisor, d);
+            assert_eq!(rate_hz, base.rig.sample_rate_hz / f64::from(d));
+        }
+        other => panic!("expected a draft refusal, got {other}"),
+    }
+    assert!(
+        text.contains("margin") && text.contains("minimum") && text.contains("Hz"),
+        "{text}"
+    );
+}

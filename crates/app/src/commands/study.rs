@@ -76,8 +76,10 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub threads: Option<usize>,
     /// How much of the model each trial runs: `scene` (only what the
-    /// trial's condition and recording need) or `full` (everything, the
-    /// reference). Recorded in session.json.
+    /// trial's condition and recording need), `full` (everything, the
+    /// reference) or `draft` (scene with P and D's haptic loop at a fifth of
+    /// the rig's rate, cleared at that rate; for power planning). Recorded in
+    /// session.json.
     #[arg(long, default_value = "scene")]
     pub fidelity: kilotouch_study::fidelity::Fidelity,
     /// Run only shard K of N: the participants whose 0-based index i has

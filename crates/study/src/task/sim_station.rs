@@ -24,6 +24,11 @@ use crate::fidelity::{Fidelity, FidelityPlan};
 pub struct SimStation {
     chain: LoopChain,
     lp: SimLoop,
+    /// P and D's loop at the draft rate ([`crate::fidelity::Fidelity::Draft`]),
+    /// built and cleared on the first draft trial, with its divisor.
+    draft: Option<(u32, SimLoop)>,
+    /// The trial prepared last runs on `draft`.
+    on_draft: bool,
     kits: KitBuilder,
     plan: FidelityPlan,
 }
@@ -49,6 +54,8 @@ impl SimStation {
         Ok(Self {
             chain,
             lp,
+            draft: None,
+            on_draft: false,
             kits: KitBuilder::new(cfg),
             plan: FidelityPlan::FULL,
         })
@@ -74,19 +81,30 @@ impl SimStation {
         self.kits.config()
     }
 
-    /// The closed loop (ground truth for tests: `lp.rig.truth()`).
+    /// The closed loop of the trial prepared last (ground truth for
+    /// tests: `lp.rig.truth()`).
     pub fn closed_loop(&self) -> &SimLoop {
-        &self.lp
+        match (&self.draft, self.on_draft) {
+            (Some((_, lp)), true) => lp,
+            _ => &self.lp,
+        }
     }
 
     /// The simulated rig (ground truth for tests).
     pub fn rig(&self) -> &SimRig {
-        &self.lp.rig
+        &self.closed_loop().rig
     }
 
     /// The safety layer's state, trip and counters.
     pub fn safety_status(&self) -> SafetyStatus {
-        self.lp.safety_status()
+        self.closed_loop().safety_status()
+    }
+
+    fn active_mut(&mut self) -> &mut SimLoop {
+        match (&mut self.draft, self.on_draft) {
+            (Some((_, lp)), true) => lp,
+            _ => &mut self.lp,
+        }
     }
 }
 
@@ -113,10 +131,11 @@ impl Station for SimStation {
         hands: &[[f64; 2]],
         out: &mut [StationSample],
     ) -> Result<(), RunError> {
+        let lp = self.active_mut();
         for (h, o) in hands.iter().zip(out.iter_mut()) {
-            self.lp.rig.set_hand(*h);
-            self.lp.advance()?;
-            *o = StationSample::from_loop(self.lp.last());
+            lp.rig.set_hand(*h);
+            lp.advance()?;
+            *o = StationSample::from_loop(lp.last());
         }
         Ok(())
     }
@@ -141,9 +160,50 @@ impl PrepareStation for SimStation {
         let rig = kit
             .rig
             .ok_or_else(|| RunError::State("a simulated trial without a rig".into()))?;
-        self.lp.coupling.set_lean(kit.plan.lean_coupling);
+        // P and D below the rig's rate (draft) close the loop through a
+        // coupling designed and cleared at that rate.
+        let d = kit.plan.decimation;
+        self.on_draft = d > 1 && condition != Condition::V;
+        if self.on_draft && self.draft.as_ref().is_none_or(|(dd, _)| *dd != d) {
+            self.draft = Some((d, draft_loop(self.kits.config(), &self.chain, d)?));
+        }
         self.plan = kit.plan;
-        self.lp.restart(rig, kit.tweezer, condition, kit.safety)?;
+        let lp = self.active_mut();
+        lp.coupling.set_lean(kit.plan.lean_coupling);
+        lp.restart(rig, kit.tweezer, condition, kit.safety)?;
         Ok(())
     }
+}
+
+/// The closed loop of `cfg` with `chain` at the rig's rate divided by
+/// `divisor` ([`crate::fidelity::Fidelity::Draft`]): the chain designed
+/// again at that rate and its stability clearance checked at that rate.
+///
+/// # Errors
+/// [`RunError::DraftLoopNotSafe`] when a margin at that rate is below the
+/// minimum (the reason names the margin, the minimum and the largest safe
+/// force scale) or the chain comes from a calibration, which is for the
+/// rig's rate only; configuration errors.
+pub fn draft_loop(cfg: &RigConfig, chain: &LoopChain, divisor: u32) -> Result<SimLoop, RunError> {
+    let mut cfg = cfg.clone();
+    cfg.rig.sample_rate_hz /= f64::from(divisor.max(1));
+    let rate_hz = cfg.rig.sample_rate_hz;
+    let refuse = |why: String| RunError::DraftLoopNotSafe {
+        rate_hz,
+        divisor,
+        why,
+    };
+    if chain.source != ChainSource::AsDesigned {
+        return Err(refuse(format!(
+            "the chain ({}) is for the rig's rate only",
+            chain.source.describe()
+        )));
+    }
+    let draft_chain = LoopChain::as_designed(&cfg)?;
+    let clearance = match Clearance::check(&cfg, &draft_chain) {
+        Ok(c) => c,
+        Err(kilotouch_rig::RigError::LoopNotSafe(why)) => return Err(refuse(why)),
+        Err(e) => return Err(e.into()),
+    };
+    Ok(SimLoop::simulated(&cfg, &draft_chain, clearance)?)
 }
