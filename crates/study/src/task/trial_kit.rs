@@ -113,7 +113,9 @@ impl KitBuilder {
             Some(_) => None,
             None => {
                 let mut rig = self.rig_at(&cfg, plan.decimation, accel_seed)?;
-                rig.set_accelerometer_rendering(plan.decimation == 1);
+                // What P and D's participant feels is the fingertip
+                // acceleration: rendered at every rate P and D run at.
+                rig.set_accelerometer_rendering(plan.decimation == 1 || condition != Condition::V);
                 Some(rig)
             }
         };
