@@ -192,6 +192,29 @@ fn shallow_gaussian_trap_has_the_boltzmann_radial_density() {
     assert!(chi2 < 40.0, "χ² {chi2}");
 }
 
+/// `n` escapes of a bead starting at rest at the centre of a trap that
+/// moves at `speed_m_s` along x (0: held still), sampled at `fs`: the mean
+/// escape time, its SD and its standard error, s.
+fn escape_times(t: &mut SimTweezer, fs: f64, n: usize, speed_m_s: f64) -> (f64, f64, f64) {
+    let mut times = Vec::with_capacity(n);
+    for _ in 0..n {
+        t.reset([0.0; 2]);
+        let mut k = 0u64;
+        loop {
+            k += 1;
+            let x = speed_m_s * k as f64 / fs;
+            if t.step([x, 0.0]).events.escaped {
+                break;
+            }
+        }
+        times.push(k as f64 / fs);
+    }
+    let m = times.len() as f64;
+    let mean = times.iter().sum::<f64>() / m;
+    let sd = (times.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
+    (mean, sd, sd / m.sqrt())
+}
+
 /// Thermally activated escape over U0 = 4 and 5.5 k_BT (w0 = 0.4 µm, escape
 /// radius 2 w0 = 0.8 µm): the mean first-passage time from the trap centre
 /// matches the exact overdamped MFPT integral within 3 standard errors of
@@ -211,22 +234,7 @@ fn escape_time_matches_the_mfpt_integral() {
         assert_eq!(p.escape_radius_m(), f(case, "escape_radius_m"));
         let fs = f(case, "fs_hz");
         let mut t = SimTweezer::new(p, fs).unwrap();
-        let mut times = Vec::with_capacity(n_escapes);
-        for _ in 0..n_escapes {
-            t.reset([0.0; 2]);
-            let mut n = 0u64;
-            loop {
-                n += 1;
-                if t.step([0.0; 2]).events.escaped {
-                    break;
-                }
-            }
-            times.push(n as f64 / fs);
-        }
-        let m = times.len() as f64;
-        let mean = times.iter().sum::<f64>() / m;
-        let sd = (times.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
-        let se = sd / m.sqrt();
+        let (mean, sd, se) = escape_times(&mut t, fs, n_escapes, 0.0);
         let exact = f(case, "mfpt_s");
         let shift = f(case, "mfpt_shifted_s") - exact;
         let kramers = f(case, "mfpt_kramers_s");
@@ -273,24 +281,7 @@ fn escape_time_against_pulling_speed_matches_the_backward_equation() {
     for speed in case["speeds"].as_array().unwrap() {
         let v = f(speed, "speed_m_s");
         let exact = f(speed, "mfpt_s");
-        let n_escapes = 200;
-        let mut times = Vec::with_capacity(n_escapes);
-        for _ in 0..n_escapes {
-            t.reset([0.0; 2]);
-            let mut n = 0u64;
-            loop {
-                n += 1;
-                let x = v * n as f64 / fs;
-                if t.step([x, 0.0]).events.escaped {
-                    break;
-                }
-            }
-            times.push(n as f64 / fs);
-        }
-        let m = times.len() as f64;
-        let mean = times.iter().sum::<f64>() / m;
-        let sd = (times.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
-        let se = sd / m.sqrt();
+        let (mean, _, se) = escape_times(&mut t, fs, 200, v);
         eprintln!(
             "v = {:.2} v_c: MFPT {mean:.4} ± {se:.4} s, backward equation {exact:.4} s",
             f(speed, "speed_over_critical")
