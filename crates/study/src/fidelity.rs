@@ -22,11 +22,7 @@
 //! runs that loop at a fifth of the rig's rate (the chain designed again and
 //! the margins analysed at that rate: the shipped rig clears the minimum
 //! margins at 2 kHz; with the trap twice as stiff D's phase margin there is
-//! 22.6° against the 30° minimum and the draft trial is refused). On
-//! `study simulate --participants 4 --seed 33 --no-raw --threads 1` (2 cores,
-//! shared) draft took 2.44 s of CPU against 13.08 s at `full` (5.4×) and
-//! 5.43 s at `scene`; on two participants every per-condition metric was
-//! within 0.5 pooled standard errors of `full`. The speed and the change of
+//! 22.6° against the 30° minimum and the draft trial is refused). The speed and the change of
 //! the study metrics each shortcut causes are
 //! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
 

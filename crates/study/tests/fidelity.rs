@@ -39,22 +39,35 @@ fn run(fidelity: Fidelity, dir: &std::path::Path) -> Vec<TrialRow> {
         .collect()
 }
 
-#[test]
-fn scene_and_full_studies_agree_within_sampling_error() {
+/// `fidelity` against the full model on the same small study: every
+/// condition × metric within `k` pooled standard errors (differences
+/// printed).
+fn agrees_with_full(fidelity: Fidelity, k: f64) {
     let tmp = tempfile::tempdir().unwrap();
     let full = run(Fidelity::Full, &tmp.path().join("full"));
-    let scene = run(Fidelity::Scene, &tmp.path().join("scene"));
-    assert_eq!(full.len(), scene.len());
-    let table = agreement(&full, &scene, &Compared::CIRCLING, 2.5);
+    let other = run(fidelity, &tmp.path().join(fidelity.name()));
+    assert_eq!(full.len(), other.len());
+    let table = agreement(&full, &other, &Compared::CIRCLING, k);
     assert_eq!(table.len(), 15, "every condition × metric compared");
     for a in &table {
+        eprintln!(
+            "{fidelity} {} {}: full {} {fidelity} {} z {:.2}",
+            a.condition, a.metric, a.mean_a, a.mean_b, a.z
+        );
         assert!(a.n_a >= 10 && a.n_b >= 10, "too few trials: {a:?}");
+    }
+    for a in &table {
         assert!(
             a.agrees,
-            "{} {}: full {} scene {}, pooled SE {}",
+            "{fidelity} {} {}: full {} {fidelity} {}, pooled SE {}",
             a.condition, a.metric, a.mean_a, a.mean_b, a.pooled_se
         );
     }
+}
+
+#[test]
+fn scene_and_full_studies_agree_within_sampling_error() {
+    agrees_with_full(Fidelity::Scene, 2.5);
 }
 
 /// Which trials the scene runs at the control rate: V without a raw file;
@@ -112,25 +125,11 @@ fn v_runs_at_the_control_rate_only_without_a_raw_file() {
     }
 }
 
-/// Draft against the full model on the same small study: every metric's
-/// difference in pooled standard errors (printed), within 3.
+/// Draft against the full model on the same small study, within 3 pooled
+/// standard errors.
 #[test]
 fn draft_and_full_studies_agree_within_three_pooled_se() {
-    let tmp = tempfile::tempdir().unwrap();
-    let full = run(Fidelity::Full, &tmp.path().join("full"));
-    let draft = run(Fidelity::Draft, &tmp.path().join("draft"));
-    assert_eq!(full.len(), draft.len());
-    let table = agreement(&full, &draft, &Compared::CIRCLING, 3.0);
-    assert_eq!(table.len(), 15, "every condition × metric compared");
-    for a in &table {
-        eprintln!(
-            "{} {}: full {} draft {} z {:.2}",
-            a.condition, a.metric, a.mean_a, a.mean_b, a.z
-        );
-    }
-    for a in &table {
-        assert!(a.agrees, "{} {}: z {}", a.condition, a.metric, a.z);
-    }
+    agrees_with_full(Fidelity::Draft, 3.0);
 }
 
 /// A draft loop whose margins at its lower rate are below the minimum is
