@@ -1,5 +1,5 @@
 //! Lab Streaming Layer outlets (the `lsl` feature): a consumer that never
-//! reads does not block or stall the engine.
+//! reads does not block the engine, and receives data.
 
 #![allow(clippy::unwrap_used)]
 
@@ -33,22 +33,23 @@ fn a_consumer_that_never_reads_does_not_block_the_engine() {
     }
     assert!(publisher.consumers().1, "the inlet never connected");
     // 20 s of engine time (10 kHz, 10-sample blocks), unpaced: far faster
-    // than the publisher drains, so the ring fills; no block may stall.
-    let t0 = Instant::now();
-    let mut worst = Duration::ZERO;
+    // than a real-time consumer, which here never reads. The engine's only
+    // contact with LSL is a clock read and a push into a bounded ring that
+    // drops when full, so every block runs; a waiting push would hang here.
+    // No wall-clock bound: that is `bench --paced --lsl`'s job, and a
+    // timed assertion fails on a busy machine.
     for _ in 0..20_000 {
-        let b = Instant::now();
         assert!(core.run_block());
-        worst = worst.max(b.elapsed());
     }
-    let total = t0.elapsed();
+    // The stalled consumer did receive data: it is attached, not idle
+    // because nothing was sent.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while inlet.samples_available() == 0 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
     assert!(
-        worst < Duration::from_millis(50),
-        "a block took {worst:?} with a stalled consumer"
-    );
-    assert!(
-        total < Duration::from_secs(60),
-        "20 000 blocks took {total:?}"
+        inlet.samples_available() > 0,
+        "no sample reached the consumer"
     );
     drop(inlet);
     publisher.stop();
