@@ -86,6 +86,18 @@ pub fn thread_cpu_ns() -> Option<u64> {
     first_number("/proc/thread-self/schedstat")
 }
 
+/// CPU time the whole process has run, all threads together, ns
+/// (`clock_gettime(CLOCK_PROCESS_CPUTIME_ID)`, POSIX). Threads that have
+/// ended still count, so it measures work spread over worker threads.
+/// `None` where the clock is unavailable. For benchmarks and reports, not
+/// for the real-time path.
+pub fn process_cpu_ns() -> Option<u64> {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID).ok()?;
+    let s = u64::try_from(t.tv_sec()).ok()?;
+    let ns = u64::try_from(t.tv_nsec()).ok()?;
+    s.checked_mul(1_000_000_000)?.checked_add(ns)
+}
+
 /// The 1-minute load average (Linux `/proc/loadavg`); `None` elsewhere.
 pub fn load_average() -> Option<f64> {
     first_number("/proc/loadavg")
@@ -98,4 +110,45 @@ fn first_number<T: std::str::FromStr>(path: &str) -> Option<T> {
         .next()?
         .parse()
         .ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Work done on another thread, which has ended, counts in the
+    /// process's CPU time: at least the CPU time that thread measured of
+    /// itself.
+    #[test]
+    fn process_cpu_time_counts_ended_threads() {
+        let Some(before) = process_cpu_ns() else {
+            return; // no process clock on this system
+        };
+        let worker = std::thread::spawn(|| {
+            let start = thread_cpu_ns();
+            let mut x = 0_u64;
+            // Spin until this thread has run ≥ 20 ms of CPU time.
+            loop {
+                for i in 0..10_000_u64 {
+                    x = std::hint::black_box(
+                        x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(i),
+                    );
+                }
+                match (start, thread_cpu_ns()) {
+                    (Some(a), Some(b)) if b - a >= 20_000_000 => return Some(b - a),
+                    (None, _) | (_, None) => return None,
+                    _ => {}
+                }
+            }
+        });
+        let Ok(Some(worker_ns)) = worker.join() else {
+            return; // no per-thread clock (non-Linux)
+        };
+        let after = process_cpu_ns().expect("the process clock worked before");
+        assert!(
+            after - before >= worker_ns,
+            "process CPU grew by {} ns, the ended worker alone ran {worker_ns} ns",
+            after - before
+        );
+    }
 }
