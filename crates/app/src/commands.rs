@@ -1,6 +1,7 @@
 //! One module per headless command.
 
 pub mod bench;
+pub mod bench_fidelity;
 pub mod bench_hil;
 pub mod calibrate;
 pub mod crossover;

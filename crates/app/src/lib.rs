@@ -7,6 +7,7 @@
 pub mod cli;
 pub mod commands;
 pub mod engine;
+pub mod fidelity_plot;
 pub mod gui;
 #[cfg(feature = "lsl")]
 pub mod lsl;

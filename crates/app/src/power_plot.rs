@@ -1,7 +1,8 @@
 //! The power curve of `kilotouch study power --plot` (PNG or SVG, by the
 //! file's extension): power against the number of participants with the
 //! Clopper–Pearson 95 % interval of each point, the target power, α, and
-//! the smallest n reaching the target.
+//! the smallest n reaching the target. With a final check (`study power
+//! --simulate` at `draft`), the check's curve is drawn beside the search's.
 //!
 //! Text goes through `ab_glyph` with DejaVu Sans compiled into the binary
 //! (`assets/fonts/DejaVuSans.ttf`, licence beside it), so the plot renders
@@ -9,11 +10,12 @@
 
 use std::path::Path;
 
+use kilotouch_study::fidelity::Fidelity;
 use kilotouch_study::power::PowerReport;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::paper::style::{Frame, GREY, ensure_font, err, legend_line};
+use crate::paper::style::{Frame, GREY, SUM, ensure_font, err, legend_line};
 /// Size of the plot, px (PNG) or user units (SVG).
 const SIZE: (u32, u32) = (900, 600);
 /// Curve colour.
@@ -30,8 +32,18 @@ const FRAME: Frame = Frame {
     ..Frame::FIGURE
 };
 
+/// A second curve: the final check at this fidelity.
+pub type Check<'a> = Option<(Fidelity, &'a PowerReport)>;
+
+/// Colour of the final check's curve.
+const CHECK: RGBColor = SUM;
+
 /// Draws the curve on any backend.
-fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+fn draw<DB: DrawingBackend>(
+    r: &PowerReport,
+    check: Check<'_>,
+    root: &DrawingArea<DB, Shift>,
+) -> Result<(), String> {
     root.fill(&WHITE).map_err(err)?;
     let n_max = r.points.iter().map(|p| p.n).max().unwrap_or(2);
     let n_min = r.points.iter().map(|p| p.n).min().unwrap_or(0);
@@ -94,6 +106,29 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
                 .map(|p| Circle::new((f64::from(p.n), p.power), 5, CURVE.filled())),
         )
         .map_err(err)?;
+    if let Some((fidelity, c)) = check {
+        chart
+            .draw_series(DashedLineSeries::new(
+                c.points.iter().map(|p| (f64::from(p.n), p.power)),
+                10,
+                6,
+                CHECK.stroke_width(2),
+            ))
+            .map_err(err)?
+            .label(format!(
+                "final check at {fidelity} fidelity{}",
+                c.n_for_target
+                    .map_or_else(String::new, |n| format!(" (n for target: {n})"))
+            ))
+            .legend(legend_line(CHECK, 2));
+        chart
+            .draw_series(
+                c.points
+                    .iter()
+                    .map(|p| Cross::new((f64::from(p.n), p.power), 5, CHECK.stroke_width(2))),
+            )
+            .map_err(err)?;
+    }
     if let Some(n) = r.n_for_target
         && let Some(p) = r.points.iter().find(|p| p.n == n)
     {
@@ -115,7 +150,7 @@ fn draw<DB: DrawingBackend>(r: &PowerReport, root: &DrawingArea<DB, Shift>) -> R
 ///
 /// # Errors
 /// Drawing or file errors, as text.
-pub fn save(r: &PowerReport, path: &Path) -> Result<(), String> {
+pub fn save(r: &PowerReport, check: Check<'_>, path: &Path) -> Result<(), String> {
     ensure_font()?;
     let svg = path
         .extension()
@@ -124,7 +159,7 @@ pub fn save(r: &PowerReport, path: &Path) -> Result<(), String> {
         let mut text = String::new();
         {
             let root = SVGBackend::with_string(&mut text, SIZE).into_drawing_area();
-            draw(r, &root)?;
+            draw(r, check, &root)?;
         }
         std::fs::write(path, text).map_err(|e| e.to_string())
     } else {
@@ -132,7 +167,7 @@ pub fn save(r: &PowerReport, path: &Path) -> Result<(), String> {
         let mut buf = vec![255_u8; (w as usize) * (h as usize) * 3];
         {
             let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
-            draw(r, &root)?;
+            draw(r, check, &root)?;
         }
         image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8)
             .map_err(|e| e.to_string())

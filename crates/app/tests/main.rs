@@ -13,6 +13,7 @@ mod engine_core;
 mod engine_live;
 mod engine_live_tweezer;
 mod engine_paced;
+mod fidelity_cli;
 mod firmware_qemu;
 mod gui_app;
 mod gui_busy;

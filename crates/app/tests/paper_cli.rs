@@ -7,7 +7,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-use common::bin;
+use common::{assert_non_blank_png, bin};
 use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
@@ -38,23 +38,6 @@ fn col<'a>(h: &[String], c: &'a [Vec<f64>], name: &str) -> &'a [f64] {
         .position(|x| x == name)
         .unwrap_or_else(|| panic!("no column {name}"));
     &c[i]
-}
-
-/// A PNG that decodes, is not one colour and has ink on ≥ 2 % of it.
-fn assert_non_blank_png(path: &Path) {
-    let bytes = std::fs::read(path).unwrap();
-    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{}", path.display());
-    let img = image::load_from_memory(&bytes).unwrap().to_rgb8();
-    let (w, h) = img.dimensions();
-    assert!(w >= 600 && h >= 400, "{}: {w}×{h}", path.display());
-    let ink = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
-    let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
-    assert!(
-        ink as f64 > 0.02 * f64::from(w * h) && colours.len() > 8,
-        "{} looks blank: {ink} ink pixels, {} colours",
-        path.display(),
-        colours.len()
-    );
 }
 
 #[test]

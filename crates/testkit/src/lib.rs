@@ -464,3 +464,27 @@ pub fn stats_args<'a>(path: &'a str, dv: &'a str, test: &'a str) -> Vec<&'a str>
         test,
     ]
 }
+
+/// A PNG that decodes, is at least 600 × 400 px, is not one colour and has
+/// ink on ≥ 2 % of it (a figure was drawn, not an empty canvas).
+pub fn assert_non_blank_png(path: &Path) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(
+        bytes.starts_with(b"\x89PNG\r\n\x1a\n"),
+        "{} is not a PNG",
+        path.display()
+    );
+    let img = image::load_from_memory(&bytes)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgb8();
+    let (w, h) = img.dimensions();
+    assert!(w >= 600 && h >= 400, "{}: {w}×{h}", path.display());
+    let ink = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+    let colours: HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+    assert!(
+        ink as f64 > 0.02 * f64::from(w * h) && colours.len() > 8,
+        "{} looks blank: {ink} ink pixels, {} colours",
+        path.display(),
+        colours.len()
+    );
+}

@@ -21,7 +21,11 @@ use std::time::Instant;
 
 /// Arguments of `kilotouch bench`.
 #[derive(Debug, clap::Args)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct Args {
+    /// A benchmark of its own instead of the speed figures.
+    #[command(subcommand)]
+    pub command: Option<BenchCommand>,
     /// Repetitions per figure (the best is reported).
     #[arg(long, default_value_t = 7)]
     pub reps: usize,
@@ -70,6 +74,17 @@ pub struct Args {
     /// DAQ emulator, block-synchronous (no command lead), in every sitting.
     #[arg(long, requires = "hil")]
     pub live_tweezer: bool,
+}
+
+/// Benchmarks of `kilotouch bench` with arguments of their own.
+#[derive(Debug, clap::Subcommand)]
+pub enum BenchCommand {
+    /// Speed against error of the simulation's fidelity levels (full,
+    /// scene, draft): the same cohort at each level; CPU time per trial and
+    /// participant, speed-up over full, each metric's difference from full
+    /// in pooled SE, the power analysis's n per level; a frontier plot and
+    /// JSON under --out.
+    Fidelity(super::bench_fidelity::FidelityArgs),
 }
 
 /// JSON document.
@@ -127,6 +142,9 @@ pub fn white_noise(n: usize, seed: u64) -> Vec<f64> {
 
 /// Run the command.
 pub fn run(a: &Args) -> anyhow::Result<()> {
+    if let Some(BenchCommand::Fidelity(f)) = &a.command {
+        return super::bench_fidelity::run(f);
+    }
     if let Some(seconds) = a.paced {
         return run_paced(a, seconds);
     }

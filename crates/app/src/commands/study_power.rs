@@ -3,6 +3,14 @@
 //! simulated population from `study simulate`). The numerics are
 //! `kilotouch_study::power`; this file parses the arguments, shows progress
 //! and prints the table, the JSON or the plot.
+//!
+//! With `--simulate N` the pilot is simulated here: N participants of
+//! `--protocol` at `--fidelity` (default `draft`, the fastest level; see
+//! `kilotouch bench fidelity` for what each level costs and changes). When
+//! the search ran below `scene`, the same cohort is simulated again at
+//! `scene` and the whole curve recomputed from it (the power simulation is
+//! cheap next to the pilot's): the final check of the chosen n, reported
+//! side by side with the search.
 
 use std::path::PathBuf;
 
@@ -12,15 +20,45 @@ use kilotouch_study::power::{
     parse_sample_sizes, power, read_pilot,
 };
 
+use kilotouch_study::fidelity::Fidelity;
+use serde::Serialize;
+
+use super::bench_fidelity::simulate_level;
 use super::progress::Progress;
 use crate::output::emit;
+
+/// Largest simulated pilot, participants.
+pub const MAX_SIMULATED_PILOT: u32 = 256;
 
 /// Arguments of `kilotouch study power`.
 #[derive(Debug, clap::Args)]
 pub struct PowerArgs {
     /// The pilot: a study folder (its trials.csv) or a long-format CSV.
-    #[arg(long)]
-    pub pilot: PathBuf,
+    #[arg(
+        long,
+        required_unless_present = "simulate",
+        conflicts_with = "simulate"
+    )]
+    pub pilot: Option<PathBuf>,
+    /// Simulate the pilot instead: this many participants of `--protocol`
+    /// (study seed `--pilot-seed`) at `--fidelity`, with a final check at
+    /// `scene` fidelity when the search ran at `draft`.
+    #[arg(long, value_name = "PARTICIPANTS")]
+    pub simulate: Option<u32>,
+    /// `--simulate`: the protocol (a TOML file or `paper`, `blind`).
+    #[arg(long, default_value = "paper", requires = "simulate")]
+    pub protocol: String,
+    /// `--simulate`: the pilot's study seed (default: `--seed`).
+    #[arg(long, requires = "simulate")]
+    pub pilot_seed: Option<u64>,
+    /// `--simulate`: fidelity of the search's pilot (`draft`, `scene`,
+    /// `full`).
+    #[arg(long, default_value = "draft", requires = "simulate")]
+    pub fidelity: Fidelity,
+    /// `--simulate`: keep the simulated pilot folders here (default: a
+    /// temporary folder, removed at the end).
+    #[arg(long, requires = "simulate")]
+    pub pilot_out: Option<PathBuf>,
     /// Dependent variable column (e.g. disp_err_mean_um, time_s, success).
     #[arg(long)]
     pub dv: String,
@@ -169,24 +207,244 @@ pub fn human(r: &PowerReport) -> String {
     s
 }
 
-/// Run the command.
-pub fn run(a: &PowerArgs) -> anyhow::Result<()> {
-    let table = read_pilot(&a.pilot, &a.dv, &a.within, &a.subject)?;
-    let opts = options(a, &conditions_of(&table))?;
-    let bar = std::sync::Mutex::new(Progress::new("simulated studies"));
-    let report = power(&table, &opts, &|done, total| {
+/// A simulated pilot: where, at which fidelity, at what cost.
+#[derive(Debug, Clone, Serialize)]
+pub struct SimulatedPilot {
+    /// Participants.
+    pub participants: u32,
+    /// Protocol name.
+    pub protocol: String,
+    /// Study seed.
+    pub seed: u64,
+    /// Fidelity it ran at.
+    pub fidelity: Fidelity,
+    /// Its study folder (removed at the end unless `--pilot-out`).
+    pub folder: PathBuf,
+    /// Process CPU time of the simulation, s.
+    pub cpu_s: f64,
+}
+
+/// The final check of a search at a lower fidelity: the same cohort at
+/// `scene`, the same power question.
+#[derive(Debug, Clone, Serialize)]
+pub struct FinalCheck {
+    /// The pilot of the check.
+    pub pilot: SimulatedPilot,
+    /// The search's chosen n (`None`: the search reached no n).
+    pub n_checked: Option<u32>,
+    /// Power at that n with the check's pilot.
+    pub power_at_n: Option<f64>,
+    /// Its Clopper–Pearson 95 % interval.
+    pub ci_at_n: Option<[f64; 2]>,
+    /// The check's pilot effect, DV units.
+    pub effect: f64,
+    /// The smallest n reaching the target with the check's pilot.
+    pub n_for_target: Option<u32>,
+    /// The search's n reaches the target with the check's pilot too (and
+    /// both found one).
+    pub confirmed: bool,
+    /// The check's whole report.
+    pub report: PowerReport,
+}
+
+/// `kilotouch study power --json`: the report, and with `--simulate` the
+/// pilot and the final check.
+#[derive(Serialize)]
+struct PowerOutput<'a> {
+    #[serde(flatten)]
+    report: &'a PowerReport,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    simulated_pilot: Option<&'a SimulatedPilot>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    final_check: Option<&'a FinalCheck>,
+}
+
+/// The power analysis of `table` with a progress bar.
+fn analyse(
+    table: &kilotouch_study::power::PilotTable,
+    a: &PowerArgs,
+    what: &'static str,
+) -> anyhow::Result<PowerReport> {
+    let opts = options(a, &conditions_of(table))?;
+    let bar = std::sync::Mutex::new(Progress::new(what));
+    power(table, &opts, &|done, total| {
         if let Ok(mut b) = bar.lock() {
             b.count(done, total);
         }
         true
     })
-    .with_context(|| format!("study power from {}", table.path.display()))?;
+    .with_context(|| format!("study power from {}", table.path.display()))
+}
+
+/// Simulate the pilot of `--simulate` at `fidelity` into `root`.
+fn simulate_pilot(
+    a: &PowerArgs,
+    participants: u32,
+    fidelity: Fidelity,
+    root: &std::path::Path,
+) -> anyhow::Result<SimulatedPilot> {
+    if !(2..=MAX_SIMULATED_PILOT).contains(&participants) {
+        anyhow::bail!(
+            "--simulate must be 2 ..= {MAX_SIMULATED_PILOT} participants (a power analysis needs \
+             at least two to see how participants vary), got {participants}"
+        );
+    }
+    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
+    protocol.participants = participants;
+    protocol.seeds.study = a.pilot_seed.unwrap_or(a.seed);
+    protocol
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    let folder = root.join(format!("pilot-{fidelity}"));
+    if folder.exists() {
+        anyhow::bail!(
+            "{} exists: give --pilot-out an empty or new folder",
+            folder.display()
+        );
+    }
+    let threads = match a.threads {
+        Some(0) => anyhow::bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    eprintln!(
+        "kilotouch: simulating a {participants}-participant pilot of `{}` at {fidelity} fidelity",
+        protocol.name
+    );
+    let mut bar = Progress::new("pilot trials");
+    let run = simulate_level(&protocol, fidelity, &folder, threads, &mut |d, t| {
+        bar.count(d, t)
+    })?;
+    Ok(SimulatedPilot {
+        participants,
+        protocol: protocol.name.clone(),
+        seed: protocol.seeds.study,
+        fidelity,
+        folder,
+        cpu_s: run.cpu_s,
+    })
+}
+
+/// The search and the check side by side.
+fn human_check(search: &PowerReport, pilot: &SimulatedPilot, c: &FinalCheck) -> String {
+    let (fs, fc) = (pilot.fidelity.name(), c.pilot.fidelity.name());
+    let mut s = format!(
+        "\nfinal check: the same cohort at {fc} fidelity (pilot CPU {:.1} s at {fs}, {:.1} s at {fc})\n",
+        pilot.cpu_s, c.pilot.cpu_s
+    );
+    s += &format!(
+        "pilot effect: {:.4} at {fs}, {:.4} at {fc}\n\n",
+        search.effect, c.effect
+    );
+    s += &format!("   n   power at {fs:<6} 95 % CI          power at {fc:<6} 95 % CI\n");
+    for (p, q) in search.points.iter().zip(&c.report.points) {
+        s += &format!(
+            "{:>4}   {:>12.3}   [{:.3}, {:.3}]   {:>12.3}   [{:.3}, {:.3}]\n",
+            p.n, p.power, p.ci[0], p.ci[1], q.power, q.ci[0], q.ci[1]
+        );
+    }
+    let n = |n: Option<u32>| n.map_or_else(|| "not reached".to_owned(), |n| n.to_string());
+    s += &format!(
+        "\nn for power ≥ {}: {} at {fs}, {} at {fc}; ",
+        search.target,
+        n(search.n_for_target),
+        n(c.n_for_target)
+    );
+    s += &match (c.n_checked, c.power_at_n) {
+        (Some(k), Some(p)) if c.confirmed => {
+            format!("the search's n = {k} is confirmed at {fc} (power {p:.3})\n")
+        }
+        (Some(k), Some(p)) => format!(
+            "the search's n = {k} is NOT confirmed at {fc} (power {p:.3}): plan with {fc}'s answer\n"
+        ),
+        _ => format!("the search found no n; {fc}'s curve is above\n"),
+    };
+    s
+}
+
+/// Run the command.
+pub fn run(a: &PowerArgs) -> anyhow::Result<()> {
+    let (report, pilot, check) = match (a.simulate, &a.pilot) {
+        (Some(n), _) => {
+            let (root, temporary) = match &a.pilot_out {
+                Some(p) => (p.clone(), false),
+                None => (
+                    std::env::temp_dir().join(format!(
+                        "kilotouch-power-pilot-{}-{}",
+                        std::process::id(),
+                        std::time::SystemTime::now()
+                            .duration_since(std::time::UNIX_EPOCH)
+                            .map_or(0, |d| d.as_nanos())
+                    )),
+                    true,
+                ),
+            };
+            let result = run_simulated(a, n, &root);
+            if temporary {
+                let _ = std::fs::remove_dir_all(&root);
+            }
+            let (r, p, c) = result?;
+            (r, Some(p), c)
+        }
+        (None, Some(path)) => {
+            let table = read_pilot(path, &a.dv, &a.within, &a.subject)?;
+            (analyse(&table, a, "simulated studies")?, None, None)
+        }
+        (None, None) => anyhow::bail!("give --pilot DIR|FILE or --simulate PARTICIPANTS"),
+    };
     if let Some(path) = &a.plot {
-        crate::power_plot::save(&report, path)
-            .map_err(|e| anyhow::anyhow!("--plot {}: {e}", path.display()))?;
+        crate::power_plot::save(
+            &report,
+            check.as_ref().map(|c| (c.pilot.fidelity, &c.report)),
+            path,
+        )
+        .map_err(|e| anyhow::anyhow!("--plot {}: {e}", path.display()))?;
     }
     if a.json {
         eprintln!("{}", report.pilot_warning());
     }
-    emit(a.json, &report, || human(&report))
+    let out = PowerOutput {
+        report: &report,
+        simulated_pilot: pilot.as_ref(),
+        final_check: check.as_ref(),
+    };
+    emit(a.json, &out, || {
+        let mut s = human(&report);
+        if let (Some(p), Some(c)) = (&pilot, &check) {
+            s += &human_check(&report, p, c);
+        }
+        s
+    })
+}
+
+/// `--simulate`: the search at `--fidelity`, then the check at `scene`
+/// when the search ran at `draft`.
+fn run_simulated(
+    a: &PowerArgs,
+    participants: u32,
+    root: &std::path::Path,
+) -> anyhow::Result<(PowerReport, SimulatedPilot, Option<FinalCheck>)> {
+    let search_pilot = simulate_pilot(a, participants, a.fidelity, root)?;
+    let table = read_pilot(&search_pilot.folder, &a.dv, &a.within, &a.subject)?;
+    let search = analyse(&table, a, "simulated studies (search)")?;
+    if a.fidelity != Fidelity::Draft {
+        return Ok((search, search_pilot, None));
+    }
+    let check_pilot = simulate_pilot(a, participants, Fidelity::Scene, root)?;
+    let table = read_pilot(&check_pilot.folder, &a.dv, &a.within, &a.subject)?;
+    let check = analyse(&table, a, "simulated studies (check)")?;
+    let at = search
+        .n_for_target
+        .and_then(|n| check.points.iter().find(|p| p.n == n));
+    let check = FinalCheck {
+        n_checked: search.n_for_target,
+        power_at_n: at.map(|p| p.power),
+        ci_at_n: at.map(|p| p.ci),
+        effect: check.effect,
+        n_for_target: check.n_for_target,
+        confirmed: at.is_some_and(|p| p.power >= check.target),
+        pilot: check_pilot,
+        report: check,
+    };
+    Ok((search, search_pilot, Some(check)))
 }
