@@ -40,7 +40,7 @@ impl Figure for Frontier<'_> {
             .filter(|v| v.is_finite())
             .fold(1.0, f64::max);
         // Room on the right for the labels of the fastest level.
-        let x_hi = (x_max * 1.4).ceil().max(2.0);
+        let x_hi = (x_max * 1.3).ceil().max(2.0);
         let z_max = r
             .levels
             .iter()
@@ -117,7 +117,8 @@ impl Figure for Frontier<'_> {
             chart
                 .draw_series(std::iter::once(Text::new(
                     label,
-                    (l.speedup_vs_full + 0.03 * x_hi, l.max_abs_z + 0.04 * y_hi),
+                    // Above the level's marker, clear of its condition markers.
+                    (l.speedup_vs_full - 0.03 * x_hi, l.max_abs_z + 0.09 * y_hi),
                     text(Frame::FIGURE.tick_px),
                 )))
                 .map_err(err)?;

@@ -63,6 +63,7 @@ fn bench_fidelity_reports_each_level_and_draws_the_frontier() {
     ] {
         assert!(!r[key].is_null(), "`{key}` missing in {r}");
     }
+    assert_eq!(r["test_trials_per_condition"], 2, "per participant");
     let levels = r["levels"].as_array().unwrap();
     let names: Vec<&str> = levels
         .iter()

@@ -162,7 +162,7 @@ pub struct FidelityReport {
     pub protocol: String,
     /// Participants per level.
     pub participants: u32,
-    /// Test trials per condition per level.
+    /// Test trials per condition and participant.
     pub test_trials_per_condition: usize,
     /// The study seed.
     pub seed: u64,
@@ -267,9 +267,10 @@ pub fn power_of(folder: &Path, q: &PowerQuestion, threads: usize) -> anyhow::Res
         .with_context(|| format!("study power on {}", folder.display()))
 }
 
-/// Test trials per condition (the largest over conditions) in `rows`.
-fn test_trials_per_condition(rows: &[TrialRow]) -> usize {
-    Condition::ALL
+/// Test trials per condition and participant (the largest over
+/// conditions; rounded up) in `rows` of `participants` participants.
+fn test_trials_per_condition(rows: &[TrialRow], participants: u32) -> usize {
+    let per_condition = Condition::ALL
         .iter()
         .map(|&c| {
             rows.iter()
@@ -277,7 +278,8 @@ fn test_trials_per_condition(rows: &[TrialRow]) -> usize {
                 .count()
         })
         .max()
-        .unwrap_or(0)
+        .unwrap_or(0);
+    per_condition.div_ceil(participants.max(1) as usize)
 }
 
 /// Run the benchmark.
@@ -412,7 +414,7 @@ pub fn frontier(a: &FidelityArgs) -> anyhow::Result<FidelityReport> {
     let report = FidelityReport {
         protocol: protocol.name.clone(),
         participants: a.participants,
-        test_trials_per_condition: test_trials_per_condition(&rows[0]),
+        test_trials_per_condition: test_trials_per_condition(&rows[0], a.participants),
         seed: a.seed,
         threads,
         load_average: load_average(),
