@@ -16,7 +16,10 @@
 //! and pushes fixed-size [`LslRecord`]s into a bounded lock-free ring: no
 //! allocation, no lock, no network in the loop. Strings are made and the
 //! outlets fed on the publisher thread, which owns the outlets (liblsl's
-//! handles are not `Send`).
+//! handles are not `Send`). Markers from other threads ([`LslMarkers`]:
+//! a sitting's start and end, notes — [`LslSitting`], shared by `study run
+//! --lsl` and the Study page) are stamped when sent and merged with the
+//! engine's records in time order.
 
 /// The liblsl bindings the outlets use (for inlets in tests and tools).
 pub use ::lsl as sys;
@@ -284,7 +287,7 @@ pub enum LslError {
 #[derive(Debug)]
 pub struct LslPublisher {
     shared: Arc<LslShared>,
-    notes: mpsc::Sender<String>,
+    notes: mpsc::Sender<(f64, String)>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
     /// Nominal rate of the signal stream, Hz (the engine's rate over the
@@ -364,7 +367,7 @@ impl LslPublisher {
             .ok_or(LslError::Taken)?;
         // Stale records from an earlier publisher.
         while rx.pop().is_ok() {}
-        let (notes, notes_rx) = mpsc::channel::<String>();
+        let (notes, notes_rx) = mpsc::channel::<(f64, String)>();
         let stop = Arc::new(AtomicBool::new(false));
         let (ready_tx, ready_rx) = mpsc::channel::<Result<(), LslError>>();
         let th_shared = shared.clone();
@@ -412,13 +415,17 @@ impl LslPublisher {
         })
     }
 
-    /// A marker from a non-real-time thread (sitting start and end, notes),
-    /// stamped now.
-    pub fn note(&self, text: &str) {
-        let _ = self.notes.send(text.to_owned());
+    /// A handle for markers from non-real-time threads (a sitting's start
+    /// and end, notes: [`LslSitting`]) while this publisher runs.
+    pub fn markers(&self) -> LslMarkers {
+        LslMarkers {
+            notes: self.notes.clone(),
+            shared: self.shared.clone(),
+        }
     }
 
-    /// Records dropped because the ring was full.
+    /// Records dropped because the ring was full (since the engine
+    /// started, over all its publishers).
     pub fn dropped(&self) -> u64 {
         self.shared.dropped.load(Ordering::Relaxed)
     }
@@ -452,11 +459,102 @@ impl Drop for LslPublisher {
     }
 }
 
+/// A publisher's marker outlet seen from a non-real-time thread
+/// ([`LslPublisher::markers`]): markers sent once the publisher has stopped
+/// are lost.
+#[derive(Debug, Clone)]
+pub struct LslMarkers {
+    notes: mpsc::Sender<(f64, String)>,
+    shared: Arc<LslShared>,
+}
+
+impl LslMarkers {
+    /// A marker, stamped now with the LSL clock. The publisher sends it
+    /// after every engine record stamped before it, and before every one
+    /// stamped after it: after the events that led to it, before those it
+    /// led to.
+    pub fn send(&self, text: &str) {
+        let _ = self.notes.send((lsl::local_clock(), text.to_owned()));
+    }
+
+    /// Records the engine dropped because the ring was full (since the
+    /// engine started).
+    pub fn dropped(&self) -> u64 {
+        self.shared.dropped.load(Ordering::Relaxed)
+    }
+}
+
+/// One study sitting on the marker stream, for `study run --lsl` and the
+/// Study page alike: `sitting_start` when it begins ([`Self::start`]), a
+/// `note` marker for every journal note ([`Self::note`]), `sitting_end` and
+/// the sitting's entry in the study folder's [`CLOCK_FILE`] when it ends
+/// ([`Self::end`]).
+#[derive(Debug)]
+pub struct LslSitting {
+    markers: LslMarkers,
+    out: std::path::PathBuf,
+    participant: String,
+    study: String,
+    start: ClockPair,
+    dropped0: u64,
+}
+
+impl LslSitting {
+    /// The sitting of `participant` (`P01`) in the study `study` (the
+    /// protocol's name), folder `out`, begins now: the clocks are read and
+    /// `sitting_start participant=P01 study=NAME` is sent.
+    pub fn start(
+        markers: LslMarkers,
+        out: &std::path::Path,
+        participant: &str,
+        study: &str,
+    ) -> Self {
+        let start = ClockPair::now();
+        let s = Self {
+            dropped0: markers.dropped(),
+            markers,
+            out: out.to_path_buf(),
+            participant: participant.to_owned(),
+            study: study.to_owned(),
+            start,
+        };
+        s.markers.send(&s.text("sitting_start"));
+        s
+    }
+
+    /// `sitting_start`/`sitting_end` with the sitting's fields (the study's
+    /// name last: it runs to the end of the marker, spaces included).
+    fn text(&self, what: &str) -> String {
+        format!(
+            "{what} participant={} study={}",
+            self.participant, self.study
+        )
+    }
+
+    /// A journal note of the sitting: `note TEXT`.
+    pub fn note(&self, text: &str) {
+        self.markers.send(&format!("note {text}"));
+    }
+
+    /// The sitting has ended: `sitting_end` is sent, the clocks read again,
+    /// and the sitting's start and end clocks with the records the engine
+    /// dropped during it are appended to `out`'s [`CLOCK_FILE`].
+    ///
+    /// # Errors
+    /// Reading or writing the clock file.
+    pub fn end(self) -> std::io::Result<()> {
+        self.markers.send(&self.text("sitting_end"));
+        let end = ClockPair::now();
+        let dropped = self.markers.dropped().saturating_sub(self.dropped0);
+        record_clock(&self.out, &self.participant, self.start, end, dropped)
+    }
+}
+
 fn publish_loop(
     mo: &lsl::StreamOutlet,
     so: &lsl::StreamOutlet,
     rx: &mut rtrb::Consumer<LslRecord>,
-    notes: &mpsc::Receiver<String>,
+    notes: &mpsc::Receiver<(f64, String)>,
     shared: &LslShared,
     stop: &AtomicBool,
     id_width: usize,
@@ -464,12 +562,13 @@ fn publish_loop(
     use lsl::ExPushable;
     let mut row: Vec<f32> = vec![0.0; N_SIGNAL];
     let mut text: Vec<String> = vec![String::new()];
+    let mut pending: std::collections::VecDeque<(f64, String)> = Default::default();
     loop {
         let stopping = stop.load(Ordering::Acquire);
-        while let Ok(n) = notes.try_recv() {
-            text[0] = n;
-            let _ = mo.push_sample_ex(&text, lsl::local_clock(), true);
-        }
+        // The notes sent so far, then the ring: every record an event that
+        // led to a note pushed is in the ring by now. Notes go out in time
+        // order with the records.
+        pending.extend(notes.try_iter());
         while let Ok(r) = rx.pop() {
             match r {
                 LslRecord::Sample { t, ch } => {
@@ -478,11 +577,13 @@ fn publish_loop(
                     let _ = so.push_sample_ex(&row, t, rx.is_empty());
                 }
                 LslRecord::Marker { t, m } => {
+                    push_notes_until(mo, &mut pending, t, &mut text);
                     text[0] = m.text(id_width);
                     let _ = mo.push_sample_ex(&text, t, true);
                 }
             }
         }
+        push_notes_until(mo, &mut pending, f64::INFINITY, &mut text);
         shared
             .marker_consumer
             .store(mo.have_consumers(), Ordering::Relaxed);
@@ -493,6 +594,24 @@ fn publish_loop(
             break;
         }
         std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// Push the pending notes stamped at or before `t` (s), oldest first.
+fn push_notes_until(
+    mo: &lsl::StreamOutlet,
+    pending: &mut std::collections::VecDeque<(f64, String)>,
+    t: f64,
+    text: &mut Vec<String>,
+) {
+    use lsl::ExPushable;
+    while let Some((tn, n)) = pending.pop_front() {
+        if tn > t {
+            pending.push_front((tn, n));
+            break;
+        }
+        text[0] = n;
+        let _ = mo.push_sample_ex(&*text, tn, true);
     }
 }
 

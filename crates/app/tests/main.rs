@@ -30,6 +30,8 @@ mod gui_tweezer_live;
 mod hil_sitting;
 mod hil_tweezer_sitting;
 #[cfg(feature = "lsl")]
+mod lsl_gui_sitting;
+#[cfg(feature = "lsl")]
 mod lsl_outlets;
 mod paper_cli;
 mod refusals_cli;

@@ -178,50 +178,15 @@ pub fn sitting(
             format!("--rig {} --tweezer {}", spec.describe(), tweezer.describe())
         }
     })?;
-    let trap_calibration = match &a.trap_calibration {
-        Some(path) => {
-            let t = super::tweezer::read_calibration(path)?;
-            let applied = engine.check_trap_calibration(&t).and_then(|()| {
-                engine
-                    .apply_trap_calibration(Some(t.applied()))
-                    .map_err(|e| e.to_string())
-            });
-            if let Err(why) = applied {
-                engine.shutdown();
-                anyhow::bail!("--trap-calibration {}: not applied: {why}", path.display());
-            }
-            Some(t)
+    let opts = apply_trap_calibration(a, &mut engine)
+        .and_then(|t| session_options(a, protocol, rig, live, pid.index, t));
+    let opts = match opts {
+        Ok(o) => o,
+        Err(e) => {
+            engine.shutdown();
+            return Err(e);
         }
-        None => None,
     };
-    let mut runner = RunnerConfig::default();
-    if a.no_raw {
-        runner.raw = None;
-    }
-    let mut opts = SessionOptions::new(&a.out, (!a.resume).then_some(protocol), rig);
-    opts.participant = if live {
-        ParticipantKind::Handle
-    } else {
-        ParticipantKind::Simulated
-    };
-    opts.speed = if a.fast { Speed::Fast } else { Speed::RealTime };
-    opts.only_participant = Some(pid.index);
-    opts.runner = runner;
-    opts.calibration.clone_from(&a.loop_args.calibration);
-    opts.trap_calibration = trap_calibration;
-    // What the sitting will write, against the free space of the disk (no
-    // confirmation on the command line: the bound suffices when it fits).
-    let fits =
-        crate::session::estimate_size(&opts, opts.only_participant, a.assume_free_bytes, u64::MAX)
-            .and_then(|(size, available)| {
-                eprintln!("kilotouch: the sitting will write {}", size.describe());
-                kilotouch_study::size::check_free_space(&size, &a.out, available)
-                    .map_err(|e| crate::session::space_refusal(&e, "add --no-raw"))
-            });
-    if let Err(why) = fits {
-        engine.shutdown();
-        anyhow::bail!("{why}");
-    }
     let mut session = SessionHandle::spawn(opts, &mut engine)
         .with_context(|| format!("study run into {}", a.out.display()))?;
     let mut info = session.info().clone();
@@ -237,43 +202,13 @@ pub fn sitting(
         info.planned
     );
     #[cfg(feature = "lsl")]
-    let lsl = if a.lsl {
-        let id = crate::lsl::LslIdentity {
-            study: study_name,
-            participant: pid.id.clone(),
-            id_width: pid.id.len().saturating_sub(1),
-        };
-        let p = match engine.start_lsl(a.lsl_rate_hz, id) {
-            Ok(p) => p,
-            Err(e) => {
-                let _ = session.close(&mut engine);
-                engine.shutdown();
-                anyhow::bail!("--lsl: {e}");
-            }
-        };
-        eprintln!(
-            "kilotouch: LSL outlets {} and {} ({} Hz)",
-            crate::lsl::MARKER_STREAM,
-            crate::lsl::SIGNAL_STREAM,
-            p.signal_rate_hz
-        );
-        if a.lsl_wait_s > 0.0 {
-            let until = Instant::now() + Duration::from_secs_f64(a.lsl_wait_s.min(86_400.0));
-            while p.consumers() != (true, true) && Instant::now() < until {
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            if p.consumers() != (true, true) {
-                eprintln!(
-                    "kilotouch: no LSL consumer on both streams after {} s: starting anyway",
-                    a.lsl_wait_s
-                );
-            }
+    let lsl = match start_lsl(a, &engine, &pid.id, study_name) {
+        Ok(l) => l,
+        Err(e) => {
+            let _ = session.close(&mut engine);
+            engine.shutdown();
+            return Err(e);
         }
-        let clock = crate::lsl::ClockPair::now();
-        p.note(&format!("sitting_start participant={}", pid.id));
-        Some((p, clock))
-    } else {
-        None
     };
     session.send(SessionCommand::Start);
     let t0 = Instant::now();
@@ -282,8 +217,8 @@ pub fn sitting(
     let mut on_note = |_msg: &str| {};
     #[cfg(feature = "lsl")]
     let mut on_note = |msg: &str| {
-        if let Some((p, _)) = &lsl {
-            p.note(&format!("note {msg}"));
+        if let Some((_, s)) = &lsl {
+            s.note(msg);
         }
     };
     let ended = wait_for_end(
@@ -294,13 +229,10 @@ pub fn sitting(
         &mut on_note,
     );
     #[cfg(feature = "lsl")]
-    if let Some((p, start)) = lsl {
-        p.note(&format!("sitting_end participant={}", pid.id));
-        let end = crate::lsl::ClockPair::now();
-        let dropped = p.dropped();
+    if let Some((p, s)) = lsl {
+        let recorded = s.end();
         p.stop();
-        crate::lsl::record_clock(&a.out, &pid.id, start, end, dropped)
-            .with_context(|| format!("--lsl: {}", a.out.display()))?;
+        recorded.with_context(|| format!("--lsl: {}", a.out.display()))?;
     }
     let (finish, committed) = ended?;
     // Extra practice trials earned during the sitting are in the plan now.
@@ -310,6 +242,107 @@ pub fn sitting(
     let report = report(a, &pid.id, &info, committed, &finish, health, t0);
     engine.shutdown();
     Ok((report, finish))
+}
+
+/// The trap calibration of `--trap-calibration`, checked and applied to
+/// the engine's tweezer (`None`: none asked for).
+fn apply_trap_calibration(
+    a: &RunArgs,
+    engine: &mut EngineHandle,
+) -> anyhow::Result<Option<kilotouch_rig::tweezer::TrapCalibrationRecord>> {
+    let Some(path) = &a.trap_calibration else {
+        return Ok(None);
+    };
+    let t = super::tweezer::read_calibration(path)?;
+    let applied = engine.check_trap_calibration(&t).and_then(|()| {
+        engine
+            .apply_trap_calibration(Some(t.applied()))
+            .map_err(|e| e.to_string())
+    });
+    if let Err(why) = applied {
+        anyhow::bail!("--trap-calibration {}: not applied: {why}", path.display());
+    }
+    Ok(Some(t))
+}
+
+/// The sitting's options as `a` asks (participant `index`, the trap
+/// calibration applied), checked against the free space of the disk.
+fn session_options(
+    a: &RunArgs,
+    protocol: kilotouch_study::protocol::Protocol,
+    rig: RigConfig,
+    live: bool,
+    index: u32,
+    trap_calibration: Option<kilotouch_rig::tweezer::TrapCalibrationRecord>,
+) -> anyhow::Result<SessionOptions> {
+    let mut runner = RunnerConfig::default();
+    if a.no_raw {
+        runner.raw = None;
+    }
+    let mut opts = SessionOptions::new(&a.out, (!a.resume).then_some(protocol), rig);
+    opts.participant = if live {
+        ParticipantKind::Handle
+    } else {
+        ParticipantKind::Simulated
+    };
+    opts.speed = if a.fast { Speed::Fast } else { Speed::RealTime };
+    opts.only_participant = Some(index);
+    opts.runner = runner;
+    opts.calibration.clone_from(&a.loop_args.calibration);
+    opts.trap_calibration = trap_calibration;
+    // What the sitting will write, against the free space of the disk (no
+    // confirmation on the command line: the bound suffices when it fits).
+    crate::session::estimate_size(&opts, opts.only_participant, a.assume_free_bytes, u64::MAX)
+        .and_then(|(size, available)| {
+            eprintln!("kilotouch: the sitting will write {}", size.describe());
+            kilotouch_study::size::check_free_space(&size, &a.out, available)
+                .map_err(|e| crate::session::space_refusal(&e, "add --no-raw"))
+        })
+        .map_err(|why| anyhow::anyhow!("{why}"))?;
+    Ok(opts)
+}
+
+/// With `--lsl`: the outlets of the sitting of `participant` in `study`
+/// open, the wait for a consumer (`--lsl-wait-s`), and the sitting's start
+/// on the marker stream; `None` without `--lsl`.
+#[cfg(feature = "lsl")]
+fn start_lsl(
+    a: &RunArgs,
+    engine: &EngineHandle,
+    participant: &str,
+    study: String,
+) -> anyhow::Result<Option<(crate::lsl::LslPublisher, crate::lsl::LslSitting)>> {
+    if !a.lsl {
+        return Ok(None);
+    }
+    let id = crate::lsl::LslIdentity {
+        study: study.clone(),
+        participant: participant.to_owned(),
+        id_width: participant.len().saturating_sub(1),
+    };
+    let p = engine
+        .start_lsl(a.lsl_rate_hz, id)
+        .map_err(|e| anyhow::anyhow!("--lsl: {e}"))?;
+    eprintln!(
+        "kilotouch: LSL outlets {} and {} ({} Hz)",
+        crate::lsl::MARKER_STREAM,
+        crate::lsl::SIGNAL_STREAM,
+        p.signal_rate_hz
+    );
+    if a.lsl_wait_s > 0.0 {
+        let until = Instant::now() + Duration::from_secs_f64(a.lsl_wait_s.min(86_400.0));
+        while p.consumers() != (true, true) && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if p.consumers() != (true, true) {
+            eprintln!(
+                "kilotouch: no LSL consumer on both streams after {} s: starting anyway",
+                a.lsl_wait_s
+            );
+        }
+    }
+    let s = crate::lsl::LslSitting::start(p.markers(), &a.out, participant, &study);
+    Ok(Some((p, s)))
 }
 
 /// The protocol of the folder (a resume) or the one named.

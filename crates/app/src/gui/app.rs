@@ -799,6 +799,11 @@ impl KilotouchApp {
             ctx.request_repaint_after(std::time::Duration::from_millis(50));
         }
         self.poll_engine();
+        // A sitting opened while the Rig page streams to Lab Streaming
+        // Layer sends its markers there.
+        #[cfg(feature = "lsl")]
+        self.study
+            .set_lsl(self.rig_page.lsl().map(crate::lsl::LslPublisher::markers));
         egui::Panel::top("kilotouch-top").show(ui, |ui| self.top_bar(ui));
         egui::Panel::bottom("kilotouch-status").show(ui, |ui| self.status_bar(ui));
         egui::CentralPanel::default().show(ui, |ui| {

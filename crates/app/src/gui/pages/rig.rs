@@ -149,6 +149,13 @@ impl RigPage {
         }
     }
 
+    /// The Lab Streaming Layer publisher while streaming is on (the shell
+    /// hands its markers to the Study page's sittings).
+    #[cfg(feature = "lsl")]
+    pub fn lsl(&self) -> Option<&crate::lsl::LslPublisher> {
+        self.lsl.as_ref()
+    }
+
     /// Is an audio-interface rig available in this build?
     pub fn audio_built() -> bool {
         cfg!(feature = "audio")

@@ -95,6 +95,14 @@ pub struct StudyPage {
     protocol_field: PathField,
     out_field: PathField,
     calibration_field: PathField,
+    /// The Rig page's marker outlet while it streams to Lab Streaming
+    /// Layer (the shell sets it every frame).
+    #[cfg(feature = "lsl")]
+    lsl: Option<crate::lsl::LslMarkers>,
+    /// The open sitting on the marker stream (it opened while streaming
+    /// was on).
+    #[cfg(feature = "lsl")]
+    lsl_sitting: Option<crate::lsl::LslSitting>,
 }
 
 impl Default for StudyPage {
@@ -135,7 +143,18 @@ impl StudyPage {
             protocol_field: PathField::default(),
             out_field: PathField::default(),
             calibration_field: PathField::default(),
+            #[cfg(feature = "lsl")]
+            lsl: None,
+            #[cfg(feature = "lsl")]
+            lsl_sitting: None,
         }
+    }
+
+    /// The marker outlet a sitting opened from now on sends its sitting
+    /// start and end and its notes to (`None`: not streaming).
+    #[cfg(feature = "lsl")]
+    pub fn set_lsl(&mut self, markers: Option<crate::lsl::LslMarkers>) {
+        self.lsl = markers;
     }
 
     /// New page drawing the scene with wgpu when `gpu` (the shell installed
@@ -351,11 +370,22 @@ impl StudyPage {
         self.model.set_timing(s.timing());
         let mut ended = false;
         for e in events {
+            #[cfg(feature = "lsl")]
+            if let (Some(l), crate::session::SessionEvent::Noted(n)) = (&self.lsl_sitting, &e) {
+                l.note(n);
+            }
             if let Some(note) = self.model.apply(e, &self.mapping) {
                 ended |= self.tell_screen(note);
             }
         }
         if ended {
+            #[cfg(feature = "lsl")]
+            if let Some(l) = self.lsl_sitting.take()
+                && let Err(e) = l.end()
+            {
+                self.model
+                    .set_error(format!("{}: {e}", crate::lsl::CLOCK_FILE));
+            }
             // The engine goes back to free exploration (its driver, pacing
             // and chain as before the sitting).
             if let Some(s) = self.session.take() {

@@ -179,6 +179,15 @@ impl StudyPage {
         match SessionHandle::spawn(opts, engine) {
             Ok(mut h) => {
                 let info = h.info().clone();
+                // Streaming: the sitting begins on the marker stream
+                // (a run of every remaining participant is named by its
+                // first).
+                #[cfg(feature = "lsl")]
+                {
+                    self.lsl_sitting = self.lsl.clone().map(|m| {
+                        crate::lsl::LslSitting::start(m, &out, &pid.id, &info.protocol.name)
+                    });
+                }
                 self.mapping = info.mapping;
                 self.rig_used = Some(match &info.device {
                     Some(d) => format!(
