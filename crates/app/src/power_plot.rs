@@ -50,13 +50,14 @@ fn draw<DB: DrawingBackend>(
     let x_lo = f64::from(n_min.saturating_sub(1));
     let x_hi = f64::from(n_max) + 1.0;
     let m = &r.model;
+    let checked = check.map_or_else(String::new, |(f, c)| format!(" ({f}: {:.4})", c.effect));
     let title = if r.test == "paired_t" {
         format!(
-            "{}: {} − {}, effect {:.3}",
+            "{}: {} − {}, effect {:.4}{checked}",
             m.dv, m.conditions[0], m.conditions[1], r.effect
         )
     } else {
-        format!("{}: RM-ANOVA (GG), range {:.3}", m.dv, r.effect)
+        format!("{}: RM-ANOVA (GG), range {:.4}{checked}", m.dv, r.effect)
     };
     let mut chart = FRAME.chart(root, title, x_lo..x_hi, 0.0..1.0)?;
     FRAME
@@ -142,7 +143,13 @@ fn draw<DB: DrawingBackend>(
             .label(format!("n for target: {n}"))
             .legend(legend_line(HIT, 2));
     }
-    FRAME.legend(&mut chart, SeriesLabelPosition::LowerRight)?;
+    // Two curves leave the middle free more often than the corners.
+    let at = if check.is_some() {
+        SeriesLabelPosition::MiddleRight
+    } else {
+        SeriesLabelPosition::LowerRight
+    };
+    FRAME.legend(&mut chart, at)?;
     root.present().map_err(err)
 }
 

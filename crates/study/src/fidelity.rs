@@ -9,7 +9,7 @@
 //! | no haptic rendering in V | condition V | the coupling's filters (P paths, D chain, wall damper), whose outputs V zeroes ([`kilotouch_rig::coupling::Coupling::set_lean`]) | none (bit for bit) |
 //! | no D chain in P | condition P (unless `p_mode = low-channel`) | the crossover and both compensators (the Haptuator's lane), whose outputs P ignores (the same switch) | none (bit for bit) |
 //! | exact contact step | every condition | the tweezer's sub-steps while the bead sits in the contact zone, replaced by one exact OU step ([`kilotouch_rig::tweezer::SimTweezer::set_contact_exact`]) | same distribution of the bead; a different noise sequence |
-//! | P and D at a lower loop rate (draft only) | [`Fidelity::Draft`], conditions P and D, no raw file | the samples between two draft loop instants ([`DRAFT_LOOP_DIVISOR`]): rig, coupling (its chain designed again at the lower rate), tweezer and runner step at the rig's rate / divisor; the accelerometer is rendered at that rate (the participant feels it in D); the loop is armed only if the stability analysis at that rate meets the minimum margins, else the trial is refused ([`crate::error::RunError::DraftLoopNotSafe`]) | a longer loop delay (one sample at the lower rate), different margins and what the participant feels: measured, not bit for bit (seeds 1–3, 240 test trials per condition: every metric within 1.33 pooled SE of `full`, but D's displacement error rises to P's: D's advantage is lost at 2 kHz, `docs/PERFORMANCE.md`) |
+//! | P and D at a lower loop rate (draft only) | [`Fidelity::Draft`], conditions P and D, no raw file | the samples between two draft loop instants ([`DRAFT_LOOP_DIVISOR`]): rig, coupling (its chain designed again at the lower rate), tweezer and runner step at the rig's rate / divisor; the accelerometer is rendered at that rate (the participant feels it in D); the loop is armed only if the stability analysis at that rate meets the minimum margins, else the trial is refused ([`crate::error::RunError::DraftLoopNotSafe`]) | a longer loop delay (one sample at the lower rate), different margins and what the participant feels: measured, not bit for bit (`kilotouch bench fidelity`, 240 test trials per condition: every metric within 1.26 pooled SE of `full`, but D's displacement error rises to P's and a power analysis of P − D no longer finds an n: D's advantage is lost at 2 kHz, `docs/PERFORMANCE.md`) |
 //! | V at the control rate | condition V, no raw file | the samples between two control instants: the rig (the plant's exact ZOH map at the control rate), the tweezer and the runner step once per control period ([`FidelityPlan::decimation`]); the accelerometer is not rendered ([`kilotouch_rig::sim::SimRig::set_accelerometer_rendering`]) | same distributions; 1 ms instead of 0.1 ms time resolution |
 //!
 //! V may leave the rig's rate because it closes no loop through the device:
@@ -22,9 +22,9 @@
 //! runs that loop at a fifth of the rig's rate (the chain designed again and
 //! the margins analysed at that rate: the shipped rig clears the minimum
 //! margins at 2 kHz; with the trap twice as stiff D's phase margin there is
-//! 22.6° against the 30° minimum and the draft trial is refused). The speed and the change of
-//! the study metrics each shortcut causes are
-//! measured in `docs/PERFORMANCE.md` ("Scene fidelity").
+//! 22.6° against the 30° minimum and the draft trial is refused). Each
+//! level's speed and change of the study metrics are measured by
+//! `kilotouch bench fidelity` (`docs/PERFORMANCE.md`, "Fidelity levels").
 
 use std::fmt;
 use std::str::FromStr;

@@ -357,7 +357,13 @@ fn human_check(search: &PowerReport, pilot: &SimulatedPilot, c: &FinalCheck) -> 
         (Some(k), Some(p)) => format!(
             "the search's n = {k} is NOT confirmed at {fc} (power {p:.3}): plan with {fc}'s answer\n"
         ),
-        _ => format!("the search found no n; {fc}'s curve is above\n"),
+        _ => match c.n_for_target {
+            Some(k) => format!(
+                "the answer changed: {fs} reaches the target at no n tried, {fc} at n = {k}; \
+                 {fs} cannot answer this question, plan with {fc}'s answer\n"
+            ),
+            None => format!("neither {fs} nor {fc} reaches the target at any n tried\n"),
+        },
     };
     s
 }
