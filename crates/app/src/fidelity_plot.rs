@@ -14,10 +14,10 @@ use kilotouch_study::protocol::Condition;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::commands::bench_fidelity::FidelityReport;
 use crate::paper::style::{
     Figure, Frame, GREY, SIZE_SINGLE, SUM, condition_color, err, legend_line, text, text_color,
 };
+use kilotouch_study::frontier::FidelityReport;
 
 /// The frontier as a [`Figure`].
 struct Frontier<'a>(&'a FidelityReport);

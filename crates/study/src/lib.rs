@@ -10,8 +10,9 @@
 //!   ([`task`]); the participant interface ([`participant`]) and the
 //!   simulated operator ([`operator`]) with its attention lapses ([`lapse`]);
 //! * the session runner ([`runner`]) and simulated studies run in parallel
-//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]), whole or
-//!   in participant shards ([`shard`]) merged afterwards ([`merge`]);
+//!   ([`simulate`]) at the fidelity a scene needs ([`fidelity`]; each
+//!   level's speed against error measured by [`frontier`]), whole or in
+//!   participant shards ([`shard`]) merged afterwards ([`merge`]);
 //! * the crash-safe storage of a study's results: the output folder with
 //!   `trials.csv`, summaries, `session.json` and the session journal
 //!   ([`export`], [`journal`]), raw signals as NPY ([`rawsig`]);
@@ -31,6 +32,7 @@ pub mod csvio;
 mod error;
 pub mod export;
 pub mod fidelity;
+pub mod frontier;
 pub mod lapse;
 pub mod merge;
 pub mod operator;

@@ -23,9 +23,9 @@ use kilotouch_study::power::{
 use kilotouch_study::fidelity::Fidelity;
 use serde::Serialize;
 
-use super::bench_fidelity::simulate_level;
 use super::progress::Progress;
 use crate::output::emit;
+use kilotouch_study::frontier::simulate_level;
 
 /// Largest simulated pilot, participants.
 pub const MAX_SIMULATED_PILOT: u32 = 256;
