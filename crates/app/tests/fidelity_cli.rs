@@ -132,35 +132,37 @@ fn bench_fidelity_reports_each_level_and_draws_the_frontier() {
     assert!(err.contains("exists") && err.contains("--out"), "{err}");
 }
 
+/// `study power --simulate PARTICIPANTS` on `proto` for P − D of the
+/// displacement error (seed 9), then `extra`.
+fn power_simulate<'a>(participants: &'a str, proto: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "study",
+        "power",
+        "--simulate",
+        participants,
+        "--protocol",
+        proto,
+        "--dv",
+        "disp_err_mean_um",
+        "--contrast",
+        "P-D",
+        "--seed",
+        "9",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
 #[test]
 fn power_searches_at_draft_and_checks_at_scene() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = tiny(tmp.path());
     let keep = tmp.path().join("pilots");
-    let args = [
-        "study",
-        "power",
-        "--simulate",
-        "3",
-        "--protocol",
-        &proto,
-        "--dv",
-        "disp_err_mean_um",
-        "--contrast",
-        "P-D",
-        "--effect",
-        "0.05",
-        "--n",
-        "3,6,12",
-        "--replications",
-        "100",
-        "--seed",
-        "9",
-        "--pilot-out",
-        keep.to_str().unwrap(),
-    ];
-    let mut json = args.to_vec();
-    json.push("--json");
+    let keep_s = keep.to_str().unwrap();
+    // An effect large enough that the search finds an n to check.
+    let checked = ["--effect", "0.05", "--n", "3,6,12", "--replications", "100"];
+    let mut json = power_simulate("3", &proto, &checked);
+    json.extend(["--pilot-out", keep_s, "--json"]);
     let r = json_ok(&json);
     // The search's report keeps study power's keys.
     for key in ["points", "effect", "n_for_target", "pilot_effect", "test"] {
@@ -176,90 +178,61 @@ fn power_searches_at_draft_and_checks_at_scene() {
     );
     assert_eq!(c["n_checked"], r["n_for_target"]);
     assert_eq!(c["report"]["points"].as_array().unwrap().len(), 3);
-    if let Some(n) = c["n_checked"].as_u64() {
-        let p = c["power_at_n"].as_f64().unwrap();
-        let at = c["report"]["points"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|q| q["n"] == n)
-            .unwrap();
-        assert_eq!(at["power"].as_f64().unwrap(), p);
-        assert_eq!(c["confirmed"].as_bool().unwrap(), p >= 0.8);
-    }
+    let n = c["n_checked"]
+        .as_u64()
+        .expect("an effect of 0.05 µm is found");
+    let p = c["power_at_n"].as_f64().unwrap();
+    let at = c["report"]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|q| q["n"] == n)
+        .unwrap();
+    assert_eq!(at["power"].as_f64().unwrap(), p);
+    assert_eq!(c["confirmed"].as_bool().unwrap(), p >= 0.8);
     for fidelity in ["draft", "scene"] {
-        assert!(
-            keep.join(format!("pilot-{fidelity}"))
-                .join("trials.csv")
-                .is_file()
-        );
+        let kept = keep.join(format!("pilot-{fidelity}")).join("trials.csv");
+        assert!(kept.is_file(), "{}", kept.display());
+    }
+    // The kept pilot folders are not overwritten.
+    let mut again = power_simulate("3", &proto, &checked);
+    again.extend(["--pilot-out", keep_s]);
+    assert!(!kilotouch(&again).status.success());
+
+    // The readable report shows both columns when it checks.
+    let t = kilotouch(&power_simulate("3", &proto, &checked));
+    assert!(t.status.success(), "{}", String::from_utf8_lossy(&t.stderr));
+    let text = String::from_utf8_lossy(&t.stdout);
+    for part in ["final check", "power at draft", "power at scene"] {
+        assert!(text.contains(part), "{part}: {text}");
     }
 
     // At scene there is nothing to check; the pilot is removed without
-    // --pilot-out. The readable report shows both columns when it checks.
-    let scene = json_ok(&[
-        "study",
-        "power",
-        "--simulate",
+    // --pilot-out.
+    let scene = json_ok(&power_simulate(
         "3",
-        "--protocol",
         &proto,
-        "--dv",
-        "disp_err_mean_um",
-        "--contrast",
-        "P-D",
-        "--n",
-        "3,6",
-        "--replications",
-        "50",
-        "--seed",
-        "9",
-        "--fidelity",
-        "scene",
-        "--json",
-    ]);
+        &[
+            "--n",
+            "3,6",
+            "--replications",
+            "50",
+            "--fidelity",
+            "scene",
+            "--json",
+        ],
+    ));
     assert!(scene.get("final_check").is_none());
     assert_eq!(scene["simulated_pilot"]["fidelity"], "scene");
     let pilot = scene["simulated_pilot"]["folder"].as_str().unwrap();
     assert!(!std::path::Path::new(pilot).exists(), "{pilot} left behind");
 
-    let again = kilotouch(&args);
-    assert!(
-        !again.status.success(),
-        "the kept pilot folders are not overwritten"
-    );
-    let mut text_args = args.to_vec();
-    text_args.pop();
-    text_args.pop();
-    let t = kilotouch(&text_args);
-    assert!(t.status.success(), "{}", String::from_utf8_lossy(&t.stderr));
-    let text = String::from_utf8_lossy(&t.stdout);
-    assert!(
-        text.contains("final check")
-            && text.contains("power at draft")
-            && text.contains("power at scene"),
-        "{text}"
-    );
-
     // A pilot of one participant cannot show how participants vary.
-    let one = kilotouch(&[
-        "study",
-        "power",
-        "--simulate",
+    let one = kilotouch(&power_simulate(
         "1",
-        "--protocol",
         &proto,
-        "--dv",
-        "disp_err_mean_um",
-        "--contrast",
-        "P-D",
-        "--n",
-        "3",
-        "--replications",
-        "10",
-        "--seed",
-        "9",
-    ]);
+        &["--n", "3", "--replications", "10"],
+    ));
     assert!(!one.status.success());
     assert!(String::from_utf8_lossy(&one.stderr).contains("--simulate must be 2"));
 }

@@ -77,11 +77,7 @@ pub fn run(a: &FidelityArgs) -> anyhow::Result<()> {
 /// # Errors
 /// As [`run`].
 pub fn frontier(a: &FidelityArgs) -> anyhow::Result<FidelityReport> {
-    let threads = match a.threads {
-        Some(0) => anyhow::bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, usize::from),
-    };
+    let threads = super::protocol_arg::threads(a.threads)?;
     let question = PowerQuestion {
         dv: a.dv.clone(),
         contrast: a.contrast.clone(),
@@ -91,12 +87,8 @@ pub fn frontier(a: &FidelityArgs) -> anyhow::Result<FidelityReport> {
         alpha: 0.05,
         seed: a.seed,
     };
-    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
-    protocol.participants = a.participants;
-    protocol.seeds.study = a.seed;
-    protocol
-        .validate()
-        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    let protocol =
+        super::protocol_arg::load_protocol_with(&a.protocol, Some(a.participants), Some(a.seed))?;
     let out = a.out.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!(
             "kilotouch-bench-fidelity-{}-{}",

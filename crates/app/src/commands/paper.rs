@@ -76,11 +76,7 @@ fn human(r: &PaperReport) -> String {
 /// output is written).
 pub fn run_cmd(a: &Args) -> anyhow::Result<()> {
     let rig = RigConfig::load_or_default(a.rig_config.as_ref())?;
-    let threads = match a.threads {
-        Some(0) => anyhow::bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
+    let threads = super::protocol_arg::threads(a.threads)?;
     let opts = PaperOptions {
         out: a.out.clone(),
         quick: a.quick,

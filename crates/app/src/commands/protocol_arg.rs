@@ -1,5 +1,7 @@
 //! `--protocol`: a protocol TOML file or a built-in protocol's name, the
-//! argument `study simulate` and `study run` share.
+//! argument `study simulate`, `study run`, `study power --simulate` and
+//! `bench fidelity` share, with their `--participants` and `--seed`
+//! overrides.
 
 use std::path::PathBuf;
 
@@ -19,4 +21,33 @@ pub fn load_protocol(spec: &str) -> anyhow::Result<Protocol> {
         "--protocol {spec}: no such file, and not a built-in protocol (expected a TOML file or one of: {})",
         kilotouch_study::protocol::BUILTIN_NAMES.join(", ")
     )
+}
+
+/// The protocol `spec` names with the command line's participants and
+/// study seed (where given), validated again after the overrides.
+pub fn load_protocol_with(
+    spec: &str,
+    participants: Option<u32>,
+    seed: Option<u64>,
+) -> anyhow::Result<Protocol> {
+    let mut protocol = load_protocol(spec)?;
+    if let Some(n) = participants {
+        protocol.participants = n;
+    }
+    if let Some(s) = seed {
+        protocol.seeds.study = s;
+    }
+    protocol
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    Ok(protocol)
+}
+
+/// `--threads`: the number given (at least 1), or the available cores.
+pub fn threads(arg: Option<usize>) -> anyhow::Result<usize> {
+    match arg {
+        Some(0) => anyhow::bail!("--threads must be at least 1"),
+        Some(t) => Ok(t),
+        None => Ok(std::thread::available_parallelism().map_or(1, usize::from)),
+    }
 }

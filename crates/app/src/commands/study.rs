@@ -153,22 +153,9 @@ fn human(r: &SimulateReport) -> String {
 }
 
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<()> {
-    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
-    if let Some(n) = a.participants {
-        protocol.participants = n;
-    }
-    if let Some(s) = a.seed {
-        protocol.seeds.study = s;
-    }
-    protocol
-        .validate()
-        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    let protocol = super::protocol_arg::load_protocol_with(&a.protocol, a.participants, a.seed)?;
     let rig = RigConfig::load_or_default(a.rig.rig_config.as_ref())?;
-    let threads = match a.threads {
-        Some(0) => anyhow::bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
+    let threads = super::protocol_arg::threads(a.threads)?;
     let mut runner = RunnerConfig::default();
     if a.no_raw {
         runner.raw = None;

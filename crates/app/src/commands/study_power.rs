@@ -122,11 +122,7 @@ fn options(a: &PowerArgs, available: &[String]) -> anyhow::Result<PowerOptions> 
         }
         (None, _) => PowerTest::Rm,
     };
-    let threads = match a.threads {
-        Some(0) => anyhow::bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
+    let threads = super::protocol_arg::threads(a.threads)?;
     let mut o = PowerOptions::new(&a.dv, test, parse_sample_sizes(&a.n)?);
     o.within.clone_from(&a.within);
     o.subject.clone_from(&a.subject);
@@ -289,12 +285,11 @@ fn simulate_pilot(
              at least two to see how participants vary), got {participants}"
         );
     }
-    let mut protocol = super::protocol_arg::load_protocol(&a.protocol)?;
-    protocol.participants = participants;
-    protocol.seeds.study = a.pilot_seed.unwrap_or(a.seed);
-    protocol
-        .validate()
-        .map_err(|e| anyhow::anyhow!("invalid protocol after the command-line overrides: {e}"))?;
+    let protocol = super::protocol_arg::load_protocol_with(
+        &a.protocol,
+        Some(participants),
+        Some(a.pilot_seed.unwrap_or(a.seed)),
+    )?;
     let folder = root.join(format!("pilot-{fidelity}"));
     if folder.exists() {
         anyhow::bail!(
@@ -302,11 +297,7 @@ fn simulate_pilot(
             folder.display()
         );
     }
-    let threads = match a.threads {
-        Some(0) => anyhow::bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
+    let threads = super::protocol_arg::threads(a.threads)?;
     eprintln!(
         "kilotouch: simulating a {participants}-participant pilot of `{}` at {fidelity} fidelity",
         protocol.name
