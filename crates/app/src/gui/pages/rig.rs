@@ -9,7 +9,7 @@ mod view;
 pub use view::margins_ui;
 use view::{error_ui, run_controls_ui, status_ui};
 
-use super::rig_tweezer::TweezerSection;
+use super::rig_tweezer::{TweezerSection, spec_or_sim};
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
 use crate::gui::path_field::{PathField, PathKind, TOML};
@@ -64,22 +64,12 @@ impl RigPage {
 
     /// The rig the rig field names (empty = `sim`).
     pub fn spec(&self) -> Result<RigSpec, kilotouch_rig::RigError> {
-        let t = self.rig_text.trim();
-        if t.is_empty() {
-            Ok(RigSpec::Sim)
-        } else {
-            t.parse()
-        }
+        spec_or_sim(&self.rig_text, RigSpec::Sim)
     }
 
     /// The tweezer the tweezer field names (empty = `sim`).
     pub fn tweezer_spec(&self) -> Result<TweezerSpec, kilotouch_rig::RigError> {
-        let t = self.tweezer_text.trim();
-        if t.is_empty() {
-            Ok(TweezerSpec::Sim)
-        } else {
-            t.parse()
-        }
+        spec_or_sim(&self.tweezer_text, TweezerSpec::Sim)
     }
 
     /// The tweezer row of the Device group: simulated or live, the field,

@@ -156,12 +156,7 @@ impl TweezerSection {
 
     /// The tweezer the field names (empty = `sim`).
     pub fn spec(&self) -> Result<RigSpec, kilotouch_rig::RigError> {
-        let t = self.source_text.trim();
-        if t.is_empty() {
-            Ok(RigSpec::Sim)
-        } else {
-            t.parse()
-        }
+        spec_or_sim(&self.source_text, RigSpec::Sim)
     }
 
     /// Is a record or calibration running?
@@ -645,4 +640,17 @@ fn active_ui(ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
             ui.weak("Active trap calibration: none (the tweezer reports the simulated bead and κ)");
         }
     });
+}
+
+/// The device a spec field names (`--rig`/`--tweezer` syntax), `sim` when
+/// the field is empty or blank.
+///
+/// # Errors
+/// The spec's parse error.
+pub(super) fn spec_or_sim<T>(text: &str, sim: T) -> Result<T, kilotouch_rig::RigError>
+where
+    T: std::str::FromStr<Err = kilotouch_rig::RigError>,
+{
+    let t = text.trim();
+    if t.is_empty() { Ok(sim) } else { t.parse() }
 }
