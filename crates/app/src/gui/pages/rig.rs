@@ -12,7 +12,7 @@ use view::{error_ui, run_controls_ui, status_ui};
 use super::rig_tweezer::{TweezerSection, spec_or_sim};
 use crate::engine::EngineHandle;
 use crate::gui::env::{PageEnv, ShellRequest};
-use crate::gui::path_field::{PathField, PathKind, TOML};
+use crate::gui::path_field::{PathField, PathKind, TOML, labelled_line};
 use egui::{Color32, RichText};
 use kilotouch_rig::device::{RigSpec, TweezerSpec};
 
@@ -345,14 +345,7 @@ impl RigPage {
 /// A one-line `--rig`/`--tweezer` spec field after `label` (hint `sim`,
 /// 360 points wide); true when the user pressed Enter in it.
 fn spec_field(ui: &mut egui::Ui, label: &str, text: &mut String) -> bool {
-    let label = ui.label(label);
-    let edit = ui
-        .add(
-            egui::TextEdit::singleline(text)
-                .hint_text("sim")
-                .desired_width(360.0),
-        )
-        .labelled_by(label.id);
+    let edit = labelled_line(ui, label, text, "sim", 360.0);
     edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter))
 }
 

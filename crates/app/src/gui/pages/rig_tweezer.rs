@@ -24,6 +24,7 @@
 
 use crate::gui::charts::{self, Series};
 use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::path_field::labelled_line;
 use crate::gui::work::trap_calibration::{TrapCalibrationDone, TrapCalibrationRun};
 use egui::{Color32, RichText};
 use egui_plot::{PlotPoints, Points};
@@ -264,13 +265,7 @@ impl TweezerSection {
         let busy = self.is_busy();
         ui.add_enabled_ui(!busy, |ui| {
             ui.horizontal(|ui| {
-                let l = ui.label("Tweezer:");
-                ui.add(
-                    egui::TextEdit::singleline(&mut self.source_text)
-                        .hint_text("sim")
-                        .desired_width(220.0),
-                )
-                .labelled_by(l.id);
+                labelled_line(ui, "Tweezer:", &mut self.source_text, "sim", 220.0);
                 ui.weak("sim  ·  serial:/dev/ttyACM1  (`kilotouch emulate tweezer --pty`)");
             });
             match self.spec() {
