@@ -1,6 +1,7 @@
 //! One path field for every page: a text field (typing a path always
 //! works) with a **Browse…** button that opens the platform's native file
-//! or folder dialog ([`rfd`]).
+//! or folder dialog ([`rfd`]); and the labelled single-line text field it
+//! is made of ([`labelled_line`]), for the pages' other text fields.
 //!
 //! On Linux `rfd` is built with its `xdg-portal` back end only: it talks to
 //! the desktop's file-chooser portal through `libdbus-1`, loaded at run
@@ -64,14 +65,7 @@ impl PathField {
         width: f32,
     ) -> PathFieldResponse {
         let picked = self.poll(text);
-        let l = ui.label(label);
-        let edit = ui
-            .add(
-                egui::TextEdit::singleline(text)
-                    .hint_text(hint)
-                    .desired_width(width),
-            )
-            .labelled_by(l.id);
+        let edit = labelled_line(ui, label, text, hint, width);
         let submitted = edit.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
         let busy = self.pending.is_some();
         let b = ui
@@ -168,6 +162,24 @@ fn start_dir(current: &str) -> Option<PathBuf> {
     let p = Path::new(current);
     let dir = if p.is_dir() { Some(p) } else { p.parent() };
     dir.filter(|d| d.is_dir()).map(Path::to_path_buf)
+}
+
+/// `label`, then `text` as a single-line field of `width` points with
+/// `hint`, labelled by `label` (accessibility); the field's response.
+pub fn labelled_line(
+    ui: &mut egui::Ui,
+    label: &str,
+    text: &mut String,
+    hint: &str,
+    width: f32,
+) -> egui::Response {
+    let l = ui.label(label);
+    ui.add(
+        egui::TextEdit::singleline(text)
+            .hint_text(hint)
+            .desired_width(width),
+    )
+    .labelled_by(l.id)
 }
 
 #[cfg(test)]

@@ -77,6 +77,20 @@ pub(crate) fn fresh_study_dir(dir: &Path) -> Result<(), PaperError> {
     Ok(())
 }
 
+/// The built-in protocol `name` with the paper run's study seed, and
+/// without practice trials in quick mode.
+///
+/// # Errors
+/// An unknown built-in protocol.
+pub(crate) fn paper_protocol(name: &str, opts: &PaperOptions) -> Result<Protocol, PaperError> {
+    let mut protocol = Protocol::builtin(name).map_err(|e| PaperError::Results(e.to_string()))?;
+    protocol.seeds.study = opts.seed;
+    if opts.quick {
+        protocol.training.practice_trials = 0;
+    }
+    Ok(protocol)
+}
+
 /// Simulate `protocol` into `dir` (afresh; as-designed chain, default
 /// fidelity, the paper run's threads) and read the folder's results: the one
 /// study run behind Figs. 10, 11 and 12.
@@ -123,12 +137,9 @@ impl Fig10 {
         opts: &PaperOptions,
         progress: &mut dyn FnMut(f64, &str),
     ) -> Result<Self, PaperError> {
-        let mut protocol =
-            Protocol::builtin("blind").map_err(|e| PaperError::Results(e.to_string()))?;
-        protocol.seeds.study = opts.seed;
+        let mut protocol = paper_protocol("blind", opts)?;
         if opts.quick {
             protocol.trials_per_session = 3;
-            protocol.training.practice_trials = 0;
         }
         let Task::BlindNavigation(task) = protocol.task.clone() else {
             return Err(PaperError::Results(

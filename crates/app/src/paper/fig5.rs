@@ -5,7 +5,7 @@
 //! prints), the fitted Ĝ_H and the paper's eq. 2 scaled to the rig's drive
 //! unit.
 
-use super::style::{self, Figure, Frame, err, legend, legend_line, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_dsp::C64;
 use kilotouch_dsp::compensator::paper_g_h;
@@ -431,12 +431,10 @@ impl Figure for Fig5 {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root
-            .titled(
-                "Fig. 5 — Magnitude responses from PSD analysis (Welch method)",
-                text(style::TITLE_PX),
-            )
-            .map_err(err)?;
+        let root = style::titled(
+            root,
+            "Fig. 5 — Magnitude responses from PSD analysis (Welch method)",
+        )?;
         let panels = root.split_evenly((2, 1));
         self.panel(&panels[0], false)?;
         self.panel(&panels[1], true)

@@ -14,7 +14,7 @@
 //! adds its noise floor, which is above the simulated agitation: through the
 //! sensor the narrowing almost vanishes (`docs/PAPER.md`).
 
-use super::style::{self, Figure, Frame, err, legend, legend_line, text};
+use super::style::{self, Figure, Frame, err, legend, legend_line};
 use super::{Claim, PaperError, write_csv};
 use kilotouch_dsp::design::{FilterKind, Prewarp, butter};
 use kilotouch_dsp::filter::Sos;
@@ -504,14 +504,12 @@ impl Figure for Fig9 {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root
-            .titled(
-                &format!(
-                    "Fig. 9 — Free space and contact, felt through the interface (D, {FELT_LO_HZ:.0}–{FELT_HI_HZ:.0} Hz)"
-                ),
-                text(style::TITLE_PX),
-            )
-            .map_err(err)?;
+        let root = style::titled(
+            root,
+            &format!(
+                "Fig. 9 — Free space and contact, felt through the interface (D, {FELT_LO_HZ:.0}–{FELT_HI_HZ:.0} Hz)"
+            ),
+        )?;
         let p = root.split_evenly((2, 2));
         self.trace_panel(&p[0], false)?;
         self.trace_panel(&p[1], true)?;

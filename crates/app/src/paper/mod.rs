@@ -263,6 +263,34 @@ fn save<F: style::Figure>(fig: &F, out: &Path, files: &FigureFiles) -> Result<()
     style::save(fig, &out.join(&files.png), &out.join(&files.svg)).map_err(PaperError::Draw)
 }
 
+/// What [`run`] has made so far: the figures' files in `out` and their
+/// claims.
+struct Made<'a> {
+    out: &'a Path,
+    figures: Vec<FigureFiles>,
+    claims: Vec<Claim>,
+}
+
+impl Made<'_> {
+    /// Fig. `id` (`title`): its data written by `write_csv`, its drawing
+    /// saved, its claims (from `claims`) collected, in that order.
+    fn add<F: style::Figure>(
+        &mut self,
+        fig: &F,
+        id: &str,
+        title: &str,
+        write_csv: impl FnOnce(&F, &Path) -> Result<(), PaperError>,
+        claims: impl FnOnce(&F) -> Result<Vec<Claim>, PaperError>,
+    ) -> Result<(), PaperError> {
+        let files = FigureFiles::new(id, title);
+        write_csv(fig, &self.out.join(&files.data))?;
+        save(fig, self.out, &files)?;
+        self.claims.extend(claims(fig)?);
+        self.figures.push(files);
+        Ok(())
+    }
+}
+
 /// Regenerate every figure into `opts.out`, check the claims, write
 /// `report.md`. A failed claim is reported, not an error.
 ///
@@ -283,79 +311,88 @@ pub fn run(
         p: progress,
         done: 0.0,
     };
-    let mut figures = Vec::new();
-    let mut claims = Vec::new();
+    let mut made = Made {
+        out,
+        figures: Vec::new(),
+        claims: Vec::new(),
+    };
 
     // Fig. 4.
     st.at(0, 0.0, "LR4 response");
     let f4 = fig4::Fig4::compute(&opts.rig)?;
-    let files = FigureFiles::new("4", "LR4 crossover: low, high and sum");
-    f4.write_csv(&out.join(&files.data))?;
-    save(&f4, out, &files)?;
-    claims.extend(f4.claims()?);
-    figures.push(files);
+    made.add(
+        &f4,
+        "4",
+        "LR4 crossover: low, high and sum",
+        fig4::Fig4::write_csv,
+        |f| f.claims(),
+    )?;
     st.at(0, 1.0, "done");
 
     // Figs. 5 and 7: one calibration of the simulated rig.
     let mut rig = kilotouch_rig::calibration::RigAdapter::sim(&opts.rig, Some(opts.seed))?;
     let outcome = fig5::calibrate_rig(&mut rig, &mut |f, msg: &str| st.at(1, f, msg))?;
     let f5 = fig5::Fig5::from_outcome(&opts.rig, &outcome)?;
-    let files = FigureFiles::new(
+    made.add(
+        &f5,
         "5",
         "Channel responses: Welch H1 as identified, and the model",
-    );
-    f5.write_csv(&out.join(&files.data))?;
-    save(&f5, out, &files)?;
-    claims.extend(f5.claims());
-    figures.push(files);
+        fig5::Fig5::write_csv,
+        |f| Ok(f.claims()),
+    )?;
 
     let f7 = fig7::Fig7::measure(&mut rig, &outcome, &mut |f, msg: &str| st.at(2, f, msg))?;
-    let files = FigureFiles::new(
+    made.add(
+        &f7,
         "7",
         "Third-octave magnitudes: each channel and the compensated sum",
-    );
-    f7.write_csv(&out.join(&files.data))?;
-    save(&f7, out, &files)?;
-    claims.extend(f7.claims());
-    figures.push(files);
+        fig7::Fig7::write_csv,
+        |f| Ok(f.claims()),
+    )?;
 
     // Fig. 9.
     st.at(3, 0.0, "closed loop");
     let f9 = fig9::Fig9::simulate(&opts.rig, opts.quick, opts.seed)?;
-    let files = FigureFiles::new(
+    made.add(
+        &f9,
         "9",
         "Free space, collision and pressing, felt at the fingertip",
-    );
-    f9.write_csv(&out.join(&files.data))?;
-    save(&f9, out, &files)?;
-    claims.extend(f9.claims());
-    figures.push(files);
+        fig9::Fig9::write_csv,
+        |f| Ok(f.claims()),
+    )?;
     st.at(3, 1.0, "done");
 
     // Fig. 10.
     let f10 = fig10::Fig10::simulate(opts, &mut |f, msg: &str| st.at(4, f, msg))?;
-    let files = FigureFiles::new("10", "Blind navigation: trajectories that collided");
-    f10.write_csv(&out.join(&files.data))?;
-    save(&f10, out, &files)?;
-    claims.extend(f10.claims());
-    figures.push(files);
+    made.add(
+        &f10,
+        "10",
+        "Blind navigation: trajectories that collided",
+        fig10::Fig10::write_csv,
+        |f| Ok(f.claims()),
+    )?;
 
     // Figs. 11 and 12.
     let study = study_figs::CirclingStudy::simulate(opts, &mut |f, msg: &str| st.at(5, f, msg))?;
-    let f11 = study.fig11();
-    let files = FigureFiles::new("11", "Circling study per participant (mean ± SD)");
-    f11.write_csv(&out.join(&files.data))?;
-    save(&f11, out, &files)?;
-    claims.extend(f11.claims());
-    figures.push(files);
-    let f12 = study.fig12();
-    let files = FigureFiles::new("12", "Circling study per condition, with the statistics");
-    f12.write_csv(&out.join(&files.data))?;
-    save(&f12, out, &files)?;
-    claims.extend(f12.claims());
-    figures.push(files);
+    made.add(
+        &study.fig11(),
+        "11",
+        "Circling study per participant (mean ± SD)",
+        study_figs::Fig11::write_csv,
+        |f| Ok(f.claims()),
+    )?;
+    made.add(
+        &study.fig12(),
+        "12",
+        "Circling study per condition, with the statistics",
+        study_figs::Fig12::write_csv,
+        |f| Ok(f.claims()),
+    )?;
     st.at(5, 1.0, "done");
 
+    let Made {
+        figures, claims, ..
+    } = made;
     let failed = claims.iter().filter(|c| c.fails()).count();
     let report = PaperReport {
         figures,

@@ -12,7 +12,6 @@
 use super::style::{self, Figure, Frame, err, text};
 use super::{Claim, PaperError, PaperOptions};
 use kilotouch_study::export::Metric;
-use kilotouch_study::protocol::Protocol;
 use kilotouch_study::results::{
     ConditionBars, ParticipantBars, ResultMetric, StatsTable, StudyResults, read_trajectory,
 };
@@ -72,12 +71,7 @@ impl CirclingStudy {
         opts: &PaperOptions,
         progress: &mut dyn FnMut(f64, &str),
     ) -> Result<Self, PaperError> {
-        let mut protocol =
-            Protocol::builtin("paper").map_err(|e| PaperError::Results(e.to_string()))?;
-        protocol.seeds.study = opts.seed;
-        if opts.quick {
-            protocol.training.practice_trials = 0;
-        }
+        let protocol = super::fig10::paper_protocol("paper", opts)?;
         let dir = opts.out.join("study-circling");
         let runner = RunnerConfig {
             raw: None,
@@ -562,15 +556,13 @@ impl Figure for Fig11 {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root
-            .titled(
-                &format!(
-                    "Fig. 11 — Per participant, mean ± SD over {} trials per condition",
-                    self.trials_per_session
-                ),
-                text(style::TITLE_PX),
-            )
-            .map_err(err)?;
+        let root = style::titled(
+            root,
+            &format!(
+                "Fig. 11 — Per participant, mean ± SD over {} trials per condition",
+                self.trials_per_session
+            ),
+        )?;
         let p = root.split_evenly((2, 2));
         for (i, (m, bars)) in self.panels.iter().enumerate() {
             if let Some(area) = p.get(i) {
@@ -587,12 +579,10 @@ impl Figure for Fig12 {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root
-            .titled(
-                "Fig. 12 — Per condition, mean ± SD over participants (*** p < 0.005, ** p < 0.01, * p < 0.05)",
-                text(style::TITLE_PX),
-            )
-            .map_err(err)?;
+        let root = style::titled(
+            root,
+            "Fig. 12 — Per condition, mean ± SD over participants (*** p < 0.005, ** p < 0.01, * p < 0.05)",
+        )?;
         let p = root.split_evenly((2, 2));
         for (i, (m, bars, t)) in self.panels.iter().enumerate() {
             if let Some(area) = p.get(i) {

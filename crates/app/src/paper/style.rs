@@ -113,6 +113,17 @@ pub fn err<E: std::fmt::Debug>(e: E) -> String {
     format!("drawing failed: {e:?}")
 }
 
+/// `root` below a figure title of `title` ([`TITLE_PX`] px).
+///
+/// # Errors
+/// Backend errors, as text.
+pub fn titled<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+) -> Result<DrawingArea<DB, Shift>, String> {
+    root.titled(title, text(TITLE_PX)).map_err(err)
+}
+
 /// Draw `fig` to `png` (RGB, 8 bit) and to `svg`.
 ///
 /// # Errors

@@ -60,8 +60,7 @@ pub fn check<R: CalibrationRig + ?Sized>(
     ctx: &mut StepContext<'_>,
 ) -> Result<CheckResult> {
     let step = Step::Check;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "rig self-test");
+    ctx.begin(step, "rig self-test")?;
     let report = rig.check()?;
     let mut problems = Vec::new();
     if !report.ok() {

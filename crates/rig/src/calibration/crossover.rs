@@ -152,8 +152,7 @@ pub fn choose_crossover(
     ctx: &mut StepContext<'_>,
 ) -> Result<CrossoverChoice> {
     let step = Step::Crossover;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "choosing the crossover frequency");
+    ctx.begin(step, "choosing the crossover frequency")?;
     let c = &cfg.crossover;
     let cap = c
         .max_hz

@@ -160,8 +160,7 @@ pub fn design(
     ctx: &mut StepContext<'_>,
 ) -> Result<CompensatorDesign> {
     let step = Step::Design;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "designing C_L and C_H");
+    ctx.begin(step, "designing C_L and C_H")?;
     let d = &cfg.design;
     let mut out = CompensatorDesign {
         fs,

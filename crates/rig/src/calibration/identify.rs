@@ -238,8 +238,7 @@ pub fn identify_low<R: CalibrationRig + ?Sized>(
     ctx: &mut StepContext<'_>,
 ) -> Result<LowChannelId> {
     let step = Step::IdentifyLow;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "low channel: MLS excitation, Pantograph only");
+    ctx.begin(step, "low channel: MLS excitation, Pantograph only")?;
     let m = measure_channel(rig, Channel::Low, cfg, step, ctx)?;
     let id = low_from_frf(m.frf, m.excitation, m.raw, cfg)?;
     ctx.report(
@@ -309,8 +308,7 @@ pub fn identify_high<R: CalibrationRig + ?Sized>(
     ctx: &mut StepContext<'_>,
 ) -> Result<HighChannelId> {
     let step = Step::IdentifyHigh;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "high channel: MLS excitation, Haptuator only");
+    ctx.begin(step, "high channel: MLS excitation, Haptuator only")?;
     let m = measure_channel(rig, Channel::High, cfg, step, ctx)?;
     let id = high_from_frf(m.frf, m.excitation, m.raw, cfg)?;
     ctx.report(

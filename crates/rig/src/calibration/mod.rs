@@ -97,8 +97,7 @@ impl CalibrationOutcome {
 
     /// Step 7: write the calibration file to `path` and return it.
     pub fn save(&self, path: &Path, ctx: &mut StepContext<'_>) -> Result<CalibrationFile> {
-        ctx.check_cancel(Step::Save)?;
-        ctx.report(Step::Save, 0.0, &format!("writing {}", path.display()));
+        ctx.begin(Step::Save, &format!("writing {}", path.display()))?;
         let f = self.file()?;
         f.save(path)?;
         ctx.report(Step::Save, 1.0, &format!("saved {}", path.display()));

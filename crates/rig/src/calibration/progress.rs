@@ -60,6 +60,14 @@ impl<'a> StepContext<'a> {
             .report(step, fraction.clamp(0.0, 1.0), message);
     }
 
+    /// A step begins: `Err(Cancelled { step })` once the cancel flag is
+    /// raised, else `message` is reported at fraction 0.
+    pub fn begin(&mut self, step: Step, message: &str) -> Result<()> {
+        self.check_cancel(step)?;
+        self.report(step, 0.0, message);
+        Ok(())
+    }
+
     /// `Err(Cancelled { step })` once the cancel flag is raised.
     pub fn check_cancel(&self, step: Step) -> Result<()> {
         if self.cancel.load(Ordering::Relaxed) {

@@ -167,8 +167,7 @@ pub fn verify<R: CalibrationRig + ?Sized>(
     ctx: &mut StepContext<'_>,
 ) -> Result<Verification> {
     let step = Step::Verify;
-    ctx.check_cancel(step)?;
-    ctx.report(step, 0.0, "stepped sines through the chain");
+    ctx.begin(step, "stepped sines through the chain")?;
     let comp = design.chain_coefficients(xo)?;
     let uncomp = design.uncompensated_coefficients(xo)?;
     let list = bands(low, cfg)?;

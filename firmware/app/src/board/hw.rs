@@ -404,16 +404,7 @@ pub fn init(
             .modify(|_, w| w.usart2en().set_bit());
     }
     dp.USART2.brr().write(|w| unsafe { w.bits((1 << 4) | 5) });
-    dp.USART2.cr1().write(|w| {
-        w.ue()
-            .set_bit()
-            .te()
-            .set_bit()
-            .re()
-            .set_bit()
-            .rxneie()
-            .set_bit()
-    });
+    super::usart2_enable(&dp.USART2);
 
     // USB CDC-ACM.
     let usb = USB {

@@ -61,6 +61,21 @@ const NAME: &str = if cfg!(feature = "qemu") {
     "kilotouch DAQ (STM32F4DISCOVERY)"
 };
 
+/// Turn USART2 on: transmitter, receiver and receive interrupt (its clock
+/// and baud rate are the board's to set first).
+fn usart2_enable(u: &pac::USART2) {
+    u.cr1().write(|w| {
+        w.ue()
+            .set_bit()
+            .te()
+            .set_bit()
+            .re()
+            .set_bit()
+            .rxneie()
+            .set_bit()
+    });
+}
+
 /// The next received byte of USART2, if any (clears an overrun, whose
 /// lost bytes the decoder's resynchronisation absorbs).
 pub fn usart_read() -> Option<u8> {

@@ -98,16 +98,7 @@ pub fn init(
     mut cp: cortex_m::Peripherals,
 ) -> (Board, Link, Frontend, [u8; 24]) {
     dp.RCC.apb1enr().modify(|_, w| w.usart2en().set_bit());
-    dp.USART2.cr1().write(|w| {
-        w.ue()
-            .set_bit()
-            .te()
-            .set_bit()
-            .re()
-            .set_bit()
-            .rxneie()
-            .set_bit()
-    });
+    super::usart2_enable(&dp.USART2);
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD - 1);
     cp.SYST.clear_current();

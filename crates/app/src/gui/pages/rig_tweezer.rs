@@ -24,6 +24,7 @@
 
 use crate::gui::charts::{self, Series};
 use crate::gui::env::{PageEnv, ShellRequest};
+use crate::gui::path_field::labelled_line;
 use crate::gui::work::trap_calibration::{TrapCalibrationDone, TrapCalibrationRun};
 use egui::{Color32, RichText};
 use egui_plot::{PlotPoints, Points};
@@ -156,12 +157,7 @@ impl TweezerSection {
 
     /// The tweezer the field names (empty = `sim`).
     pub fn spec(&self) -> Result<RigSpec, kilotouch_rig::RigError> {
-        let t = self.source_text.trim();
-        if t.is_empty() {
-            Ok(RigSpec::Sim)
-        } else {
-            t.parse()
-        }
+        spec_or_sim(&self.source_text, RigSpec::Sim)
     }
 
     /// Is a record or calibration running?
@@ -269,13 +265,7 @@ impl TweezerSection {
         let busy = self.is_busy();
         ui.add_enabled_ui(!busy, |ui| {
             ui.horizontal(|ui| {
-                let l = ui.label("Tweezer:");
-                ui.add(
-                    egui::TextEdit::singleline(&mut self.source_text)
-                        .hint_text("sim")
-                        .desired_width(220.0),
-                )
-                .labelled_by(l.id);
+                labelled_line(ui, "Tweezer:", &mut self.source_text, "sim", 220.0);
                 ui.weak("sim  ·  serial:/dev/ttyACM1  (`kilotouch emulate tweezer --pty`)");
             });
             match self.spec() {
@@ -645,4 +635,17 @@ fn active_ui(ui: &mut egui::Ui, env: &mut PageEnv<'_>) {
             ui.weak("Active trap calibration: none (the tweezer reports the simulated bead and κ)");
         }
     });
+}
+
+/// The device a spec field names (`--rig`/`--tweezer` syntax), `sim` when
+/// the field is empty or blank.
+///
+/// # Errors
+/// The spec's parse error.
+pub(super) fn spec_or_sim<T>(text: &str, sim: T) -> Result<T, kilotouch_rig::RigError>
+where
+    T: std::str::FromStr<Err = kilotouch_rig::RigError>,
+{
+    let t = text.trim();
+    if t.is_empty() { Ok(sim) } else { t.parse() }
 }

@@ -1,6 +1,7 @@
 //! The wizard's settings: the text fields and choices, and the
 //! [`CalibrationConfig`] they make (validated).
 
+use crate::gui::path_field::labelled_line;
 use kilotouch_rig::calibration::CalibrationConfig;
 
 use super::{CalibrationPage, CrossoverRuleChoice};
@@ -33,13 +34,7 @@ impl CalibrationPage {
                         .num_columns(3)
                         .spacing([12.0, 4.0])
                         .show(ui, |ui| {
-                            let l = ui.label("Noise seed");
-                            ui.add(
-                                egui::TextEdit::singleline(&mut self.seed_text)
-                                    .hint_text("seed")
-                                    .desired_width(120.0),
-                            )
-                            .labelled_by(l.id);
+                            labelled_line(ui, "Noise seed", &mut self.seed_text, "seed", 120.0);
                             ui.label("seed of the simulated sensor noise");
                             ui.end_row();
                             for (name, exc) in [

@@ -347,26 +347,20 @@ impl ResultsPage {
             .default_open(false)
             .show(ui, |ui| {
                 ui.horizontal(|ui| {
-                    let l = ui.label("Participant");
-                    egui::ComboBox::from_id_salt("res-traj-p")
-                        .selected_text(self.traj_participant.clone())
-                        .show_ui(ui, |ui| {
-                            for p in &participants {
-                                ui.selectable_value(&mut self.traj_participant, p.clone(), p);
-                            }
-                        })
-                        .response
-                        .labelled_by(l.id);
-                    let l = ui.label("Condition");
-                    egui::ComboBox::from_id_salt("res-traj-c")
-                        .selected_text(self.traj_condition.clone())
-                        .show_ui(ui, |ui| {
-                            for c in &conditions {
-                                ui.selectable_value(&mut self.traj_condition, c.clone(), c);
-                            }
-                        })
-                        .response
-                        .labelled_by(l.id);
+                    pick_one(
+                        ui,
+                        "Participant",
+                        "res-traj-p",
+                        &mut self.traj_participant,
+                        &participants,
+                    );
+                    pick_one(
+                        ui,
+                        "Condition",
+                        "res-traj-c",
+                        &mut self.traj_condition,
+                        &conditions,
+                    );
                     load = ui
                         .add_enabled(
                             !matches!(self.traj, Traj::Loading(_)),
@@ -475,4 +469,19 @@ impl super::Page for ResultsPage {
                 }
             });
     }
+}
+
+/// `label`, then a drop-down (egui id `id`) that sets `selected` to one of
+/// `options`.
+fn pick_one(ui: &mut egui::Ui, label: &str, id: &str, selected: &mut String, options: &[String]) {
+    let l = ui.label(label);
+    egui::ComboBox::from_id_salt(id)
+        .selected_text(selected.clone())
+        .show_ui(ui, |ui| {
+            for o in options {
+                ui.selectable_value(selected, o.clone(), o);
+            }
+        })
+        .response
+        .labelled_by(l.id);
 }
