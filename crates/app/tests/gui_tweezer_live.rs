@@ -112,13 +112,10 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     assert!(step_until(&mut h, common::WAIT_S, |a| a
         .trap_calibration()
         .is_some()));
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(
-            |x| x.running && x.trap_calibration == Some(r.applied())
-        )));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a)
+            .is_some_and(|x| x.running && x.trap_calibration == Some(r.applied()))
+    }));
     h.step();
     h.get_by_label_contains("Active trap calibration: κ =");
 }

@@ -17,9 +17,7 @@ use std::time::{Duration, Instant};
 
 use common::{Emulator, kilotouch, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
-use kilotouch::session::{
-    FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
-};
+use kilotouch::session::FinishReason;
 use kilotouch_rig::RigConfig;
 use kilotouch_study::protocol::Protocol;
 use serde_json::Value;
@@ -167,11 +165,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
         EngineOptions::default(),
     )
     .unwrap();
-    let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
-    opts.participant = ParticipantKind::Handle;
-    opts.only_participant = Some(0);
-    let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
-    assert!(s.send(SessionCommand::Start));
+    let mut s = common::start_p01_at_the_handle(&out, rig, &mut engine);
     // Wait for the second trial to be under way (one row committed).
     let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     std::thread::sleep(Duration::from_millis(300));
@@ -193,14 +187,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     // Outputs held at zero: the engine's loop stopped with the safety
     // layer tripped.
     let _ = s.close(&mut engine);
-    let t1 = Instant::now();
-    while t1.elapsed().as_secs_f64() < common::WAIT_S {
-        let _ = engine.poll_events();
-        if engine.health().is_some_and(|h| !h.running) {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    common::until_engine_stopped(&mut engine, common::WAIT_S);
     assert!(
         engine
             .health()

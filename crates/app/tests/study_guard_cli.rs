@@ -7,7 +7,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-use common::{bin, kilotouch as run};
+use common::{bin, kilotouch as run, simulate_study};
 use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::{Output, Stdio};
@@ -516,14 +516,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
          trials_per_session = 4294967295\n[task.circling]\n",
     )
     .unwrap();
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        &p.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
+    let o = simulate_study(&p.to_string_lossy(), &out, &[]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(
@@ -539,14 +532,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
          trials_per_session = 2\n[task.circling]\ntimeout_s = 1e300\n",
     )
     .unwrap();
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        &p.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
+    let o = simulate_study(&p.to_string_lossy(), &out, &[]);
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
     assert!(
@@ -615,35 +601,12 @@ fn json_output_survives_a_non_utf8_folder_name() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = write_protocol(tmp.path(), 1);
     let out = tmp.path().join(std::ffi::OsStr::from_bytes(b"st\xffudy"));
-    let o = bin()
-        .args([
-            "study",
-            "simulate",
-            "--protocol",
-            &proto,
-            "--no-raw",
-            "--json",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = simulate_study(&proto, &out, &["--no-raw", "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let j: Value = serde_json::from_slice(&o.stdout).expect("one valid JSON object");
     assert!(j["out"].as_str().unwrap().contains("st\u{fffd}udy"), "{j}");
     // A failing resume of it: each cause once.
-    let o = bin()
-        .args([
-            "study",
-            "simulate",
-            "--protocol",
-            &proto,
-            "--no-raw",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = simulate_study(&proto, &out, &["--no-raw"]);
     let e = stderr(&o);
     let first = e.lines().next().unwrap_or_default().to_owned();
     for line in e.lines().skip(1) {

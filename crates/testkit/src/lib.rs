@@ -112,6 +112,16 @@ pub fn step_until_every(
     false
 }
 
+/// [`step_until_every`] (≤ [`WAIT_S`]) until the app's engine reports.
+pub fn until_engine_reporting(h: &mut Harness<'_, KilotouchApp>, pause: Duration) -> bool {
+    step_until_every(h, pause, WAIT_S, engine_reporting)
+}
+
+/// [`step_until_every`] (≤ [`WAIT_S`]) until the Study page's sitting finished.
+pub fn until_study_finished(h: &mut Harness<'_, KilotouchApp>, pause: Duration) -> bool {
+    step_until_every(h, pause, WAIT_S, |a| a.study.finished().is_some())
+}
+
 /// Step until the Study page's sitting opened (after its size check,
 /// which runs on a thread of its own) or the page shows an error; whether
 /// it opened.
@@ -145,6 +155,60 @@ pub fn open_session(h: &mut AppHarness) {
     h.get_by_label("Open session").click();
     assert!(until_sitting_opened(h), "{:?}", h.state().study.error());
     h.step();
+}
+
+/// The health the app's engine last reported, if it is up and has.
+pub fn engine_health(a: &KilotouchApp) -> Option<&kilotouch::engine::Health> {
+    a.engine.as_ref().and_then(|e| e.health())
+}
+
+/// The protocol `tests/data/tiny.toml` of the app: 2 participants × 3
+/// conditions × 1 test trial, 1 practice trial per condition, 2 s
+/// time-outs (P01's sitting is 6 trials).
+pub fn tiny_protocol() -> kilotouch_study::protocol::Protocol {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../app/tests/data/tiny.toml");
+    kilotouch_study::protocol::Protocol::load(Path::new(path)).expect("tiny.toml")
+}
+
+/// Spawn on `engine` P01's sitting of [`tiny_protocol`], its participant
+/// at the handle, writing to `out`, and start it.
+pub fn start_p01_at_the_handle(
+    out: &Path,
+    rig: kilotouch_rig::RigConfig,
+    engine: &mut kilotouch::engine::EngineHandle,
+) -> kilotouch::session::SessionHandle {
+    use kilotouch::session::{ParticipantKind, SessionCommand, SessionHandle, SessionOptions};
+    let mut opts = SessionOptions::new(out, Some(tiny_protocol()), rig);
+    opts.participant = ParticipantKind::Handle;
+    opts.only_participant = Some(0);
+    let mut s = SessionHandle::spawn(opts, engine).expect("spawn the sitting");
+    assert!(s.send(SessionCommand::Start));
+    s
+}
+
+/// Poll `engine`'s events (≤ `secs`) until it reports its loop stopped.
+pub fn until_engine_stopped(engine: &mut kilotouch::engine::EngineHandle, secs: f64) {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        let _ = engine.poll_events();
+        if engine.health().is_some_and(|h| !h.running) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A `rig check --json` report of a link that corrupts and drops bytes at
+/// 2e-4 each: ≈ 1 − (1 − 4e-4)^162 ≈ 6 % of the frames of 10 samples are
+/// hit, every frame is received or lost, and CRC errors are counted.
+pub fn assert_corruption_counted(v: &Value) {
+    let (frames, lost) = (
+        v["frames"].as_u64().expect("frames"),
+        v["lost"].as_u64().expect("lost"),
+    );
+    assert!(lost > 100 && lost < frames / 4, "{v}");
+    assert!(v["crc_errors"].as_u64().expect("crc_errors") > 5, "{v}");
+    assert_eq!(v["received"].as_u64().expect("received") + lost, frames);
 }
 
 /// Whether the app's engine is up and has reported its health.
@@ -239,6 +303,30 @@ pub fn bin() -> Command {
 /// Run the executable with `args` and wait for it.
 pub fn kilotouch<S: AsRef<OsStr>>(args: &[S]) -> Output {
     bin().args(args).output().expect("run kilotouch")
+}
+
+/// Run `study simulate --protocol PROTOCOL --out OUT` with `extra` flags
+/// and wait for it (`out` as given, so it may be any path).
+pub fn simulate_study(protocol: &str, out: &Path, extra: &[&str]) -> Output {
+    bin()
+        .args(["study", "simulate", "--protocol", protocol, "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .expect("run kilotouch")
+}
+
+/// The arguments of `rig check --rig RIG --duration SECONDS --json`.
+pub fn rig_check_args<'a>(rig: &'a str, seconds: &'a str) -> [&'a str; 7] {
+    [
+        "rig",
+        "check",
+        "--rig",
+        rig,
+        "--duration",
+        seconds,
+        "--json",
+    ]
 }
 
 /// Run the executable with `args`; it must succeed (its stderr shown if
