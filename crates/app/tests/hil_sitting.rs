@@ -15,7 +15,7 @@ use kilotouch_testkit as common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{Emulator, kilotouch, rows_so_far as rows};
+use common::{Emulator, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
 use kilotouch::session::FinishReason;
 use kilotouch_rig::RigConfig;
@@ -49,24 +49,7 @@ fn rig_of(dev: &Emulator) -> String {
 }
 
 fn study_run(rig: &str, out: &Path, resume: bool) -> std::process::Output {
-    let out_s = out.to_str().unwrap();
-    let mut args = vec![
-        "study",
-        "run",
-        "--protocol",
-        TINY,
-        "--rig",
-        rig,
-        "--participant",
-        "P01",
-        "--out",
-        out_s,
-        "--json",
-    ];
-    if resume {
-        args.push("--resume");
-    }
-    kilotouch(&args)
+    common::study_run_p01(TINY, rig, out, resume, &[])
 }
 
 #[test]
@@ -165,7 +148,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
         EngineOptions::default(),
     )
     .unwrap();
-    let mut s = common::start_p01_at_the_handle(&out, rig, &mut engine);
+    let mut s = common::start_p01_at_the_handle(tiny(), &out, rig, &mut engine);
     // Wait for the second trial to be under way (one row committed).
     let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     std::thread::sleep(Duration::from_millis(300));

@@ -70,27 +70,8 @@ fn study_run_with(
 ) -> std::process::Output {
     let rig = format!("{},lead=1{}", daq.rig(), common::TEST_HOST_TIMEOUT);
     let tweezer = format!("{}{tweezer_opts}", tw.rig());
-    let out_s = out.to_str().unwrap();
-    let mut args = vec![
-        "study",
-        "run",
-        "--protocol",
-        TINY,
-        "--rig",
-        &rig,
-        "--tweezer",
-        &tweezer,
-        "--participant",
-        "P01",
-        "--out",
-        out_s,
-        "--json",
-    ];
-    if resume {
-        args.push("--resume");
-    }
-    args.extend_from_slice(extra);
-    kilotouch(&args)
+    let extra = [&["--tweezer", tweezer.as_str()], extra].concat();
+    common::study_run_p01(TINY, &rig, out, resume, &extra)
 }
 
 /// `kilotouch tweezer record --rig SPEC --duration-s 2 --trap-um SPOT
@@ -288,7 +269,7 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
         EngineOptions::default(),
     )
     .unwrap();
-    let mut s = common::start_p01_at_the_handle(&out, rig, &mut engine);
+    let mut s = common::start_p01_at_the_handle(tiny(), &out, rig, &mut engine);
     let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     t.kill();
     let killed = Instant::now();

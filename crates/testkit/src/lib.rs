@@ -162,23 +162,16 @@ pub fn engine_health(a: &KilotouchApp) -> Option<&kilotouch::engine::Health> {
     a.engine.as_ref().and_then(|e| e.health())
 }
 
-/// The protocol `tests/data/tiny.toml` of the app: 2 participants × 3
-/// conditions × 1 test trial, 1 practice trial per condition, 2 s
-/// time-outs (P01's sitting is 6 trials).
-pub fn tiny_protocol() -> kilotouch_study::protocol::Protocol {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../app/tests/data/tiny.toml");
-    kilotouch_study::protocol::Protocol::load(Path::new(path)).expect("tiny.toml")
-}
-
-/// Spawn on `engine` P01's sitting of [`tiny_protocol`], its participant
-/// at the handle, writing to `out`, and start it.
+/// Spawn on `engine` the sitting of the first participant (P01) of
+/// `protocol`, its participant at the handle, writing to `out`, and start it.
 pub fn start_p01_at_the_handle(
+    protocol: kilotouch_study::protocol::Protocol,
     out: &Path,
     rig: kilotouch_rig::RigConfig,
     engine: &mut kilotouch::engine::EngineHandle,
 ) -> kilotouch::session::SessionHandle {
     use kilotouch::session::{ParticipantKind, SessionCommand, SessionHandle, SessionOptions};
-    let mut opts = SessionOptions::new(out, Some(tiny_protocol()), rig);
+    let mut opts = SessionOptions::new(out, Some(protocol), rig);
     opts.participant = ParticipantKind::Handle;
     opts.only_participant = Some(0);
     let mut s = SessionHandle::spawn(opts, engine).expect("spawn the sitting");
@@ -327,6 +320,36 @@ pub fn rig_check_args<'a>(rig: &'a str, seconds: &'a str) -> [&'a str; 7] {
         seconds,
         "--json",
     ]
+}
+
+/// Run `study run --protocol PROTOCOL --rig RIG --participant P01 --out OUT
+/// --json` (with `--resume` if `resume`) and `extra`, and wait for it.
+pub fn study_run_p01(
+    protocol: &str,
+    rig: &str,
+    out: &Path,
+    resume: bool,
+    extra: &[&str],
+) -> Output {
+    let out_s = out.to_str().expect("utf-8 out");
+    let mut args = vec![
+        "study",
+        "run",
+        "--protocol",
+        protocol,
+        "--rig",
+        rig,
+        "--participant",
+        "P01",
+        "--out",
+        out_s,
+        "--json",
+    ];
+    if resume {
+        args.push("--resume");
+    }
+    args.extend_from_slice(extra);
+    kilotouch(&args)
 }
 
 /// Run the executable with `args`; it must succeed (its stderr shown if
