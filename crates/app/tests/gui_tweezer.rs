@@ -95,13 +95,7 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     // A plain Lorentzian on the point-sampled record misfits near Nyquist:
     // refused with the reason, Apply disabled.
     h.state_mut().rig_page_mut().tweezer.aliased = false;
-    h.get_by_label("Record and calibrate").click();
-    h.step();
-    assert!(step_until(&mut h, common::WAIT_S, |a| !a
-        .rig_page()
-        .tweezer
-        .is_busy()));
-    h.step();
+    common::record_and_calibrate(&mut h);
     h.get_by_label_contains("not applicable:");
     assert!(h.get_by_label("Apply").accesskit_node().is_disabled());
 }

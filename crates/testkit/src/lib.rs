@@ -204,6 +204,15 @@ pub fn assert_corruption_counted(v: &Value) {
     assert_eq!(v["received"].as_u64().expect("received") + lost, frames);
 }
 
+/// Click the Rig page's "Record and calibrate" and step (≤ [`WAIT_S`])
+/// until the tweezer panel is no longer busy.
+pub fn record_and_calibrate(h: &mut AppHarness) {
+    h.get_by_label("Record and calibrate").click();
+    h.step();
+    assert!(step_until(h, WAIT_S, |a| !a.rig_page().tweezer.is_busy()));
+    h.step();
+}
+
 /// Whether the app's engine is up and has reported its health.
 pub fn engine_reporting(a: &KilotouchApp) -> bool {
     a.engine.as_ref().is_some_and(|e| e.health().is_some())
