@@ -70,6 +70,25 @@ fn a_csv_naming_a_column_twice_is_refused() {
     );
 }
 
+/// `frf` of the columns x → y of `path` at 8 kHz in 256-sample segments,
+/// with `extra`.
+fn frf_8khz_args<'a>(path: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "frf",
+        path,
+        "--fs",
+        "8000",
+        "--input",
+        "x",
+        "--output",
+        "y",
+        "--nperseg",
+        "256",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
 /// An all-zero input used to give H1 = 0 and coherence 0, exit 0: now an
 /// error; bins without input power in an otherwise good record are null.
 #[test]
@@ -91,34 +110,11 @@ fn an_frf_without_input_power_is_undefined() {
     }
     let zpath = write(&dir, "zero.csv", &zero);
     refused(
-        &[
-            "frf",
-            &zpath,
-            "--fs",
-            "8000",
-            "--input",
-            "x",
-            "--output",
-            "y",
-            "--nperseg",
-            "256",
-        ],
+        &frf_8khz_args(&zpath, &[]),
         &["input column `x` has no power", "undefined"],
     );
     let ppath = write(&dir, "tone.csv", &part);
-    let v = json_ok(&[
-        "frf",
-        &ppath,
-        "--fs",
-        "8000",
-        "--input",
-        "x",
-        "--output",
-        "y",
-        "--nperseg",
-        "256",
-        "--json",
-    ]);
+    let v = json_ok(&frf_8khz_args(&ppath, &["--json"]));
     let re = v["re"].as_array().expect("re");
     let undefined = v["undefined_bins"].as_u64().expect("count");
     assert_eq!(re.iter().filter(|x| x.is_null()).count() as u64, undefined);
