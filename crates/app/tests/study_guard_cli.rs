@@ -22,6 +22,17 @@ fn stderr(o: &Output) -> String {
     common::stderr_text(o)
 }
 
+/// `rig default-config`'s text and its `k_1 = …` line.
+fn default_rig_file_and_k_1() -> (String, String) {
+    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("k_1 ="))
+        .unwrap()
+        .to_owned();
+    (text, line)
+}
+
 fn write_protocol(dir: &Path, trials: u32) -> String {
     common::write_circling_protocol(dir, "guard-test", trials, 0, 7)
 }
@@ -186,13 +197,8 @@ fn a_resume_with_another_rig_file_or_raw_setting_is_refused() {
     let o = run(&simulate(&proto, &out, &[]));
     assert!(o.status.success(), "{}", stderr(&o));
     let rig = tmp.path().join("rig.toml");
-    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
     // A different plant: the Pantograph's spring 10 % stiffer.
-    let line = text
-        .lines()
-        .find(|l| l.trim_start().starts_with("k_1 ="))
-        .unwrap()
-        .to_owned();
+    let (text, line) = default_rig_file_and_k_1();
     let v: f64 = line.split('=').nth(1).unwrap().trim().parse().unwrap();
     let changed = text.replace(&line, &format!("k_1 = {}", v * 1.1));
     std::fs::write(&rig, changed).unwrap();
@@ -563,12 +569,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
 #[test]
 fn an_absurd_rig_value_is_refused_naming_the_field() {
     let tmp = tempfile::tempdir().unwrap();
-    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.trim_start().starts_with("k_1 ="))
-        .unwrap()
-        .to_owned();
+    let (text, line) = default_rig_file_and_k_1();
     let rig = tmp.path().join("rig.toml");
     std::fs::write(&rig, text.replace(&line, "k_1 = 1e308")).unwrap();
     let o = run(&[
