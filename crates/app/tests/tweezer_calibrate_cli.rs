@@ -211,6 +211,24 @@ fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
     );
 }
 
+/// `tweezer record` of 10 s of the simulated tweezer into `out` (JSON
+/// report), with `extra`.
+fn sim_record_args<'a>(out: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "tweezer",
+        "record",
+        "--rig",
+        "sim",
+        "--duration-s",
+        "10",
+        "--out",
+        out,
+        "--json",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
 /// `tweezer calibrate` of column `col` of a simulated-tweezer record `rec`
 /// (10 kHz, 1.5 µm bead in water at 20 °C, aliased, JSON), with `extra`.
 fn sim_calibrate_args<'a>(rec: &'a str, col: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
@@ -254,17 +272,7 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
     // in free solution and calibrates to the rig's κ = 20 pN/µm.
     let dir = tempfile::tempdir().unwrap();
     let free = dir.path().join("free.csv");
-    let r = json_ok(&[
-        "tweezer",
-        "record",
-        "--rig",
-        "sim",
-        "--duration-s",
-        "10",
-        "--out",
-        free.to_str().unwrap(),
-        "--json",
-    ]);
+    let r = json_ok(&sim_record_args(free.to_str().unwrap(), &[]));
     assert_eq!(r["spot"], "free", "{r}");
     assert!(r["warnings"].as_array().unwrap().is_empty(), "{r}");
     assert_eq!(r["kappa_bias"][0].as_f64(), Some(0.0), "{r}");
@@ -279,19 +287,10 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
     }
 
     let near = dir.path().join("near.csv");
-    let out = run(&[
-        "tweezer",
-        "record",
-        "--rig",
-        "sim",
-        "--duration-s",
-        "10",
-        "--trap-um",
-        "0,0",
-        "--out",
+    let out = run(&sim_record_args(
         near.to_str().unwrap(),
-        "--json",
-    ]);
+        &["--trap-um", "0,0"],
+    ));
     assert!(out.status.success());
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
