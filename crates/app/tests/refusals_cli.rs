@@ -96,12 +96,7 @@ fn an_frf_without_input_power_is_undefined() {
     let dir = tempfile::tempdir().expect("tmp");
     let mut zero = String::from("x,y\n");
     let mut part = String::from("x,y\n");
-    let mut s: u32 = 5;
-    for i in 0..4096 {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        let y = f64::from(s) / f64::from(u32::MAX) - 0.5;
+    for (i, y) in (0..4096).zip(common::xorshift_noise(5)) {
         zero += &format!("0,{y}\n");
         // A 1 kHz tone at fs = 8 kHz, nperseg = 256: whole periods in every
         // segment, so the Hann-windowed input has power in bins 31–33 only.

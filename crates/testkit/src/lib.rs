@@ -218,6 +218,18 @@ pub fn engine_reporting(a: &KilotouchApp) -> bool {
     a.engine.as_ref().is_some_and(|e| e.health().is_some())
 }
 
+/// Uniform noise in [−0.5, 0.5): successive states of the 32-bit xorshift
+/// generator (13, 17, 5) from `seed`, scaled by 1/(2³² − 1).
+pub fn xorshift_noise(seed: u32) -> impl Iterator<Item = f64> {
+    let mut s = seed;
+    std::iter::repeat_with(move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        f64::from(s) / f64::from(u32::MAX) - 0.5
+    })
+}
+
 /// Root mean square of `x` (0 for no values).
 pub fn rms(x: impl Iterator<Item = f64>) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
