@@ -164,12 +164,7 @@ fn frf_recovers_a_known_gain_and_delay() {
     let dir = tempfile::tempdir().unwrap();
     let mut text = String::from("force,acc\n");
     let mut prev = 0.0;
-    let mut s: u32 = 7;
-    for _ in 0..16384 {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        let x = s as f64 / u32::MAX as f64 - 0.5;
+    for x in common::xorshift_noise(7).take(16384) {
         text += &format!("{x},{}\n", 0.5 * prev);
         prev = x;
     }

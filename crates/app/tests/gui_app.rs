@@ -50,10 +50,7 @@ fn every_page_opens() {
 
 fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
     assert!(
-        step_until(h, common::WAIT_S, |a| a
-            .engine
-            .as_ref()
-            .and_then(|e| e.health())
+        step_until(h, common::WAIT_S, |a| common::engine_health(a)
             .is_some_and(|x| x.safety == SafetyState::EStop)),
         "engine did not report the emergency stop"
     );
@@ -82,10 +79,7 @@ fn outputs_zeroed_after_stop(h: &mut Harness<'_, KilotouchApp>) {
 
 fn armed(h: &mut Harness<'_, KilotouchApp>) {
     assert!(
-        step_until(h, common::WAIT_S, |a| a
-            .engine
-            .as_ref()
-            .and_then(|e| e.health())
+        step_until(h, common::WAIT_S, |a| common::engine_health(a)
             .is_some_and(|x| x.safety == SafetyState::Enabled)
             && a.explore.last.is_some_and(|s| s.output.force_n[0] != 0.0)),
         "engine never armed"

@@ -60,11 +60,9 @@ fn the_engine_keeps_its_rate_while_the_gui_resizes_and_plots() {
     let floor = reference.stop().unwrap();
     // One more health report after the busy period.
     let seen = h.state().engine.as_ref().unwrap().health().unwrap().blocks;
-    assert!(common::step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|x| x.blocks > seen)));
+    assert!(common::step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|x| x.blocks > seen)
+    }));
     let after = *h.state().engine.as_ref().unwrap().health().unwrap();
     let misses = after.deadline_misses - before.deadline_misses;
     let fps = frames as f64 / secs;

@@ -7,7 +7,7 @@
 
 use kilotouch_testkit as common;
 
-use common::{engine_reporting, step_until_every};
+use common::step_until_every;
 use egui_kittest::kittest::Queryable;
 use kilotouch::gui::participant_screen::Routine;
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
@@ -64,12 +64,7 @@ fn open(dir: &std::path::Path) -> H {
         s.kind = ParticipantKind::Mouse;
         s.speed = Speed::RealTime;
     }
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     open_and_start(&mut h);
     h
@@ -77,6 +72,14 @@ fn open(dir: &std::path::Path) -> H {
 
 fn routine(h: &H) -> Option<Routine> {
     h.state().study.participant_screen().map(|s| s.routine)
+}
+
+/// Step (≤ [`common::WAIT_S`]) until the sitting is paused with no trial
+/// in progress.
+fn until_paused_between_trials(h: &mut H) -> bool {
+    step_until_every(h, POLL, common::WAIT_S, |a| {
+        matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
+    })
 }
 
 fn step_until_routine(h: &mut H, secs: f64, want: impl Fn(&Routine) -> bool) -> bool {
@@ -184,10 +187,7 @@ fn a_person_goes_through_every_screen_of_the_protocol() {
         "Session 2 of 2 — trial 1 of 2"
     );
     // Last trial → the study is done → the end screen stays.
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));
     h.step();
     h.step();
@@ -232,12 +232,7 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     until_engine_began_the_trial(&mut h);
     // Esc: the trial is aborted (its row kept), the sitting paused.
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
-    ));
+    assert!(until_paused_between_trials(&mut h));
     h.step();
     h.step();
     assert!(h.state().study.estop_latched());
@@ -323,11 +318,9 @@ fn emergency_stop_during_a_trial_then_a_confirmed_resume() {
     assert_no_stop_notice(&mut h);
     // Stop sitting: the Explore engine takes the rig back, not armed.
     h.get_by_label("Stop sitting").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some()));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| {
+        common::engine_health(a).is_some()
+    }));
     // Give it time to (wrongly) arm itself.
     let t0 = Instant::now();
     while t0.elapsed() < Duration::from_millis(300) {
@@ -389,12 +382,7 @@ fn an_unreset_stop_keeps_the_engine_latched_after_the_sitting() {
         Routine::Instructions { .. }
     )));
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
-    ));
+    assert!(until_paused_between_trials(&mut h));
     h.get_by_label("Stop sitting").click();
     assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a.estop_latched()));
     assert!(h.state().any_estop_latched());
@@ -470,12 +458,7 @@ fn a_short_sitting_on_the_emulated_rig_from_the_study_page() {
     ));
     until_engine_began_the_trial(&mut h);
     h.key_press(egui::Key::Escape);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        |a| matches!(a.study.runner_state(), Some(RunnerState::Paused(None)))
-    ));
+    assert!(until_paused_between_trials(&mut h));
     h.step();
     h.step();
     assert!(h.query_by_label_contains("OUTPUTS HELD AT ZERO").is_some());

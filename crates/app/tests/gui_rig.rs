@@ -74,11 +74,9 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
         h.state().is_connecting(),
         h.state().notices().collect::<Vec<_>>()
     );
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|x| x.safety == SafetyState::Enabled)));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|x| x.safety == SafetyState::Enabled)
+    }));
     h.get_by_label_contains(&format!("serial:{}", emu.path));
     h.get_by_label("Identity");
     // The closed loop's margins with the chain the engine runs.
@@ -99,11 +97,9 @@ fn connect_fault_and_reconnect_a_serial_rig_from_the_rig_page() {
     // The device vanishes: error on the page, FAULT in the status bar, the
     // app keeps running, Reconnect offered.
     emu.kill();
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|x| x.safety == SafetyState::Fault && !x.running)));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|x| x.safety == SafetyState::Fault && !x.running)
+    }));
     h.step();
     h.get_by_label_contains("Rig error:");
     h.get_by_label("FAULT");

@@ -9,7 +9,7 @@
 
 use kilotouch_testkit as common;
 
-use common::{AppHarness, engine_reporting, open_session, step_until_every};
+use common::{AppHarness, open_session, step_until_every};
 use egui_kittest::kittest::Queryable;
 use kilotouch::session::{FinishReason, ParticipantKind, Speed};
 use kilotouch_study::export::{TRIALS_FILE, read_trials};
@@ -50,12 +50,7 @@ fn tiny_folder() -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) 
 fn study_page_runs_a_simulated_sitting() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "jane@example.org", &out);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     // An e-mail address is refused as participant ID.
     assert!(h.query_by_label_contains("e-mail").is_some());
@@ -88,10 +83,7 @@ fn study_page_runs_a_simulated_sitting() {
             .is_some()
     );
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     assert_eq!(
         h.state().study.finished(),
         Some(&FinishReason::ParticipantDone("P01".into()))
@@ -105,11 +97,9 @@ fn study_page_runs_a_simulated_sitting() {
     assert_eq!(h.state().study.rows(), &rows[..]);
     assert!(rows.iter().all(|r| r.participant == "P01"));
     // Free exploration has the engine back, stopped.
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|h| !h.running)));
+    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|h| !h.running)
+    }));
     // The folder now offers to resume at P02's first trial.
     h.step();
     assert!(h.query_by_label_contains("Resume at trial P02").is_some());
@@ -133,12 +123,7 @@ fn unsuccessful_practice_trials_are_run_again_in_a_sitting_from_the_study_page()
     .unwrap();
     let out = dir.path().join("out");
     let mut h = study_page(&proto, "P01", &out);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     assert!(
         h.query_by_label_contains(
@@ -152,10 +137,7 @@ fn unsuccessful_practice_trials_are_run_again_in_a_sitting_from_the_study_page()
             .is_some()
     );
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     h.step();
     h.step();
     // P01: 3 practice trials, 3 extra ones, 3 test trials; the plan grew
@@ -203,12 +185,7 @@ fn study_page_records_the_chosen_calibration() {
             s.calibration = choice;
             s.calibration_file = cal.display().to_string();
         }
-        assert!(step_until_every(
-            &mut h,
-            POLL,
-            common::WAIT_S,
-            engine_reporting
-        ));
+        assert!(common::until_engine_reporting(&mut h, POLL));
         h.step();
         h.step();
         let shown = match choice {
@@ -218,10 +195,7 @@ fn study_page_records_the_chosen_calibration() {
         assert!(h.query_by_label_contains(&shown).is_some(), "{shown}");
         open_session(&mut h);
         h.get_by_label("Start").click();
-        assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-            .study
-            .finished()
-            .is_some()));
+        assert!(common::until_study_finished(&mut h, POLL));
         let session: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("session.json")).unwrap())
                 .unwrap();
@@ -243,22 +217,14 @@ fn study_page_records_the_chosen_calibration() {
 fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     h.step();
     let resume_before = h.get_by_label("Resume").rect();
     let radio_before = h.get_by_label("person (mouse)").rect();
     open_session(&mut h);
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     h.step();
     h.step();
     assert!(
@@ -296,19 +262,11 @@ fn a_finished_participant_is_no_crash_and_switching_clears_the_console() {
 fn run_all_remaining_participants_finishes_the_study() {
     let (dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "", &out);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     h.step();
     h.get_by_label("Run all remaining participants").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     assert_eq!(h.state().study.finished(), Some(&FinishReason::StudyDone));
     let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
     assert_eq!(rows.len(), 6, "2 participants × 3 conditions × 1 trial");
@@ -347,12 +305,7 @@ fn until_label(
 fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     let (dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     // Every sitting with raw files is "large" at a 1 kB threshold.
     h.state_mut().study.size_gate.confirm_over_bytes = 1_000;
     h.step();
@@ -387,10 +340,7 @@ fn a_large_sitting_is_confirmed_first_and_one_beyond_the_free_space_refused() {
     );
     h.step();
     h.get_by_label("Start").click();
-    assert!(step_until_every(&mut h, POLL, common::WAIT_S, |a| a
-        .study
-        .finished()
-        .is_some()));
+    assert!(common::until_study_finished(&mut h, POLL));
     let rows = read_trials(&out.join(TRIALS_FILE)).unwrap().rows;
     assert_eq!(rows.len(), 3);
     assert!(rows.iter().all(|r| r.raw_file.is_empty()), "{rows:?}");
@@ -424,12 +374,7 @@ fn a_separate_participant_window_is_mirrored_on_the_study_page() {
     let (_dir, proto, out) = tiny_folder();
     let mut h = study_page(&proto, "P01", &out);
     h.state_mut().study.separate_window = true;
-    assert!(step_until_every(
-        &mut h,
-        POLL,
-        common::WAIT_S,
-        engine_reporting
-    ));
+    assert!(common::until_engine_reporting(&mut h, POLL));
     h.step();
     open_session(&mut h);
     h.step();

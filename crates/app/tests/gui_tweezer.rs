@@ -70,11 +70,9 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     h.step();
     h.get_by_label_contains("Active trap calibration: κ =");
     // The engine's tweezer reports through it.
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|x| x.trap_calibration == Some(r.applied()))));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|x| x.trap_calibration == Some(r.applied()))
+    }));
     // The Study page says what its session.json will record.
     h.state_mut().page = Page::Study;
     h.step();
@@ -90,22 +88,14 @@ fn record_calibrate_and_apply_the_simulated_trap_from_the_rig_page() {
     assert!(step_until(&mut h, common::WAIT_S, |a| a
         .trap_calibration()
         .is_none()));
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(|x| x.trap_calibration.is_none())));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a).is_some_and(|x| x.trap_calibration.is_none())
+    }));
 
     // A plain Lorentzian on the point-sampled record misfits near Nyquist:
     // refused with the reason, Apply disabled.
     h.state_mut().rig_page_mut().tweezer.aliased = false;
-    h.get_by_label("Record and calibrate").click();
-    h.step();
-    assert!(step_until(&mut h, common::WAIT_S, |a| !a
-        .rig_page()
-        .tweezer
-        .is_busy()));
-    h.step();
+    common::record_and_calibrate(&mut h);
     h.get_by_label_contains("not applicable:");
     assert!(h.get_by_label("Apply").accesskit_node().is_disabled());
 }

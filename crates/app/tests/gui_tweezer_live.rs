@@ -38,13 +38,7 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
         t.duration_s = 2.0;
     }
     h.step();
-    h.get_by_label("Record and calibrate").click();
-    h.step();
-    assert!(step_until(&mut h, common::WAIT_S, |a| !a
-        .rig_page()
-        .tweezer
-        .is_busy()));
-    h.step();
+    common::record_and_calibrate(&mut h);
     assert_eq!(h.state().rig_page().tweezer.error(), None);
     let r = h.state().rig_page().tweezer.result().unwrap().clone();
     assert_eq!(r.source, emu.rig());
@@ -112,13 +106,10 @@ fn calibrate_the_live_tweezer_and_apply_it_to_the_engine_that_drives_it() {
     assert!(step_until(&mut h, common::WAIT_S, |a| a
         .trap_calibration()
         .is_some()));
-    assert!(step_until(&mut h, common::WAIT_S, |a| a
-        .engine
-        .as_ref()
-        .and_then(|e| e.health())
-        .is_some_and(
-            |x| x.running && x.trap_calibration == Some(r.applied())
-        )));
+    assert!(step_until(&mut h, common::WAIT_S, |a| {
+        common::engine_health(a)
+            .is_some_and(|x| x.running && x.trap_calibration == Some(r.applied()))
+    }));
     h.step();
     h.get_by_label_contains("Active trap calibration: κ =");
 }

@@ -15,11 +15,9 @@ use kilotouch_testkit as common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{Emulator, kilotouch, rows_so_far as rows};
+use common::{Emulator, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
-use kilotouch::session::{
-    FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
-};
+use kilotouch::session::FinishReason;
 use kilotouch_rig::RigConfig;
 use kilotouch_study::protocol::Protocol;
 use serde_json::Value;
@@ -51,24 +49,7 @@ fn rig_of(dev: &Emulator) -> String {
 }
 
 fn study_run(rig: &str, out: &Path, resume: bool) -> std::process::Output {
-    let out_s = out.to_str().unwrap();
-    let mut args = vec![
-        "study",
-        "run",
-        "--protocol",
-        TINY,
-        "--rig",
-        rig,
-        "--participant",
-        "P01",
-        "--out",
-        out_s,
-        "--json",
-    ];
-    if resume {
-        args.push("--resume");
-    }
-    kilotouch(&args)
+    common::study_run_p01(TINY, rig, out, resume, &[])
 }
 
 #[test]
@@ -167,11 +148,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
         EngineOptions::default(),
     )
     .unwrap();
-    let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
-    opts.participant = ParticipantKind::Handle;
-    opts.only_participant = Some(0);
-    let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
-    assert!(s.send(SessionCommand::Start));
+    let mut s = common::start_p01_at_the_handle(tiny(), &out, rig, &mut engine);
     // Wait for the second trial to be under way (one row committed).
     let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     std::thread::sleep(Duration::from_millis(300));
@@ -193,14 +170,7 @@ fn a_killed_device_ends_the_sitting_and_resume_continues_at_the_aborted_trial() 
     // Outputs held at zero: the engine's loop stopped with the safety
     // layer tripped.
     let _ = s.close(&mut engine);
-    let t1 = Instant::now();
-    while t1.elapsed().as_secs_f64() < common::WAIT_S {
-        let _ = engine.poll_events();
-        if engine.health().is_some_and(|h| !h.running) {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    common::until_engine_stopped(&mut engine, common::WAIT_S);
     assert!(
         engine
             .health()

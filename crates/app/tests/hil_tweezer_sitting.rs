@@ -14,13 +14,11 @@
 use kilotouch_testkit as common;
 
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use common::{Emulator, kilotouch, rows_so_far as rows};
 use kilotouch::engine::{EngineHandle, EngineOptions};
-use kilotouch::session::{
-    FinishReason, ParticipantKind, SessionCommand, SessionHandle, SessionOptions,
-};
+use kilotouch::session::FinishReason;
 use kilotouch_rig::device::TweezerSpec;
 use kilotouch_rig::tweezer::surface_drag;
 use kilotouch_rig::{RigConfig, TweezerParams};
@@ -72,27 +70,8 @@ fn study_run_with(
 ) -> std::process::Output {
     let rig = format!("{},lead=1{}", daq.rig(), common::TEST_HOST_TIMEOUT);
     let tweezer = format!("{}{tweezer_opts}", tw.rig());
-    let out_s = out.to_str().unwrap();
-    let mut args = vec![
-        "study",
-        "run",
-        "--protocol",
-        TINY,
-        "--rig",
-        &rig,
-        "--tweezer",
-        &tweezer,
-        "--participant",
-        "P01",
-        "--out",
-        out_s,
-        "--json",
-    ];
-    if resume {
-        args.push("--resume");
-    }
-    args.extend_from_slice(extra);
-    kilotouch(&args)
+    let extra = [&["--tweezer", tweezer.as_str()], extra].concat();
+    common::study_run_p01(TINY, &rig, out, resume, &extra)
 }
 
 /// `kilotouch tweezer record --rig SPEC --duration-s 2 --trap-um SPOT
@@ -290,11 +269,7 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
         EngineOptions::default(),
     )
     .unwrap();
-    let mut opts = SessionOptions::new(&out, Some(tiny()), rig);
-    opts.participant = ParticipantKind::Handle;
-    opts.only_participant = Some(0);
-    let mut s = SessionHandle::spawn(opts, &mut engine).unwrap();
-    assert!(s.send(SessionCommand::Start));
+    let mut s = common::start_p01_at_the_handle(tiny(), &out, rig, &mut engine);
     let mut committed = common::until_trials_started(&mut engine, &mut s, 2);
     t.kill();
     let killed = Instant::now();
@@ -308,14 +283,7 @@ fn a_killed_tweezer_ends_the_sitting_naming_it_and_resume_continues() {
     );
     assert!(ended_s < 5.0, "ended {ended_s:.2} s after the kill");
     let _ = s.close(&mut engine);
-    let t1 = Instant::now();
-    while t1.elapsed() < Duration::from_secs(2) {
-        let _ = engine.poll_events();
-        if engine.health().is_some_and(|h| !h.running) {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    common::until_engine_stopped(&mut engine, 2.0);
     assert!(
         engine
             .health()

@@ -70,45 +70,12 @@ fn a_csv_naming_a_column_twice_is_refused() {
     );
 }
 
-/// An all-zero input used to give H1 = 0 and coherence 0, exit 0: now an
-/// error; bins without input power in an otherwise good record are null.
-#[test]
-fn an_frf_without_input_power_is_undefined() {
-    let dir = tempfile::tempdir().expect("tmp");
-    let mut zero = String::from("x,y\n");
-    let mut part = String::from("x,y\n");
-    let mut s: u32 = 5;
-    for i in 0..4096 {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        let y = f64::from(s) / f64::from(u32::MAX) - 0.5;
-        zero += &format!("0,{y}\n");
-        // A 1 kHz tone at fs = 8 kHz, nperseg = 256: whole periods in every
-        // segment, so the Hann-windowed input has power in bins 31–33 only.
-        let x = (2.0 * std::f64::consts::PI * 1000.0 * f64::from(i) / 8000.0).sin();
-        part += &format!("{x},{}\n", 0.5 * x);
-    }
-    let zpath = write(&dir, "zero.csv", &zero);
-    refused(
-        &[
-            "frf",
-            &zpath,
-            "--fs",
-            "8000",
-            "--input",
-            "x",
-            "--output",
-            "y",
-            "--nperseg",
-            "256",
-        ],
-        &["input column `x` has no power", "undefined"],
-    );
-    let ppath = write(&dir, "tone.csv", &part);
-    let v = json_ok(&[
+/// `frf` of the columns x → y of `path` at 8 kHz in 256-sample segments,
+/// with `extra`.
+fn frf_8khz_args<'a>(path: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
         "frf",
-        &ppath,
+        path,
         "--fs",
         "8000",
         "--input",
@@ -117,8 +84,32 @@ fn an_frf_without_input_power_is_undefined() {
         "y",
         "--nperseg",
         "256",
-        "--json",
-    ]);
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// An all-zero input used to give H1 = 0 and coherence 0, exit 0: now an
+/// error; bins without input power in an otherwise good record are null.
+#[test]
+fn an_frf_without_input_power_is_undefined() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut zero = String::from("x,y\n");
+    let mut part = String::from("x,y\n");
+    for (i, y) in (0..4096).zip(common::xorshift_noise(5)) {
+        zero += &format!("0,{y}\n");
+        // A 1 kHz tone at fs = 8 kHz, nperseg = 256: whole periods in every
+        // segment, so the Hann-windowed input has power in bins 31–33 only.
+        let x = (2.0 * std::f64::consts::PI * 1000.0 * f64::from(i) / 8000.0).sin();
+        part += &format!("{x},{}\n", 0.5 * x);
+    }
+    let zpath = write(&dir, "zero.csv", &zero);
+    refused(
+        &frf_8khz_args(&zpath, &[]),
+        &["input column `x` has no power", "undefined"],
+    );
+    let ppath = write(&dir, "tone.csv", &part);
+    let v = json_ok(&frf_8khz_args(&ppath, &["--json"]));
     let re = v["re"].as_array().expect("re");
     let undefined = v["undefined_bins"].as_u64().expect("count");
     assert_eq!(re.iter().filter(|x| x.is_null()).count() as u64, undefined);

@@ -10,15 +10,7 @@ use serde_json::Value;
 
 /// `rig check --json` against `emu`: exit code, the report, stderr.
 fn check(emu: &Emulator, seconds: &str) -> (Option<i32>, Value, String) {
-    let o = kilotouch(&[
-        "rig",
-        "check",
-        "--rig",
-        &emu.rig(),
-        "--duration",
-        seconds,
-        "--json",
-    ]);
+    let o = kilotouch(&common::rig_check_args(&emu.rig(), seconds));
     let v: Value = serde_json::from_slice(&o.stdout).unwrap_or(Value::Null);
     (
         o.status.code(),

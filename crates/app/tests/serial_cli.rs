@@ -11,15 +11,7 @@ use std::time::{Duration, Instant};
 
 /// `kilotouch rig check --rig <the emulator> --duration SECONDS --json`.
 fn rig_check(emu: &Emulator, seconds: &str) -> serde_json::Value {
-    json_ok(&[
-        "rig",
-        "check",
-        "--rig",
-        &emu.rig(),
-        "--duration",
-        seconds,
-        "--json",
-    ])
+    json_ok(&common::rig_check_args(&emu.rig(), seconds))
 }
 
 #[test]
@@ -105,11 +97,7 @@ fn corrupted_and_dropped_bytes_are_counted_and_survived() {
         "0.25",
         "--json",
     ]);
-    let (frames, lost) = (v["frames"].as_u64().unwrap(), v["lost"].as_u64().unwrap());
-    // ≈ 1 − (1 − 4e-4)^162 ≈ 6 % of the frames of 10 samples are hit.
-    assert!(lost > 100 && lost < frames / 4, "{v}");
-    assert!(v["crc_errors"].as_u64().unwrap() > 5, "{v}");
-    assert_eq!(v["received"].as_u64().unwrap() + lost, frames);
+    common::assert_corruption_counted(&v);
     let rate = v["rate_hz"].as_f64().unwrap();
     assert!((rate - 10_000.0).abs() < 0.03 * 10_000.0, "rate {rate}");
 }

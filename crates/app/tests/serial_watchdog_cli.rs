@@ -23,15 +23,7 @@ fn each_misbehaving_device_ends_rig_check_promptly_with_a_clear_error() {
     ] {
         let emu = Emulator::spawn("daq", &["--misbehave", mode]);
         let t = Instant::now();
-        let o = run(&[
-            "rig",
-            "check",
-            "--rig",
-            &emu.rig(),
-            "--duration",
-            "1",
-            "--json",
-        ]);
+        let o = run(&common::rig_check_args(&emu.rig(), "1"));
         let took = t.elapsed();
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{mode}: {err}");
@@ -59,15 +51,7 @@ fn each_misbehaving_device_ends_rig_check_promptly_with_a_clear_error() {
 #[test]
 fn rig_check_fails_above_the_loss_limit_and_always_prints_counters() {
     let emu = Emulator::spawn("daq", &["--corrupt-rate", "1e-2", "--seed", "5"]);
-    let o = run(&[
-        "rig",
-        "check",
-        "--rig",
-        &emu.rig(),
-        "--duration",
-        "1",
-        "--json",
-    ]);
+    let o = run(&common::rig_check_args(&emu.rig(), "1"));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("counters printed");

@@ -56,6 +56,19 @@ fn opts(out: &Path, protocol: Option<Protocol>, raw: bool) -> SessionOptions {
     o
 }
 
+/// Spawn and start a real-time sitting of the tiny protocol without raw
+/// files, its participant at the mouse (of `only` the participant with that
+/// index, if given).
+fn start_at_the_mouse(eng: &mut EngineHandle, out: &Path, only: Option<u32>) -> SessionHandle {
+    let mut o = opts(out, Some(tiny()), false);
+    o.speed = Speed::RealTime;
+    o.participant = ParticipantKind::Mouse;
+    o.only_participant = only;
+    let mut h = SessionHandle::spawn(o, eng).unwrap();
+    assert!(h.send(SessionCommand::Start));
+    h
+}
+
 /// The headless reference rows.
 fn reference(dir: &Path, raw: bool) -> Vec<TrialRow> {
     reference_of(tiny(), dir, raw)
@@ -352,11 +365,7 @@ fn pause_holds_the_trial_and_resume_continues_it() {
     let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s");
-    let mut o = opts(&out, Some(tiny()), false);
-    o.speed = Speed::RealTime;
-    o.participant = ParticipantKind::Mouse;
-    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
-    assert!(h.send(SessionCommand::Start));
+    let mut h = start_at_the_mouse(&mut eng, &out, None);
     let t_start = Instant::now();
     let mut last_sim = 0.0;
     let mut state = None;
@@ -419,12 +428,7 @@ fn abort_and_emergency_stop_commit_aborted_rows() {
     let mut eng = engine();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s");
-    let mut o = opts(&out, Some(tiny()), false);
-    o.speed = Speed::RealTime;
-    o.participant = ParticipantKind::Mouse;
-    o.only_participant = Some(0);
-    let mut h = SessionHandle::spawn(o, &mut eng).unwrap();
-    assert!(h.send(SessionCommand::Start));
+    let mut h = start_at_the_mouse(&mut eng, &out, Some(0));
     let mut committed: Vec<TrialRow> = Vec::new();
     let mut state = None;
     let t0 = Instant::now();

@@ -3,7 +3,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-use common::{bin, kilotouch as run, rows_without_start_time as rows};
+use common::{bin, kilotouch as run, rows_without_start_time as rows, simulate_study};
 use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::Stdio;
@@ -22,19 +22,11 @@ fn simulate_writes_the_full_export() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = write_protocol(tmp.path(), 2, 1);
     let out = tmp.path().join("study");
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
+    let o = simulate_study(
         &proto,
-        "--participants",
-        "2",
-        "--seed",
-        "7",
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
+        &out,
+        &["--participants", "2", "--seed", "7", "--json"],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: Value = serde_json::from_slice(&o.stdout).unwrap();
     // participants × conditions × trials; practice: participants × conditions × 1.
@@ -74,14 +66,7 @@ fn simulate_writes_the_full_export() {
 fn simulate_reports_clear_errors() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("s");
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        "nope",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = simulate_study("nope", &out, &[]);
     assert_eq!(o.status.code(), Some(1));
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("not a built-in protocol"), "{e}");
@@ -208,21 +193,11 @@ fn simulate_states_its_size_first_and_writes_within_20_percent_of_it() {
     let proto = write_protocol(tmp.path(), 2, 1);
     for (raw, dir) in [(true, "raw"), (false, "no-raw")] {
         let out = tmp.path().join(dir);
-        let mut args = vec![
-            "study",
-            "simulate",
-            "--protocol",
-            &proto,
-            "--participants",
-            "4",
-            "--out",
-            out.to_str().unwrap(),
-            "--json",
-        ];
+        let mut flags = vec!["--participants", "4", "--json"];
         if !raw {
-            args.push("--no-raw");
+            flags.push("--no-raw");
         }
-        let o = run(&args);
+        let o = simulate_study(&proto, &out, &flags);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{err}");
         // Stated before the run, on stderr (before the progress bar).
@@ -256,18 +231,11 @@ fn simulate_refuses_a_run_larger_than_the_free_space() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = write_protocol(tmp.path(), 2, 1);
     let out = tmp.path().join("study");
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
+    let o = simulate_study(
         &proto,
-        "--participants",
-        "4",
-        "--out",
-        out.to_str().unwrap(),
-        "--assume-free-bytes",
-        "2000000",
-    ]);
+        &out,
+        &["--participants", "4", "--assume-free-bytes", "2000000"],
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(
@@ -280,19 +248,17 @@ fn simulate_refuses_a_run_larger_than_the_free_space() {
     // Nothing was written.
     assert!(!out.join(TRIALS_FILE).exists());
     // Without raw files the same study fits.
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
+    let o = simulate_study(
         &proto,
-        "--participants",
-        "4",
-        "--out",
-        out.to_str().unwrap(),
-        "--no-raw",
-        "--assume-free-bytes",
-        "2000000",
-    ]);
+        &out,
+        &[
+            "--participants",
+            "4",
+            "--no-raw",
+            "--assume-free-bytes",
+            "2000000",
+        ],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
@@ -357,16 +323,7 @@ fn unsuccessful_practice_trials_are_run_again_by_simulate_and_by_a_sitting() {
     .unwrap();
     let proto = proto.to_str().unwrap();
     let sim = tmp.path().join("sim");
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        proto,
-        "--no-raw",
-        "--out",
-        sim.to_str().unwrap(),
-        "--json",
-    ]);
+    let o = simulate_study(proto, &sim, &["--no-raw", "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: Value = serde_json::from_slice(&o.stdout).unwrap();
     // 3 conditions × (1 practice + 2 extra) practice rows, 3 test rows.

@@ -7,7 +7,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-use common::{bin, kilotouch as run};
+use common::{bin, kilotouch as run, simulate_study};
 use kilotouch_testkit as common;
 use std::path::Path;
 use std::process::{Output, Stdio};
@@ -20,6 +20,17 @@ use serde_json::Value;
 
 fn stderr(o: &Output) -> String {
     common::stderr_text(o)
+}
+
+/// `rig default-config`'s text and its `k_1 = …` line.
+fn default_rig_file_and_k_1() -> (String, String) {
+    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("k_1 ="))
+        .unwrap()
+        .to_owned();
+    (text, line)
 }
 
 fn write_protocol(dir: &Path, trials: u32) -> String {
@@ -186,13 +197,8 @@ fn a_resume_with_another_rig_file_or_raw_setting_is_refused() {
     let o = run(&simulate(&proto, &out, &[]));
     assert!(o.status.success(), "{}", stderr(&o));
     let rig = tmp.path().join("rig.toml");
-    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
     // A different plant: the Pantograph's spring 10 % stiffer.
-    let line = text
-        .lines()
-        .find(|l| l.trim_start().starts_with("k_1 ="))
-        .unwrap()
-        .to_owned();
+    let (text, line) = default_rig_file_and_k_1();
     let v: f64 = line.split('=').nth(1).unwrap().trim().parse().unwrap();
     let changed = text.replace(&line, &format!("k_1 = {}", v * 1.1));
     std::fs::write(&rig, changed).unwrap();
@@ -516,14 +522,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
          trials_per_session = 4294967295\n[task.circling]\n",
     )
     .unwrap();
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        &p.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
+    let o = simulate_study(&p.to_string_lossy(), &out, &[]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(
@@ -539,14 +538,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
          trials_per_session = 2\n[task.circling]\ntimeout_s = 1e300\n",
     )
     .unwrap();
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
-        &p.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
+    let o = simulate_study(&p.to_string_lossy(), &out, &[]);
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
     assert!(
@@ -577,12 +569,7 @@ fn absurd_counts_and_endless_inputs_are_refused_with_the_limit() {
 #[test]
 fn an_absurd_rig_value_is_refused_naming_the_field() {
     let tmp = tempfile::tempdir().unwrap();
-    let text = String::from_utf8(run(&["rig", "default-config"]).stdout).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.trim_start().starts_with("k_1 ="))
-        .unwrap()
-        .to_owned();
+    let (text, line) = default_rig_file_and_k_1();
     let rig = tmp.path().join("rig.toml");
     std::fs::write(&rig, text.replace(&line, "k_1 = 1e308")).unwrap();
     let o = run(&[
@@ -615,35 +602,12 @@ fn json_output_survives_a_non_utf8_folder_name() {
     let tmp = tempfile::tempdir().unwrap();
     let proto = write_protocol(tmp.path(), 1);
     let out = tmp.path().join(std::ffi::OsStr::from_bytes(b"st\xffudy"));
-    let o = bin()
-        .args([
-            "study",
-            "simulate",
-            "--protocol",
-            &proto,
-            "--no-raw",
-            "--json",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = simulate_study(&proto, &out, &["--no-raw", "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let j: Value = serde_json::from_slice(&o.stdout).expect("one valid JSON object");
     assert!(j["out"].as_str().unwrap().contains("st\u{fffd}udy"), "{j}");
     // A failing resume of it: each cause once.
-    let o = bin()
-        .args([
-            "study",
-            "simulate",
-            "--protocol",
-            &proto,
-            "--no-raw",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = simulate_study(&proto, &out, &["--no-raw"]);
     let e = stderr(&o);
     let first = e.lines().next().unwrap_or_default().to_owned();
     for line in e.lines().skip(1) {

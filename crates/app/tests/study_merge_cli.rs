@@ -8,9 +8,28 @@
 
 use common::{kilotouch as run, ok, refused, rows_without_start_time as rows};
 use kilotouch_testkit as common;
+use std::path::Path;
 
 use kilotouch_study::export::{TRIALS_FILE, read_session};
 use kilotouch_study::fidelity::Fidelity;
+
+/// The `study simulate` command `study` run whole into `dir/all` and as
+/// `count` shards into `dir/s1` … `dir/s{count}`; every run must succeed.
+fn simulate_whole_and_in_shards(study: &[&str], dir: &Path, count: u32) {
+    let d = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let with = |extra: &[&str]| -> Vec<String> {
+        study.iter().chain(extra).map(|s| (*s).to_owned()).collect()
+    };
+    ok(&with(&["--out", &d("all")]));
+    for k in 1..=count {
+        ok(&with(&[
+            "--shard",
+            &format!("{k}/{count}"),
+            "--out",
+            &d(&format!("s{k}")),
+        ]));
+    }
+}
 
 #[test]
 fn shards_merged_equal_the_unsharded_run() {
@@ -28,18 +47,7 @@ fn shards_merged_equal_the_unsharded_run() {
         "--threads",
         "2",
     ];
-    let with = |extra: &[&str]| -> Vec<String> {
-        study.iter().chain(extra).map(|s| (*s).to_owned()).collect()
-    };
-    ok(&with(&["--out", &d("all")]));
-    for k in 1..=3 {
-        ok(&with(&[
-            "--shard",
-            &format!("{k}/3"),
-            "--out",
-            &d(&format!("s{k}")),
-        ]));
-    }
+    simulate_whole_and_in_shards(&study, tmp.path(), 3);
     // Shard 1 of 3 holds participants 1 and 4 only.
     let s1 = rows(&tmp.path().join("s1"));
     assert!(
@@ -209,18 +217,7 @@ fn shards_with_extra_practice_trials_merge_to_the_unsharded_run() {
         "--threads",
         "2",
     ];
-    let with = |extra: &[&str]| -> Vec<String> {
-        study.iter().chain(extra).map(|s| (*s).to_owned()).collect()
-    };
-    ok(&with(&["--out", &d("all")]));
-    for k in 1..=2 {
-        ok(&with(&[
-            "--shard",
-            &format!("{k}/2"),
-            "--out",
-            &d(&format!("s{k}")),
-        ]));
-    }
+    simulate_whole_and_in_shards(&study, tmp.path(), 2);
     ok(&[
         "study",
         "merge",

@@ -3,7 +3,7 @@
 //! PNG and SVG plots, thread independence, clear errors).
 #![allow(clippy::unwrap_used)]
 
-use common::kilotouch as run;
+use common::{kilotouch as run, simulate_study};
 use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
@@ -19,16 +19,11 @@ fn pilot(dir: &Path) -> String {
     )
     .expect("write protocol");
     let out = dir.join("pilot");
-    let o = run(&[
-        "study",
-        "simulate",
-        "--protocol",
+    let o = simulate_study(
         protocol.to_str().expect("utf-8"),
-        "--out",
-        out.to_str().expect("utf-8"),
-        "--no-raw",
-        "--json",
-    ]);
+        &out,
+        &["--no-raw", "--json"],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     out.to_string_lossy().into_owned()
 }
@@ -128,6 +123,27 @@ fn power_from_a_simulated_pilot() {
     assert!(text.starts_with("<svg") && text.contains("participants (n)"));
 }
 
+/// `study power` of `dv` for `contrast` at n = 4 with 10 replications
+/// (seed 1) from the pilot at `path`.
+fn small_power(path: &str, dv: &str, contrast: &str) -> std::process::Output {
+    run(&[
+        "study",
+        "power",
+        "--pilot",
+        path,
+        "--dv",
+        dv,
+        "--contrast",
+        contrast,
+        "--n",
+        "4",
+        "--replications",
+        "10",
+        "--seed",
+        "1",
+    ])
+}
+
 #[test]
 fn power_errors_name_the_problem() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -138,41 +154,11 @@ fn power_errors_name_the_problem() {
     )
     .expect("write");
     let path = csv.to_str().expect("utf-8");
-    let o = run(&[
-        "study",
-        "power",
-        "--pilot",
-        path,
-        "--dv",
-        "score",
-        "--contrast",
-        "A-B",
-        "--n",
-        "4",
-        "--replications",
-        "10",
-        "--seed",
-        "1",
-    ]);
+    let o = small_power(path, "score", "A-B");
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("line 5") && e.contains("`x`"), "{e}");
-    let o = run(&[
-        "study",
-        "power",
-        "--pilot",
-        path,
-        "--dv",
-        "nope",
-        "--contrast",
-        "A-B",
-        "--n",
-        "4",
-        "--replications",
-        "10",
-        "--seed",
-        "1",
-    ]);
+    let o = small_power(path, "nope", "A-B");
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && e.contains("`nope`") && e.contains("score"),
@@ -183,22 +169,7 @@ fn power_errors_name_the_problem() {
         "participant,condition,score\ns1,A,1\ns1,B,2\ns2,A,1.5\ns2,B,2.1\n",
     )
     .expect("write");
-    let o = run(&[
-        "study",
-        "power",
-        "--pilot",
-        path,
-        "--dv",
-        "score",
-        "--contrast",
-        "A-C",
-        "--n",
-        "4",
-        "--replications",
-        "10",
-        "--seed",
-        "1",
-    ]);
+    let o = small_power(path, "score", "A-C");
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("A-C"), "{e}");
 }

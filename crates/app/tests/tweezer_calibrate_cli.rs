@@ -194,29 +194,11 @@ fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
     assert_eq!(r["n_samples"].as_u64(), Some(120_000), "{r}");
     let mut kappa = Vec::new();
     for col in ["x_v", "y_v"] {
-        let v = json_ok(&[
-            "tweezer",
-            "calibrate",
+        let v = json_ok(&sim_calibrate_args(
             rec.to_str().unwrap(),
-            "--fs",
-            "10000",
-            "--column",
             col,
-            "--radius-um",
-            "1.5",
-            "--viscosity-pa-s",
-            "1.0016e-3",
-            "--temperature-k",
-            "293.15",
-            "--fit-range",
-            "10,5000",
-            "--points-per-block",
-            "100",
-            "--distance-to-surface-um",
-            "5",
-            "--aliased",
-            "--json",
-        ]);
+            &["--distance-to-surface-um", "5"],
+        ));
         let rd = f(&v, "rd_um_per_v");
         assert!((rd / 2.0 - 1.0).abs() < 0.02, "{col}: R_d {rd} µm/V vs 2");
         assert!(f(&v, "chi2_per_dof") < 1.3, "{v}");
@@ -229,13 +211,31 @@ fn emulated_tweezer_calibrates_to_its_simulated_stiffness_within_2_percent() {
     );
 }
 
-/// Calibrate one column of a simulated record (the default rig's bead,
-/// aliased Lorentzian): the JSON.
-fn calibrate_sim_column(rec: &Path, col: &str) -> serde_json::Value {
-    json_ok(&[
+/// `tweezer record` of 10 s of the simulated tweezer into `out` (JSON
+/// report), with `extra`.
+fn sim_record_args<'a>(out: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "tweezer",
+        "record",
+        "--rig",
+        "sim",
+        "--duration-s",
+        "10",
+        "--out",
+        out,
+        "--json",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// `tweezer calibrate` of column `col` of a simulated-tweezer record `rec`
+/// (10 kHz, 1.5 µm bead in water at 20 °C, aliased, JSON), with `extra`.
+fn sim_calibrate_args<'a>(rec: &'a str, col: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
         "tweezer",
         "calibrate",
-        rec.to_str().unwrap(),
+        rec,
         "--fs",
         "10000",
         "--column",
@@ -252,7 +252,15 @@ fn calibrate_sim_column(rec: &Path, col: &str) -> serde_json::Value {
         "100",
         "--aliased",
         "--json",
-    ])
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// Calibrate one column of a simulated record (the default rig's bead,
+/// aliased Lorentzian): the JSON.
+fn calibrate_sim_column(rec: &Path, col: &str) -> serde_json::Value {
+    json_ok(&sim_calibrate_args(rec.to_str().unwrap(), col, &[]))
 }
 
 #[test]
@@ -264,17 +272,7 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
     // in free solution and calibrates to the rig's κ = 20 pN/µm.
     let dir = tempfile::tempdir().unwrap();
     let free = dir.path().join("free.csv");
-    let r = json_ok(&[
-        "tweezer",
-        "record",
-        "--rig",
-        "sim",
-        "--duration-s",
-        "10",
-        "--out",
-        free.to_str().unwrap(),
-        "--json",
-    ]);
+    let r = json_ok(&sim_record_args(free.to_str().unwrap(), &[]));
     assert_eq!(r["spot"], "free", "{r}");
     assert!(r["warnings"].as_array().unwrap().is_empty(), "{r}");
     assert_eq!(r["kappa_bias"][0].as_f64(), Some(0.0), "{r}");
@@ -289,19 +287,10 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
     }
 
     let near = dir.path().join("near.csv");
-    let out = run(&[
-        "tweezer",
-        "record",
-        "--rig",
-        "sim",
-        "--duration-s",
-        "10",
-        "--trap-um",
-        "0,0",
-        "--out",
+    let out = run(&sim_record_args(
         near.to_str().unwrap(),
-        "--json",
-    ]);
+        &["--trap-um", "0,0"],
+    ));
     assert!(out.status.success());
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -312,27 +301,7 @@ fn simulated_record_is_free_by_default_and_warns_next_to_an_obstacle() {
     assert_eq!(r["spot"], "scene", "{r}");
     let bias = [0, 1].map(|k| r["kappa_bias"][k].as_f64().unwrap());
     for (k, col) in ["x_v", "y_v"].iter().enumerate() {
-        let out = run(&[
-            "tweezer",
-            "calibrate",
-            near.to_str().unwrap(),
-            "--fs",
-            "10000",
-            "--column",
-            col,
-            "--radius-um",
-            "1.5",
-            "--viscosity-pa-s",
-            "1.0016e-3",
-            "--temperature-k",
-            "293.15",
-            "--fit-range",
-            "10,5000",
-            "--points-per-block",
-            "100",
-            "--aliased",
-            "--json",
-        ]);
+        let out = run(&sim_calibrate_args(near.to_str().unwrap(), col, &[]));
         assert!(out.status.success());
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         let err = String::from_utf8_lossy(&out.stderr);

@@ -40,6 +40,28 @@ impl Drop for Busy {
 }
 
 /// Data rows of a record CSV (after its `#` comments and header).
+/// `tweezer record` from `emu` for `seconds` into `out`, with `extra`.
+fn record(
+    emu: &Emulator,
+    seconds: &str,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let rig = emu.rig();
+    let mut args = vec![
+        "tweezer",
+        "record",
+        "--rig",
+        &rig,
+        "--duration-s",
+        seconds,
+        "--out",
+    ];
+    args.push(out.to_str().unwrap());
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 fn rows(path: &std::path::Path) -> usize {
     std::fs::read_to_string(path)
         .unwrap()
@@ -55,17 +77,7 @@ fn records_at_10_khz_hold_with_two_cpu_bound_processes_alongside() {
     for i in 0..3 {
         let emu = Emulator::spawn("tweezer", &[]);
         let out = dir.path().join(format!("rec{i}.csv"));
-        let o = run(&[
-            "tweezer",
-            "record",
-            "--rig",
-            &emu.rig(),
-            "--duration-s",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-            "--json",
-        ]);
+        let o = record(&emu, "3", &out, &["--json"]);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "record {i} failed under load: {err}");
         let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -92,16 +104,7 @@ fn a_link_failure_mid_record_is_reported_as_a_link_failure() {
     ] {
         let emu = Emulator::spawn("tweezer", &[fault, "1"]);
         let out = dir.path().join("rec.csv");
-        let o = run(&[
-            "tweezer",
-            "record",
-            "--rig",
-            &emu.rig(),
-            "--duration-s",
-            "5",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let o = record(&emu, "5", &out, &[]);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{fault}: the record must fail");
         assert!(

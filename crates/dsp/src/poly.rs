@@ -199,6 +199,17 @@ mod tests {
         (a - b).norm() <= tol * b.norm().max(1.0)
     }
 
+    /// The roots of `p`, sorted, are `want`, sorted, pair by pair by `close`.
+    fn assert_roots_are(p: &[f64], want: &[C64], close: impl Fn(C64, C64) -> bool) {
+        let mut r = roots(p).expect("roots");
+        sort_roots(&mut r);
+        let mut w = want.to_vec();
+        sort_roots(&mut w);
+        for (x, y) in r.iter().zip(&w) {
+            assert!(close(*x, *y), "{x} vs {y}");
+        }
+    }
+
     #[test]
     fn roots_of_quadratic_match_formula() {
         // s² + 2135 s + 4.56e6 (paper eq. 2 denominator): roots by the quadratic formula.
@@ -206,13 +217,7 @@ mod tests {
         let disc = C64::new(b * b - 4.0 * a * c, 0.0).sqrt();
         let r1 = (-b + disc) / (2.0 * a);
         let r2 = (-b - disc) / (2.0 * a);
-        let mut r = roots(&[a, b, c]).expect("roots");
-        sort_roots(&mut r);
-        let mut e = vec![r1, r2];
-        sort_roots(&mut e);
-        for (x, y) in r.iter().zip(&e) {
-            assert!(close(*x, *y, 1e-12), "{x} vs {y}");
-        }
+        assert_roots_are(&[a, b, c], &[r1, r2], |x, y| close(x, y, 1e-12));
     }
 
     #[test]
@@ -225,13 +230,7 @@ mod tests {
             C64::new(0.0, 0.0),
         ];
         let p = poly_from_roots(&want, 2.5);
-        let mut r = roots(&p).expect("roots");
-        sort_roots(&mut r);
-        let mut w = want.to_vec();
-        sort_roots(&mut w);
-        for (x, y) in r.iter().zip(&w) {
-            assert!(close(*x, *y, 1e-10), "{x} vs {y}");
-        }
+        assert_roots_are(&p, &want, |x, y| close(x, y, 1e-10));
     }
 
     #[test]
@@ -243,13 +242,7 @@ mod tests {
             C64::new(-1e4, 0.0),
         ];
         let p = poly_from_roots(&want, 1.0);
-        let mut r = roots(&p).expect("roots");
-        sort_roots(&mut r);
-        let mut w = want.to_vec();
-        sort_roots(&mut w);
-        for (x, y) in r.iter().zip(&w) {
-            assert!((x - y).norm() <= 1e-9 * y.norm(), "{x} vs {y}");
-        }
+        assert_roots_are(&p, &want, |x, y| (x - y).norm() <= 1e-9 * y.norm());
     }
 
     #[test]

@@ -22,6 +22,15 @@ fn calibrate_quietly(rig: &mut dyn CalibrationRig, cfg: &CalibrationConfig) -> C
     }
 }
 
+/// The procedure with the default settings, saving nothing.
+fn calibrate_default(
+    rig: &mut dyn CalibrationRig,
+    progress: &mut dyn Progress,
+    cancel: &AtomicBool,
+) -> Result<CalibrationOutcome> {
+    calibrate(rig, &CalibrationConfig::default(), None, progress, cancel)
+}
+
 fn sim(cfg: &RigConfig) -> RigAdapter<kilotouch_rig::SimRig> {
     RigAdapter::sim(cfg, None).unwrap()
 }
@@ -362,14 +371,7 @@ fn progress_reports_every_step_in_order() {
         assert!(!m.is_empty());
         seen.push((s, f));
     };
-    calibrate(
-        &mut rig,
-        &CalibrationConfig::default(),
-        None,
-        &mut obs,
-        &cancel,
-    )
-    .unwrap();
+    calibrate_default(&mut rig, &mut obs, &cancel).unwrap();
     let order: Vec<Step> = seen.iter().map(|s| s.0).fold(Vec::new(), |mut v, s| {
         if v.last() != Some(&s) {
             v.push(s);
@@ -391,14 +393,7 @@ fn progress_reports_every_step_in_order() {
 fn cancel_stops_the_procedure_at_the_current_step() {
     let cancel = AtomicBool::new(true);
     let mut rig = StandInRig::new(StandInConfig::default()).unwrap();
-    let e = calibrate(
-        &mut rig,
-        &CalibrationConfig::default(),
-        None,
-        &mut NoProgress,
-        &cancel,
-    )
-    .unwrap_err();
+    let e = calibrate_default(&mut rig, &mut NoProgress, &cancel).unwrap_err();
     assert!(
         matches!(e, CalibrationError::Cancelled { step: Step::Check }),
         "{e}"
@@ -410,14 +405,7 @@ fn cancel_stops_the_procedure_at_the_current_step() {
             cancel.store(true, Ordering::Relaxed);
         }
     };
-    let e = calibrate(
-        &mut rig,
-        &CalibrationConfig::default(),
-        None,
-        &mut obs,
-        &cancel,
-    )
-    .unwrap_err();
+    let e = calibrate_default(&mut rig, &mut obs, &cancel).unwrap_err();
     assert!(
         matches!(
             e,

@@ -24,6 +24,18 @@ fn emu_cfg() -> EmulatorConfig {
     }
 }
 
+/// The emulator sending `batch` samples a frame.
+fn batched(batch: usize) -> EmulatorConfig {
+    EmulatorConfig { batch, ..emu_cfg() }
+}
+
+/// The simulated tweezer of `rc` the link must follow, and its stiffness, N/m.
+fn simulated(rc: &RigConfig) -> (SimTweezer, f64) {
+    let p = TweezerParams::from_config(&rc.tweezer);
+    let kappa = p.stiffness_n_per_m;
+    (SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap(), kappa)
+}
+
 fn tweezer(rc: &RigConfig, cfg: EmulatorConfig) -> Device<TweezerInstrument> {
     Device::spawn(TweezerInstrument::new(rc).unwrap(), cfg)
 }
@@ -75,17 +87,9 @@ fn sweep(i: usize) -> [f64; 2] {
 #[test]
 fn link_tweezer_follows_the_simulated_tweezer_exactly() {
     let rc = RigConfig::default();
-    let dev = tweezer(
-        &rc,
-        EmulatorConfig {
-            batch: 1,
-            ..emu_cfg()
-        },
-    );
+    let dev = tweezer(&rc, batched(1));
     let mut tw = link(&dev.path, CommandLead::Blocks(0));
-    let p = TweezerParams::from_config(&rc.tweezer);
-    let kappa = p.stiffness_n_per_m;
-    let mut reference = SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap();
+    let (mut reference, kappa) = simulated(&rc);
     assert_eq!(tw.sample_rate_hz(), rc.rig.sample_rate_hz);
     assert_eq!(tw.stiffness_n_per_m(), kappa);
     assert_eq!(
@@ -117,19 +121,11 @@ fn link_tweezer_follows_the_simulated_tweezer_exactly() {
 #[test]
 fn with_a_lead_the_bead_answers_the_set_point_applied_lead_samples_earlier() {
     let rc = RigConfig::default();
-    let dev = tweezer(
-        &rc,
-        EmulatorConfig {
-            batch: 7,
-            ..emu_cfg()
-        },
-    );
+    let dev = tweezer(&rc, batched(7));
     let mut tw = link(&dev.path, CommandLead::Blocks(2));
     assert_eq!(tw.lead_samples(10), 20);
     assert_eq!(tw.loop_delay_samples(10), 20, "the lead, beyond the block");
-    let p = TweezerParams::from_config(&rc.tweezer);
-    let kappa = p.stiffness_n_per_m;
-    let mut reference = SimTweezer::new(p, rc.rig.sample_rate_hz).unwrap();
+    let (mut reference, kappa) = simulated(&rc);
     let start = [1e-6, 0.0];
     tw.reset(start);
     reference.reset(start);

@@ -52,6 +52,19 @@ fn zeta_near(poles: &[C64], f: f64) -> (f64, f64) {
     (-p.re / p.norm(), p.norm() / (2.0 * PI))
 }
 
+/// The stiffness (or damping) matrix of eq. 1 from its springs (or
+/// dampers) 1, 2, v and f, in the DOF order (h, v, 1, 2).
+fn eq1_matrix(x_1: f64, x_2: f64, x_v: f64, x_f: f64) -> DMatrix<f64> {
+    #[rustfmt::skip]
+    let rows = [
+        x_2 + x_v + x_f, -x_v, 0.0, -x_2,
+        -x_v, x_v, 0.0, 0.0,
+        0.0, 0.0, x_1, -x_1,
+        -x_2, 0.0, -x_1, x_1 + x_2,
+    ];
+    DMatrix::from_row_slice(4, 4, &rows)
+}
+
 /// Without side branches the model is exactly eq. 1: the velocity rows of A
 /// are −M⁻¹K and −M⁻¹C with the paper's K and C typed in from the text.
 #[test]
@@ -62,50 +75,8 @@ fn without_branches_the_model_is_equation_1() {
     let m = AxisModel::new(&cfg, Axis::X).unwrap();
     let p = cfg.plant.clone();
     // X = [x_h, x_v, x_1, x_2]; our DOF order is the same (h, v, 1, 2).
-    let k = DMatrix::from_row_slice(
-        4,
-        4,
-        &[
-            p.k_2 + p.k_v + p.k_f,
-            -p.k_v,
-            0.0,
-            -p.k_2,
-            -p.k_v,
-            p.k_v,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            p.k_1,
-            -p.k_1,
-            -p.k_2,
-            0.0,
-            -p.k_1,
-            p.k_1 + p.k_2,
-        ],
-    );
-    let c = DMatrix::from_row_slice(
-        4,
-        4,
-        &[
-            p.b_2 + p.b_v + p.b_f,
-            -p.b_v,
-            0.0,
-            -p.b_2,
-            -p.b_v,
-            p.b_v,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            p.b_1,
-            -p.b_1,
-            -p.b_2,
-            0.0,
-            -p.b_1,
-            p.b_1 + p.b_2,
-        ],
-    );
+    let k = eq1_matrix(p.k_1, p.k_2, p.k_v, p.k_f);
+    let c = eq1_matrix(p.b_1, p.b_2, p.b_v, p.b_f);
     let mass = [p.m_h, p.m_v, p.m_1, p.m_2];
     let nd = m.dofs.n_dof;
     for i in 0..4 {

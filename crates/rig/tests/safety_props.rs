@@ -272,12 +272,17 @@ fn check(s: &Setup, evs: &[Ev]) -> Result<usize, TestCaseError> {
     Ok(on)
 }
 
-proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: 256,
+/// `n` cases, with no regression file.
+fn cases(n: u32) -> ProptestConfig {
+    ProptestConfig {
+        cases: n,
         failure_persistence: None,
         ..ProptestConfig::default()
-    })]
+    }
+}
+
+proptest! {
+    #![proptest_config(cases(256))]
 
     /// Chaotic input: frequent non-finite values and state changes.
     #[test]
@@ -287,11 +292,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: 40,
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(cases(40))]
 
     /// Mostly finite input with rare state changes: long enabled stretches
     /// with huge and fast-changing commands exercise the slew and norm limits.

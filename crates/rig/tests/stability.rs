@@ -9,7 +9,7 @@ use kilotouch_rig::config::RigConfig;
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::haptic_loop::Clearance;
 use kilotouch_rig::plant::Axis;
-use kilotouch_rig::stability::margins::{grid, grid_for_delay, margins};
+use kilotouch_rig::stability::margins::{Margins, grid, grid_for_delay, margins};
 use kilotouch_rig::stability::{
     Case, Hand, LoopAnalysis, LoopState, analyse, analyse_with_latency, delay_samples,
 };
@@ -28,26 +28,97 @@ fn poly_z(c: &[f64], z: C64) -> C64 {
     c.iter().fold(C64::new(0.0, 0.0), |acc, &x| acc * z + x)
 }
 
+/// The reference transfer function of `g`: numerator and denominator
+/// coefficients (descending powers of z) and the sample rate, Hz.
+fn transfer(g: &Value) -> (Vec<f64>, Vec<f64>, f64) {
+    let num: Vec<f64> = serde_json::from_value(g["num"].clone()).unwrap();
+    let den: Vec<f64> = serde_json::from_value(g["den"].clone()).unwrap();
+    (num, den, g["fs"].as_f64().unwrap())
+}
+
+/// The loop num/den at `fs` Hz with `d` samples of pure delay, at `f` Hz.
+fn response(num: &[f64], den: &[f64], fs: f64, d: usize, f: f64) -> C64 {
+    let z = C64::from_polar(1.0, 2.0 * PI * f / fs);
+    let l = poly_z(num, z) / poly_z(den, z);
+    if d == 0 { l } else { l * z.powi(-(d as i32)) }
+}
+
+/// The margins of the loop `l` from its response on the grid `fr`, Hz.
+fn margins_on(fr: &[f64], l: &dyn Fn(f64) -> C64, fs: f64) -> Margins {
+    let v: Vec<C64> = fr.iter().map(|&f| l(f)).collect();
+    margins(fr, &v, l, fs)
+}
+
+/// `got` is within `tol` of the reference `want`, or both are absent
+/// (a reference `null` is a margin or crossover that does not exist).
+fn agrees(got: f64, want: &Value, tol: f64, what: &str) {
+    match want.as_f64() {
+        Some(w) => assert!((got - w).abs() <= tol, "{what}: {got} vs {w}"),
+        None => assert!(!got.is_finite(), "{what}: {got} vs none"),
+    }
+}
+
+/// The case of a reference entry `c`.
+fn case_from(c: &Value) -> Case {
+    Case {
+        condition: c["condition"].as_str().unwrap().parse().unwrap(),
+        axis: Axis::X,
+        state: if c["state"] == "pressed" {
+            LoopState::Pressed
+        } else {
+            LoopState::Free
+        },
+        hand: Hand {
+            stiffness_n_per_m: c["hand_stiffness_n_per_m"].as_f64().unwrap(),
+            damping_n_s_per_m: c["hand_damping_n_s_per_m"].as_f64().unwrap(),
+        },
+    }
+}
+
+/// The margins `m` of a loop case agree with the reference entry `c`: gain
+/// margin to 0.02 dB, phase margin to 0.05° and the gain crossover to 0.1 %,
+/// or no gain crossover where the reference has none.
+fn assert_margins_match(m: &Margins, c: &Value, what: &str) {
+    let gm = c["gain_margin_db"].as_f64().unwrap();
+    assert!(
+        (m.gain_margin_db - gm).abs() < 0.02,
+        "{what}: GM {} vs {gm}",
+        m.gain_margin_db
+    );
+    match c["phase_margin_deg"].as_f64() {
+        Some(pm) => {
+            assert!(
+                (m.phase_margin_deg - pm).abs() < 0.05,
+                "{what}: PM {} vs {pm}",
+                m.phase_margin_deg
+            );
+            let fc = c["gain_crossover_hz"].as_f64().unwrap();
+            assert!((m.gain_crossover_hz / fc - 1.0).abs() < 1e-3, "{what}: fc");
+        }
+        None => assert!(
+            m.phase_margin_deg.is_infinite(),
+            "{what}: no gain crossover"
+        ),
+    }
+}
+
+/// The closed-loop spectral radius `rho` agrees with the reference entry `c`.
+/// 1e-8 in ρ is 0.001 dB/s in the growth rate 20·log₁₀(ρ)·f_s (two
+/// eigenvalue solvers on a 30-state non-normal matrix).
+fn assert_spectral_radius_matches(rho: f64, c: &Value, what: &str) {
+    let want = c["spectral_radius"].as_f64().unwrap();
+    assert!((rho - want).abs() < 1e-8, "{what}: ρ {rho} vs {want}");
+}
+
 #[test]
 fn margins_match_python_control() {
     let r = reference();
     for g in r["generic"].as_array().unwrap() {
-        let num: Vec<f64> = serde_json::from_value(g["num"].clone()).unwrap();
-        let den: Vec<f64> = serde_json::from_value(g["den"].clone()).unwrap();
-        let fs = g["fs"].as_f64().unwrap();
-        let l = |f: f64| {
-            let z = C64::from_polar(1.0, 2.0 * PI * f / fs);
-            poly_z(&num, z) / poly_z(&den, z)
-        };
-        let fr = grid(fs);
-        let v: Vec<C64> = fr.iter().map(|&f| l(f)).collect();
-        let m = margins(&fr, &v, &l, fs);
-        let cmp = |got: f64, want: &Value, tol: f64, what: &str| match want.as_f64() {
-            Some(w) => assert!(
-                (got - w).abs() <= tol,
-                "{what}: {got} vs {w} ({num:?}/{den:?})"
-            ),
-            None => assert!(!got.is_finite(), "{what}: {got} vs none"),
+        let (num, den, fs) = transfer(g);
+        let l = |f: f64| response(&num, &den, fs, 0, f);
+        let m = margins_on(&grid(fs), &l, fs);
+        let cmp = |got: f64, want: &Value, tol: f64, what: &str| {
+            agrees(got, want, tol, &format!("{what} ({num:?}/{den:?})"));
         };
         cmp(m.gain_margin_db, &g["gain_margin_db"], 1e-4, "GM dB");
         cmp(m.phase_margin_deg, &g["phase_margin_deg"], 1e-3, "PM deg");
@@ -67,14 +138,9 @@ fn margins_match_python_control() {
 fn delayed_margins_match_python_control() {
     let r = reference();
     for g in r["generic_delayed"].as_array().unwrap() {
-        let num: Vec<f64> = serde_json::from_value(g["num"].clone()).unwrap();
-        let den: Vec<f64> = serde_json::from_value(g["den"].clone()).unwrap();
-        let fs = g["fs"].as_f64().unwrap();
+        let (num, den, fs) = transfer(g);
         let d = g["delay_samples"].as_u64().unwrap() as usize;
-        let l = |f: f64| {
-            let z = C64::from_polar(1.0, 2.0 * PI * f / fs);
-            poly_z(&num, z) / poly_z(&den, z) * z.powi(-(d as i32))
-        };
+        let l = |f: f64| response(&num, &den, fs, d, f);
         let fr = grid_for_delay(fs, d);
         // Increasing, the delay turning by at most 45° between points.
         assert!(fr.len() >= grid(fs).len());
@@ -82,11 +148,9 @@ fn delayed_margins_match_python_control() {
             fr.windows(2)
                 .all(|w| { w[1] > w[0] && 360.0 * (w[1] - w[0]) * d as f64 / fs <= 45.0 + 1e-9 })
         );
-        let v: Vec<C64> = fr.iter().map(|&f| l(f)).collect();
-        let m = margins(&fr, &v, &l, fs);
-        let cmp = |got: f64, want: &Value, tol: f64, what: &str| match want.as_f64() {
-            Some(w) => assert!((got - w).abs() <= tol, "{what}: {got} vs {w} (d = {d})"),
-            None => assert!(!got.is_finite(), "{what}: {got} vs none (d = {d})"),
+        let m = margins_on(&fr, &l, fs);
+        let cmp = |got: f64, want: &Value, tol: f64, what: &str| {
+            agrees(got, want, tol, &format!("{what} (d = {d})"));
         };
         cmp(m.gain_margin_db, &g["gain_margin_db"], 1e-4, "GM dB");
         cmp(m.phase_margin_deg, &g["phase_margin_deg"], 1e-3, "PM deg");
@@ -111,51 +175,12 @@ fn loop_cases_match_the_independent_model() {
     let kappa = cfg.tweezer.stiffness_n_per_m;
     let g0 = cfg.coupling.force_scale;
     for c in r["loop_cases"].as_array().unwrap() {
-        let case = Case {
-            condition: c["condition"].as_str().unwrap().parse().unwrap(),
-            axis: Axis::X,
-            state: if c["state"] == "pressed" {
-                LoopState::Pressed
-            } else {
-                LoopState::Free
-            },
-            hand: Hand {
-                stiffness_n_per_m: c["hand_stiffness_n_per_m"].as_f64().unwrap(),
-                damping_n_s_per_m: c["hand_damping_n_s_per_m"].as_f64().unwrap(),
-            },
-        };
+        let case = case_from(c);
         let got = a.case(&case, kappa, g0, true).unwrap();
         let m = got.margins.unwrap();
         let what = format!("{case:?}");
-        let gm = c["gain_margin_db"].as_f64().unwrap();
-        assert!(
-            (m.gain_margin_db - gm).abs() < 0.02,
-            "{what}: GM {} vs {gm}",
-            m.gain_margin_db
-        );
-        match c["phase_margin_deg"].as_f64() {
-            Some(pm) => {
-                assert!(
-                    (m.phase_margin_deg - pm).abs() < 0.05,
-                    "{what}: PM {} vs {pm}",
-                    m.phase_margin_deg
-                );
-                let fc = c["gain_crossover_hz"].as_f64().unwrap();
-                assert!((m.gain_crossover_hz / fc - 1.0).abs() < 1e-3, "{what}: fc");
-            }
-            None => assert!(
-                m.phase_margin_deg.is_infinite(),
-                "{what}: no gain crossover"
-            ),
-        }
-        let rho = c["spectral_radius"].as_f64().unwrap();
-        // 1e-8 in ρ is 0.001 dB/s in the growth rate 20·log₁₀(ρ)·f_s (two
-        // eigenvalue solvers on a 30-state non-normal matrix).
-        assert!(
-            (got.spectral_radius - rho).abs() < 1e-8,
-            "{what}: ρ {} vs {rho}",
-            got.spectral_radius
-        );
+        assert_margins_match(&m, c, &what);
+        assert_spectral_radius_matches(got.spectral_radius, c, &what);
         assert!(got.stable);
         // Critical force scale of this case by bisection on the verdict.
         let (mut lo, mut hi) = (g0, g0);
@@ -278,22 +303,6 @@ fn condition_margins_are_the_worst_over_cases() {
     }
 }
 
-fn case_from(c: &Value) -> Case {
-    Case {
-        condition: c["condition"].as_str().unwrap().parse().unwrap(),
-        axis: Axis::X,
-        state: if c["state"] == "pressed" {
-            LoopState::Pressed
-        } else {
-            LoopState::Free
-        },
-        hand: Hand {
-            stiffness_n_per_m: c["hand_stiffness_n_per_m"].as_f64().unwrap(),
-            damping_n_s_per_m: c["hand_damping_n_s_per_m"].as_f64().unwrap(),
-        },
-    }
-}
-
 /// The analysis of `cfg`'s loop with `d` samples of extra delay.
 fn delayed(cfg: &RigConfig, chain: &LoopChain, d: usize) -> LoopAnalysis {
     let fs = cfg.rig.sample_rate_hz;
@@ -323,36 +332,14 @@ fn delayed_loop_matches_python_control() {
             .unwrap();
         let m = got.margins.unwrap();
         let what = format!("{case:?} d = {d}");
-        let gm = c["gain_margin_db"].as_f64().unwrap();
-        assert!(
-            (m.gain_margin_db - gm).abs() < 0.02,
-            "{what}: GM {} vs {gm}",
-            m.gain_margin_db
-        );
+        assert_margins_match(&m, c, &what);
         let f180 = c["phase_crossover_hz"].as_f64().unwrap();
         assert!(
             (m.phase_crossover_hz / f180 - 1.0).abs() < 1e-3,
             "{what}: f180 {} vs {f180}",
             m.phase_crossover_hz
         );
-        match c["phase_margin_deg"].as_f64() {
-            Some(pm) => {
-                assert!(
-                    (m.phase_margin_deg - pm).abs() < 0.05,
-                    "{what}: PM {} vs {pm}",
-                    m.phase_margin_deg
-                );
-                let fc = c["gain_crossover_hz"].as_f64().unwrap();
-                assert!((m.gain_crossover_hz / fc - 1.0).abs() < 1e-3, "{what}: fc");
-            }
-            None => assert!(m.phase_margin_deg.is_infinite(), "{what}: no crossover"),
-        }
-        let rho = c["spectral_radius"].as_f64().unwrap();
-        assert!(
-            (got.spectral_radius - rho).abs() < 1e-8,
-            "{what}: ρ {} vs {rho}",
-            got.spectral_radius
-        );
+        assert_spectral_radius_matches(got.spectral_radius, c, &what);
     }
     // The delay at which the pressed D loop with the rig file's finger
     // turns unstable, by the eigenvalues of the delay-augmented loop.

@@ -670,6 +670,11 @@ mod tests {
         read_table_from(text.as_bytes(), Path::new("t.csv"), &[], req, opt)
     }
 
+    /// The file `name` of `text`, column `x` required, within `limits`.
+    fn read_x(text: &str, name: &str, limits: Limits) -> Result<Columns, CsvError> {
+        read_bounded(text.as_bytes(), Path::new(name), &[], &["x"], &[], limits)
+    }
+
     fn message(text: &str, req: &[&str]) -> String {
         read(text, req, &[])
             .err()
@@ -704,26 +709,12 @@ mod tests {
             rows: n,
             bytes: MAX_BYTES,
         };
-        let ok = read_bounded(
-            text.as_bytes(),
-            Path::new("r.csv"),
-            &[],
-            &["x"],
-            &[],
-            rows(3),
-        );
+        let ok = read_x(text, "r.csv", rows(3));
         assert_eq!(ok.map(|c| c.data[0].len()).ok(), Some(3));
-        let e = read_bounded(
-            text.as_bytes(),
-            Path::new("r.csv"),
-            &[],
-            &["x"],
-            &[],
-            rows(2),
-        )
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
+        let e = read_x(text, "r.csv", rows(2))
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
         assert!(e.starts_with("r.csv, line 4: more than 2 data rows"), "{e}");
     }
 
@@ -736,16 +727,7 @@ mod tests {
             rows: MAX_ROWS,
             bytes: n,
         };
-        let at = |n| {
-            read_bounded(
-                text.as_bytes(),
-                Path::new("b.csv"),
-                &[],
-                &["x"],
-                &[],
-                bytes(n),
-            )
-        };
+        let at = |n| read_x(text, "b.csv", bytes(n));
         assert_eq!(at(text.len() as u64).map(|c| c.data[0].len()).ok(), Some(2));
         for n in [2, 6, text.len() as u64 - 1] {
             let e = at(n).err().map(|e| e.to_string()).unwrap_or_default();

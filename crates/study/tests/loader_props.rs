@@ -13,6 +13,7 @@
 
 #![allow(clippy::unwrap_used)]
 
+use crate::common::replace_value;
 use kilotouch_rig::config::{RigConfig, default_config_text};
 use kilotouch_rig::coupling::LoopChain;
 use kilotouch_rig::safety::HardLimits;
@@ -54,29 +55,6 @@ fn hostile_value() -> impl Strategy<Value = String> {
         Just("[1.0, 2.0]".to_owned()),
         "[ -~]{0,12}".prop_map(|s| format!("\"{s}\"")),
     ]
-}
-
-/// `text` with the value of its `line`-th `key = value` line replaced.
-fn replace_value(text: &str, line: usize, value: &str) -> String {
-    let assignments: Vec<usize> = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim_start().starts_with('#') && l.contains(" = "))
-        .map(|(i, _)| i)
-        .collect();
-    let target = assignments[line % assignments.len()];
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| {
-            if i == target {
-                let key = l.split(" = ").next().unwrap_or_default();
-                format!("{key} = {value}")
-            } else {
-                l.to_owned()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 /// How far from its start the task takes the bead, µm.

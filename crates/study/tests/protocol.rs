@@ -301,6 +301,16 @@ fn semantic_errors_name_file_line_and_field() {
     assert_eq!(&line[location.column.unwrap() - 1..], "\"V\"]");
 }
 
+/// The refusal of the blind protocol `src`: the error, its field and its line.
+fn blind_refusal(src: &str) -> (ProtocolError, String, Option<usize>) {
+    let err = Protocol::from_toml_str(src, "blind.toml").expect_err("refused");
+    let ProtocolError::Invalid { invalid, location } = &err else {
+        panic!("{err:?}")
+    };
+    let (field, line) = (invalid.field.clone(), location.line);
+    (err, field, line)
+}
+
 /// The obstacle of a blind trial lies R_o + R_b + start_distance from the
 /// start; its centre must be inside the scene's reach even when the
 /// movement itself (start_distance + retreat) is short. Found by
@@ -308,15 +318,9 @@ fn semantic_errors_name_file_line_and_field() {
 #[test]
 fn blind_task_obstacle_centre_fits_the_scene() {
     let src = BLIND_TOML.replacen("obstacle_radius_um = 5.0", "obstacle_radius_um = 15.0", 1);
-    let err = Protocol::from_toml_str(&src, "blind.toml").unwrap_err();
-    let ProtocolError::Invalid { invalid, location } = &err else {
-        panic!("{err:?}")
-    };
-    assert_eq!(
-        invalid.field, "task.blind_navigation.start_distance_um",
-        "{err}"
-    );
-    assert_eq!(location.line, Some(line_of(&src, "start_distance_um = ")));
+    let (err, field, line) = blind_refusal(&src);
+    assert_eq!(field, "task.blind_navigation.start_distance_um", "{err}");
+    assert_eq!(line, Some(line_of(&src, "start_distance_um = ")));
     assert!(err.to_string().contains("26.5 µm"), "{err}");
     // 5 + 1.5 + 13.5 = 20 µm: exactly at the reach, accepted.
     let src = BLIND_TOML.replacen("start_distance_um = 10.0", "start_distance_um = 13.5", 1);
@@ -327,12 +331,9 @@ fn blind_task_obstacle_centre_fits_the_scene() {
 #[test]
 fn blind_task_rejects_vision_only() {
     let src = BLIND_TOML.replacen("conditions = [\"D\"]", "conditions = [\"D\", \"V\"]", 1);
-    let err = Protocol::from_toml_str(&src, "blind.toml").unwrap_err();
-    let ProtocolError::Invalid { invalid, location } = &err else {
-        panic!("{err:?}")
-    };
-    assert_eq!(invalid.field, "conditions[1]");
-    assert_eq!(location.line, Some(line_of(&src, "conditions = ")));
+    let (_, field, line) = blind_refusal(&src);
+    assert_eq!(field, "conditions[1]");
+    assert_eq!(line, Some(line_of(&src, "conditions = ")));
     let src = BLIND_TOML.replacen("success_angle_deg = 30.0", "success_angle_deg = 120.0", 1);
     let err = Protocol::from_toml_str(&src, "blind.toml").unwrap_err();
     assert!(

@@ -9,6 +9,7 @@
 
 use std::path::Path;
 
+use crate::common::replace_value;
 use kilotouch_rig::config::{RigConfig, default_config_text};
 use kilotouch_study::export::trials::parse_trials;
 use kilotouch_study::export::{ReadOptions, TRIALS_COLUMNS};
@@ -33,29 +34,6 @@ fn hostile_value() -> impl Strategy<Value = String> {
         "[ -~]{0,40}".prop_map(|s| format!("\"{s}\"")),
         "[ -~]{0,40}",
     ]
-}
-
-/// `text` with the value of its `line`-th `key = value` line replaced.
-fn replace_value(text: &str, line: usize, value: &str) -> String {
-    let assignments: Vec<usize> = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim_start().starts_with('#') && l.contains(" = "))
-        .map(|(i, _)| i)
-        .collect();
-    let target = assignments[line % assignments.len()];
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| {
-            if i == target {
-                let key = l.split(" = ").next().unwrap_or_default();
-                format!("{key} = {value}")
-            } else {
-                l.to_owned()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 proptest! {

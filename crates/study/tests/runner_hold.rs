@@ -8,7 +8,6 @@
 
 #![allow(clippy::unwrap_used)]
 
-use kilotouch_rig::config::RigConfig;
 use kilotouch_study::export::{StudyMeta, StudyStore, TRIALS_FILE, read_trials};
 use kilotouch_study::journal::{JOURNAL_FILE, Record, read_journal};
 use kilotouch_study::operator::SimCohort;
@@ -16,24 +15,19 @@ use kilotouch_study::protocol::Protocol;
 use kilotouch_study::runner::{RunnerConfig, RunnerState, SessionRunner};
 use kilotouch_study::task::sim_station::SimStation;
 
+use crate::common::{protocol_from, sim_runner};
+
 fn protocol() -> Protocol {
-    Protocol::from_toml_str(
+    protocol_from(
         "name = \"hold-test\"\nparticipants = 1\nconditions = [\"V\", \"D\"]\n\
          trials_per_session = 2\n[training]\npractice_trials = 0\n\
          [task.circling]\ntimeout_s = 0.3\n[seeds]\nstudy = 7\n",
-        "<test>",
     )
-    .unwrap()
 }
 
 fn runner(dir: &std::path::Path) -> SessionRunner<SimStation> {
     let store = StudyStore::open(dir, &protocol(), &StudyMeta::new("hold-test")).unwrap();
-    SessionRunner::new(
-        store,
-        SimStation::new(&RigConfig::default()).unwrap(),
-        RunnerConfig::default(),
-    )
-    .unwrap()
+    sim_runner(store, RunnerConfig::default())
 }
 
 fn journal_len(dir: &std::path::Path) -> usize {

@@ -18,14 +18,14 @@ use kilotouch_study::seeds::Phase;
 use kilotouch_study::simulate::{SimulateOptions, simulate};
 use kilotouch_study::task::sim_station::SimStation;
 
+use crate::common::{protocol_from, sim_runner};
+
 fn protocol() -> Protocol {
-    Protocol::from_toml_str(
+    protocol_from(
         "name = \"runner-test\"\nparticipants = 2\nconditions = [\"V\", \"D\"]\n\
          trials_per_session = 2\n[training]\npractice_trials = 1\n\
          [task.circling]\ntimeout_s = 25.0\n[seeds]\nstudy = 4242\n",
-        "<test>",
     )
-    .unwrap()
 }
 
 fn config(raw: bool) -> RunnerConfig {
@@ -37,12 +37,7 @@ fn config(raw: bool) -> RunnerConfig {
 
 fn runner(dir: &Path, raw: bool) -> SessionRunner<SimStation> {
     let store = StudyStore::open(dir, &protocol(), &StudyMeta::new("sim-test")).unwrap();
-    SessionRunner::new(
-        store,
-        SimStation::new(&RigConfig::default()).unwrap(),
-        config(raw),
-    )
-    .unwrap()
+    sim_runner(store, config(raw))
 }
 
 fn cohort() -> SimCohort {
@@ -202,12 +197,7 @@ fn killed_session_resumes_to_the_uninterrupted_rows() {
     let store = StudyStore::open(&cut, &protocol(), &StudyMeta::new("sim-test")).unwrap();
     assert_eq!(store.recovery().interrupted.len(), 1);
     assert_eq!(store.completed_count(), 5);
-    let mut r = SessionRunner::new(
-        store,
-        SimStation::new(&RigConfig::default()).unwrap(),
-        config(false),
-    )
-    .unwrap();
+    let mut r = sim_runner(store, config(false));
     r.run_to_end(&mut cohort(), 10_000, &mut |_, _| {}).unwrap();
     assert_eq!(comparable(&cut), reference);
 

@@ -357,6 +357,16 @@ fn two_conditions_sphericity_is_trivial_and_f_is_t_squared() {
 
 // ------------------------------------------------------------ Wilcoxon
 
+/// The options for `method`, with or without the continuity correction.
+fn options(method: WilcoxonMethod, continuity: bool) -> WilcoxonOptions {
+    WilcoxonOptions { method, continuity }
+}
+
+/// The signed-rank test of the differences `d` with `method`.
+fn wilcoxon_with(d: &[f64], method: WilcoxonMethod, continuity: bool) -> stats::WilcoxonTest {
+    stats::wilcoxon_signed_rank_diffs(d, options(method, continuity)).expect("wilcoxon")
+}
+
 /// Brute-force two-sided exact p over all 2^m sign patterns of `ranks`.
 fn brute_force_p(ranks: &[f64], r_plus: f64) -> f64 {
     let m = ranks.len();
@@ -391,14 +401,7 @@ fn scipy_wilcoxon_documentation_example() {
     close(r.p, brute_force_p(&ranks, r.r_plus), 1e-14, "brute force");
 
     // Normal approximation: z = (R⁺ − n(n+1)/4)/√(n(n+1)(2n+1)/24).
-    let asym = stats::wilcoxon_signed_rank_diffs(
-        &d,
-        WilcoxonOptions {
-            method: WilcoxonMethod::Asymptotic,
-            continuity: false,
-        },
-    )
-    .unwrap();
+    let asym = wilcoxon_with(&d, WilcoxonMethod::Asymptotic, false);
     let se = (15.0 * 16.0 * 31.0 / 24.0_f64).sqrt();
     let z = (96.0 - 60.0) / se;
     close(asym.z.unwrap(), z, 1e-12, "z");
@@ -409,14 +412,7 @@ fn scipy_wilcoxon_documentation_example() {
         "p",
     );
     close(asym.p, 0.04088813291185591, 1e-10, "scipy asymptotic");
-    let cc = stats::wilcoxon_signed_rank_diffs(
-        &d,
-        WilcoxonOptions {
-            method: WilcoxonMethod::Asymptotic,
-            continuity: true,
-        },
-    )
-    .unwrap();
+    let cc = wilcoxon_with(&d, WilcoxonMethod::Asymptotic, true);
     close(cc.z.unwrap(), z - 0.5 / se, 1e-12, "continuity z");
     close(cc.p, 0.043772323763041174, 1e-10, "scipy correction=True");
 }
@@ -454,14 +450,7 @@ fn wilcoxon_with_ties_large_n_is_normal_with_tie_corrected_variance() {
     close(r.z.unwrap(), z, 1e-12, "z");
     close(r.p, 0.0038716561985912908, 1e-12, "scipy p");
     // Forcing the exact conditional distribution differs only slightly.
-    let ex = stats::wilcoxon_signed_rank_diffs(
-        &d,
-        WilcoxonOptions {
-            method: WilcoxonMethod::Exact,
-            continuity: false,
-        },
-    )
-    .unwrap();
+    let ex = wilcoxon_with(&d, WilcoxonMethod::Exact, false);
     assert_eq!(ex.method, WilcoxonMethodUsed::ExactConditional);
     let mut ranks = vec![1.5, 3.5, 3.5];
     ranks.extend((5..=17).map(f64::from));
@@ -488,14 +477,7 @@ fn wilcoxon_large_sample_without_ties_switches_to_normal() {
         .collect();
     let r = stats::wilcoxon_signed_rank_diffs(&d, WilcoxonOptions::default()).unwrap();
     assert_eq!(r.method, WilcoxonMethodUsed::Normal);
-    let ex = stats::wilcoxon_signed_rank_diffs(
-        &d,
-        WilcoxonOptions {
-            method: WilcoxonMethod::Exact,
-            continuity: false,
-        },
-    )
-    .unwrap();
+    let ex = wilcoxon_with(&d, WilcoxonMethod::Exact, false);
     assert_eq!(ex.method, WilcoxonMethodUsed::Exact);
     // At n = 60 the normal approximation is good to a few per cent.
     assert!((r.p - ex.p).abs() < 0.05 * ex.p, "{} vs {}", r.p, ex.p);
@@ -513,10 +495,7 @@ fn wilcoxon_exact_request_is_capped_for_huge_samples() {
             }
         })
         .collect();
-    let opts = WilcoxonOptions {
-        method: WilcoxonMethod::Exact,
-        continuity: false,
-    };
+    let opts = options(WilcoxonMethod::Exact, false);
     let r = stats::wilcoxon_signed_rank_diffs(&d, opts).unwrap();
     assert_eq!(r.method, WilcoxonMethodUsed::Normal);
     let r = stats::wilcoxon_signed_rank_diffs(&d[..stats::EXACT_MAX_N], opts).unwrap();

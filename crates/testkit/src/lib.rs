@@ -112,6 +112,16 @@ pub fn step_until_every(
     false
 }
 
+/// [`step_until_every`] (≤ [`WAIT_S`]) until the app's engine reports.
+pub fn until_engine_reporting(h: &mut Harness<'_, KilotouchApp>, pause: Duration) -> bool {
+    step_until_every(h, pause, WAIT_S, engine_reporting)
+}
+
+/// [`step_until_every`] (≤ [`WAIT_S`]) until the Study page's sitting finished.
+pub fn until_study_finished(h: &mut Harness<'_, KilotouchApp>, pause: Duration) -> bool {
+    step_until_every(h, pause, WAIT_S, |a| a.study.finished().is_some())
+}
+
 /// Step until the Study page's sitting opened (after its size check,
 /// which runs on a thread of its own) or the page shows an error; whether
 /// it opened.
@@ -147,9 +157,77 @@ pub fn open_session(h: &mut AppHarness) {
     h.step();
 }
 
+/// The health the app's engine last reported, if it is up and has.
+pub fn engine_health(a: &KilotouchApp) -> Option<&kilotouch::engine::Health> {
+    a.engine.as_ref().and_then(|e| e.health())
+}
+
+/// Spawn on `engine` the sitting of the first participant (P01) of
+/// `protocol`, its participant at the handle, writing to `out`, and start it.
+pub fn start_p01_at_the_handle(
+    protocol: kilotouch_study::protocol::Protocol,
+    out: &Path,
+    rig: kilotouch_rig::RigConfig,
+    engine: &mut kilotouch::engine::EngineHandle,
+) -> kilotouch::session::SessionHandle {
+    use kilotouch::session::{ParticipantKind, SessionCommand, SessionHandle, SessionOptions};
+    let mut opts = SessionOptions::new(out, Some(protocol), rig);
+    opts.participant = ParticipantKind::Handle;
+    opts.only_participant = Some(0);
+    let mut s = SessionHandle::spawn(opts, engine).expect("spawn the sitting");
+    assert!(s.send(SessionCommand::Start));
+    s
+}
+
+/// Poll `engine`'s events (≤ `secs`) until it reports its loop stopped.
+pub fn until_engine_stopped(engine: &mut kilotouch::engine::EngineHandle, secs: f64) {
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < secs {
+        let _ = engine.poll_events();
+        if engine.health().is_some_and(|h| !h.running) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A `rig check --json` report of a link that corrupts and drops bytes at
+/// 2e-4 each: ≈ 1 − (1 − 4e-4)^162 ≈ 6 % of the frames of 10 samples are
+/// hit, every frame is received or lost, and CRC errors are counted.
+pub fn assert_corruption_counted(v: &Value) {
+    let (frames, lost) = (
+        v["frames"].as_u64().expect("frames"),
+        v["lost"].as_u64().expect("lost"),
+    );
+    assert!(lost > 100 && lost < frames / 4, "{v}");
+    assert!(v["crc_errors"].as_u64().expect("crc_errors") > 5, "{v}");
+    assert_eq!(v["received"].as_u64().expect("received") + lost, frames);
+}
+
+/// Click the Rig page's "Record and calibrate" and step (≤ [`WAIT_S`])
+/// until the tweezer panel is no longer busy.
+pub fn record_and_calibrate(h: &mut AppHarness) {
+    h.get_by_label("Record and calibrate").click();
+    h.step();
+    assert!(step_until(h, WAIT_S, |a| !a.rig_page().tweezer.is_busy()));
+    h.step();
+}
+
 /// Whether the app's engine is up and has reported its health.
 pub fn engine_reporting(a: &KilotouchApp) -> bool {
     a.engine.as_ref().is_some_and(|e| e.health().is_some())
+}
+
+/// Uniform noise in [−0.5, 0.5): successive states of the 32-bit xorshift
+/// generator (13, 17, 5) from `seed`, scaled by 1/(2³² − 1).
+pub fn xorshift_noise(seed: u32) -> impl Iterator<Item = f64> {
+    let mut s = seed;
+    std::iter::repeat_with(move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        f64::from(s) / f64::from(u32::MAX) - 0.5
+    })
 }
 
 /// Root mean square of `x` (0 for no values).
@@ -239,6 +317,60 @@ pub fn bin() -> Command {
 /// Run the executable with `args` and wait for it.
 pub fn kilotouch<S: AsRef<OsStr>>(args: &[S]) -> Output {
     bin().args(args).output().expect("run kilotouch")
+}
+
+/// Run `study simulate --protocol PROTOCOL --out OUT` with `extra` flags
+/// and wait for it (`out` as given, so it may be any path).
+pub fn simulate_study(protocol: &str, out: &Path, extra: &[&str]) -> Output {
+    bin()
+        .args(["study", "simulate", "--protocol", protocol, "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .expect("run kilotouch")
+}
+
+/// The arguments of `rig check --rig RIG --duration SECONDS --json`.
+pub fn rig_check_args<'a>(rig: &'a str, seconds: &'a str) -> [&'a str; 7] {
+    [
+        "rig",
+        "check",
+        "--rig",
+        rig,
+        "--duration",
+        seconds,
+        "--json",
+    ]
+}
+
+/// Run `study run --protocol PROTOCOL --rig RIG --participant P01 --out OUT
+/// --json` (with `--resume` if `resume`) and `extra`, and wait for it.
+pub fn study_run_p01(
+    protocol: &str,
+    rig: &str,
+    out: &Path,
+    resume: bool,
+    extra: &[&str],
+) -> Output {
+    let out_s = out.to_str().expect("utf-8 out");
+    let mut args = vec![
+        "study",
+        "run",
+        "--protocol",
+        protocol,
+        "--rig",
+        rig,
+        "--participant",
+        "P01",
+        "--out",
+        out_s,
+        "--json",
+    ];
+    if resume {
+        args.push("--resume");
+    }
+    args.extend_from_slice(extra);
+    kilotouch(&args)
 }
 
 /// Run the executable with `args`; it must succeed (its stderr shown if

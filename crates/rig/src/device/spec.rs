@@ -185,6 +185,14 @@ mod tests {
         );
     }
 
+    /// The serial rig of `spec`.
+    fn serial(spec: &str) -> SerialConfig {
+        match spec.parse::<RigSpec>().unwrap() {
+            RigSpec::Serial(c) => c,
+            other => panic!("{spec}: {other:?}"),
+        }
+    }
+
     #[test]
     fn parses_every_form_and_rejects_bad_ones() {
         assert_eq!("sim".parse::<RigSpec>().unwrap(), RigSpec::Sim);
@@ -193,35 +201,21 @@ mod tests {
             "audio:hw:1".parse::<RigSpec>().unwrap(),
             RigSpec::Audio(Some("hw:1".into()))
         );
-        let RigSpec::Serial(c) = "serial:/dev/ttyACM0".parse().unwrap() else {
-            panic!()
-        };
+        let c = serial("serial:/dev/ttyACM0");
         assert_eq!(c.path, "/dev/ttyACM0");
         assert_eq!(c.baud, SerialConfig::DEFAULT_BAUD);
-        let RigSpec::Serial(c) = "serial:/dev/pts/3,baud=921600,timeout-ms=40"
-            .parse()
-            .unwrap()
-        else {
-            panic!()
-        };
+        let c = serial("serial:/dev/pts/3,baud=921600,timeout-ms=40");
         assert_eq!((c.path.as_str(), c.baud), ("/dev/pts/3", 921_600));
         assert_eq!(c.timeout, Duration::from_millis(40));
         assert_eq!(c.handshake_timeout, Duration::from_secs(2));
         assert_eq!(c.lead, CommandLead::Auto);
         // A long time-out covers the answers to HELLO and START too; the
         // rate check's share is a percentage.
-        let RigSpec::Serial(c) = "serial:/dev/pts/3,timeout-ms=30000,min-rate=0"
-            .parse()
-            .unwrap()
-        else {
-            panic!()
-        };
+        let c = serial("serial:/dev/pts/3,timeout-ms=30000,min-rate=0");
         assert_eq!(c.timeout, Duration::from_secs(30));
         assert_eq!(c.handshake_timeout, Duration::from_secs(30));
         assert_eq!(c.min_rate_fraction, 0.0);
-        let RigSpec::Serial(c) = "serial:/dev/pts/3,lead=0".parse().unwrap() else {
-            panic!()
-        };
+        let c = serial("serial:/dev/pts/3,lead=0");
         assert_eq!(c.lead, CommandLead::Blocks(0));
         for bad in [
             "serial:/dev/x,lead=-1",

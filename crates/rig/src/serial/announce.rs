@@ -76,29 +76,18 @@ mod tests {
         });
         let e = check_hello("p", &t).unwrap_err().to_string();
         assert!(e.contains("stiffness_n_per_m = NaN"), "{e}");
-        let mut h = daq();
-        h.watchdog_ms = 0;
-        assert!(
-            check_hello("p", &h)
-                .unwrap_err()
-                .to_string()
-                .contains("watchdog_ms")
-        );
-        let mut h = daq();
-        h.batch = 0;
-        assert!(
-            check_hello("p", &h)
-                .unwrap_err()
-                .to_string()
-                .contains("batch")
-        );
-        let mut h = daq();
-        h.sample_rate_hz = 1;
-        assert!(
-            check_hello("p", &h)
-                .unwrap_err()
-                .to_string()
-                .contains("sample_rate_hz")
-        );
+        // Each of these fields of the DAQ's HELLO, set out of its bounds.
+        type Set = fn(&mut Hello);
+        let out_of_bounds: [(&str, Set); 3] = [
+            ("watchdog_ms", |h| h.watchdog_ms = 0),
+            ("batch", |h| h.batch = 0),
+            ("sample_rate_hz", |h| h.sample_rate_hz = 1),
+        ];
+        for (field, set) in out_of_bounds {
+            let mut h = daq();
+            set(&mut h);
+            let e = check_hello("p", &h).unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        }
     }
 }

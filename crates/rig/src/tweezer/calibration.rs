@@ -416,18 +416,24 @@ mod tests {
         }
     }
 
+    /// The error of a 100-sample record (5 settling) on a tweezer that
+    /// fails at its 25th sample: by the link, or by an `escape`.
+    fn record_failing_at_25(escape: bool) -> String {
+        let mut tw = Failing {
+            at: 25,
+            n: 0,
+            escape,
+        };
+        record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
+            .unwrap_err()
+            .to_string()
+    }
+
     /// A failed link is reported as the tweezer link's failure, an escape
     /// as an escape; neither returns a partial record.
     #[test]
     fn a_link_failure_is_not_an_escape() {
-        let mut tw = Failing {
-            at: 25,
-            n: 0,
-            escape: false,
-        };
-        let e = record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
-            .unwrap_err()
-            .to_string();
+        let e = record_failing_at_25(false);
         assert!(
             e.contains("the tweezer link failed at sample 15 of 100"),
             "{e}"
@@ -436,14 +442,7 @@ mod tests {
             e.contains("watchdog tripped") && !e.contains("not trapped"),
             "{e}"
         );
-        let mut tw = Failing {
-            at: 25,
-            n: 0,
-            escape: true,
-        };
-        let e = record_detector(&mut tw, [0.0; 2], 5, 100, &mut |_| {})
-            .unwrap_err()
-            .to_string();
+        let e = record_failing_at_25(true);
         assert!(e.contains("the bead was not trapped at sample 20"), "{e}");
     }
 

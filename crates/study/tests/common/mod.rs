@@ -2,10 +2,13 @@
 //! results and raw signals derive only from its seeds, as the real tasks'
 //! will.
 
+use kilotouch_rig::config::RigConfig;
 use kilotouch_study::export::{StudyMeta, StudyStore, TaskKind, TrialRow, TrialTicket, UtcTime};
 use kilotouch_study::protocol::{Condition, Protocol};
 use kilotouch_study::rawsig::{Channel, Dtype, NpyWriter, RawLayout};
+use kilotouch_study::runner::{RunnerConfig, SessionRunner};
 use kilotouch_study::seeds::{Phase, STREAM_PARTICIPANT, STREAM_RIG, TrialKey};
+use kilotouch_study::task::sim_station::SimStation;
 use rand_chacha::rand_core::Rng;
 
 /// 2026-01-01T00:00:00Z.
@@ -20,6 +23,11 @@ pub fn protocol(participants: u32, trials: u32, practice: u32, seed: u64) -> Pro
          [task.circling]\n[seeds]\nstudy = {seed}\n"
     );
     Protocol::from_toml_str(&text, "<test>").expect("test setup")
+}
+
+/// The protocol of the TOML `text`, read as the file `<test>`.
+pub fn protocol_from(text: &str) -> Protocol {
+    Protocol::from_toml_str(text, "<test>").expect("test setup")
 }
 
 pub fn meta() -> StudyMeta {
@@ -226,4 +234,33 @@ pub fn proptest_config() -> proptest::prelude::ProptestConfig {
         cases,
         ..proptest::prelude::ProptestConfig::default()
     }
+}
+
+/// `text` with the value of its `line`-th `key = value` line replaced.
+pub fn replace_value(text: &str, line: usize, value: &str) -> String {
+    let assignments: Vec<usize> = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim_start().starts_with('#') && l.contains(" = "))
+        .map(|(i, _)| i)
+        .collect();
+    let target = assignments[line % assignments.len()];
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == target {
+                let key = l.split(" = ").next().unwrap_or_default();
+                format!("{key} = {value}")
+            } else {
+                l.to_owned()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// A session runner on the simulated station (default rig) over `store`.
+pub fn sim_runner(store: StudyStore, config: RunnerConfig) -> SessionRunner<SimStation> {
+    let station = SimStation::new(&RigConfig::default()).expect("test setup");
+    SessionRunner::new(store, station, config).expect("test setup")
 }
