@@ -4,7 +4,7 @@
 //! final check at scene), on a tiny protocol.
 #![allow(clippy::unwrap_used)]
 
-use common::{assert_non_blank_png, json_ok, kilotouch};
+use common::{assert_non_blank_png, json_ok, kilotouch, write_circling_protocol_timeout};
 use kilotouch_testkit as common;
 use serde_json::Value;
 
@@ -12,15 +12,7 @@ use serde_json::Value;
 /// succeed and every participant has the cells the power analysis needs),
 /// seed 5; the commands set the participants.
 fn tiny(dir: &std::path::Path) -> String {
-    let p = dir.join("tiny.toml");
-    std::fs::write(
-        &p,
-        "name = \"tiny\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
-         trials_per_session = 2\n[training]\npractice_trials = 1\n\
-         [task.circling]\ntimeout_s = 60.0\n[seeds]\nstudy = 5\n",
-    )
-    .unwrap();
-    p.to_string_lossy().into_owned()
+    write_circling_protocol_timeout(dir, "tiny", 2, 1, 5, 60.0)
 }
 
 fn f(v: &Value, key: &str) -> f64 {

@@ -3,26 +3,19 @@
 //! PNG and SVG plots, thread independence, clear errors).
 #![allow(clippy::unwrap_used)]
 
-use common::{kilotouch as run, simulate_study};
+use common::{kilotouch as run, simulate_study, write_circling_protocol_timeout};
 use kilotouch_testkit as common;
 use serde_json::Value;
 use std::path::Path;
 
 /// A pilot: 6 simulated participants × V/P/D × 3 test trials, no raw files.
 fn pilot(dir: &Path) -> String {
-    let protocol = dir.join("pilot.toml");
-    std::fs::write(
-        &protocol,
-        "name = \"pilot\"\nparticipants = 6\nconditions = [\"V\", \"P\", \"D\"]\n\
-         trials_per_session = 3\n[training]\npractice_trials = 1\n\
-         [task.circling]\ntimeout_s = 60.0\n[seeds]\nstudy = 5\n",
-    )
-    .expect("write protocol");
+    let protocol = write_circling_protocol_timeout(dir, "pilot", 3, 1, 5, 60.0);
     let out = dir.join("pilot");
     let o = simulate_study(
-        protocol.to_str().expect("utf-8"),
+        &protocol,
         &out,
-        &["--no-raw", "--json"],
+        &["--participants", "6", "--no-raw", "--json"],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     out.to_string_lossy().into_owned()

@@ -562,13 +562,27 @@ pub fn write_circling_protocol(
     practice: u32,
     seed: u64,
 ) -> String {
+    write_circling_protocol_timeout(dir, name, trials, practice, seed, 20.0)
+}
+
+/// [`write_circling_protocol`] with a trial time-out of `timeout_s` (a
+/// longer one lets P and D succeed, so every participant has the cells a
+/// power analysis needs).
+pub fn write_circling_protocol_timeout(
+    dir: &Path,
+    name: &str,
+    trials: u32,
+    practice: u32,
+    seed: u64,
+    timeout_s: f64,
+) -> String {
     let p = dir.join("proto.toml");
     std::fs::write(
         &p,
         format!(
             "name = \"{name}\"\nparticipants = 1\nconditions = [\"V\", \"P\", \"D\"]\n\
              trials_per_session = {trials}\n[training]\npractice_trials = {practice}\n\
-             [task.circling]\ntimeout_s = 20.0\n[seeds]\nstudy = {seed}\n"
+             [task.circling]\ntimeout_s = {timeout_s:?}\n[seeds]\nstudy = {seed}\n"
         ),
     )
     .expect("test setup: write the protocol");

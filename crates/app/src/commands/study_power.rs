@@ -15,17 +15,16 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use kilotouch_study::fidelity::Fidelity;
+use kilotouch_study::frontier::simulate_level;
 use kilotouch_study::power::{
     EffectSpec, PowerOptions, PowerReport, PowerTest, conditions_of, parse_contrast,
     parse_sample_sizes, power, read_pilot,
 };
-
-use kilotouch_study::fidelity::Fidelity;
 use serde::Serialize;
 
 use super::progress::Progress;
 use crate::output::emit;
-use kilotouch_study::frontier::simulate_level;
 
 /// Largest simulated pilot, participants.
 pub const MAX_SIMULATED_PILOT: u32 = 256;
@@ -232,14 +231,11 @@ pub struct FinalCheck {
     pub power_at_n: Option<f64>,
     /// Its Clopper–Pearson 95 % interval.
     pub ci_at_n: Option<[f64; 2]>,
-    /// The check's pilot effect, DV units.
-    pub effect: f64,
-    /// The smallest n reaching the target with the check's pilot.
-    pub n_for_target: Option<u32>,
     /// The search's n reaches the target with the check's pilot too (and
     /// both found one).
     pub confirmed: bool,
-    /// The check's whole report.
+    /// The check's whole report (its pilot effect `report.effect`, its own
+    /// smallest n `report.n_for_target`).
     pub report: PowerReport,
 }
 
@@ -325,7 +321,7 @@ fn human_check(search: &PowerReport, pilot: &SimulatedPilot, c: &FinalCheck) -> 
     );
     s += &format!(
         "pilot effect: {:.4} at {fs}, {:.4} at {fc}\n\n",
-        search.effect, c.effect
+        search.effect, c.report.effect
     );
     s += &format!("   n   power at {fs:<6} 95 % CI          power at {fc:<6} 95 % CI\n");
     for (p, q) in search.points.iter().zip(&c.report.points) {
@@ -339,7 +335,7 @@ fn human_check(search: &PowerReport, pilot: &SimulatedPilot, c: &FinalCheck) -> 
         "\nn for power ≥ {}: {} at {fs}, {} at {fc}; ",
         search.target,
         n(search.n_for_target),
-        n(c.n_for_target)
+        n(c.report.n_for_target)
     );
     s += &match (c.n_checked, c.power_at_n) {
         (Some(k), Some(p)) if c.confirmed => {
@@ -348,7 +344,7 @@ fn human_check(search: &PowerReport, pilot: &SimulatedPilot, c: &FinalCheck) -> 
         (Some(k), Some(p)) => format!(
             "the search's n = {k} is NOT confirmed at {fc} (power {p:.3}): plan with {fc}'s answer\n"
         ),
-        _ => match c.n_for_target {
+        _ => match c.report.n_for_target {
             Some(k) => format!(
                 "the answer changed: {fs} reaches the target at no n tried, {fc} at n = {k}; \
                  {fs} cannot answer this question, plan with {fc}'s answer\n"
@@ -437,8 +433,6 @@ fn run_simulated(
         n_checked: search.n_for_target,
         power_at_n: at.map(|p| p.power),
         ci_at_n: at.map(|p| p.ci),
-        effect: check.effect,
-        n_for_target: check.n_for_target,
         confirmed: at.is_some_and(|p| p.power >= check.target),
         pilot: check_pilot,
         report: check,
